@@ -1,0 +1,152 @@
+"""Plants: nonlinear simulation of the robot, used as the controlled system (DESIGN §7).
+
+* :class:`ConstrainedPlant` integrates the **full** constrained model with Pinocchio's
+  ``constraintDynamics`` (legacy ``RigidConstraintModel`` CONTACT_3D / CONTACT_6D closures with
+  Baumgarte stabilization), RK4 over each sample, then projects q and v back onto the closures.
+* :class:`ReducedPlant` integrates the reduced ODE ``ÿ = f + g u`` with RK4 sub-steps.
+
+Both hold the input constant over a sample (zero-order hold), accept a constant external force
+on the platform, saturate the drives at the plant's own torque limits (recorded, not hidden),
+and are separate objects from the controller's model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from .dynamics import ReducedModel, rk4_step
+from .robot import ParallelRobot
+from .validation import finite_vector, positive
+
+_CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
+
+
+class _PlantBase:
+    """Shared state handling: X = [y, ẏ], external platform force, drive saturation."""
+
+    def __init__(self, robot: ParallelRobot, torque_limit=None, platform_force=None):
+        self.robot = robot
+        self.n_y, self.n_u = robot.n_y, robot.n_u
+        self.torque_limit = None if torque_limit is None else finite_vector(
+            "plant torque_limit", np.broadcast_to(torque_limit, (robot.n_u,)), robot.n_u)
+        self.platform_force = np.zeros(robot.n_y) if platform_force is None else finite_vector(
+            "platform_force", platform_force, robot.n_y)
+        self.saturated = 0
+
+    def _saturate(self, u) -> np.ndarray:
+        u = finite_vector("drive torques u", u, self.n_u)
+        if self.torque_limit is None:
+            return u
+        clipped = np.clip(u, -self.torque_limit, self.torque_limit)
+        if np.any(clipped != u):
+            self.saturated += 1
+        return clipped
+
+
+class ConstrainedPlant(_PlantBase):
+    """Full constrained multibody model integrated with ``pin.constraintDynamics``.
+
+    Args:
+        robot: the plant's robot (may differ from the controller's: mass scale, gravity).
+        X0: (2 n_y,) initial state [y, ẏ].
+        substeps: RK4 steps per sample.
+        baumgarte: (Kp in 1/s², Kd in 1/s) closure stabilization gains.
+        torque_limit: drive saturation (N·m), scalar or (n_u,), or None.
+        platform_force: (n_y,) constant external generalized force on the platform coordinates
+            (N, N, N·m), e.g. a disturbance.
+    """
+
+    def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, baumgarte=(100.0, 20.0),
+                 torque_limit=None, platform_force=None):
+        super().__init__(robot, torque_limit, platform_force)
+        model = robot.model
+        self.data = model.createData()
+        self.substeps = int(substeps)
+        self.cms = pin.StdVec_RigidConstraintModel()
+        params = pin.BaumgarteCorrectorParameters(float(baumgarte[0]), float(baumgarte[1]))
+        for fa, fb, c in robot._closure_frames:
+            Fa, Fb = model.frames[fa], model.frames[fb]
+            cm = pin.RigidConstraintModel(_CONTACT[c.kind], model, Fa.parentJoint, Fa.placement,
+                                          Fb.parentJoint, Fb.placement, pin.ReferenceFrame.LOCAL)
+            cm.setBaumgarteCorrectorParameters(params)
+            self.cms.append(cm)
+        self.cds = pin.StdVec_RigidConstraintData()
+        for cm in self.cms:
+            self.cds.append(cm.createData())
+        pin.initConstraintDynamics(model, self.data, self.cms, self.cds)
+        self.prox = pin.ProximalSettings(1e-12, 1e-10, 50)
+        X0 = finite_vector("X0", X0, 2 * self.n_y)
+        self.q = robot.assemble(X0[: self.n_y])
+        T, _ = robot.velocity_map(self.q)
+        self.v = T @ X0[self.n_y:]
+        self._S = robot.drive_selection
+
+    @property
+    def X(self) -> np.ndarray:
+        """(2 n_y,) current state [y, ẏ]."""
+        return np.concatenate([self.q[self.robot.y_idx], self.v[self.robot.y_idx]])
+
+    def accelerations(self, q, v, u) -> np.ndarray:
+        """(nv,) q̈ from ``pin.constraintDynamics`` for drive torques u (N·m)."""
+        tau = self._S @ u
+        tau[self.robot.y_idx] += self.platform_force
+        return pin.constraintDynamics(self.robot.model, self.data, q, v, tau, self.cms, self.cds, self.prox)
+
+    def constraint_forces(self) -> np.ndarray:
+        """Closure forces (N) of the last dynamics call, stacked."""
+        return np.concatenate([np.asarray(cd.contact_force.linear) for cd in self.cds])
+
+    def step(self, u, Ts: float) -> np.ndarray:
+        """Advance one sample with u held; returns the new state X."""
+        Ts = positive("Ts", Ts, " s")
+        u = self._saturate(u)
+        nv = self.robot.model.nv
+
+        def deriv(s, _u):
+            return np.concatenate([s[nv:], self.accelerations(s[:nv], s[nv:], u)])
+
+        s = rk4_step(deriv, np.concatenate([self.q, self.v]), u, Ts, self.substeps)
+        self._project(s[:nv], s[nv:])
+        return self.X
+
+    def _project(self, q, v) -> None:
+        """Project (q, v) onto Φ(q) = 0 and Φ_q v = 0 keeping the platform coordinates."""
+        r = self.robot
+        self.q = r.assemble(q[r.y_idx], q)
+        T, _ = r.velocity_map(self.q)
+        self.v = T @ v[r.y_idx]
+
+
+class ReducedPlant(_PlantBase):
+    """Reduced ODE ``ÿ = f + g u`` integrated with RK4 sub-steps (positions stay assembled).
+
+    Args: as :class:`ConstrainedPlant` (no Baumgarte gains: the reduced model has no drift).
+    """
+
+    def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, torque_limit=None,
+                 platform_force=None):
+        super().__init__(robot, torque_limit, platform_force)
+        self.model = ReducedModel(robot)
+        self.substeps = int(substeps)
+        self._X = finite_vector("X0", X0, 2 * self.n_y).copy()
+        self.model.assemble(self._X[: self.n_y])
+
+    @property
+    def X(self) -> np.ndarray:
+        return self._X.copy()
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.model.assemble(self._X[: self.n_y])
+
+    def derivative(self, X, u) -> np.ndarray:
+        terms = self.model.terms(X)
+        ydd = np.linalg.solve(terms.M_r, terms.B_r @ u + self.platform_force - terms.h_r)
+        return np.concatenate([X[self.n_y:], ydd])
+
+    def step(self, u, Ts: float) -> np.ndarray:
+        Ts = positive("Ts", Ts, " s")
+        u = self._saturate(u)
+        self._X = rk4_step(self.derivative, self._X, u, Ts, self.substeps)
+        return self.X

@@ -1,0 +1,553 @@
+"""Closed-chain robot: URDF open tree + loop closures (DESIGN §1).
+
+A robot file is a URDF open tree and a sidecar of the same stem (``.toml`` or ``.yaml``)
+naming the loop closures, the drives (order = order of u), the output coordinates (platform
+pose y) and optional drive torque limits and home pose. Gepetto-style YAML sidecars
+(``closed_loop``, ``type``, ``name_mot``) load as well.
+
+Coordinates: q splits into the independent platform coordinates y (the output joints) and the
+dependent leg coordinates z. Only 1-DOF joints (revolute, prismatic) are supported, so
+``nq == nv`` and q is a plain vector.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from .errors import (
+    AssemblyError,
+    RobotFormatError,
+    SingularPoseError,
+    UnreachablePoseError,
+)
+from .validation import finite_vector
+
+#: Folder of the embedded robot files (installed with the package or at the repo top level).
+_PACKAGE_URDF = Path(__file__).resolve().parent / "urdf"
+_REPO_URDF = Path(__file__).resolve().parents[2] / "urdf"
+DEFAULT_ROBOT = "planar_4rrr"
+
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+#: Φ_z smallest/largest singular value below which the legs count as singular.
+SINGULAR_RCOND = 1e-8
+_CLOSURE_ROWS = {"point": 3, "weld": 6}
+
+
+def urdf_dir() -> Path:
+    """Folder holding the embedded robots (package data first, then the repository's urdf/)."""
+    return _PACKAGE_URDF if _PACKAGE_URDF.is_dir() else _REPO_URDF
+
+
+def embedded_robots() -> list[str]:
+    """Names of the embedded robots (``planar_4rrr``, ``planar_3rrr``)."""
+    return sorted(p.stem for p in urdf_dir().glob("*.urdf"))
+
+
+@dataclass(frozen=True)
+class Closure:
+    """One loop closure: two frames that must coincide.
+
+    Attributes:
+        name: label used in messages.
+        kind: ``"point"`` (3 rows: positions coincide) or ``"weld"`` (6 rows: full pose).
+        frames: the two frame names (a, b).
+    """
+
+    name: str
+    kind: str
+    frames: tuple[str, str]
+
+
+@dataclass(frozen=True)
+class RobotDescription:
+    """What a robot file says (no Pinocchio objects).
+
+    Attributes:
+        name: robot name.
+        urdf_path: path of the URDF open tree.
+        closures: loop closures.
+        drive_joints: actuated joint names, in the order of u.
+        output_joints: joints whose coordinates are y (platform pose), in order.
+        output_frame: frame of the platform (for drawing and forward kinematics).
+        output_labels: names of the y coordinates.
+        torque_limit: (n_u,) symmetric drive torque limits in N·m, or None.
+        home_pose: (n_y,) home platform pose (m, rad).
+        q_guess: rough joint values at the home pose (rad or m), by joint name.
+        branch_joints: passive joints whose sign of sin(q) fixes the assembly branch.
+    """
+
+    name: str
+    urdf_path: Path
+    closures: tuple[Closure, ...]
+    drive_joints: tuple[str, ...]
+    output_joints: tuple[str, ...]
+    output_frame: str
+    output_labels: tuple[str, ...] = ("x", "y", "psi")
+    torque_limit: tuple[float, ...] | None = None
+    home_pose: tuple[float, ...] | None = None
+    q_guess: dict = field(default_factory=dict)
+    branch_joints: tuple[str, ...] = ()
+
+
+def _resolve_robot_path(name_or_path: str | Path) -> tuple[Path, Path]:
+    """Return (urdf, sidecar) for an embedded robot name or a path to a URDF or sidecar."""
+    path = Path(name_or_path)
+    if path.suffix == "" and not path.exists():
+        path = urdf_dir() / f"{name_or_path}.urdf"
+        if not path.exists():
+            raise RobotFormatError(
+                f"unknown robot {str(name_or_path)!r}; embedded robots are "
+                f"{embedded_robots()}, or give a path to a .urdf file"
+            )
+    urdf = path if path.suffix == ".urdf" else path.with_suffix(".urdf")
+    if not urdf.exists():
+        raise RobotFormatError(f"URDF file {str(urdf)!r} does not exist")
+    for suffix in (".toml", ".yaml", ".yml"):
+        sidecar = urdf.with_suffix(suffix)
+        if path.suffix == suffix:
+            sidecar = path
+        if sidecar.exists():
+            return urdf, sidecar
+    raise RobotFormatError(
+        f"no closure sidecar next to {str(urdf)!r}; expected {urdf.stem}.toml or {urdf.stem}.yaml"
+    )
+
+
+def _read_sidecar(path: Path) -> dict:
+    text = path.read_text()
+    try:
+        if path.suffix == ".toml":
+            return tomllib.loads(text)
+        import yaml
+
+        data = yaml.safe_load(text)
+    except Exception as exc:  # parser errors differ per format; report them as ours
+        raise RobotFormatError(f"cannot parse sidecar {str(path)!r}: {exc}") from exc
+    if not isinstance(data, dict):
+        raise RobotFormatError(f"sidecar {str(path)!r} must hold a mapping, got {type(data).__name__}")
+    return data
+
+
+def _require(data: dict, key: str, where: str):
+    if key not in data:
+        raise RobotFormatError(f"sidecar {where} lacks the key {key!r}")
+    return data[key]
+
+
+def _closures_from_gepetto(data: dict, where: str) -> tuple[Closure, ...]:
+    pairs = _require(data, "closed_loop", where)
+    kinds = data.get("type", ["6d"] * len(pairs))
+    if len(kinds) != len(pairs):
+        raise RobotFormatError(
+            f"sidecar {where}: 'type' has {len(kinds)} entries for {len(pairs)} closed_loop pairs"
+        )
+    closures = []
+    for i, (pair, kind) in enumerate(zip(pairs, kinds)):
+        k = str(kind).lower()
+        mapped = {"3d": "point", "6d": "weld"}.get(k)
+        if mapped is None:
+            raise RobotFormatError(f"sidecar {where}: closure type {kind!r} is not '3D' or '6D'")
+        closures.append(Closure(f"loop_{i + 1}", mapped, (str(pair[0]), str(pair[1]))))
+    return tuple(closures)
+
+
+def load_description(name_or_path: str | Path = DEFAULT_ROBOT) -> RobotDescription:
+    """Read a robot file: an embedded robot name, or a path to its URDF or sidecar.
+
+    Raises:
+        RobotFormatError: missing file, unparsable sidecar or missing keys.
+    """
+    urdf, sidecar = _resolve_robot_path(name_or_path)
+    data = _read_sidecar(sidecar)
+    where = repr(str(sidecar))
+    if "closed_loop" in data:  # Gepetto-style
+        closures = _closures_from_gepetto(data, where)
+        drives = tuple(_require(data, "name_mot", where))
+        output = data.get("output") or {}
+        out_joints = tuple(output.get("joints") or _require(data, "output_joints", where))
+        out_frame = output.get("frame") or data.get("output_frame", "")
+        limits = data.get("torque_limit")
+        home = data.get("home", {}) or {}
+    else:
+        raw = _require(data, "closures", where)
+        closures = []
+        for i, c in enumerate(raw):
+            kind = c.get("kind", "point")
+            if kind not in _CLOSURE_ROWS:
+                raise RobotFormatError(
+                    f"sidecar {where}: closure {i + 1} kind {kind!r} is not one of {sorted(_CLOSURE_ROWS)}"
+                )
+            frames = c.get("frames")
+            if not isinstance(frames, list) or len(frames) != 2:
+                raise RobotFormatError(f"sidecar {where}: closure {i + 1} needs frames = [a, b], got {frames!r}")
+            closures.append(Closure(c.get("name", f"loop_{i + 1}"), kind, (frames[0], frames[1])))
+        closures = tuple(closures)
+        drives_tbl = _require(data, "drives", where)
+        drives = tuple(_require(drives_tbl, "joints", where))
+        limits = drives_tbl.get("torque_limit")
+        output = _require(data, "output", where)
+        out_joints = tuple(_require(output, "joints", where))
+        out_frame = output.get("frame", "")
+        home = data.get("home", {})
+    if limits is not None:
+        limits = tuple(float(x) for x in (limits if isinstance(limits, list) else [limits] * len(drives)))
+        if len(limits) != len(drives) or any(not (x > 0 and math.isfinite(x)) for x in limits):
+            raise RobotFormatError(
+                f"sidecar {where}: torque_limit {list(limits)} must hold {len(drives)} finite values > 0 (N·m)"
+            )
+    pose = home.get("pose")
+    return RobotDescription(
+        name=str(data.get("name", urdf.stem)),
+        urdf_path=urdf,
+        closures=closures,
+        drive_joints=drives,
+        output_joints=out_joints,
+        output_frame=out_frame,
+        output_labels=tuple(output.get("labels", [f"y{i}" for i in range(len(out_joints))])),
+        torque_limit=limits,
+        home_pose=tuple(float(x) for x in pose) if pose is not None else None,
+        q_guess={str(k): float(v) for k, v in (home.get("q_guess") or {}).items()},
+        branch_joints=tuple(home.get("branch_joints", ())),
+    )
+
+
+@dataclass
+class ClosureKinematics:
+    """Closure quantities at one configuration.
+
+    Attributes:
+        residual: (m,) Φ(q), position (m) and orientation (rad) mismatch of the closure frames.
+        jacobian: (m, nv) Φ_q.
+    """
+
+    residual: np.ndarray
+    jacobian: np.ndarray
+
+
+class ParallelRobot:
+    """A parallel robot: Pinocchio model of the open tree plus its loop closures.
+
+    Args:
+        description: what the robot file says.
+        mass_scale: multiplies every body's mass and inertia (model mismatch studies).
+        gravity: (3,) gravity vector in m/s² (default: Pinocchio's, -9.81 along z).
+
+    Attributes:
+        model: the ``pinocchio.Model`` of the open tree (immutable description).
+        data: a ``pinocchio.Data`` workspace owned by this object.
+        n_y: number of output coordinates (platform DOF).
+        n_u: number of drives.
+        y_idx, z_idx: indices in q (= in v) of the independent and dependent coordinates.
+        drive_idx: indices in v of the drives (S = selection of these rows).
+        q_home: assembled home configuration.
+    """
+
+    def __init__(self, description: RobotDescription, mass_scale: float = 1.0, gravity=None):
+        self.description = description
+        try:
+            model = pin.buildModelFromUrdf(str(description.urdf_path))
+        except Exception as exc:  # Pinocchio raises ValueError/RuntimeError with its own text
+            raise RobotFormatError(
+                f"cannot build a model from URDF {str(description.urdf_path)!r}: {exc}"
+            ) from exc
+        if model.nq != model.nv:
+            bad = [model.names[j] for j in range(1, model.njoints) if model.joints[j].nq != model.joints[j].nv]
+            raise RobotFormatError(
+                f"joints {bad} have nq != nv; only revolute and prismatic joints are supported"
+            )
+        if not (mass_scale > 0 and math.isfinite(mass_scale)):
+            raise RobotFormatError(f"mass_scale = {mass_scale!r} must be finite and > 0")
+        for j in range(1, model.njoints):
+            inertia = model.inertias[j]
+            model.inertias[j] = pin.Inertia(
+                inertia.mass * mass_scale, inertia.lever, inertia.inertia * mass_scale
+            )
+        if gravity is not None:
+            model.gravity.linear = finite_vector("gravity", gravity, 3)
+        self.model = model
+        self.data = model.createData()
+        self.mass_scale = float(mass_scale)
+        self.y_idx = np.array([self._joint_v_index(n, "output joint") for n in description.output_joints])
+        self.drive_idx = np.array([self._joint_v_index(n, "drive") for n in description.drive_joints])
+        self.z_idx = np.array([i for i in range(model.nv) if i not in set(self.y_idx.tolist())])
+        self.n_y = len(self.y_idx)
+        self.n_u = len(self.drive_idx)
+        self.n_z = len(self.z_idx)
+        self._closure_frames = [
+            (self._frame_id(c.frames[0], c), self._frame_id(c.frames[1], c), c) for c in description.closures
+        ]
+        self.n_constraints = sum(_CLOSURE_ROWS[c.kind] for c in description.closures)
+        if self.n_constraints < self.n_z:
+            raise RobotFormatError(
+                f"{len(description.closures)} closures give {self.n_constraints} constraint rows, fewer than "
+                f"the {self.n_z} dependent coordinates: the legs are not determined by the platform pose"
+            )
+        self.output_frame_id = (
+            model.getFrameId(description.output_frame) if description.output_frame else None
+        )
+        if self.output_frame_id is not None and self.output_frame_id >= model.nframes:
+            raise RobotFormatError(f"output frame {description.output_frame!r} is not in the URDF")
+        self.torque_limit = (
+            np.array(description.torque_limit) if description.torque_limit is not None else None
+        )
+        self._branch_idx = np.array(
+            [self._joint_v_index(n, "branch joint") for n in description.branch_joints], dtype=int
+        )
+        q0 = pin.neutral(model)
+        for name, value in description.q_guess.items():
+            q0[self._joint_v_index(name, "q_guess joint")] = value
+        home = description.home_pose if description.home_pose is not None else q0[self.y_idx]
+        self.home_pose = finite_vector("home pose", home, self.n_y)
+        q0[self.y_idx] = self.home_pose
+        self._branch = None
+        self.q_home = self._newton(self.home_pose, q0)
+        self._branch = self.branch_signature(self.q_home)
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def load(cls, name_or_path: str | Path = DEFAULT_ROBOT, **kwargs) -> "ParallelRobot":
+        """Load an embedded robot by name or a robot file by path (URDF or sidecar)."""
+        return cls(load_description(name_or_path), **kwargs)
+
+    def with_mass_scale(self, mass_scale: float) -> "ParallelRobot":
+        """A copy whose body masses and inertias are scaled by ``mass_scale`` (plant mismatch)."""
+        return ParallelRobot(self.description, mass_scale=mass_scale * self.mass_scale,
+                             gravity=np.array(self.model.gravity.linear))
+
+    def _joint_v_index(self, name: str, role: str) -> int:
+        if not self.model.existJointName(name):
+            joints = list(self.model.names)[1:]
+            raise RobotFormatError(f"{role} {name!r} is not a joint of the URDF; joints are {joints}")
+        return int(self.model.joints[self.model.getJointId(name)].idx_v)
+
+    def _frame_id(self, name: str, closure: Closure) -> int:
+        if not self.model.existFrame(name):
+            raise RobotFormatError(
+                f"closure {closure.name!r} names frame {name!r}, which is not in the URDF "
+                f"(frames: {[f.name for f in self.model.frames][1:]})"
+            )
+        return int(self.model.getFrameId(name))
+
+    @property
+    def name(self) -> str:
+        return self.description.name
+
+    @property
+    def drive_selection(self) -> np.ndarray:
+        """(nv, n_u) Sᵀ: maps drive torques (N·m) to generalized forces."""
+        S = np.zeros((self.model.nv, self.n_u))
+        S[self.drive_idx, np.arange(self.n_u)] = 1.0
+        return S
+
+    # ------------------------------------------------------------------ closures
+    def closure_kinematics(self, q: np.ndarray) -> ClosureKinematics:
+        """Φ(q) and Φ_q at configuration q (updates ``self.data``)."""
+        model, data = self.model, self.data
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        res = np.empty(self.n_constraints)
+        jac = np.empty((self.n_constraints, model.nv))
+        row = 0
+        for fa, fb, c in self._closure_frames:
+            Ja = pin.getFrameJacobian(model, data, fa, _LWA)
+            Jb = pin.getFrameJacobian(model, data, fb, _LWA)
+            oMa, oMb = data.oMf[fa], data.oMf[fb]
+            res[row:row + 3] = oMa.translation - oMb.translation
+            jac[row:row + 3] = Ja[:3] - Jb[:3]
+            if c.kind == "weld":
+                res[row + 3:row + 6] = oMa.rotation @ pin.log3(oMa.rotation.T @ oMb.rotation) * -1.0
+                jac[row + 3:row + 6] = Ja[3:] - Jb[3:]
+            row += _CLOSURE_ROWS[c.kind]
+        return ClosureKinematics(res, jac)
+
+    def closure_residual(self, q: np.ndarray) -> np.ndarray:
+        """(m,) Φ(q): closure mismatch in m (and rad for welds)."""
+        return self.closure_kinematics(q).residual
+
+    def closure_acceleration_bias(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(m,) γ = Φ̇_q q̇, the closure acceleration at zero q̈ (m/s², rad/s²)."""
+        model, data = self.model, self.data
+        pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+        gamma = np.empty(self.n_constraints)
+        row = 0
+        for fa, fb, c in self._closure_frames:
+            aa = pin.getFrameClassicalAcceleration(model, data, fa, _LWA)
+            ab = pin.getFrameClassicalAcceleration(model, data, fb, _LWA)
+            gamma[row:row + 3] = aa.linear - ab.linear
+            if c.kind == "weld":
+                gamma[row + 3:row + 6] = aa.angular - ab.angular
+            row += _CLOSURE_ROWS[c.kind]
+        return gamma
+
+    # ------------------------------------------------------------------ assembly
+    def branch_signature(self, q: np.ndarray) -> np.ndarray:
+        """Signs of sin(q) of the branch joints (the elbow configuration)."""
+        return np.sign(np.sin(q[self._branch_idx]))
+
+    def _newton(self, pose: np.ndarray, q_guess: np.ndarray, tol: float = 1e-12,
+                max_iter: int = 30) -> np.ndarray:
+        """Solve Φ(q) = 0 for z with y = pose fixed, from q_guess (rank-revealing steps)."""
+        q = np.array(q_guess, dtype=float)
+        q[self.y_idx] = pose
+        for _ in range(max_iter):
+            ck = self.closure_kinematics(q)
+            err = np.max(np.abs(ck.residual))
+            if err <= tol:
+                break
+            step, *_ = np.linalg.lstsq(ck.jacobian[:, self.z_idx], ck.residual, rcond=1e-10)
+            q[self.z_idx] -= step
+        else:
+            ck = self.closure_kinematics(q)
+            err = np.max(np.abs(ck.residual))
+            if err > 1e-9:
+                raise UnreachablePoseError(
+                    f"platform pose {np.round(pose, 6).tolist()} cannot be assembled: closure residual "
+                    f"{err:.3g} m after {max_iter} Newton steps (outside the workspace of {self.name!r})"
+                )
+        return q
+
+    def assemble(self, pose, q_guess: np.ndarray | None = None) -> np.ndarray:
+        """Full configuration q for a platform pose y, on the home branch.
+
+        Args:
+            pose: (n_y,) platform pose (m, rad).
+            q_guess: (nq,) warm start (e.g. the previous configuration); default: continuation
+                from the home configuration.
+
+        Returns:
+            (nq,) q with ‖Φ(q)‖∞ ≤ 1e-12 (1e-9 at worst) and y-coordinates equal to ``pose``.
+
+        Raises:
+            UnreachablePoseError: if the pose cannot be assembled on the home branch.
+        """
+        pose = finite_vector("platform pose", pose, self.n_y)
+        if q_guess is not None:
+            try:
+                q = self._newton(pose, q_guess)
+                if np.array_equal(self.branch_signature(q), self._branch):
+                    return q
+            except AssemblyError:
+                pass
+        return self._continuation(pose)
+
+    def _continuation(self, pose: np.ndarray) -> np.ndarray:
+        dist = np.abs(pose - self.home_pose)
+        steps = int(min(200, max(1, math.ceil(max(dist[:2].max(initial=0) / 0.05, dist[2:].max(initial=0) / 0.1)))))
+        q = self.q_home.copy()
+        for s in range(1, steps + 1):
+            mid = self.home_pose + (pose - self.home_pose) * s / steps
+            try:
+                q = self._newton(mid, q)
+            except UnreachablePoseError as exc:
+                raise UnreachablePoseError(
+                    f"platform pose {np.round(pose, 6).tolist()} cannot be assembled on the home branch of "
+                    f"{self.name!r}: continuation from home stops at {np.round(mid, 4).tolist()} "
+                    f"({exc})"
+                ) from None
+        if not np.array_equal(self.branch_signature(q), self._branch):
+            raise UnreachablePoseError(
+                f"platform pose {np.round(pose, 6).tolist()} is reachable only on another assembly branch "
+                f"(a leg passes through its singular stretched/folded configuration on the way)"
+            )
+        return q
+
+    # ------------------------------------------------------------------ kinematics
+    def platform_pose(self, q: np.ndarray) -> np.ndarray:
+        """(n_y,) platform pose y of configuration q (m, rad)."""
+        return np.asarray(q)[self.y_idx].copy()
+
+    def platform_placement(self, q: np.ndarray) -> pin.SE3:
+        """World placement of the output frame at q."""
+        pin.framesForwardKinematics(self.model, self.data, q)
+        return self.data.oMf[self.output_frame_id].copy()
+
+    def inverse_kinematics(self, pose) -> np.ndarray:
+        """(n_u,) drive coordinates (rad) that place the platform at ``pose``."""
+        return self.assemble(pose)[self.drive_idx].copy()
+
+    def forward_kinematics(self, drives, q_guess: np.ndarray | None = None, tol: float = 1e-12,
+                           max_iter: int = 50) -> np.ndarray:
+        """(n_y,) platform pose for drive coordinates (rad), by Newton from ``q_guess`` (home).
+
+        With redundant drives the drive values must be consistent (e.g. from
+        :meth:`inverse_kinematics`); the least-squares solution is returned otherwise.
+        """
+        drives = finite_vector("drive coordinates", drives, self.n_u)
+        q = (self.q_home if q_guess is None else np.asarray(q_guess, dtype=float)).copy()
+        q[self.drive_idx] = drives
+        free = np.array([i for i in range(self.model.nv) if i not in set(self.drive_idx.tolist())])
+        for _ in range(max_iter):
+            ck = self.closure_kinematics(q)
+            if np.max(np.abs(ck.residual)) <= tol:
+                return self.platform_pose(q)
+            step, *_ = np.linalg.lstsq(ck.jacobian[:, free], ck.residual, rcond=1e-10)
+            q[free] -= step * min(1.0, 0.2 / max(np.max(np.abs(step)), 1e-300))  # damped: stay on branch
+        raise AssemblyError(
+            f"forward kinematics did not converge for drives {np.round(drives, 6).tolist()}: "
+            f"closure residual {np.max(np.abs(self.closure_residual(q))):.3g}"
+        )
+
+    def velocity_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """T (q̇ = T ẏ) and the rank-revealing pseudo-inverse Φ_z⁺ at q.
+
+        Φ_z⁺ uses the n_z leading singular values of Φ_z (its zero rows, e.g. the z rows of
+        planar point closures, drop out).
+
+        Returns:
+            T: (nv, n_y); pinv_z: (n_z, m).
+
+        Raises:
+            SingularPoseError: if Φ_z loses rank (a leg is stretched or folded).
+        """
+        jac = self.closure_kinematics(q).jacobian
+        U, s, Vt = np.linalg.svd(jac[:, self.z_idx], full_matrices=False)
+        n_z = self.n_z
+        if s[n_z - 1] <= SINGULAR_RCOND * s[0]:
+            raise SingularPoseError(
+                f"legs singular at platform pose {np.round(q[self.y_idx], 6).tolist()}: "
+                f"cond(Φ_z) = {s[0] / max(s[n_z - 1], 1e-300):.3g} (limit {1 / SINGULAR_RCOND:.0e})"
+            )
+        pinv_z = (Vt[:n_z].T / s[:n_z]) @ U[:, :n_z].T
+        T = np.zeros((self.model.nv, self.n_y))
+        T[self.y_idx] = np.eye(self.n_y)
+        T[self.z_idx] = -pinv_z @ jac[:, self.y_idx]
+        return T, pinv_z
+
+    def singularity(self, q: np.ndarray) -> dict:
+        """Conditioning at q: ``cond_phi_z`` (dependent-coordinate block, legs) and ``cond_B_r``
+        (reduced input matrix B_r = Tᵀ Sᵀ, actuation); large numbers mean near-singular."""
+        s = np.linalg.svd(self.closure_kinematics(q).jacobian[:, self.z_idx], compute_uv=False)[: self.n_z]
+        cond_z = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+        if cond_z * SINGULAR_RCOND >= 1:
+            return {"cond_phi_z": cond_z, "cond_B_r": math.inf}
+        T, _ = self.velocity_map(q)
+        sb = np.linalg.svd(T.T @ self.drive_selection, compute_uv=False)
+        cond_b = float(sb[0] / sb[-1]) if sb[-1] > 0 else math.inf
+        return {"cond_phi_z": cond_z, "cond_B_r": cond_b}
+
+    def check_pose(self, pose, max_cond: float = 1e4) -> np.ndarray:
+        """Assemble ``pose`` and raise :class:`SingularPoseError` if it is near-singular."""
+        q = self.assemble(pose)
+        cond = self.singularity(q)
+        worst = max(cond.values())
+        if worst > max_cond:
+            raise SingularPoseError(
+                f"platform pose {np.round(np.asarray(pose), 6).tolist()} is near-singular: "
+                f"cond(Φ_z) = {cond['cond_phi_z']:.3g}, cond(B_r) = {cond['cond_B_r']:.3g} (limit {max_cond:.3g})"
+            )
+        return q
+
+    def __repr__(self) -> str:
+        return (f"ParallelRobot({self.name!r}, dof={self.n_y}, drives={self.n_u}, "
+                f"closures={len(self.description.closures)}, mass_scale={self.mass_scale})")
+
+
+def replace_description(desc: RobotDescription, **changes) -> RobotDescription:
+    """A copy of ``desc`` with fields replaced (e.g. other torque limits)."""
+    return replace(desc, **changes)

@@ -1,0 +1,109 @@
+"""Robot loading, assembly, kinematics and the sidecar formats."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+
+from parallel_gpc import ParallelRobot, load_description
+from parallel_gpc.errors import RobotFormatError, UnreachablePoseError, ParallelGPCError
+from parallel_gpc.robot import urdf_dir
+
+from conftest import POSE_A, POSE_B
+
+
+def test_embedded_robots_have_expected_sizes(robot4, robot3):
+    assert (robot4.n_y, robot4.n_u, robot4.model.nq) == (3, 4, 11)
+    assert (robot3.n_y, robot3.n_u, robot3.model.nq) == (3, 3, 9)
+
+
+def test_assembly_residual_on_grid_covering_a_to_b(robot):
+    xs = np.linspace(POSE_A[0], POSE_B[0], 7)
+    psis = np.linspace(POSE_A[2], POSE_B[2], 5)
+    q = None
+    for x in xs:
+        for y in xs:
+            for psi in psis:
+                q = robot.assemble([x, y, psi], q)
+                assert np.max(np.abs(robot.closure_residual(q))) <= 1e-10
+                np.testing.assert_allclose(robot.platform_pose(q), [x, y, psi], atol=1e-14)
+                np.testing.assert_array_equal(robot.branch_signature(q), robot.branch_signature(robot.q_home))
+
+
+def test_assembly_without_warm_start_matches_warm_started(robot):
+    q_cold = robot.assemble(POSE_B)
+    q_warm = robot.assemble(POSE_B, robot.assemble(POSE_B + 0.01))
+    np.testing.assert_allclose(q_cold, q_warm, atol=1e-10)
+
+
+@pytest.mark.parametrize("pose", [[2.5, 0.5, 0.0], [0.5, -1.0, 0.0], [0.5, 1.7, 0.3]])
+def test_unreachable_pose_raises_error_naming_the_pose(robot4, pose):
+    with pytest.raises(UnreachablePoseError) as info:
+        robot4.assemble(pose)
+    assert str(pose[0]) in str(info.value) and str(pose[1]) in str(info.value)
+
+
+def test_inverse_then_forward_kinematics_round_trip(robot):
+    for pose in (POSE_A, POSE_B, 0.5 * (POSE_A + POSE_B)):
+        drives = robot.inverse_kinematics(pose)
+        np.testing.assert_allclose(robot.forward_kinematics(drives), pose, atol=1e-10)
+
+
+def test_closure_jacobian_matches_finite_differences(robot4):
+    q = robot4.assemble(POSE_A)
+    J = robot4.closure_kinematics(q).jacobian
+    eps = 1e-7
+    for i in range(robot4.model.nv):
+        d = np.zeros(robot4.model.nv)
+        d[i] = eps
+        fd = (robot4.closure_residual(q + d) - robot4.closure_residual(q - d)) / (2 * eps)
+        np.testing.assert_allclose(J[:, i], fd, atol=1e-7)
+
+
+def test_singularity_measures_are_moderate_on_a_to_b(robot):
+    for s in np.linspace(0, 1, 11):
+        cond = robot.singularity(robot.assemble(POSE_A + s * (POSE_B - POSE_A)))
+        assert cond["cond_phi_z"] < 100 and cond["cond_B_r"] < 200
+
+
+def test_gepetto_style_yaml_sidecar_loads_same_robot(tmp_path):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r3.urdf")
+    (tmp_path / "r3.yaml").write_text(
+        "closed_loop: [['tip_1', 'attach_1'], ['tip_2', 'attach_2'], ['tip_3', 'attach_3']]\n"
+        "type: ['3D', '3D', '3D']\n"
+        "name_mot: ['drive_1', 'drive_2', 'drive_3']\n"
+        "joint_name: []\njoint_type: []\n"
+        "output_joints: ['platform_x', 'platform_y', 'platform_psi']\n"
+        "output_frame: platform\n"
+        "home: {pose: [0.5, 0.5, 0.0], q_guess: {drive_1: -0.27, elbow_1: 2.1, drive_2: 1.3, "
+        "elbow_2: 2.1, drive_3: -3.4, elbow_3: 2.1}}\n"
+    )
+    r = ParallelRobot.load(tmp_path / "r3.urdf")
+    ref = ParallelRobot.load("planar_3rrr")
+    assert r.n_u == 3 and len(r.description.closures) == 3
+    np.testing.assert_allclose(r.assemble(POSE_B), ref.assemble(POSE_B), atol=1e-10)
+
+
+def test_robot_file_errors_are_package_errors(tmp_path):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "bad.urdf")
+    (tmp_path / "bad.toml").write_text(
+        'output = {joints = ["platform_x", "platform_y", "platform_psi"]}\n'
+        'drives = {joints = ["drive_1", "drive_2", "drive_3"]}\n'
+        '[[closures]]\nframes = ["tip_1", "no_such_frame"]\n'
+    )
+    with pytest.raises(RobotFormatError, match="no_such_frame"):
+        ParallelRobot.load(tmp_path / "bad.urdf")
+    with pytest.raises(RobotFormatError, match="nosuch"):
+        load_description("nosuch")
+    assert issubclass(RobotFormatError, ParallelGPCError)
+
+
+def test_mass_scale_scales_reduced_mass_matrix(robot4):
+    from parallel_gpc import ReducedModel
+
+    heavy = robot4.with_mass_scale(1.2)
+    X = np.concatenate([POSE_A, np.zeros(3)])
+    Mr = ReducedModel(robot4).terms(X).M_r
+    np.testing.assert_allclose(ReducedModel(heavy).terms(X).M_r, 1.2 * Mr, rtol=1e-12)

@@ -1,0 +1,1 @@
+"""Embedded robot files (URDF open trees + closure sidecars), shipped as package data."""
