@@ -1,0 +1,200 @@
+"""Output predictions ``ŷ = f + G v`` (DESIGN §4, paper eq. (6)–(13)).
+
+One LTV condenser, :func:`condense`, serves all three forms; they differ only in the per-step
+matrices they feed it:
+
+* :func:`absolute_prediction`, eq. (7): the discretized model at X(k), v = u;
+* :func:`incremental_prediction`, eq. (8)–(9): state augmented with u(k−1), v = Δu;
+* :func:`simulative_prediction`, eq. (10)–(12): deviation model along a pre-simulated nonlinear
+  trajectory, augmented like the incremental form, v = Δu and u = u_sim + cumsum(Δu).
+
+Horizons (eq. (5)): rows of the outputs j = 1..No are dropped; inputs are held after Nu
+(absolute: columns beyond Nu fold into the last block; incremental: Δu = 0 beyond Nu).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import InvalidParameterError, ShapeError
+
+
+@dataclass(frozen=True)
+class Horizons:
+    """Horizons of the criterion (5), in samples.
+
+    Attributes:
+        N: optimization (prediction) horizon, N ≥ 1.
+        No: initial insensitivity horizon, 0 ≤ No < N (outputs k+1..k+No not penalized).
+        Nu: control horizon, 1 ≤ Nu ≤ N (inputs held after it); default N.
+    """
+
+    N: int
+    No: int = 0
+    Nu: int | None = None
+
+    def __post_init__(self):
+        for name in ("N", "No"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise InvalidParameterError(f"horizon {name} = {value!r} must be an integer")
+        if self.N < 1:
+            raise InvalidParameterError(f"horizon N = {self.N} must be ≥ 1")
+        if not 0 <= self.No < self.N:
+            raise InvalidParameterError(f"horizon No = {self.No} must satisfy 0 ≤ No < N = {self.N}")
+        if self.Nu is None:
+            object.__setattr__(self, "Nu", int(self.N))
+        if isinstance(self.Nu, bool) or not isinstance(self.Nu, (int, np.integer)) or not 1 <= self.Nu <= self.N:
+            raise InvalidParameterError(f"control horizon Nu = {self.Nu!r} must be an integer with 1 ≤ Nu ≤ N = {self.N}")
+
+    @property
+    def n_rows(self) -> int:
+        """Number of penalized output steps, N − No."""
+        return self.N - self.No
+
+
+@dataclass
+class Prediction:
+    """Affine output prediction over the horizon and the map from v to applied inputs.
+
+    Attributes:
+        f: (n_rows·p,) free response (outputs k+No+1..k+N stacked; m and rad).
+        G: (n_rows·p, Nu·m) dynamic matrix.
+        u_base, u_map: the inputs over the first ``len(u_base)/m`` steps are
+            ``u = u_base + u_map @ v`` (N·m); used for drive torque limits.
+        horizons: the horizons used.
+        kind: ``"absolute"``, ``"incremental"`` or ``"simulative"`` (what v means).
+    """
+
+    f: np.ndarray
+    G: np.ndarray
+    u_base: np.ndarray
+    u_map: np.ndarray
+    horizons: Horizons
+    kind: str
+
+    def outputs(self, v: np.ndarray) -> np.ndarray:
+        """(n_rows·p,) predicted outputs ŷ = f + G v."""
+        return self.f + self.G @ v
+
+
+def _per_step(name: str, value, N: int, shape: tuple[int, ...]) -> np.ndarray:
+    """Broadcast one matrix or a sequence of N matrices to an (N, *shape) array."""
+    arr = np.asarray(value, dtype=float)
+    if arr.shape == shape:
+        return np.broadcast_to(arr, (N, *shape))
+    if arr.shape == (N, *shape):
+        return arr
+    raise ShapeError(f"{name} has shape {arr.shape}; expected {shape} or {(N, *shape)}")
+
+
+def condense(A, B, c, C, x0, horizons: Horizons, hold_inputs: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Condense the LTV model ``x(i+1) = A_i x(i) + B_i v(i) + c_i``, ``y = C x`` over the horizon.
+
+    Args:
+        A: (n, n) or (N, n, n); B: (n, m) or (N, n, m); c: (n,), (N, n) or None.
+        C: (p, n) output matrix; x0: (n,) initial state.
+        horizons: N, No, Nu.
+        hold_inputs: True holds v(Nu−1) for steps ≥ Nu (columns fold into the last block);
+            False sets v = 0 there (columns dropped).
+
+    Returns:
+        f: (n_rows·p,) and G: (n_rows·p, Nu·m) with ŷ(k+No+1..k+N) = f + G v(0..Nu−1).
+    """
+    N, No, Nu = horizons.N, horizons.No, horizons.Nu
+    C = np.asarray(C, dtype=float)
+    n = C.shape[1]
+    p = C.shape[0]
+    A = _per_step("A", A, N, (n, n))
+    m = np.asarray(B).shape[-1]
+    B = _per_step("B", B, N, (n, m))
+    c = np.zeros((N, n)) if c is None else _per_step("c", c, N, (n,))
+    x = np.asarray(x0, dtype=float)
+    if x.shape != (n,):
+        raise ShapeError(f"x0 has shape {x.shape}; expected ({n},)")
+    S = np.zeros((n, Nu * m))  # sensitivity of x(i) to v
+    f = np.empty((horizons.n_rows, p))
+    G = np.empty((horizons.n_rows, p, Nu * m))
+    for i in range(N):
+        x = A[i] @ x + c[i]
+        S = A[i] @ S
+        col = min(i, Nu - 1)
+        if i < Nu or hold_inputs:
+            S[:, col * m:(col + 1) * m] += B[i]
+        if i >= No:
+            f[i - No] = C @ x
+            G[i - No] = C @ S
+    return f.reshape(-1), G.reshape(horizons.n_rows * p, Nu * m)
+
+
+def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None):
+    """Augmented model (8)–(9): state [x; u(k−1)], input Δu. Works on (…, n, n) stacks."""
+    n, m = B.shape[-2], B.shape[-1]
+    lead = A.shape[:-2]
+    Aa = np.zeros((*lead, n + m, n + m))
+    Aa[..., :n, :n] = A
+    Aa[..., :n, n:] = B
+    Aa[..., n:, n:] = np.eye(m)
+    Ba = np.zeros((*lead, n + m, m))
+    Ba[..., :n, :] = B
+    Ba[..., n:, :] = np.eye(m)
+    ca = None
+    if c is not None:
+        ca = np.zeros((*np.shape(c)[:-1], n + m))
+        ca[..., :n] = c
+    return Aa, Ba, ca
+
+
+def _cumulative_map(K: int, Nu: int, m: int) -> np.ndarray:
+    """(K·m, Nu·m) map Δu(0..Nu−1) ↦ cumulative sums at steps 0..K−1 (Δu = 0 after Nu)."""
+    return np.kron(np.tri(K, Nu), np.eye(m))
+
+
+def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
+    """Absolute prediction, eq. (7): v = [u(k) … u(k+Nu−1)] (N·m), held after Nu."""
+    f, G = condense(Ad, Bd, cd, C, X, horizons, hold_inputs=True)
+    m = np.asarray(Bd).shape[-1]
+    size = horizons.Nu * m
+    return Prediction(f, G, np.zeros(size), np.eye(size), horizons, "absolute")
+
+
+def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons) -> Prediction:
+    """Incremental prediction, eq. (8)–(9): v = [Δu(k) … Δu(k+Nu−1)], u(k) = u(k−1) + Δu(k)."""
+    Ad, Bd = np.asarray(Ad, dtype=float), np.asarray(Bd, dtype=float)
+    Aa, Ba, ca = _augment(Ad, Bd, None if cd is None else np.asarray(cd, dtype=float))
+    m = Bd.shape[-1]
+    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+    x0 = np.concatenate([np.asarray(X, dtype=float), np.asarray(u_prev, dtype=float)])
+    f, G = condense(Aa, Ba, ca, Ca, x0, horizons, hold_inputs=False)
+    Nu = horizons.Nu
+    return Prediction(f, G, np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m), horizons, "incremental")
+
+
+def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:
+    """Incremental prediction with nonlinear simulative substitution, eq. (10)–(12).
+
+    Args:
+        A_seq: (N, n, n), B_seq: (N, n, m): discrete models along the pre-simulated trajectory
+            (at X_sim(k+i), i = 0..N−1).
+        C: (p, n) output matrix.
+        y_sim: (N, p) pre-simulated outputs ŷ_sim(k+1..k+N).
+        u_sim: (N, m) the input sequence of the pre-simulation (N·m).
+        horizons: N, No, Nu.
+
+    Returns:
+        ŷ = ŷ_sim + G Δu with u(k+i) = u_sim(k+i) + Σ_{j≤i} Δu(k+j).
+    """
+    A_seq, B_seq = np.asarray(A_seq, dtype=float), np.asarray(B_seq, dtype=float)
+    N = horizons.N
+    n, m = B_seq.shape[-2], B_seq.shape[-1]
+    Aa, Ba, _ = _augment(_per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m)), None)
+    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+    _, G = condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)
+    y_sim = np.asarray(y_sim, dtype=float)
+    if y_sim.shape != (N, C.shape[0]):
+        raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, C.shape[0])}")
+    u_sim = np.asarray(u_sim, dtype=float)
+    f = y_sim[horizons.No:].reshape(-1)
+    return Prediction(f, G, u_sim.reshape(-1), _cumulative_map(N, horizons.Nu, m), horizons, "simulative")

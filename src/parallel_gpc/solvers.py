@@ -1,0 +1,541 @@
+"""Square-root least squares of the GPC criterion and its QP back ends (DESIGN §3, §5).
+
+The criterion (5) with square-root weights is ``J = ‖A v − b‖²`` with, eq. (15)–(16),
+
+    A = [Qy·G; Qu],   b = [Qy·(w − f); 0].
+
+* :class:`QRSolver` — the reference: Householder QR and back substitution, eq. (17)–(19)
+  (the paper's (19) prints (R₁)ᵀ; it means R₁⁻¹). ``‖c_z‖² = J``. When A is rank-deficient
+  (Qu = 0 with redundant drives) it returns the minimum-norm solution through a complete
+  orthogonal decomposition — exactly "no drive fighting".
+* :class:`QpsolversBackend` — ``qpsolvers.solve_qp`` for any installed solver, scaled, with
+  drive torque limits (box on v, or linear inequalities ``u_lo ≤ u_base + L v ≤ u_hi``).
+* :class:`OSQPBackend`, :class:`ProxQPBackend`, :class:`DAQPBackend` — persistent direct APIs
+  (set up once, updated and warm-started every step).
+* :class:`QRFirst` — solves by QR and calls the QP only when the QR solution violates a limit.
+
+Every solve returns a :class:`SolveResult` (status, iterations, time, cost, active limits); a
+failed solve is reported in the result, never swallowed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.linalg as sla
+
+from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError, SolverNotFoundError
+from .prediction import Prediction
+
+#: relative pivot size below which a column of A counts as dependent (rank-revealing QR).
+RANK_RTOL = 1e-10
+#: relative Tikhonov term added to the scaled QP Hessian (approximates the min-norm solution).
+QP_REGULARIZATION = 1e-10
+#: feasibility tolerance (N·m, relative to the limit) when checking limits.
+LIMIT_TOL = 1e-7
+
+
+# ---------------------------------------------------------------------------- weights
+def _weight_block(name: str, value, size: int) -> np.ndarray:
+    """Square-root weight as a (size, size) matrix from a scalar, a (size,) vector or a matrix."""
+    arr = np.asarray(value, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise InvalidParameterError(f"weight {name} = {value!r} contains NaN or inf; it must be finite")
+    if arr.ndim == 0:
+        arr = np.full(size, float(arr))
+    if arr.ndim == 1:
+        if arr.shape != (size,):
+            raise ShapeError(f"weight {name} has shape {arr.shape}; expected a scalar, ({size},) or ({size}, {size})")
+        if np.any(arr < 0):
+            raise InvalidParameterError(f"weight {name} = {arr.tolist()} has negative entries; weights must be ≥ 0")
+        return np.diag(arr)
+    if arr.shape != (size, size):
+        raise ShapeError(f"weight {name} has shape {arr.shape}; expected a scalar, ({size},) or ({size}, {size})")
+    if not np.allclose(arr, arr.T, atol=1e-12 * max(1.0, np.abs(arr).max())) or np.linalg.eigvalsh(
+        0.5 * (arr + arr.T)).min() < -1e-12 * max(1.0, np.abs(arr).max()):
+        raise InvalidParameterError(
+            f"weight {name} must be a symmetric positive semi-definite matrix; eigenvalues are "
+            f"{np.round(np.linalg.eigvals(arr), 6).tolist()}"
+        )
+    return arr
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Square-root weights of the criterion (5): J = Σ‖Qy (ŷ − w)‖² + Σ‖Qu v‖².
+
+    Attributes:
+        Qy: output weight: scalar, (p,) per channel, or (p, p) symmetric PSD matrix.
+        Qu: input (absolute form) or increment (incremental forms) weight, same forms, (m,).
+    """
+
+    Qy: object = 1.0
+    Qu: object = 0.0
+
+    def blocks(self, p: int, m: int) -> tuple[np.ndarray, np.ndarray]:
+        """(p, p) and (m, m) square-root weight matrices (validated)."""
+        return _weight_block("Qy", self.Qy, p), _weight_block("Qu", self.Qu, m)
+
+
+# ---------------------------------------------------------------------------- problem
+@dataclass
+class LeastSquaresProblem:
+    """``min ‖A v − b‖²`` subject to ``lb ≤ v ≤ ub`` and ``lo ≤ L v ≤ hi`` (either may be None).
+
+    Attributes:
+        A: (r, n); b: (r,); lb, ub: (n,) or None; L: (k, n) or None; lo, hi: (k,) or None.
+        min_norm_of: (M, m0) with M (n, n) lower-triangular invertible: when A is
+            rank-deficient, the QR back end returns the minimizer with the smallest ‖M v + m0‖
+            (incremental forms: the smallest absolute drive torques u, not the smallest Δu).
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    lb: np.ndarray | None = None
+    ub: np.ndarray | None = None
+    L: np.ndarray | None = None
+    lo: np.ndarray | None = None
+    hi: np.ndarray | None = None
+    min_norm_of: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def constrained(self) -> bool:
+        return self.lb is not None or self.L is not None
+
+    def cost(self, v: np.ndarray) -> float:
+        r = self.A @ v - self.b
+        return float(r @ r)
+
+    def violation(self, v: np.ndarray) -> float:
+        """Largest limit violation of v (0 when feasible), in the units of the limits."""
+        worst = 0.0
+        if self.lb is not None:
+            worst = max(worst, float(np.max(self.lb - v, initial=0)), float(np.max(v - self.ub, initial=0)))
+        if self.L is not None:
+            Lv = self.L @ v
+            worst = max(worst, float(np.max(self.lo - Lv, initial=0)), float(np.max(Lv - self.hi, initial=0)))
+        return worst
+
+    def feasible(self, v: np.ndarray) -> bool:
+        scale = 1.0
+        for arr in (self.ub, self.hi):
+            if arr is not None and arr.size:
+                scale = max(scale, float(np.max(np.abs(arr))))
+        return self.violation(v) <= LIMIT_TOL * scale
+
+    def active(self, v: np.ndarray, tol: float = 1e-6) -> bool:
+        """True when a limit is (nearly) active at v."""
+        if self.lb is not None and (np.any(v - self.lb <= tol * (1 + np.abs(self.lb))) or
+                                    np.any(self.ub - v <= tol * (1 + np.abs(self.ub)))):
+            return True
+        if self.L is not None:
+            Lv = self.L @ v
+            return bool(np.any(Lv - self.lo <= tol * (1 + np.abs(self.lo))) or
+                        np.any(self.hi - Lv <= tol * (1 + np.abs(self.hi))))
+        return False
+
+
+def _limit_vector(name: str, value, m: int) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy() if np.ndim(value) == 0 else np.asarray(value, dtype=float)
+    if arr.shape != (m,):
+        raise ShapeError(f"{name} has shape {arr.shape}; expected a scalar or ({m},)")
+    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
+        raise InfeasibleLimitsError(f"{name} = {arr.tolist()} must be finite and > 0 (symmetric limits ±value)")
+    return arr
+
+
+def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: int, n_inputs: int,
+                  torque_limit=None, du_limit=None) -> LeastSquaresProblem:
+    """Stack the square-root system (15)–(16) and the limits.
+
+    Args:
+        pred: the prediction ŷ = f + G v.
+        w: reference outputs over the penalized rows, (n_rows, p) or (n_rows·p,) (m, rad).
+        weights: square-root weights Qy, Qu.
+        n_outputs, n_inputs: p and m.
+        torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
+        du_limit: symmetric increment limit |Δu| ≤ δ (N·m per sample), incremental forms only.
+
+    Raises:
+        ShapeError: w has the wrong shape. InvalidParameterError: Δu limits on the absolute form.
+    """
+    p, m = n_outputs, n_inputs
+    H = pred.horizons
+    w = np.asarray(w, dtype=float)
+    if w.size != H.n_rows * p:
+        raise ShapeError(f"reference w has shape {w.shape}; expected ({H.n_rows}, {p}) for N − No = {H.n_rows} rows")
+    Wy, Wu = weights.blocks(p, m)
+    Qy = np.kron(np.eye(H.n_rows), Wy)
+    Qu = np.kron(np.eye(H.Nu), Wu)
+    A = np.vstack([Qy @ pred.G, Qu])
+    b = np.concatenate([Qy @ (w.reshape(-1) - pred.f), np.zeros(H.Nu * m)])
+    prob = LeastSquaresProblem(A, b)
+    if torque_limit is not None:
+        tau = np.tile(_limit_vector("torque_limit", torque_limit, m), len(pred.u_base) // m)
+        if pred.kind == "absolute":
+            prob.lb, prob.ub = -tau, tau
+        else:
+            prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
+    if pred.kind != "absolute":
+        n = H.Nu * m
+        prob.min_norm_of = (pred.u_map[:n], pred.u_base[:n])
+    if du_limit is not None:
+        if pred.kind == "absolute":
+            raise InvalidParameterError("du_limit applies to the incremental forms (v = Δu); the absolute form has v = u")
+        d = np.tile(_limit_vector("du_limit", du_limit, m), H.Nu)
+        prob.lb, prob.ub = -d, d
+    return prob
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass
+class SolveResult:
+    """Outcome of one least-squares / QP solve.
+
+    Attributes:
+        v: (n,) solution (N·m or N·m per sample); NaN-free whenever ``ok``.
+        cost: J = ‖A v − b‖² at v.
+        status: ``"optimal"``, ``"unconstrained"`` (QR, limits inactive or absent),
+            ``"infeasible"``, ``"failed"`` or ``"fallback"`` (set by the controller).
+        solver: back-end name.
+        iterations: solver iterations (None if the back end does not report them).
+        solve_time: wall time of the solve in s.
+        active_limits: True when a limit is active at v.
+        message: details (e.g. the solver's own status text).
+    """
+
+    v: np.ndarray
+    cost: float
+    status: str
+    solver: str
+    iterations: int | None = None
+    solve_time: float = 0.0
+    active_limits: bool = False
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status in ("optimal", "unconstrained")
+
+
+# ---------------------------------------------------------------------------- QR
+def qr_least_squares(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """Minimum-norm least-squares solution of A v ≈ b by QR, eq. (17)–(19).
+
+    Column-pivoted Householder QR ``A P = Q R`` (LAPACK geqp3) reveals the rank r. Full rank:
+    ``R₁ v = c₁`` by back substitution. Rank-deficient: a complete orthogonal decomposition
+    ``[R₁₁ R₁₂] = T Zᵀ`` gives the minimum-norm v. The lost part gives ``J = ‖c_z‖²``.
+
+    Returns:
+        (v, J, numerical rank).
+    """
+    n = A.shape[1]
+    Q, R, piv = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
+    d = np.abs(np.diag(R))
+    rank = int(np.sum(d > RANK_RTOL * d[0])) if d.size and d[0] > 0 else 0
+    c1 = Q[:, :rank].T @ b
+    v = np.zeros(n)
+    if rank == n:
+        v[piv] = sla.solve_triangular(R, c1, check_finite=False)
+    elif rank > 0:
+        Z, T = np.linalg.qr(R[:rank].T, mode="reduced")  # R[:rank] = Tᵀ Zᵀ
+        v[piv] = Z @ sla.solve_triangular(T, c1, trans="T", check_finite=False)
+    return v, max(float(b @ b - c1 @ c1), 0.0), rank
+
+
+class QRSolver:
+    """Unconstrained square-root solve by QR (the reference back end). Ignores limits."""
+
+    name = "qr"
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        t0 = time.perf_counter()
+        if problem.min_norm_of is None:
+            v, cost, rank = qr_least_squares(problem.A, problem.b)
+        else:  # s = M v + m0; the minimum-norm s among the minimizers (same v when A has full rank)
+            M, m0 = problem.min_norm_of
+            AMinv = sla.solve_triangular(M, problem.A.T, trans="T", lower=True, check_finite=False).T
+            s, cost, rank = qr_least_squares(AMinv, problem.b + AMinv @ m0)
+            v = sla.solve_triangular(M, s - m0, lower=True, check_finite=False)
+        dt = time.perf_counter() - t0
+        return SolveResult(v, cost, "unconstrained", self.name, None, dt, False,
+                           f"rank {rank} of {problem.n}" if rank < problem.n else "")
+
+
+# ---------------------------------------------------------------------------- QP
+def _scaled_qp(problem: LeastSquaresProblem):
+    """Hessian P = AᵀA and gradient q = −Aᵀb scaled to max(diag P) = 1, plus a tiny ridge."""
+    P = problem.A.T @ problem.A
+    q = -problem.A.T @ problem.b
+    scale = 1.0 / max(float(np.max(np.diag(P))), 1e-300)
+    P = P * scale
+    P[np.diag_indices_from(P)] += QP_REGULARIZATION
+    return P, q * scale, scale
+
+
+def installed_qp_solvers() -> list[str]:
+    """QP solvers available through qpsolvers on this machine."""
+    import qpsolvers
+
+    return sorted(qpsolvers.available_solvers)
+
+
+class QpsolversBackend:
+    """``qpsolvers.solve_problem`` with any installed solver (rebuilt every call).
+
+    Args:
+        solver: qpsolvers solver name (``osqp``, ``proxqp``, ``daqp``, …).
+        **settings: passed to the solver (default: tight tolerances for OSQP/ProxQP).
+    """
+
+    _DEFAULTS = {
+        "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000),
+        "proxqp": dict(eps_abs=1e-10, eps_rel=0.0),
+    }
+
+    def __init__(self, solver: str, **settings):
+        available = installed_qp_solvers()
+        if solver not in available:
+            raise SolverNotFoundError(f"QP solver {solver!r} is not installed; installed: {available}")
+        self.solver = solver
+        self.name = f"qpsolvers:{solver}"
+        self.settings = {**self._DEFAULTS.get(solver, {}), **settings}
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import qpsolvers
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        G = h = None
+        if problem.L is not None:
+            G = np.vstack([problem.L, -problem.L])
+            h = np.concatenate([problem.hi, -problem.lo])
+        if self.solver == "osqp":  # OSQP takes CSC matrices; convert here rather than warn
+            import scipy.sparse as sp
+
+            P = sp.csc_matrix(P)
+            G = None if G is None else sp.csc_matrix(G)
+        qp = qpsolvers.Problem(P, q, G, h, None, None, problem.lb, problem.ub)
+        try:
+            sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **self.settings)
+        except Exception as exc:  # a solver's own exception becomes a reported failure
+            return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self.name,
+                               solve_time=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}")
+        dt = time.perf_counter() - t0
+        if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
+            return SolveResult(np.full(problem.n, np.nan), np.inf, "infeasible", self.name, solve_time=dt,
+                               message=f"{self.solver} found no solution")
+        v = sol.x
+        iters = _iterations_from_extras(sol.extras)
+        return SolveResult(v, problem.cost(v), "optimal", self.name, iters, dt, problem.active(v))
+
+
+def _iterations_from_extras(extras) -> int | None:
+    info = extras.get("info") if isinstance(extras, dict) else None
+    for attr in ("iter", "iterations"):
+        if info is not None and hasattr(info, attr):
+            return int(getattr(info, attr))
+    if isinstance(extras, dict) and "iterations" in extras:
+        return int(extras["iterations"])
+    return None
+
+
+def _stacked_constraints(problem: LeastSquaresProblem):
+    """All limits as lo ≤ C v ≤ hi (box rows first), with ±1e20 where unbounded."""
+    rows, lo, hi = [], [], []
+    if problem.lb is not None:
+        rows.append(np.eye(problem.n))
+        lo.append(problem.lb)
+        hi.append(problem.ub)
+    if problem.L is not None:
+        rows.append(problem.L)
+        lo.append(problem.lo)
+        hi.append(problem.hi)
+    if not rows:
+        return np.zeros((0, problem.n)), np.zeros(0), np.zeros(0)
+    return np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+
+
+class OSQPBackend:
+    """Persistent OSQP: set up once per problem structure, then updated and warm-started."""
+
+    name = "osqp-direct"
+
+    def __init__(self, eps: float = 1e-10, max_iter: int = 20000):
+        import osqp  # noqa: F401  (fail early with ImportError if missing)
+
+        self.eps, self.max_iter = eps, max_iter
+        self._solver = None
+        self._shape = None
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import osqp
+        import scipy.sparse as sp
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        P_up = sp.csc_matrix(np.triu(np.ones_like(P)))  # dense pattern: updates keep it
+        P_up.data = _csc_values(P, upper=True)
+        C_csc = sp.csc_matrix(np.ones_like(C)) if C.size else sp.csc_matrix(C)
+        if C.size:
+            C_csc.data = _csc_values(C, upper=False)
+        shape = (P.shape, C.shape)
+        if self._solver is None or self._shape != shape:
+            self._solver = osqp.OSQP()
+            self._solver.setup(P=P_up, q=q, A=C_csc, l=lo, u=hi, eps_abs=self.eps, eps_rel=self.eps,
+                               polishing=True, max_iter=self.max_iter, verbose=False, warm_starting=True)
+            self._shape = shape
+        else:
+            self._solver.update(q=q, l=lo, u=hi, Px=P_up.data, Ax=C_csc.data if C.size else None)
+        if warm_start is not None and np.all(np.isfinite(warm_start)):
+            self._solver.warm_start(x=warm_start)
+        res = self._solver.solve(raise_error=False)
+        dt = time.perf_counter() - t0
+        status = str(res.info.status)
+        if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):
+            kind = "infeasible" if "infeasible" in status else "failed"
+            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(res.info.iter), dt,
+                               message=f"OSQP status: {status}")
+        v = np.asarray(res.x)
+        return SolveResult(v, problem.cost(v), "optimal", self.name, int(res.info.iter), dt, problem.active(v))
+
+
+def _csc_values(M: np.ndarray, upper: bool) -> np.ndarray:
+    """Values of a dense (upper-triangular if ``upper``) pattern in CSC order (column-major)."""
+    if upper:
+        cols = [M[: j + 1, j] for j in range(M.shape[1])]
+        return np.concatenate(cols)
+    return M.T.reshape(-1).copy()
+
+
+class ProxQPBackend:
+    """Persistent ProxQP dense solver, warm-started with the previous solution."""
+
+    name = "proxqp-direct"
+
+    def __init__(self, eps: float = 1e-10, max_iter: int = 10000):
+        import proxsuite  # noqa: F401
+
+        self.eps, self.max_iter = eps, max_iter
+        self._qp = None
+        self._shape = None
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import proxsuite
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        shape = (P.shape, C.shape)
+        if self._qp is None or self._shape != shape:
+            self._qp = proxsuite.proxqp.dense.QP(problem.n, 0, C.shape[0])
+            s = self._qp.settings
+            s.eps_abs, s.eps_rel, s.max_iter, s.verbose = self.eps, 0.0, self.max_iter, False
+            s.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
+            self._qp.init(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
+            self._shape = shape
+        else:
+            self._qp.update(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
+        self._qp.solve()
+        dt = time.perf_counter() - t0
+        info = self._qp.results.info
+        status = str(info.status)
+        v = np.asarray(self._qp.results.x).copy()
+        if "SOLVED" not in status.upper() or "CLOSEST" in status.upper() or not np.all(np.isfinite(v)):
+            kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
+            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(info.iter), dt,
+                               message=f"ProxQP status: {status}")
+        return SolveResult(v, problem.cost(v), "optimal", self.name, int(info.iter), dt, problem.active(v))
+
+
+class DAQPBackend:
+    """DAQP dual active-set solver through its direct API, warm-started from the last active set."""
+
+    name = "daqp-direct"
+
+    def __init__(self):
+        import daqp  # noqa: F401
+
+        self._sense = None
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import daqp
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        if problem.lb is not None and problem.L is None:  # pure box: DAQP's simple bounds
+            A_in = np.zeros((0, problem.n))
+        else:
+            A_in = C
+        sense = self._sense if self._sense is not None and self._sense.shape == lo.shape else np.zeros(lo.shape, dtype=np.int32)
+        x, _, flag, info = daqp.solve(P, q, A_in, hi.astype(float), lo.astype(float), sense.astype(np.int32))
+        dt = time.perf_counter() - t0
+        if flag != 1 or not np.all(np.isfinite(x)):
+            kind = "infeasible" if flag == -1 else "failed"
+            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(info.get("iterations", 0)), dt,
+                               message=f"DAQP exit flag {flag}")
+        self._sense = (np.abs(np.asarray(info["lam"])) > 0).astype(np.int32) if "lam" in info else None
+        v = np.asarray(x)
+        return SolveResult(v, problem.cost(v), "optimal", self.name, int(info.get("iterations", 0)), dt, problem.active(v))
+
+
+class QRFirst:
+    """Solve by QR; call the QP back end only when the QR solution violates a limit."""
+
+    def __init__(self, qp_backend):
+        self.qp = qp_backend
+        self.qr = QRSolver()
+        self.name = f"qr-first:{qp_backend.name}"
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        res = self.qr.solve(problem)
+        if not problem.constrained or problem.feasible(res.v):
+            res.solver = self.name
+            return res
+        qp = self.qp.solve(problem, warm_start)
+        qp.solve_time += res.solve_time
+        qp.solver = self.name
+        return qp
+
+
+#: Back-end names accepted by :func:`make_solver` besides ``qpsolvers:<name>``.
+DIRECT_BACKENDS = {"qr": QRSolver, "osqp-direct": OSQPBackend, "proxqp-direct": ProxQPBackend,
+                   "daqp-direct": DAQPBackend}
+
+
+def available_solvers() -> list[str]:
+    """Every name :func:`make_solver` accepts on this machine."""
+    names = list(DIRECT_BACKENDS) + [f"qpsolvers:{s}" for s in installed_qp_solvers()]
+    names += [f"qr-first:{n}" for n in names if n != "qr"]
+    return names
+
+
+def make_solver(name: str):
+    """Back end by name: ``qr``, ``osqp-direct``, ``proxqp-direct``, ``daqp-direct``,
+    ``qpsolvers:<solver>`` (or a bare installed qpsolvers name such as ``osqp``), each
+    optionally prefixed ``qr-first:``.
+
+    Raises:
+        SolverNotFoundError: unknown or uninstalled name (the message lists the valid ones).
+    """
+    if not isinstance(name, str):
+        raise SolverNotFoundError(f"solver name {name!r} must be a string; available: {available_solvers()}")
+    if name.startswith("qr-first:"):
+        inner = make_solver(name[len("qr-first:"):])
+        if isinstance(inner, QRSolver):
+            raise SolverNotFoundError("qr-first needs a QP back end, not 'qr'")
+        return QRFirst(inner)
+    if name in DIRECT_BACKENDS:
+        return DIRECT_BACKENDS[name]()
+    qp_name = name[len("qpsolvers:"):] if name.startswith("qpsolvers:") else name
+    if qp_name in installed_qp_solvers():
+        return QpsolversBackend(qp_name)
+    raise SolverNotFoundError(f"unknown solver {name!r}; available: {available_solvers()}")
