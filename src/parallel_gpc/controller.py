@@ -21,14 +21,24 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .dynamics import ReducedModel, discretize_zoh
-from .errors import InvalidParameterError, ShapeError, SolverError
+from .errors import (
+    InfeasibleLimitsError,
+    InvalidParameterError,
+    NonFiniteError,
+    ShapeError,
+    SingularPoseError,
+    SolverError,
+)
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
-from .solvers import SolveResult, Weights, build_problem, make_solver, qr_least_squares
+from .solvers import SolveResult, Weights, _limit_vector, build_problem, make_solver, qr_least_squares
 from .validation import finite_vector, positive
 
 FORMS = ("absolute", "incremental", "nonlinear")
 #: QP back end used when torque limits are given and no solver is named.
 DEFAULT_LIMITED_SOLVER = "qr-first:proxqp-direct"
+#: the QP is given limits tightened by this relative margin so that a solution within the
+#: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
+LIMIT_MARGIN = 1e-6
 
 
 @dataclass
@@ -69,6 +79,20 @@ class GPCController:
         torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
         du_limit: symmetric increment limit (N·m per sample), incremental forms only.
         u0: (m,) input applied before the first step, u(−1) (N·m); default zero.
+        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
+            d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the
+            horizon. It makes the prediction unbiased under model mismatch with a steady load
+            (gravity, a constant force), which the incremental forms need to reach zero
+            steady-state error. Default: 0.5 for the incremental forms, 0 for the absolute form.
+        max_condition: largest accepted condition number of the model's input gain
+            g = M_r⁻¹ B_r (discretized) at the measured state; beyond it the step raises
+            :class:`~parallel_gpc.errors.SingularPoseError` instead of commanding the unbounded
+            torques a (near-)singular pose calls for.
+
+    Raises:
+        InvalidParameterError: bad Ts, form, horizons, weights or limits.
+        InfeasibleLimitsError: limits that admit no input (≤ 0, or u0 outside ±(τ + δ) in the
+            incremental forms: no Δu within ±δ brings it within ±τ).
     """
 
     model: ReducedModel
@@ -80,6 +104,8 @@ class GPCController:
     torque_limit: object = None
     du_limit: object = None
     u0: object = None
+    disturbance_gain: float | None = None
+    max_condition: float = 1e4
 
     def __post_init__(self):
         self.Ts = positive("Ts", self.Ts, " s")
@@ -89,6 +115,10 @@ class GPCController:
             raise InvalidParameterError(f"horizons must be a Horizons(N, No, Nu), got {self.horizons!r}")
         self.n_y, self.n_u, self.n_x = self.model.n_y, self.model.n_u, self.model.n_x
         self.weights.blocks(self.n_y, self.n_u)  # validate once, at the boundary
+        if self.torque_limit is not None:
+            self.torque_limit = _limit_vector("torque_limit", self.torque_limit, self.n_u)
+        if self.du_limit is not None:
+            self.du_limit = _limit_vector("du_limit", self.du_limit, self.n_u)
         if self.du_limit is not None and self.form == "absolute":
             raise InvalidParameterError("du_limit applies to the incremental forms; form is 'absolute'")
         if self.solver is None:
@@ -98,6 +128,14 @@ class GPCController:
                 "solver 'qr' cannot enforce torque/Δu limits; use a QP back end such as "
                 f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
             )
+        if self.disturbance_gain is None:
+            self.disturbance_gain = 0.0 if self.form == "absolute" else 0.5
+        if not 0.0 <= float(self.disturbance_gain) <= 1.0:
+            raise InvalidParameterError(f"disturbance_gain = {self.disturbance_gain!r} must lie in [0, 1]")
+        for name in ("torque_limit", "du_limit"):
+            if getattr(self, name) is not None:
+                _limit_vector(name, getattr(self, name), self.n_u)
+        self.max_condition = positive("max_condition", self.max_condition)
         self._backend = make_solver(self.solver)
         self.reset(self.u0)
 
@@ -108,8 +146,19 @@ class GPCController:
     def reset(self, u_prev=None) -> None:
         """Forget the plan; set u(k−1) (N·m, default zero)."""
         self.u_prev = np.zeros(self.n_u) if u_prev is None else finite_vector("u_prev", u_prev, self.n_u)
+        if self.form != "absolute" and self.torque_limit is not None and self.du_limit is not None:
+            reach = _limit_vector("torque_limit", self.torque_limit, self.n_u) + _limit_vector(
+                "du_limit", self.du_limit, self.n_u)
+            if np.any(np.abs(self.u_prev) > reach):
+                raise InfeasibleLimitsError(
+                    f"u(k−1) = {self.u_prev.tolist()} N·m cannot be brought within torque_limit "
+                    f"{np.broadcast_to(self.torque_limit, (self.n_u,)).tolist()} by one increment within du_limit "
+                    f"{np.broadcast_to(self.du_limit, (self.n_u,)).tolist()}; valid: |u(k−1)| ≤ torque_limit + du_limit"
+                )
         self.plan = np.tile(self.u_prev, (self.horizons.N, 1))
         self._v_prev = None
+        self.disturbance = np.zeros(self.n_x)
+        self._x_next = None  # X̂(k+1|k) of the last step, for the disturbance estimate
 
     # ------------------------------------------------------------------ model + prediction
     def discrete_model(self, X: np.ndarray):
@@ -118,14 +167,25 @@ class GPCController:
         return discretize_zoh(A, B, c, self.Ts)
 
     def predict(self, X: np.ndarray) -> Prediction:
-        """Build ŷ = f + G v for the current state with this controller's form."""
+        """Build ŷ = f + G v for the current state with this controller's form.
+
+        Also keeps the one-step model (A_d, B_d, c_d) at X for the disturbance estimate.
+        """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
             return self._simulative(X)
         Ad, Bd, cd = self.discrete_model(X)
+        cd = cd + self.disturbance
+        self._one_step = (Ad, Bd, cd)
         if self.form == "absolute":
             return absolute_prediction(Ad, Bd, cd, C, X, H)
         return incremental_prediction(Ad, Bd, cd, C, X, self.u_prev, H)
+
+    def _update_disturbance(self, X: np.ndarray) -> None:
+        """d ← (1 − α) d + α (X(k) − X̂(k|k−1)): the model's one-step prediction error."""
+        alpha = float(self.disturbance_gain)
+        if alpha > 0.0 and self._x_next is not None:
+            self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
     def _simulative(self, X: np.ndarray) -> Prediction:
         H, C = self.horizons, self.model.C
@@ -136,6 +196,9 @@ class GPCController:
         x = np.asarray(X, dtype=float)
         for i in range(H.N):
             Ad, Bd, cd = self.discrete_model(x)
+            cd = cd + self.disturbance
+            if i == 0:
+                self._one_step = (Ad, Bd, cd, u_sim[0])
             A_seq[i], B_seq[i] = Ad, Bd
             x = Ad @ x + Bd @ u_sim[i] + cd
             y_sim[i] = C @ x
@@ -153,7 +216,8 @@ class GPCController:
                 f"(or ({H.n_rows}, {self.n_y}) for the penalized steps k+No+1..k+N)"
             )
         if not np.all(np.isfinite(w)):
-            raise InvalidParameterError("reference window contains NaN or inf")
+            bad = w[np.argwhere(~np.isfinite(w))[0][0]]
+            raise NonFiniteError(f"reference window contains the pose {bad.tolist()}; poses must be finite")
         return w
 
     def step(self, X, w) -> StepInfo:
@@ -169,11 +233,18 @@ class GPCController:
         X = finite_vector("measured state X", X, self.n_x)
         w = self._reference_rows(w)
         t0 = time.perf_counter()
+        self._update_disturbance(X)
         pred = self.predict(X)
+        self._check_conditioning(X, self._one_step[1])
         t1 = time.perf_counter()
-        problem = build_problem(pred, w, self.weights, self.n_y, self.n_u, self.torque_limit, self.du_limit)
+        problem = build_problem(pred, w, self.weights, self.n_y, self.n_u, self._tightened(self.torque_limit),
+                                self._tightened(self.du_limit))
         t2 = time.perf_counter()
-        result = self._backend.solve(problem, self._warm_start(problem.n))
+        try:
+            result = self._backend.solve(problem, self._warm_start(problem.n))
+        except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
+            result = SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self._backend.name,
+                                 message=f"{type(exc).__name__}: {exc}")
         fallback = not result.ok
         if fallback:
             result = self._fallback(problem, pred, result)
@@ -183,7 +254,28 @@ class GPCController:
         self.plan = np.vstack([u_seq, np.repeat(u_seq[-1:], self.horizons.N - len(u_seq), axis=0)])
         self._v_prev = result.v
         self.u_prev = u
+        Ad, Bd, cd = self._one_step[:3]
+        self._x_next = Ad @ X + Bd @ u + cd
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback)
+
+    def _check_conditioning(self, X: np.ndarray, Bd: np.ndarray) -> None:
+        """Raise :class:`SingularPoseError` when the input gain at X is near-singular.
+
+        ``Bd[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition number grows without
+        bound at an actuation (direct) singularity and as a leg stretches or folds.
+        """
+        s = np.linalg.svd(Bd[self.n_y:], compute_uv=False)
+        cond = s[0] / s[-1] if s[-1] > 0 else np.inf
+        if not cond <= self.max_condition:
+            raise SingularPoseError(
+                f"near-singular pose {np.round(X[:self.n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
+                f"> max_condition = {self.max_condition:.3g}; the drives cannot move the platform in some "
+                f"direction, so the controller stops instead of commanding unbounded torques"
+            )
+
+    @staticmethod
+    def _tightened(limit):
+        return None if limit is None else np.asarray(limit, dtype=float) * (1.0 - LIMIT_MARGIN)
 
     def _warm_start(self, n: int) -> np.ndarray | None:
         if self._v_prev is None or self._v_prev.shape != (n,):
@@ -198,13 +290,24 @@ class GPCController:
         The projection is explicit and recorded (status ``fallback``), never silent.
         """
         v, _, _ = qr_least_squares(problem.A, problem.b)
-        u_seq = pred.u_base + pred.u_map @ v
-        if self.torque_limit is not None:
-            tau = np.tile(np.broadcast_to(np.asarray(self.torque_limit, dtype=float), (self.n_u,)),
-                          len(u_seq) // self.n_u)
-            u_seq = np.clip(u_seq, -tau, tau)
-        v = np.linalg.lstsq(pred.u_map, u_seq - pred.u_base, rcond=None)[0]
+        m = self.n_u
+        tau = None if self.torque_limit is None else _limit_vector("torque_limit", self.torque_limit, m)
+        if pred.kind == "absolute":
+            if tau is not None:
+                v = np.clip(v, -np.tile(tau, len(v) // m), np.tile(tau, len(v) // m))
+        else:  # walk the horizon: Δu(i) into its box, then u(i) = u_base(i) + Σ Δu into ±τ
+            dv = v.reshape(-1, m).copy()
+            base = pred.u_base.reshape(-1, m)
+            box = None if problem.lb is None else (problem.lb.reshape(-1, m), problem.ub.reshape(-1, m))
+            total = np.zeros(m)
+            for i in range(len(dv)):
+                if box is not None:
+                    dv[i] = np.clip(dv[i], box[0][i], box[1][i])
+                if tau is not None:  # the torque limit wins when both cannot hold (infeasible set)
+                    dv[i] = np.clip(base[i] + total + dv[i], -tau, tau) - base[i] - total
+                total += dv[i]
+            v = dv.reshape(-1)
         if not np.all(np.isfinite(v)):
             raise SolverError(f"solver {failed.solver} failed ({failed.message}) and the QR fallback is not finite")
         return SolveResult(v, problem.cost(v), "fallback", failed.solver, failed.iterations, failed.solve_time,
-                           True, f"{failed.status}: {failed.message}; applied QR solution projected on the limits")
+                           problem.active(v), f"{failed.status}: {failed.message}; applied the QR solution projected on the limits")

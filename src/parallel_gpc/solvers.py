@@ -534,7 +534,11 @@ def make_solver(name: str):
             raise SolverNotFoundError("qr-first needs a QP back end, not 'qr'")
         return QRFirst(inner)
     if name in DIRECT_BACKENDS:
-        return DIRECT_BACKENDS[name]()
+        try:
+            return DIRECT_BACKENDS[name]()
+        except ImportError as exc:  # its Python package is missing on this machine
+            raise SolverNotFoundError(
+                f"solver {name!r} is not installed ({exc}); available: {available_solvers()}") from None
     qp_name = name[len("qpsolvers:"):] if name.startswith("qpsolvers:") else name
     if qp_name in installed_qp_solvers():
         return QpsolversBackend(qp_name)

@@ -1,0 +1,98 @@
+"""The LTV condenser and the three prediction forms against step-by-step simulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.prediction import (
+    Horizons,
+    absolute_prediction,
+    condense,
+    incremental_prediction,
+    simulative_prediction,
+)
+
+
+def _random_system(rng, n=4, m=3, p=2, N=None):
+    A = np.eye(n) + 0.1 * rng.normal(size=(n, n) if N is None else (N, n, n))
+    B = rng.normal(size=(n, m) if N is None else (N, n, m))
+    c = 0.01 * rng.normal(size=n if N is None else (N, n))
+    C = rng.normal(size=(p, n))
+    return A, B, c, C
+
+
+def _simulate(A, B, c, C, x0, inputs):
+    """Oracle: iterate x(i+1) = A_i x(i) + B_i u(i) + c_i, return outputs y(1..N)."""
+    N = len(inputs)
+    A = np.broadcast_to(A, (N, *np.shape(A)[-2:]))
+    B = np.broadcast_to(B, (N, *np.shape(B)[-2:]))
+    c = np.broadcast_to(c, (N, np.shape(c)[-1]))
+    x, ys = np.array(x0, dtype=float), []
+    for i in range(N):
+        x = A[i] @ x + B[i] @ inputs[i] + c[i]
+        ys.append(C @ x)
+    return np.array(ys)
+
+
+@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (8, 3, 8), (8, 0, 3), (10, 4, 2), (1, 0, 1)])
+def test_absolute_prediction_equals_simulation_with_held_inputs(N, No, Nu):
+    rng = np.random.default_rng(N + 10 * No + 100 * Nu)
+    A, B, c, C = _random_system(rng)
+    x0 = rng.normal(size=4)
+    v = rng.normal(size=(Nu, 3))
+    pred = absolute_prediction(A, B, c, C, x0, Horizons(N, No, Nu))
+    inputs = np.vstack([v, np.repeat(v[-1:], N - Nu, axis=0)])  # held after Nu
+    expected = _simulate(A, B, c, C, x0, inputs)[No:]
+    np.testing.assert_allclose(pred.outputs(v.reshape(-1)), expected.reshape(-1), rtol=0, atol=1e-10)
+
+
+@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (9, 2, 4), (6, 5, 1)])
+def test_incremental_prediction_equals_simulation_of_cumulated_inputs(N, No, Nu):
+    rng = np.random.default_rng(7 + N)
+    A, B, c, C = _random_system(rng)
+    x0, u_prev = rng.normal(size=4), rng.normal(size=3)
+    dv = rng.normal(size=(Nu, 3))
+    pred = incremental_prediction(A, B, c, C, x0, u_prev, Horizons(N, No, Nu))
+    du = np.vstack([dv, np.zeros((N - Nu, 3))])  # Δu = 0 after Nu
+    inputs = u_prev + np.cumsum(du, axis=0)
+    expected = _simulate(A, B, c, C, x0, inputs)[No:]
+    np.testing.assert_allclose(pred.outputs(dv.reshape(-1)), expected.reshape(-1), rtol=0, atol=1e-10)
+    np.testing.assert_allclose((pred.u_base + pred.u_map @ dv.reshape(-1)).reshape(-1, 3), inputs[:Nu], atol=1e-12)
+
+
+@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (8, 2, 3)])
+def test_simulative_prediction_equals_ltv_simulation_about_the_presimulated_path(N, No, Nu):
+    rng = np.random.default_rng(3 + N + Nu)
+    A_seq, B_seq, c_seq, C = _random_system(rng, N=N)
+    x0 = rng.normal(size=4)
+    u_sim = rng.normal(size=(N, 3))
+    y_sim = _simulate(A_seq, B_seq, c_seq, C, x0, u_sim)  # the pre-simulation
+    dv = rng.normal(size=(Nu, 3))
+    pred = simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, Horizons(N, No, Nu))
+    du = np.vstack([dv, np.zeros((N - Nu, 3))])
+    inputs = u_sim + np.cumsum(du, axis=0)  # u = u_sim + cumsum(Δu), eq. (10)–(11)
+    expected = _simulate(A_seq, B_seq, c_seq, C, x0, inputs)[No:]
+    np.testing.assert_allclose(pred.outputs(dv.reshape(-1)), expected.reshape(-1), rtol=0, atol=1e-10)
+    np.testing.assert_allclose((pred.u_base + pred.u_map @ dv.reshape(-1)).reshape(-1, 3), inputs, atol=1e-12)
+
+
+def test_condense_matches_eq7_block_toeplitz_for_lti():
+    rng = np.random.default_rng(11)
+    A, B, _, C = _random_system(rng)
+    N = 5
+    f, G = condense(A, B, None, C, np.ones(4), Horizons(N), hold_inputs=True)
+    for i in range(N):
+        np.testing.assert_allclose(f[2 * i:2 * i + 2], C @ np.linalg.matrix_power(A, i + 1) @ np.ones(4), atol=1e-12)
+        for j in range(N):
+            block = G[2 * i:2 * i + 2, 3 * j:3 * j + 3]
+            expected = C @ np.linalg.matrix_power(A, i - j) @ B if j <= i else np.zeros((2, 3))
+            np.testing.assert_allclose(block, expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("kwargs", [dict(N=0), dict(N=5, No=5), dict(N=5, No=-1), dict(N=5, Nu=6), dict(N=5, Nu=0),
+                                    dict(N=2.5)])
+def test_invalid_horizons_raise(kwargs):
+    with pytest.raises(InvalidParameterError):
+        Horizons(**kwargs)

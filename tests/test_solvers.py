@@ -1,0 +1,128 @@
+"""QR square-root solve against QP back ends, min-norm, cost, and GPC → LQR convergence."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.linalg import solve_discrete_are
+
+from parallel_gpc import ParallelRobot, ReducedModel
+from parallel_gpc.controller import GPCController
+from parallel_gpc.prediction import Horizons, absolute_prediction, incremental_prediction
+from parallel_gpc.references import SCurve
+from parallel_gpc.solvers import (
+    LeastSquaresProblem,
+    QRSolver,
+    Weights,
+    build_problem,
+    make_solver,
+    qr_least_squares,
+)
+
+QP_BACKENDS = ["qpsolvers:osqp", "qpsolvers:proxqp", "qpsolvers:daqp", "osqp-direct", "proxqp-direct", "daqp-direct"]
+
+
+@pytest.fixture(scope="module")
+def gpc_problems():
+    """Real GPC problems of the default robot along the S-curve (absolute and incremental forms)."""
+    robot = ParallelRobot.load()
+    model = ReducedModel(robot)
+    ref = SCurve()
+    H = Horizons(15, 0, 15)
+    out = {}
+    for form in ("absolute", "incremental"):
+        ctrl = GPCController(model, 0.005, H, Weights(1.0, 1e-3), form=form)
+        t = 0.6
+        X = np.concatenate([ref.pose(t), (ref.pose(t + 1e-4) - ref.pose(t)) / 1e-4])
+        ctrl.u_prev = np.array([1.0, -2.0, 0.5, 1.5])
+        pred = ctrl.predict(X)
+        w = ref.window(t, 0.005, H.N)
+        out[form] = (pred, w)
+    return out
+
+
+def _problem(gpc_problems, form, torque_limit=None):
+    pred, w = gpc_problems[form]
+    return build_problem(pred, w, Weights(1.0, 1e-3), 3, 4, torque_limit=torque_limit)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+@pytest.mark.parametrize("backend", QP_BACKENDS)
+def test_qp_backends_equal_qr_when_no_limit_binds(gpc_problems, form, backend):
+    problem = _problem(gpc_problems, form, torque_limit=1e4)
+    qr = QRSolver().solve(problem)
+    qp = make_solver(backend).solve(problem)
+    assert qp.ok and not qp.active_limits
+    assert np.linalg.norm(qp.v - qr.v) <= 1e-6 * np.linalg.norm(qr.v)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_qp_backends_agree_and_respect_binding_limits(gpc_problems, form):
+    unconstrained = QRSolver().solve(_problem(gpc_problems, form)).v
+    pred = gpc_problems[form][0]
+    peak = np.max(np.abs(pred.u_base + pred.u_map @ unconstrained))
+    problem = _problem(gpc_problems, form, torque_limit=0.5 * peak)  # binds
+    sols = {}
+    for backend in QP_BACKENDS:
+        res = make_solver(backend).solve(problem)
+        assert res.ok and res.active_limits, backend
+        u = pred.u_base + pred.u_map @ res.v
+        assert np.max(np.abs(u)) <= 0.5 * peak * (1 + 1e-6), backend
+        sols[backend] = res.v
+    ref = sols["daqp-direct"]
+    for backend, v in sols.items():
+        assert np.linalg.norm(v - ref) <= 1e-4 * np.linalg.norm(ref), backend
+
+
+def test_qr_cost_is_norm_of_lost_vector():
+    rng = np.random.default_rng(0)
+    A, b = rng.normal(size=(40, 12)), rng.normal(size=40)
+    v, cost, rank = qr_least_squares(A, b)
+    assert rank == 12
+    np.testing.assert_allclose(cost, np.sum((A @ v - b) ** 2), rtol=1e-10)
+    np.testing.assert_allclose(v, np.linalg.lstsq(A, b, rcond=None)[0], atol=1e-12)
+
+
+def test_qr_returns_minimum_norm_solution_when_rank_deficient():
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(30, 10)) @ np.diag([1, 1, 1, 1, 1, 1, 1, 0, 0, 0]) @ rng.normal(size=(10, 10))
+    b = rng.normal(size=30)
+    v, cost, rank = qr_least_squares(A, b)
+    assert rank == 7
+    np.testing.assert_allclose(v, np.linalg.pinv(A) @ b, atol=1e-10)  # the minimum-norm minimizer
+    np.testing.assert_allclose(cost, np.sum((A @ v - b) ** 2), rtol=1e-9)
+
+
+def test_long_horizon_gpc_converges_to_discrete_lqr_gain():
+    """Unconstrained GPC with No = 0, Nu = N → the DARE gain with Q = CᵀQyᵀQyC, R = QuᵀQu."""
+    Ts = 0.1
+    A = np.array([[1.0, Ts, 0.0], [0.0, 1.0, Ts], [0.0, 0.0, 0.9]])
+    B = np.array([[0.0, 0.2], [Ts, 0.0], [0.1, Ts]])
+    C = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    Qy, Qu = np.diag([2.0, 1.0]), np.diag([0.3, 0.5])
+    P = solve_discrete_are(A, B, C.T @ Qy.T @ Qy @ C, Qu.T @ Qu)
+    K_lqr = np.linalg.solve(Qu.T @ Qu + B.T @ P @ B, B.T @ P @ A)
+    N = 150
+    H = Horizons(N, 0, N)
+    K_gpc = np.empty((2, 3))
+    for i in range(3):  # the GPC law is linear in x0: u(k) = −K x0
+        x0 = np.eye(3)[i]
+        pred = absolute_prediction(A, B, None, C, x0, H)
+        prob = build_problem(pred, np.zeros((N, 2)), Weights(Qy, Qu), 2, 2)
+        K_gpc[:, i] = -QRSolver().solve(prob).v[:2]
+    np.testing.assert_allclose(K_gpc, K_lqr, rtol=1e-6, atol=1e-9)
+
+
+def test_incremental_min_norm_picks_smallest_absolute_torques():
+    """Qu = 0, redundant input: among optimal Δu the one with smallest u = u_prev + cumsum(Δu)."""
+    A = np.array([[1.0, 0.1], [0.0, 1.0]])
+    B = np.array([[0.0, 0.0], [1.0, 1.0]])  # two identical drives: null(B) = [1, −1]
+    C = np.array([[1.0, 0.0]])
+    H = Horizons(6, 0, 6)
+    u_prev = np.array([3.0, -1.0])  # carries a null-space component
+    pred = incremental_prediction(A, B, None, C, np.zeros(2), u_prev, H)
+    prob = build_problem(pred, np.ones((6, 1)), Weights(1.0, 0.0), 1, 2)
+    v = QRSolver().solve(prob).v
+    u = (pred.u_base + pred.u_map @ v).reshape(-1, 2)
+    np.testing.assert_allclose(u[:, 0], u[:, 1], atol=1e-9)  # no drive fighting
+    assert prob.cost(v) <= prob.cost(np.linalg.lstsq(prob.A, prob.b, rcond=None)[0]) + 1e-12
