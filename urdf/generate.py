@@ -119,7 +119,7 @@ def urdf_text(name: str, n_legs: int) -> str:
       <inertia ixx="{ip / 2:.6g}" ixy="0" ixz="0" iyy="{ip / 2:.6g}" iyz="0" izz="{ip:.6g}"/>
     </inertial>
     <visual>
-      <origin xyz="0 0 0" rpy="1.5707963267948966 0 0"/>
+      <origin xyz="0 0 0" rpy="0 0 0"/>
       <geometry><cylinder radius="{PLATFORM_RADIUS}" length="{PLATFORM_THICKNESS}"/></geometry>
       <material name="platform"/>
     </visual>

@@ -13,6 +13,10 @@ import sys
 
 import numpy as np
 
+from .cli_track import register_demo, register_track
+from .cli_view import register_view
+from .cli_plan import register_plan
+from .cli_robustness import register_robustness
 from .errors import ParallelGPCError
 from .robot import DEFAULT_ROBOT, ParallelRobot
 
@@ -54,7 +58,7 @@ def robot_info(robot: ParallelRobot) -> list[tuple[str, str]]:
     return rows
 
 
-def print_table(rows, out=sys.stdout) -> None:
+def print_table(rows, out=None) -> None:
     """Print (label, value) rows aligned."""
     width = max(len(r[0]) for r in rows)
     for label, value in rows:
@@ -74,29 +78,8 @@ def register_info(sub) -> None:
     p.set_defaults(func=cmd_info)
 
 
-def cmd_demo(args) -> int:
-    """Placeholder main job: robot info and an open-loop run on the constrained plant."""
-    from .plant import ConstrainedPlant
-
-    robot = ParallelRobot.load(args.robot)
-    print_table(robot_info(robot))
-    plant = ConstrainedPlant(robot, np.concatenate([robot.home_pose, np.zeros(robot.n_y)]))
-    u = np.full(robot.n_u, 0.5)
-    for _ in range(250):
-        X = plant.step(u, 0.002)
-    print(f"open loop, u = {u.tolist()} N·m for 0.5 s: pose {np.round(X[:robot.n_y], 4).tolist()}, "
-          f"closure residual {np.max(np.abs(robot.closure_residual(plant.q))):.1e} m")
-    return 0
-
-
-def register_demo(sub) -> None:
-    p = sub.add_parser("demo", help="the main job on the default robot")
-    p.add_argument("robot", nargs="?", default=DEFAULT_ROBOT, help="robot name or path")
-    p.set_defaults(func=cmd_demo)
-
-
 #: Sub-command registrars, in help order.
-REGISTRARS = [register_info, register_demo]
+REGISTRARS = [register_info, register_demo, register_track, register_plan, register_robustness, register_view]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -119,10 +102,11 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     try:
         return int(args.func(args) or 0)
-    except ParallelGPCError as exc:
+    except (ParallelGPCError, OSError) as exc:  # bad input or an unreadable/unwritable file
         if args.debug:
             raise
-        print(f"parallel-gpc: error: {exc}", file=sys.stderr)
+        message = " ".join(str(exc).split())  # one line, even for multi-line parser messages
+        print(f"parallel-gpc: error: {message}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("parallel-gpc: interrupted", file=sys.stderr)

@@ -87,7 +87,9 @@ class GPCController:
         max_condition: largest accepted condition number of the model's input gain
             g = M_r⁻¹ B_r (discretized) at the measured state; beyond it the step raises
             :class:`~parallel_gpc.errors.SingularPoseError` instead of commanding the unbounded
-            torques a (near-)singular pose calls for.
+            torques a (near-)singular pose calls for. Default 1e3: cond(g) is 10–20 along the paper's
+            S-curve and A→B on both embedded robots, 1e3 is about 1 cm from a planar_3rrr direct
+            singularity.
 
     Raises:
         InvalidParameterError: bad Ts, form, horizons, weights or limits.
@@ -105,7 +107,7 @@ class GPCController:
     du_limit: object = None
     u0: object = None
     disturbance_gain: float | None = None
-    max_condition: float = 1e4
+    max_condition: float = 1e3
 
     def __post_init__(self):
         self.Ts = positive("Ts", self.Ts, " s")
@@ -132,9 +134,6 @@ class GPCController:
             self.disturbance_gain = 0.0 if self.form == "absolute" else 0.5
         if not 0.0 <= float(self.disturbance_gain) <= 1.0:
             raise InvalidParameterError(f"disturbance_gain = {self.disturbance_gain!r} must lie in [0, 1]")
-        for name in ("torque_limit", "du_limit"):
-            if getattr(self, name) is not None:
-                _limit_vector(name, getattr(self, name), self.n_u)
         self.max_condition = positive("max_condition", self.max_condition)
         self._backend = make_solver(self.solver)
         self.reset(self.u0)
@@ -163,8 +162,7 @@ class GPCController:
     # ------------------------------------------------------------------ model + prediction
     def discrete_model(self, X: np.ndarray):
         """(A_d, B_d, c_d) of the factorized model (3) at X, ZOH-discretized at Ts (4)."""
-        A, B, c = self.model.factorize(X)
-        return discretize_zoh(A, B, c, self.Ts)
+        return self.model.discrete(X, self.Ts)
 
     def predict(self, X: np.ndarray) -> Prediction:
         """Build ŷ = f + G v for the current state with this controller's form.
@@ -190,18 +188,10 @@ class GPCController:
     def _simulative(self, X: np.ndarray) -> Prediction:
         H, C = self.horizons, self.model.C
         u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted
-        A_seq = np.empty((H.N, self.n_x, self.n_x))
-        B_seq = np.empty((H.N, self.n_x, self.n_u))
-        y_sim = np.empty((H.N, self.n_y))
-        x = np.asarray(X, dtype=float)
-        for i in range(H.N):
-            Ad, Bd, cd = self.discrete_model(x)
-            cd = cd + self.disturbance
-            if i == 0:
-                self._one_step = (Ad, Bd, cd, u_sim[0])
-            A_seq[i], B_seq[i] = Ad, Bd
-            x = Ad @ x + Bd @ u_sim[i] + cd
-            y_sim[i] = C @ x
+        # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
+        A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
+        self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
+        y_sim = X_sim[1:] @ C.T
         return simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, H)
 
     # ------------------------------------------------------------------ step
@@ -285,9 +275,13 @@ class GPCController:
         return np.concatenate([self._v_prev[m:], tail])
 
     def _fallback(self, problem, pred: Prediction, failed: SolveResult) -> SolveResult:
-        """A failed QP: take the unconstrained QR solution and project its inputs onto the limits.
+        """A failed or infeasible QP: take the unconstrained QR solution and project it on the limits.
 
-        The projection is explicit and recorded (status ``fallback``), never silent.
+        Absolute form: u clipped to ±τ. Incremental forms: step by step along the control
+        horizon, Δu(i) clipped to ±δ, then u(i) clipped to ±τ — when both cannot hold (an
+        infeasible limit set, e.g. a torque limit lowered below the held u(k−1) − δ) the torque
+        limit wins. The result has status ``fallback`` (the back end's status and message are
+        kept in ``message``) and the step reports ``StepInfo.fallback``; never silent.
         """
         v, _, _ = qr_least_squares(problem.A, problem.b)
         m = self.n_u

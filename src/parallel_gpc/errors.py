@@ -50,3 +50,7 @@ class SolverError(ParallelGPCError):
 
 class InfeasibleLimitsError(InvalidParameterError):
     """Torque or increment limits admit no input at all (e.g. lower > upper)."""
+
+
+class ViewerError(ParallelGPCError):
+    """The meshcat viewer or gallery server could not start or stop, or an export is not offline."""

@@ -15,6 +15,7 @@ Horizons (eq. (5)): rows of the outputs j = 1..No are dropped; inputs are held a
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 
@@ -93,6 +94,10 @@ def _per_step(name: str, value, N: int, shape: tuple[int, ...]) -> np.ndarray:
 def condense(A, B, c, C, x0, horizons: Horizons, hold_inputs: bool) -> tuple[np.ndarray, np.ndarray]:
     """Condense the LTV model ``x(i+1) = A_i x(i) + B_i v(i) + c_i``, ``y = C x`` over the horizon.
 
+    A time-invariant model (A and B given as single matrices) takes the block-Toeplitz route of
+    eq. (7): the powers C·A^k by repeated squaring and G filled from the impulse response
+    C·A^k·B; a time-varying one runs the recursion once over all columns at a time.
+
     Args:
         A: (n, n) or (N, n, n); B: (n, m) or (N, n, m); c: (n,), (N, n) or None.
         C: (p, n) output matrix; x0: (n,) initial state.
@@ -103,30 +108,101 @@ def condense(A, B, c, C, x0, horizons: Horizons, hold_inputs: bool) -> tuple[np.
     Returns:
         f: (n_rows·p,) and G: (n_rows·p, Nu·m) with ŷ(k+No+1..k+N) = f + G v(0..Nu−1).
     """
-    N, No, Nu = horizons.N, horizons.No, horizons.Nu
+    N = horizons.N
     C = np.asarray(C, dtype=float)
     n = C.shape[1]
-    p = C.shape[0]
-    A = _per_step("A", A, N, (n, n))
-    m = np.asarray(B).shape[-1]
-    B = _per_step("B", B, N, (n, m))
-    c = np.zeros((N, n)) if c is None else _per_step("c", c, N, (n,))
+    A = np.asarray(A, dtype=float)
+    B = np.asarray(B, dtype=float)
+    m = B.shape[-1]
     x = np.asarray(x0, dtype=float)
     if x.shape != (n,):
         raise ShapeError(f"x0 has shape {x.shape}; expected ({n},)")
-    S = np.zeros((n, Nu * m))  # sensitivity of x(i) to v
-    f = np.empty((horizons.n_rows, p))
-    G = np.empty((horizons.n_rows, p, Nu * m))
+    if c is not None:
+        c = np.asarray(c, dtype=float)
+    if A.shape == (n, n) and B.shape == (n, m) and (c is None or c.shape == (n,)):
+        return _condense_lti(A, B, c, C, x, horizons, hold_inputs)
+    A = _per_step("A", A, N, (n, n))
+    B = _per_step("B", B, N, (n, m))
+    if c is not None:
+        c = _per_step("c", c, N, (n,))
+    return _condense_ltv(A, B, c, C, x, horizons, hold_inputs)
+
+
+def _condense_ltv(A, B, c, C, x, horizons: Horizons, hold_inputs: bool):
+    """Recursion S(i+1) = A_i S(i) + [B_i in column block i], with x carried as a last column."""
+    N, No, Nu = horizons.N, horizons.No, horizons.Nu
+    n, m, p = A.shape[-1], B.shape[-1], C.shape[0]
+    K = Nu * m
+    S = np.empty((N + 1, n, K + 1))  # S[i] = [∂x(i)/∂v | x(i) at v = 0]
+    S[0, :, :K] = 0.0
+    S[0, :, K] = x
     for i in range(N):
-        x = A[i] @ x + c[i]
-        S = A[i] @ S
-        col = min(i, Nu - 1)
-        if i < Nu or hold_inputs:
-            S[:, col * m:(col + 1) * m] += B[i]
-        if i >= No:
-            f[i - No] = C @ x
-            G[i - No] = C @ S
-    return f.reshape(-1), G.reshape(horizons.n_rows * p, Nu * m)
+        np.matmul(A[i], S[i], out=S[i + 1])
+        if i < Nu:
+            S[i + 1, :, i * m:(i + 1) * m] += B[i]
+        elif hold_inputs:
+            S[i + 1, :, K - m:K] += B[i]
+        if c is not None:
+            S[i + 1, :, K] += c[i]
+    Y = C @ S[No + 1:]  # (n_rows, p, K + 1)
+    rows = horizons.n_rows * p
+    return Y[:, :, K].reshape(rows), Y[:, :, :K].reshape(rows, K)
+
+
+@lru_cache(maxsize=64)
+def _toeplitz_index(N: int, No: int, Nu: int, hold: bool, p: int, m: int) -> np.ndarray:
+    """(n_rows·p, Nu·m) flat indices into the stacked blocks [0, H_0 … H_{N−1}, ΣH_0 … ΣH_{N−1}]
+    (each p × m) giving G element by element: G[i, j] = H_{i−j} for j ≤ i (block rows
+    i = No..N−1); with ``hold`` the last block column collects H_0 + … + H_{i−Nu+1}."""
+    i = np.arange(No, N)[:, None]
+    j = np.arange(Nu)[None, :]
+    idx = np.where(j <= i, 1 + i - j, 0)
+    if hold and Nu < N:
+        last = i[:, 0] - (Nu - 1)
+        idx[:, Nu - 1] = np.where(last >= 0, 1 + N + last, 0)
+    a = np.arange(p)[None, :, None, None]
+    b = np.arange(m)[None, None, None, :]
+    flat = (idx[:, None, :, None] * (p * m) + a * m + b).reshape((N - No) * p, Nu * m)
+    flat.setflags(write=False)
+    return flat
+
+
+def _lti_responses(A, B, c, C, x, N: int):
+    """Free response y(1..N) (N, p) and impulse response C A^k B, k = 0..N−1, (N, p, m) of the
+    time-invariant model; the powers C·A^k by repeated squaring."""
+    n, p = A.shape[0], C.shape[0]
+    CP = np.empty((N + 1, p, n))
+    CP[0] = C
+    power, done = A, 1
+    while done <= N:
+        take = min(done, N + 1 - done)
+        np.matmul(CP[:take], power, out=CP[done:done + take])
+        done += take
+        if done <= N:
+            power = power @ power
+    f = CP[1:] @ x
+    if c is not None:
+        f += np.cumsum(CP[:N] @ c, axis=0)  # Σ_{k≤i} C A^k c
+    return f, CP[:N] @ B
+
+
+def _toeplitz(H: np.ndarray, horizons: Horizons, hold: bool) -> np.ndarray:
+    """Block-Toeplitz G of eq. (7) from the blocks H_k (N, p, m)."""
+    N, No, Nu = horizons.N, horizons.No, horizons.Nu
+    p, m = H.shape[1], H.shape[2]
+    hold = hold and Nu < N
+    blocks = np.empty((2 * N + 1 if hold else N + 1, p, m))
+    blocks[0] = 0.0
+    blocks[1:N + 1] = H
+    if hold:
+        np.cumsum(H, axis=0, out=blocks[N + 1:])
+    return blocks.reshape(-1)[_toeplitz_index(N, No, Nu, hold, p, m)]
+
+
+def _condense_lti(A, B, c, C, x, horizons: Horizons, hold_inputs: bool):
+    """Block-Toeplitz condensation of eq. (7) for A_i = A, B_i = B, c_i = c."""
+    f, H = _lti_responses(A, B, c, C, x, horizons.N)
+    return f[horizons.No:].reshape(-1), _toeplitz(H, horizons, hold_inputs)
 
 
 def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None):
@@ -147,9 +223,23 @@ def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None):
     return Aa, Ba, ca
 
 
+@lru_cache(maxsize=64)
 def _cumulative_map(K: int, Nu: int, m: int) -> np.ndarray:
-    """(K·m, Nu·m) map Δu(0..Nu−1) ↦ cumulative sums at steps 0..K−1 (Δu = 0 after Nu)."""
-    return np.kron(np.tri(K, Nu), np.eye(m))
+    """(K·m, Nu·m) map Δu(0..Nu−1) ↦ cumulative sums at steps 0..K−1 (Δu = 0 after Nu).
+
+    Cached and read-only: the same object serves every step of a controller.
+    """
+    M = np.kron(np.tri(K, Nu), np.eye(m))
+    M.setflags(write=False)
+    return M
+
+
+@lru_cache(maxsize=64)
+def _identity_map(size: int) -> np.ndarray:
+    """Cached read-only identity: the absolute form's u = v."""
+    M = np.eye(size)
+    M.setflags(write=False)
+    return M
 
 
 def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
@@ -157,18 +247,35 @@ def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
     f, G = condense(Ad, Bd, cd, C, X, horizons, hold_inputs=True)
     m = np.asarray(Bd).shape[-1]
     size = horizons.Nu * m
-    return Prediction(f, G, np.zeros(size), np.eye(size), horizons, "absolute")
+    return Prediction(f, G, np.zeros(size), _identity_map(size), horizons, "absolute")
 
 
 def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons) -> Prediction:
-    """Incremental prediction, eq. (8)–(9): v = [Δu(k) … Δu(k+Nu−1)], u(k) = u(k−1) + Δu(k)."""
+    """Incremental prediction, eq. (8)–(9): v = [Δu(k) … Δu(k+Nu−1)], u(k) = u(k−1) + Δu(k).
+
+    A time-invariant model is condensed through its step response S_k = Σ_{j≤k} C A^j B (the
+    augmented model (8) has exactly these Markov parameters): G[i, j] = S_{i−j} and
+    f = f_abs + S_i u(k−1); a time-varying one through the augmented state [x; u(k−1)].
+    """
     Ad, Bd = np.asarray(Ad, dtype=float), np.asarray(Bd, dtype=float)
-    Aa, Ba, ca = _augment(Ad, Bd, None if cd is None else np.asarray(cd, dtype=float))
+    C = np.asarray(C, dtype=float)
+    X = np.asarray(X, dtype=float)
+    u_prev = np.asarray(u_prev, dtype=float)
     m = Bd.shape[-1]
-    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
-    x0 = np.concatenate([np.asarray(X, dtype=float), np.asarray(u_prev, dtype=float)])
-    f, G = condense(Aa, Ba, ca, Ca, x0, horizons, hold_inputs=False)
     Nu = horizons.Nu
+    n = C.shape[1]
+    cd = None if cd is None else np.asarray(cd, dtype=float)
+    if Ad.shape == (n, n) and Bd.shape == (n, m) and (cd is None or cd.shape == (n,)) and X.shape == (n,):
+        f, H = _lti_responses(Ad, Bd, cd, C, X, horizons.N)
+        S = np.cumsum(H, axis=0)  # step response
+        f += S @ u_prev
+        G = _toeplitz(S, horizons, hold=False)
+        return Prediction(f[horizons.No:].reshape(-1), G, np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m),
+                          horizons, "incremental")
+    Aa, Ba, ca = _augment(Ad, Bd, cd)
+    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+    x0 = np.concatenate([X, u_prev])
+    f, G = condense(Aa, Ba, ca, Ca, x0, horizons, hold_inputs=False)
     return Prediction(f, G, np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m), horizons, "incremental")
 
 

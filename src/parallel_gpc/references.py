@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InvalidParameterError, ShapeError
+from .errors import InvalidParameterError, NonFiniteError, ShapeError
 from .validation import finite_vector, positive
 
 
@@ -103,6 +103,10 @@ class SampledTrajectory(Reference):
             raise ShapeError(f"trajectory poses have shape {self.poses.shape}; expected ({self.t.shape[0]}, n_y)")
         if self.t.shape[0] < 2 or np.any(np.diff(self.t) <= 0):
             raise InvalidParameterError("trajectory times must be ≥ 2 strictly increasing values")
+        if not np.all(np.isfinite(self.poses)):
+            bad = np.argwhere(~np.isfinite(self.poses))[0]
+            raise NonFiniteError(f"trajectory pose {self.poses[bad[0]].tolist()} at t = {self.t[bad[0]]} s "
+                                 "contains NaN or inf; poses must be finite")
         self.velocities = None if velocities is None else np.asarray(velocities, dtype=float)
 
     def pose(self, t: float) -> np.ndarray:

@@ -19,9 +19,11 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
+from scipy.linalg import lapack
 
 from .errors import (
     AssemblyError,
+    InvalidParameterError,
     RobotFormatError,
     SingularPoseError,
     UnreachablePoseError,
@@ -37,6 +39,31 @@ _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 #: Φ_z smallest/largest singular value below which the legs count as singular.
 SINGULAR_RCOND = 1e-8
 _CLOSURE_ROWS = {"point": 3, "weld": 6}
+#: relative singular-value cut of the rank-revealing Newton step (as ``lstsq(rcond=1e-10)``).
+_NEWTON_RCOND = 1e-10
+
+
+def _fast_index(idx: np.ndarray):
+    """A slice equal to the integer index array ``idx`` when it is an arithmetic progression
+    (basic slicing is several times cheaper than fancy indexing in the hot paths), else ``idx``."""
+    idx = np.asarray(idx, dtype=int)
+    if idx.size == 0:
+        return idx
+    if idx.size == 1:
+        return slice(int(idx[0]), int(idx[0]) + 1)
+    step = int(idx[1] - idx[0])
+    if step > 0 and np.all(np.diff(idx) == step):
+        return slice(int(idx[0]), int(idx[-1]) + 1, step)
+    return idx
+
+
+def svd_thin(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Thin SVD ``a = U diag(s) Vt`` by LAPACK ``dgesdd`` (same factorization as
+    ``numpy.linalg.svd(a, full_matrices=False)``, without its per-call overhead)."""
+    U, s, Vt, info = lapack.dgesdd(a, compute_uv=1, full_matrices=0)
+    if info != 0:  # pragma: no cover - LAPACK convergence failure: take numpy's path and its error
+        return np.linalg.svd(a, full_matrices=False)
+    return U, s, Vt
 
 
 def urdf_dir() -> Path:
@@ -140,8 +167,17 @@ def _require(data: dict, key: str, where: str):
     return data[key]
 
 
+def _names(value, key: str, where: str) -> tuple[str, ...]:
+    """A list of joint names from the sidecar, checked (a bare string is a typo, not a list)."""
+    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
+        raise RobotFormatError(f"sidecar {where}: {key} = {value!r} must be a list of joint names")
+    return tuple(value)
+
+
 def _closures_from_gepetto(data: dict, where: str) -> tuple[Closure, ...]:
     pairs = _require(data, "closed_loop", where)
+    if not isinstance(pairs, list) or not all(isinstance(p, (list, tuple)) and len(p) == 2 for p in pairs):
+        raise RobotFormatError(f"sidecar {where}: closed_loop = {pairs!r} must be a list of [frame_a, frame_b] pairs")
     kinds = data.get("type", ["6d"] * len(pairs))
     if len(kinds) != len(pairs):
         raise RobotFormatError(
@@ -168,14 +204,16 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT) -> RobotDescripti
     where = repr(str(sidecar))
     if "closed_loop" in data:  # Gepetto-style
         closures = _closures_from_gepetto(data, where)
-        drives = tuple(_require(data, "name_mot", where))
+        drives = _names(_require(data, "name_mot", where), "name_mot", where)
         output = data.get("output") or {}
-        out_joints = tuple(output.get("joints") or _require(data, "output_joints", where))
+        out_joints = _names(output.get("joints") or _require(data, "output_joints", where), "output joints", where)
         out_frame = output.get("frame") or data.get("output_frame", "")
         limits = data.get("torque_limit")
         home = data.get("home", {}) or {}
     else:
         raw = _require(data, "closures", where)
+        if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
+            raise RobotFormatError(f"sidecar {where}: closures = {raw!r} must be a list of tables [[closures]]")
         closures = []
         for i, c in enumerate(raw):
             kind = c.get("kind", "point")
@@ -184,19 +222,24 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT) -> RobotDescripti
                     f"sidecar {where}: closure {i + 1} kind {kind!r} is not one of {sorted(_CLOSURE_ROWS)}"
                 )
             frames = c.get("frames")
-            if not isinstance(frames, list) or len(frames) != 2:
+            if not isinstance(frames, list) or len(frames) != 2 or not all(isinstance(f, str) for f in frames):
                 raise RobotFormatError(f"sidecar {where}: closure {i + 1} needs frames = [a, b], got {frames!r}")
             closures.append(Closure(c.get("name", f"loop_{i + 1}"), kind, (frames[0], frames[1])))
         closures = tuple(closures)
         drives_tbl = _require(data, "drives", where)
-        drives = tuple(_require(drives_tbl, "joints", where))
+        drives = _names(_require(drives_tbl, "joints", where), "drives.joints", where)
         limits = drives_tbl.get("torque_limit")
         output = _require(data, "output", where)
-        out_joints = tuple(_require(output, "joints", where))
+        out_joints = _names(_require(output, "joints", where), "output.joints", where)
         out_frame = output.get("frame", "")
         home = data.get("home", {})
     if limits is not None:
-        limits = tuple(float(x) for x in (limits if isinstance(limits, list) else [limits] * len(drives)))
+        try:
+            limits = tuple(float(x) for x in (limits if isinstance(limits, list) else [limits] * len(drives)))
+        except (TypeError, ValueError):
+            raise RobotFormatError(
+                f"sidecar {where}: torque_limit {limits!r} must hold {len(drives)} numbers > 0 (N·m)"
+            ) from None
         if len(limits) != len(drives) or any(not (x > 0 and math.isfinite(x)) for x in limits):
             raise RobotFormatError(
                 f"sidecar {where}: torque_limit {list(limits)} must hold {len(drives)} finite values > 0 (N·m)"
@@ -262,7 +305,7 @@ class ParallelRobot:
                 f"joints {bad} have nq != nv; only revolute and prismatic joints are supported"
             )
         if not (mass_scale > 0 and math.isfinite(mass_scale)):
-            raise RobotFormatError(f"mass_scale = {mass_scale!r} must be finite and > 0")
+            raise InvalidParameterError(f"mass_scale = {mass_scale!r} must be finite and > 0")
         for j in range(1, model.njoints):
             inertia = model.inertias[j]
             model.inertias[j] = pin.Inertia(
@@ -283,6 +326,7 @@ class ParallelRobot:
             (self._frame_id(c.frames[0], c), self._frame_id(c.frames[1], c), c) for c in description.closures
         ]
         self.n_constraints = sum(_CLOSURE_ROWS[c.kind] for c in description.closures)
+        self._setup_fast_paths()
         if self.n_constraints < self.n_z:
             raise RobotFormatError(
                 f"{len(description.closures)} closures give {self.n_constraints} constraint rows, fewer than "
@@ -299,6 +343,7 @@ class ParallelRobot:
         self._branch_idx = np.array(
             [self._joint_v_index(n, "branch joint") for n in description.branch_joints], dtype=int
         )
+        self._bs = _fast_index(self._branch_idx)
         q0 = pin.neutral(model)
         for name, value in description.q_guess.items():
             q0[self._joint_v_index(name, "q_guess joint")] = value
@@ -306,8 +351,43 @@ class ParallelRobot:
         self.home_pose = finite_vector("home pose", home, self.n_y)
         q0[self.y_idx] = self.home_pose
         self._branch = None
-        self.q_home = self._newton(self.home_pose, q0)
+        try:
+            self.q_home = self._newton(self.home_pose, q0)
+        except UnreachablePoseError as exc:
+            raise AssemblyError(self._assembly_failure(q0, exc)) from None
         self._branch = self.branch_signature(self.q_home)
+
+    def _assembly_failure(self, q0: np.ndarray, exc: Exception) -> str:
+        """Message for closures that cannot be assembled at the home pose: the worst closures."""
+        q = q0.copy()
+        for _ in range(30):  # least-squares Newton: where the closures get closest
+            ck = self.closure_kinematics(q)
+            q[self.z_idx] -= np.linalg.lstsq(ck.jacobian[:, self.z_idx], ck.residual, rcond=1e-10)[0]
+        res = self.closure_residual(q)
+        parts, row = [], 0
+        for _, _, c in self._closure_frames:
+            rows = _CLOSURE_ROWS[c.kind]
+            parts.append((float(np.linalg.norm(res[row:row + rows])), c))
+            row += rows
+        bad = [f"{c.name!r} {list(c.frames)} misses by {r:.3g} m" for r, c in sorted(parts, key=lambda t: -t[0])
+               if r > 1e-9]
+        return (f"the closures of {self.name!r} cannot be assembled at the home pose "
+                f"{np.round(self.home_pose, 6).tolist()}: {'; '.join(bad) or str(exc)} "
+                f"(check the closure frames, home.pose and home.q_guess in the sidecar)")
+
+    def _setup_fast_paths(self) -> None:
+        """Index tables and caches of the hot paths (closure evaluation, velocity map)."""
+        self._frames_flat = [f for fa, fb, _ in self._closure_frames for f in (fa, fb)]
+        self._point_only = all(c.kind == "point" for _, _, c in self._closure_frames)
+        rows = [6 * k + i for k, (_, _, c) in enumerate(self._closure_frames) for i in range(_CLOSURE_ROWS[c.kind])]
+        self._jac_rows = np.array(rows, dtype=int)  # rows of the stacked 6-D frame differences kept
+        self._ys = _fast_index(self.y_idx)
+        self._zs = _fast_index(self.z_idx)
+        self._ds = _fast_index(self.drive_idx)
+        self._T0 = np.zeros((self.model.nv, self.n_y))
+        self._T0[self.y_idx, np.arange(self.n_y)] = 1.0
+        self._ck_cache = None  # (q, residual, jacobian) of the last Jacobian evaluation
+        self._vm_cache = None  # (q, T, pinv_z) of the last velocity map
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -346,25 +426,63 @@ class ParallelRobot:
         return S
 
     # ------------------------------------------------------------------ closures
-    def closure_kinematics(self, q: np.ndarray) -> ClosureKinematics:
-        """Φ(q) and Φ_q at configuration q (updates ``self.data``)."""
+    def _closure_eval(self, q: np.ndarray, jacobian: bool = True):
+        """Φ(q) and (if ``jacobian``) Φ_q at q: one kinematics pass, all frames at once.
+
+        The last evaluation with the Jacobian is cached on q (the final Newton iterate is the
+        configuration whose velocity map is asked for next). Returns (residual, jacobian or None);
+        callers must not modify them.
+        """
+        key = q.tobytes()
+        cache = self._ck_cache
+        if cache is not None and cache[0] == key:
+            return cache[1], cache[2]
         model, data = self.model, self.data
-        pin.computeJointJacobians(model, data, q)
+        if jacobian:
+            pin.computeJointJacobians(model, data, q)
+        else:
+            pin.forwardKinematics(model, data, q)
         pin.updateFramePlacements(model, data)
-        res = np.empty(self.n_constraints)
-        jac = np.empty((self.n_constraints, model.nv))
-        row = 0
-        for fa, fb, c in self._closure_frames:
-            Ja = pin.getFrameJacobian(model, data, fa, _LWA)
-            Jb = pin.getFrameJacobian(model, data, fb, _LWA)
-            oMa, oMb = data.oMf[fa], data.oMf[fb]
-            res[row:row + 3] = oMa.translation - oMb.translation
-            jac[row:row + 3] = Ja[:3] - Jb[:3]
-            if c.kind == "weld":
-                res[row + 3:row + 6] = oMa.rotation @ pin.log3(oMa.rotation.T @ oMb.rotation) * -1.0
-                jac[row + 3:row + 6] = Ja[3:] - Jb[3:]
-            row += _CLOSURE_ROWS[c.kind]
-        return ClosureKinematics(res, jac)
+        oMf = data.oMf
+        frames = self._frames_flat
+        P = np.array([oMf[f].translation for f in frames])
+        if self._point_only:
+            res = (P[0::2] - P[1::2]).reshape(-1)
+        else:
+            res = np.empty(self.n_constraints)
+            row = 0
+            for fa, fb, c in self._closure_frames:
+                oMa, oMb = oMf[fa], oMf[fb]
+                res[row:row + 3] = oMa.translation - oMb.translation
+                if c.kind == "weld":
+                    res[row + 3:row + 6] = oMa.rotation @ pin.log3(oMa.rotation.T @ oMb.rotation) * -1.0
+                row += _CLOSURE_ROWS[c.kind]
+        if not jacobian:
+            return res, None
+        J = np.array([pin.getFrameJacobian(model, data, f, _LWA) for f in frames])
+        if self._point_only:
+            jac = (J[0::2, :3] - J[1::2, :3]).reshape(-1, model.nv)
+        else:
+            jac = (J[0::2] - J[1::2]).reshape(-1, model.nv)[self._jac_rows]
+        self._ck_cache = (key, res, jac)
+        return res, jac
+
+    def closure_kinematics(self, q: np.ndarray) -> ClosureKinematics:
+        """Φ(q) and Φ_q at configuration q (updates ``self.data`` unless q was just evaluated)."""
+        res, jac = self._closure_eval(np.asarray(q, dtype=float))
+        return ClosureKinematics(res.copy(), jac.copy())
+
+    def closure_jacobian_derivative(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """(m, nv) Φ̇_q = dΦ_q/dt at (q, q̇ = v); the closure acceleration bias is γ = Φ̇_q v.
+
+        Φ̇_q is linear in v. Updates ``self.data``.
+        """
+        model, data = self.model, self.data
+        pin.computeJointJacobiansTimeVariation(model, data, q, v)
+        dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA) for f in self._frames_flat])
+        if self._point_only:
+            return (dJ[0::2, :3] - dJ[1::2, :3]).reshape(-1, model.nv)
+        return (dJ[0::2] - dJ[1::2]).reshape(-1, model.nv)[self._jac_rows]
 
     def closure_residual(self, q: np.ndarray) -> np.ndarray:
         """(m,) Φ(q): closure mismatch in m (and rad for welds)."""
@@ -390,27 +508,90 @@ class ParallelRobot:
         """Signs of sin(q) of the branch joints (the elbow configuration)."""
         return np.sign(np.sin(q[self._branch_idx]))
 
+    def _lstsq_z(self, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+        """Minimum-norm least-squares δz with Φ_z δz ≈ res (SVD, singular values below
+        ``1e-10·s_max`` dropped: the same step as ``numpy.linalg.lstsq(rcond=1e-10)``)."""
+        U, s, Vt = svd_thin(jac[:, self._zs])
+        r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s[0] > 0 else 0
+        if r == s.shape[0]:
+            return Vt.T @ ((U.T @ res) / s)
+        return Vt[:r].T @ ((U[:, :r].T @ res) / s[:r])
+
     def _newton(self, pose: np.ndarray, q_guess: np.ndarray, tol: float = 1e-12,
                 max_iter: int = 30) -> np.ndarray:
         """Solve Φ(q) = 0 for z with y = pose fixed, from q_guess (rank-revealing steps)."""
         q = np.array(q_guess, dtype=float)
-        q[self.y_idx] = pose
+        q[self._ys] = pose
+        zs = self._zs
         for _ in range(max_iter):
-            ck = self.closure_kinematics(q)
-            err = np.max(np.abs(ck.residual))
+            res, jac = self._closure_eval(q)
+            err = np.abs(res).max()
             if err <= tol:
                 break
-            step, *_ = np.linalg.lstsq(ck.jacobian[:, self.z_idx], ck.residual, rcond=1e-10)
-            q[self.z_idx] -= step
+            if not err < 1e6:  # NaN/inf pose or a diverging iteration
+                raise UnreachablePoseError(
+                    f"platform pose {np.round(pose, 6).tolist()} cannot be assembled: closure residual {err:.3g}"
+                )
+            q[zs] -= self._lstsq_z(jac, res)
         else:
-            ck = self.closure_kinematics(q)
-            err = np.max(np.abs(ck.residual))
+            res, _ = self._closure_eval(q)
+            err = np.max(np.abs(res))
             if err > 1e-9:
                 raise UnreachablePoseError(
                     f"platform pose {np.round(pose, 6).tolist()} cannot be assembled: closure residual "
                     f"{err:.3g} m after {max_iter} Newton steps (outside the workspace of {self.name!r})"
                 )
         return q
+
+    def _assemble_map(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
+                      near: bool = False, tol: float = 1e-12, max_iter: int = 8):
+        """Warm-started hot path of :meth:`assemble` + :meth:`velocity_map`: (q, T, Φ_z⁺).
+
+        Newton from ``q_guess`` (expected within a few steps of the solution), the branch check,
+        and the velocity map at the converged q from the Jacobian of the last Newton
+        evaluation (one kinematics pass less). ``pinv_hint`` (Φ_z⁺ at a nearby configuration)
+        makes the first Newton step cheap: the least-squares step is solved by one step of
+        iterative refinement preconditioned with it instead of an SVD (same step to second
+        order in the distance; convergence is checked as always). Returns None when anything
+        is unusual (no convergence in ``max_iter`` steps, another branch, a singular Φ_z): the
+        caller then takes the validated path, which reports the error. ``near`` (the guess is
+        within ~0.1 mm of an assembled configuration on the home branch) skips the branch check
+        when no Newton step was needed: the elbows cannot cross their stretched/folded angle
+        without a step.
+        """
+        q = np.array(q_guess, dtype=float)
+        q[self._ys] = pose
+        zs = self._zs
+        tol2 = tol * tol
+        for it in range(max_iter):
+            res, jac = self._closure_eval(q)
+            err2 = res @ res  # ‖Φ‖₂ ≤ tol implies ‖Φ‖∞ ≤ tol
+            if err2 <= tol2:
+                break
+            if not err2 < 1e-4:
+                return None
+            if it == 0 and pinv_hint is not None:
+                step = pinv_hint @ res
+                step += pinv_hint @ (res - jac[:, zs] @ step)
+                q[zs] -= step
+            else:
+                q[zs] -= self._lstsq_z(jac, res)
+        else:
+            return None
+        if self._branch_idx.size and not (near and it == 0) and not (np.sin(q[self._bs]) * self._branch).min() > 0:
+            return None
+        U, s, Vt = svd_thin(jac[:, zs])
+        n_z = self.n_z
+        if not s[n_z - 1] > SINGULAR_RCOND * s[0]:
+            return None
+        pinv_z = (Vt[:n_z].T / s[:n_z]) @ U[:, :n_z].T
+        T = self._T0.copy()
+        T[zs] = -(pinv_z @ jac[:, self._ys])
+        self._vm_cache = (self._ck_cache[0], T, pinv_z)
+        return q, T, pinv_z
+
+    def _on_branch(self, q: np.ndarray) -> bool:
+        return bool(np.all(np.sin(q[self._branch_idx]) * self._branch > 0)) if self._branch_idx.size else True
 
     def assemble(self, pose, q_guess: np.ndarray | None = None) -> np.ndarray:
         """Full configuration q for a platform pose y, on the home branch.
@@ -430,7 +611,7 @@ class ParallelRobot:
         if q_guess is not None:
             try:
                 q = self._newton(pose, q_guess)
-                if np.array_equal(self.branch_signature(q), self._branch):
+                if self._on_branch(q):
                     return q
             except AssemblyError:
                 pass
@@ -505,8 +686,17 @@ class ParallelRobot:
         Raises:
             SingularPoseError: if Φ_z loses rank (a leg is stretched or folded).
         """
-        jac = self.closure_kinematics(q).jacobian
-        U, s, Vt = np.linalg.svd(jac[:, self.z_idx], full_matrices=False)
+        T, pinv_z = self._velocity_map(np.asarray(q, dtype=float))
+        return T.copy(), pinv_z.copy()
+
+    def _velocity_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`velocity_map` without copies (cached on q; callers must not modify)."""
+        key = q.tobytes()
+        cache = self._vm_cache
+        if cache is not None and cache[0] == key:
+            return cache[1], cache[2]
+        _, jac = self._closure_eval(q)
+        U, s, Vt = svd_thin(jac[:, self._zs])
         n_z = self.n_z
         if s[n_z - 1] <= SINGULAR_RCOND * s[0]:
             raise SingularPoseError(
@@ -514,9 +704,9 @@ class ParallelRobot:
                 f"cond(Φ_z) = {s[0] / max(s[n_z - 1], 1e-300):.3g} (limit {1 / SINGULAR_RCOND:.0e})"
             )
         pinv_z = (Vt[:n_z].T / s[:n_z]) @ U[:, :n_z].T
-        T = np.zeros((self.model.nv, self.n_y))
-        T[self.y_idx] = np.eye(self.n_y)
-        T[self.z_idx] = -pinv_z @ jac[:, self.y_idx]
+        T = self._T0.copy()
+        T[self._zs] = -(pinv_z @ jac[:, self._ys])
+        self._vm_cache = (key, T, pinv_z)
         return T, pinv_z
 
     def singularity(self, q: np.ndarray) -> dict:

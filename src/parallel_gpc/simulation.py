@@ -18,7 +18,8 @@ from tqdm import tqdm
 
 from .controller import GPCController
 from .references import Reference
-from .validation import positive
+from .errors import InvalidParameterError, ShapeError
+from .validation import finite_vector, positive
 
 
 @dataclass
@@ -128,6 +129,15 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     rng = np.random.default_rng(seed)
     robot = plant.robot
     n_y, n_u = robot.n_y, robot.n_u
+    if (controller.n_y, controller.n_u) != (n_y, n_u):
+        raise ShapeError(f"controller has {controller.n_y} outputs and {controller.n_u} drives, the plant "
+                         f"{robot.name!r} has {n_y} and {n_u}; they must describe the same robot")
+    if noise_std is not None:
+        noise_std = np.broadcast_to(np.asarray(noise_std, dtype=float), (2 * n_y,)) if np.ndim(noise_std) == 0 \
+            else finite_vector("noise_std", noise_std, 2 * n_y)
+        if not np.all(np.isfinite(noise_std)) or np.any(noise_std < 0):
+            raise InvalidParameterError(f"noise_std = {np.asarray(noise_std).tolist()} must be finite and ≥ 0 "
+                                        f"(a scalar or {2 * n_y} values for [y, ẏ])")
     rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "internal_force", "q", "step_time",
                            "solve_time", "iterations", "status", "fallback", "saturated")}
     interrupted = False

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError, SolverNotFoundError
 from .prediction import Prediction
@@ -35,6 +36,9 @@ RANK_RTOL = 1e-10
 QP_REGULARIZATION = 1e-10
 #: feasibility tolerance (N·m, relative to the limit) when checking limits.
 LIMIT_TOL = 1e-7
+#: reciprocal condition (estimate, 1-norm) of the unpivoted triangular factor above which the
+#: fast QR path trusts full rank; below it the rank-revealing (pivoted) path decides.
+FAST_QR_RCOND = 1e-8
 
 
 # ---------------------------------------------------------------------------- weights
@@ -99,6 +103,12 @@ class LeastSquaresProblem:
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
     min_norm_of: tuple[np.ndarray, np.ndarray] | None = None
+    #: structure known to :func:`build_problem` (private hint for the back ends): ``rows`` =
+    #: number of leading rows of A that can be nonzero (the Qu block is zero below them),
+    #: ``tail_diag`` = diagonal of the Qu block when it is diagonal (``tail_positive``: all > 0,
+    #: so A has full column rank), ``cumulative`` = m when ``min_norm_of[0]`` is the
+    #: cumulative-sum map kron(tri, I_m).
+    _structure: dict | None = field(default=None, repr=False, compare=False)
 
     @property
     def n(self) -> int:
@@ -170,12 +180,22 @@ def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: 
     w = np.asarray(w, dtype=float)
     if w.size != H.n_rows * p:
         raise ShapeError(f"reference w has shape {w.shape}; expected ({H.n_rows}, {p}) for N − No = {H.n_rows} rows")
-    Wy, Wu = weights.blocks(p, m)
-    Qy = np.kron(np.eye(H.n_rows), Wy)
-    Qu = np.kron(np.eye(H.Nu), Wu)
-    A = np.vstack([Qy @ pred.G, Qu])
-    b = np.concatenate([Qy @ (w.reshape(-1) - pred.f), np.zeros(H.Nu * m)])
-    prob = LeastSquaresProblem(A, b)
+    wy, Wy, Qu_block, qu_diag, qu_zero = _stacked_weights(weights, p, m, H.n_rows, H.Nu)
+    r, n = H.n_rows * p, H.Nu * m
+    A = np.empty((r + n, n))
+    b = np.empty(r + n)
+    if wy is not None:  # diagonal Qy: kron(I, Qy) scales rows
+        np.multiply(pred.G, wy[:, None], out=A[:r])
+        np.subtract(w.reshape(-1), pred.f, out=b[:r])
+        b[:r] *= wy
+    else:
+        A[:r] = (Wy @ pred.G.reshape(H.n_rows, p, n)).reshape(r, n)
+        b[:r] = (Wy @ (w.reshape(H.n_rows, p) - pred.f.reshape(H.n_rows, p)).T).T.reshape(-1)
+    A[r:] = Qu_block
+    b[r:] = 0.0
+    structure = {"rows": r if qu_zero else r + n, "tail_diag": qu_diag, "cumulative": None,
+                 "tail_positive": qu_diag is not None and bool(np.all(qu_diag > 0))}
+    prob = LeastSquaresProblem(A, b, _structure=structure)
     if torque_limit is not None:
         tau = np.tile(_limit_vector("torque_limit", torque_limit, m), len(pred.u_base) // m)
         if pred.kind == "absolute":
@@ -183,14 +203,53 @@ def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: 
         else:
             prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
     if pred.kind != "absolute":
-        n = H.Nu * m
         prob.min_norm_of = (pred.u_map[:n], pred.u_base[:n])
+        if _is_cumulative_map(pred.u_map, H.Nu, m):
+            structure["cumulative"] = m
     if du_limit is not None:
         if pred.kind == "absolute":
             raise InvalidParameterError("du_limit applies to the incremental forms (v = Δu); the absolute form has v = u")
         d = np.tile(_limit_vector("du_limit", du_limit, m), H.Nu)
         prob.lb, prob.ub = -d, d
     return prob
+
+
+#: last stacked weights per (Weights object, sizes): validated once, reused every step.
+_WEIGHT_CACHE: dict = {}
+
+
+def _stacked_weights(weights: Weights, p: int, m: int, n_rows: int, Nu: int):
+    """Validated, stacked weights: (wy tiled or None, Qy block, kron(I, Qu), Qu diagonal tiled or
+    None, Qu == 0). Cached on the (frozen) :class:`Weights` object."""
+    key = (id(weights), p, m, n_rows, Nu)
+    hit = _WEIGHT_CACHE.get(key)
+    if hit is not None and hit[0] is weights:
+        return hit[1]
+    Wy, Wu = weights.blocks(p, m)
+    diag_y = not np.any(Wy - np.diag(np.diag(Wy)))
+    diag_u = not np.any(Wu - np.diag(np.diag(Wu)))
+    wy = np.tile(np.diag(Wy), n_rows) if diag_y else None
+    qu_diag = np.tile(np.diag(Wu), Nu) if diag_u else None
+    Qu_block = np.diag(qu_diag) if diag_u else np.kron(np.eye(Nu), Wu)
+    value = (wy, Wy, Qu_block, qu_diag, not np.any(Wu))
+    for arr in value:
+        if isinstance(arr, np.ndarray):
+            arr.setflags(write=False)
+    if len(_WEIGHT_CACHE) > 64:
+        _WEIGHT_CACHE.clear()
+    _WEIGHT_CACHE[key] = (weights, value)
+    return value
+
+
+def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:
+    """True when the first Nu·m rows of u_map are kron(tri(Nu), I_m) (the prediction forms' map)."""
+    from .prediction import _cumulative_map
+
+    if u_map.shape[1] != Nu * m or u_map.shape[0] < Nu * m:
+        return False
+    ref = _cumulative_map(Nu, Nu, m)
+    top = u_map[:Nu * m]
+    return top is ref or (u_map.base is not None and u_map.base is ref.base) or bool(np.array_equal(top, ref))
 
 
 # ---------------------------------------------------------------------------- results
@@ -225,16 +284,37 @@ class SolveResult:
 
 
 # ---------------------------------------------------------------------------- QR
-def qr_least_squares(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, int]:
+def qr_least_squares(A: np.ndarray, b: np.ndarray, method: str = "lapack") -> tuple[np.ndarray, float, int]:
     """Minimum-norm least-squares solution of A v ≈ b by QR, eq. (17)–(19).
 
     Column-pivoted Householder QR ``A P = Q R`` (LAPACK geqp3) reveals the rank r. Full rank:
     ``R₁ v = c₁`` by back substitution. Rank-deficient: a complete orthogonal decomposition
     ``[R₁₁ R₁₂] = T Zᵀ`` gives the minimum-norm v. The lost part gives ``J = ‖c_z‖²``.
 
+    Args:
+        A: (r, n); b: (r,).
+        method: ``"lapack"`` (default): LAPACK drivers called directly — unpivoted Householder
+            QR (``geqrf``/``ormqr``/``trtrs``; of Aᵀ when A is wide, giving the minimum-norm
+            solution of a full-row-rank system) whenever its triangular factor is well
+            conditioned (``trcon`` estimate > :data:`FAST_QR_RCOND`), else the pivoted path;
+            ``"pivoted"``: always the rank-revealing pivoted QR / complete orthogonal
+            decomposition above; ``"numpy"``: ``numpy.linalg.qr`` and a triangular solve
+            (``numpy.linalg.lstsq`` when rank-deficient). All give the same v to rounding.
+
     Returns:
         (v, J, numerical rank).
     """
+    if method == "lapack":
+        out = _qr_lapack(A, b)
+        return out if out is not None else _qr_pivoted(A, b)
+    if method == "pivoted":
+        return _qr_pivoted(A, b)
+    if method == "numpy":
+        return _qr_numpy(A, b)
+    raise InvalidParameterError(f"QR method {method!r} is not one of 'lapack', 'pivoted', 'numpy'")
+
+
+def _qr_pivoted(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, int]:
     n = A.shape[1]
     Q, R, piv = sla.qr(A, mode="economic", pivoting=True, check_finite=False)
     d = np.abs(np.diag(R))
@@ -249,20 +329,129 @@ def qr_least_squares(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, i
     return v, max(float(b @ b - c1 @ c1), 0.0), rank
 
 
+def _qr_lapack(A: np.ndarray, b: np.ndarray):
+    """Unpivoted Householder QR through LAPACK; None when the factor is (nearly) singular."""
+    r, n = A.shape
+    if n == 0 or r == 0:
+        return None
+    if r >= n:  # tall: A = Q R, v = R⁻¹ (Qᵀ b)[:n], J = ‖(Qᵀ b)[n:]‖²
+        qr, tau, _, info = lapack.dgeqrf(A)
+        if info != 0:
+            return None
+        R = qr[:n]
+        rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
+        if info != 0 or not rcond > FAST_QR_RCOND:
+            return None
+        c, _, info = lapack.dormqr("L", "T", qr, tau, b[:, None], max(1, 64 * n))
+        if info != 0:
+            return None
+        c = c[:, 0]
+        v, info = lapack.dtrtrs(R, c[:n])
+        if info != 0:
+            return None
+        tail = c[n:]
+        return v, float(tail @ tail), n
+    # wide: Aᵀ = Q R, the minimum-norm solution of A v = b is v = Q R⁻ᵀ b (J = 0)
+    qr, tau, _, info = lapack.dgeqrf(A.T)
+    if info != 0:
+        return None
+    R = qr[:r]
+    rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
+    if info != 0 or not rcond > FAST_QR_RCOND:
+        return None
+    y, info = lapack.dtrtrs(R, b, trans=1)
+    if info != 0:
+        return None
+    z = np.zeros((n, 1))
+    z[:r, 0] = y
+    v, _, info = lapack.dormqr("L", "N", qr, tau, z, max(1, 64 * r), overwrite_c=1)
+    if info != 0:
+        return None
+    return v[:, 0], 0.0, r
+
+
+def _qr_diag_tail(G: np.ndarray, b: np.ndarray, d: np.ndarray):
+    """min ‖G v − b‖² + ‖diag(d) v‖² by Householder QR of [diag(d); G] that keeps the diagonal
+    block's structure (LAPACK ``tpqrt``/``tpmqrt``: about half the work of a dense QR of the
+    stacked matrix); None when the triangular factor is not well conditioned."""
+    n = G.shape[1]
+    R, V, T, info = lapack.dtpqrt(0, min(n, 32), np.diag(d), G)
+    if info != 0:
+        return None
+    rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
+    if info != 0 or not rcond > FAST_QR_RCOND:
+        return None
+    c1, cz, info = lapack.dtpmqrt(0, V, T, np.zeros((n, 1)), b[:, None], trans="T")
+    if info != 0:
+        return None
+    v, info = lapack.dtrtrs(R, c1)
+    if info != 0:
+        return None
+    cz = cz[:, 0]
+    return v[:, 0], float(cz @ cz), n
+
+
+def _qr_numpy(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, int]:
+    """numpy.linalg only: Householder QR and a triangular solve; lstsq (SVD) if rank-deficient."""
+    r, n = A.shape
+    if r >= n:
+        Q, R = np.linalg.qr(A)
+        d = np.abs(np.diag(R))
+        if d.size and d.min() > 1e3 * RANK_RTOL * d.max():
+            c1 = Q.T @ b
+            v = np.linalg.solve(R, c1)
+            return v, max(float(b @ b - c1 @ c1), 0.0), n
+    v, _, rank, _ = np.linalg.lstsq(A, b, rcond=RANK_RTOL)
+    res = A @ v - b
+    return v, float(res @ res), int(rank)
+
+
 class QRSolver:
-    """Unconstrained square-root solve by QR (the reference back end). Ignores limits."""
+    """Unconstrained square-root solve by QR (the reference back end). Ignores limits.
+
+    Args:
+        method: QR implementation, see :func:`qr_least_squares` (default ``"lapack"``).
+    """
 
     name = "qr"
 
+    def __init__(self, method: str = "lapack"):
+        if method not in ("lapack", "pivoted", "numpy"):
+            raise InvalidParameterError(f"QR method {method!r} is not one of 'lapack', 'pivoted', 'numpy'")
+        self.method = method
+        if method != "lapack":
+            self.name = f"qr-{method}"
+
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        if problem.min_norm_of is None:
-            v, cost, rank = qr_least_squares(problem.A, problem.b)
+        A, b = problem.A, problem.b
+        st = problem._structure
+        if st is not None and st["rows"] < A.shape[0]:  # drop the zero Qu rows (Qu = 0)
+            A, b = A[:st["rows"]], b[:st["rows"]]
+        out = None
+        if st is not None and st.get("tail_positive") and self.method == "lapack":
+            # A = [Qy G; diag(d)], d > 0: full column rank, one minimizer (no minimum-norm
+            # transform needed); QR of the triangular-pentagonal pair [diag(d); Qy G]
+            top = A.shape[0] - A.shape[1]
+            out = _qr_diag_tail(A[:top], b[:top], st["tail_diag"])
+        if out is not None:
+            v, cost, rank = out
+        elif problem.min_norm_of is None:
+            v, cost, rank = qr_least_squares(A, b, self.method)
         else:  # s = M v + m0; the minimum-norm s among the minimizers (same v when A has full rank)
             M, m0 = problem.min_norm_of
-            AMinv = sla.solve_triangular(M, problem.A.T, trans="T", lower=True, check_finite=False).T
-            s, cost, rank = qr_least_squares(AMinv, problem.b + AMinv @ m0)
-            v = sla.solve_triangular(M, s - m0, lower=True, check_finite=False)
+            m = st["cumulative"] if st is not None else None
+            if m:  # M = kron(tri, I_m): A M⁻¹ and M⁻¹ are block differences
+                AMinv = A.copy()
+                AMinv[:, :-m] -= A[:, m:]
+            else:
+                AMinv = sla.solve_triangular(M, A.T, trans="T", lower=True, check_finite=False).T
+            s, cost, rank = qr_least_squares(AMinv, b + AMinv @ m0, self.method)
+            if m:
+                v = s - m0
+                v[m:] -= (s - m0)[:-m]
+            else:
+                v = sla.solve_triangular(M, s - m0, lower=True, check_finite=False)
         dt = time.perf_counter() - t0
         return SolveResult(v, cost, "unconstrained", self.name, None, dt, False,
                            f"rank {rank} of {problem.n}" if rank < problem.n else "")
@@ -271,12 +460,25 @@ class QRSolver:
 # ---------------------------------------------------------------------------- QP
 def _scaled_qp(problem: LeastSquaresProblem):
     """Hessian P = AᵀA and gradient q = −Aᵀb scaled to max(diag P) = 1, plus a tiny ridge."""
-    P = problem.A.T @ problem.A
-    q = -problem.A.T @ problem.b
-    scale = 1.0 / max(float(np.max(np.diag(P))), 1e-300)
-    P = P * scale
-    P[np.diag_indices_from(P)] += QP_REGULARIZATION
-    return P, q * scale, scale
+    A, b = problem.A, problem.b
+    st = problem._structure
+    tail = None
+    if st is not None:
+        if st["rows"] < A.shape[0]:  # Qu = 0: only the leading rows are nonzero
+            A, b = A[:st["rows"]], b[:st["rows"]]
+        elif st["tail_diag"] is not None:  # A = [Qy G; diag(d)], b = [·; 0]: P = (Qy G)ᵀ(Qy G) + diag(d²)
+            top = A.shape[0] - A.shape[1]
+            A, b, tail = A[:top], b[:top], st["tail_diag"]
+    P = A.T @ A
+    q = A.T @ b
+    diag = P.reshape(-1)[::P.shape[0] + 1]  # a view on the diagonal of P
+    if tail is not None:
+        diag += tail * tail
+    scale = 1.0 / max(float(diag.max()), 1e-300)
+    P *= scale
+    diag += QP_REGULARIZATION
+    q *= -scale
+    return P, q, scale
 
 
 def installed_qp_solvers() -> list[str]:
@@ -295,7 +497,7 @@ class QpsolversBackend:
     """
 
     _DEFAULTS = {
-        "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000),
+        "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000, verbose=False),
         "proxqp": dict(eps_abs=1e-10, eps_rel=0.0),
     }
 
@@ -322,8 +524,11 @@ class QpsolversBackend:
             P = sp.csc_matrix(P)
             G = None if G is None else sp.csc_matrix(G)
         qp = qpsolvers.Problem(P, q, G, h, None, None, problem.lb, problem.ub)
+        settings = self.settings
+        if self.solver == "osqp" and not problem.constrained:  # nothing to polish (and OSQP 1.1 says so on stdout)
+            settings = {**settings, "polishing": False}
         try:
-            sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **self.settings)
+            sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **settings)
         except Exception as exc:  # a solver's own exception becomes a reported failure
             return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self.name,
                                solve_time=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}")
@@ -381,16 +586,21 @@ class OSQPBackend:
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
         C, lo, hi = _stacked_constraints(problem)
-        P_up = sp.csc_matrix(np.triu(np.ones_like(P)))  # dense pattern: updates keep it
-        P_up.data = _csc_values(P, upper=True)
-        C_csc = sp.csc_matrix(np.ones_like(C)) if C.size else sp.csc_matrix(C)
-        if C.size:
-            C_csc.data = _csc_values(C, upper=False)
         shape = (P.shape, C.shape)
+        if self._shape != shape:  # dense patterns (upper triangle of P, all of C): updates keep them
+            n = P.shape[0]
+            self._P_pattern = sp.csc_matrix(np.triu(np.ones((n, n))))
+            self._P_take = np.concatenate([np.arange(j + 1) * n + j for j in range(n)])  # column-major upper
+            self._C_pattern = sp.csc_matrix(np.ones(C.shape)) if C.size else sp.csc_matrix(C)
+        P_up = self._P_pattern.copy()
+        P_up.data = P.reshape(-1)[self._P_take]
+        C_csc = self._C_pattern.copy()
+        if C.size:
+            C_csc.data = C.T.reshape(-1)
         if self._solver is None or self._shape != shape:
             self._solver = osqp.OSQP()
             self._solver.setup(P=P_up, q=q, A=C_csc, l=lo, u=hi, eps_abs=self.eps, eps_rel=self.eps,
-                               polishing=True, max_iter=self.max_iter, verbose=False, warm_starting=True)
+                               polishing=bool(C.size), max_iter=self.max_iter, verbose=False, warm_starting=True)
             self._shape = shape
         else:
             self._solver.update(q=q, l=lo, u=hi, Px=P_up.data, Ax=C_csc.data if C.size else None)
@@ -405,14 +615,6 @@ class OSQPBackend:
                                message=f"OSQP status: {status}")
         v = np.asarray(res.x)
         return SolveResult(v, problem.cost(v), "optimal", self.name, int(res.info.iter), dt, problem.active(v))
-
-
-def _csc_values(M: np.ndarray, upper: bool) -> np.ndarray:
-    """Values of a dense (upper-triangular if ``upper``) pattern in CSC order (column-major)."""
-    if upper:
-        cols = [M[: j + 1, j] for j in range(M.shape[1])]
-        return np.concatenate(cols)
-    return M.T.reshape(-1).copy()
 
 
 class ProxQPBackend:
@@ -450,13 +652,19 @@ class ProxQPBackend:
         v = np.asarray(self._qp.results.x).copy()
         if "SOLVED" not in status.upper() or "CLOSEST" in status.upper() or not np.all(np.isfinite(v)):
             kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
+            self._qp = None  # its warm start is now meaningless: set up afresh next time
             return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(info.iter), dt,
                                message=f"ProxQP status: {status}")
         return SolveResult(v, problem.cost(v), "optimal", self.name, int(info.iter), dt, problem.active(v))
 
 
 class DAQPBackend:
-    """DAQP dual active-set solver through its direct API, warm-started from the last active set."""
+    """DAQP dual active-set solver through its direct API.
+
+    Warm start: the initial working set is the set of limits (nearly) active at the given warm
+    start (the controller passes the previous solution shifted by one sample); without one,
+    the previous solve's active set. Box limits are passed as DAQP's simple bounds.
+    """
 
     name = "daqp-direct"
 
@@ -470,13 +678,27 @@ class DAQPBackend:
 
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
-        C, lo, hi = _stacked_constraints(problem)
-        if problem.lb is not None and problem.L is None:  # pure box: DAQP's simple bounds
-            A_in = np.zeros((0, problem.n))
+        parts_lo, parts_hi = [], []
+        if problem.lb is not None:  # simple bounds come first
+            parts_lo.append(problem.lb)
+            parts_hi.append(problem.ub)
+        if problem.L is not None:
+            A_in = problem.L if problem.L.flags.writeable else problem.L.copy()  # DAQP wants a writable buffer
+            parts_lo.append(problem.lo)
+            parts_hi.append(problem.hi)
         else:
-            A_in = C
-        sense = self._sense if self._sense is not None and self._sense.shape == lo.shape else np.zeros(lo.shape, dtype=np.int32)
-        x, _, flag, info = daqp.solve(P, q, A_in, hi.astype(float), lo.astype(float), sense.astype(np.int32))
+            A_in = np.zeros((0, problem.n))
+        lo = np.concatenate(parts_lo) if parts_lo else np.zeros(0)
+        hi = np.concatenate(parts_hi) if parts_hi else np.zeros(0)
+        kwargs = {}
+        if warm_start is not None and warm_start.shape == (problem.n,) and np.all(np.isfinite(warm_start)):
+            kwargs["primal_start"] = np.asarray(warm_start, dtype=float)
+            sense = np.zeros(lo.shape, dtype=np.int32)
+        elif self._sense is not None and self._sense.shape == lo.shape:
+            sense = self._sense
+        else:
+            sense = np.zeros(lo.shape, dtype=np.int32)
+        x, _, flag, info = daqp.solve(P, q, A_in, hi, lo, sense, **kwargs)
         dt = time.perf_counter() - t0
         if flag != 1 or not np.all(np.isfinite(x)):
             kind = "infeasible" if flag == -1 else "failed"

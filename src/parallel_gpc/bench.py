@@ -1,0 +1,785 @@
+"""Benchmark of the GPC control step on the real problems along the S-curve (DESIGN §9).
+
+``run_benchmark(quick, out_dir)`` times, for each robot and horizon N, on the problems the
+controller solves while tracking the paper's S-curve (Fig. 2):
+
+* ``unconstrained`` — the square-root solve by QR (LAPACK path, numpy path, the pivoted
+  rank-revealing path), Cholesky of the normal equations, and every QP back end without limits;
+* ``limited`` — the same problems with drive torque limits that bind at about half of the
+  inputs: ``qpsolvers`` + OSQP / ProxQP / DAQP (rebuilt every call), the persistent direct back
+  ends (warm-started along the curve) and QR-first;
+* ``step`` — the full control step (model update + prediction + solve, ``GPCController.step``)
+  of the absolute, incremental and incremental-nonlinear forms, unconstrained and limited;
+* ``qpmpc`` — the linear time-varying MPC problem along the nonlinear pre-simulation (absolute
+  inputs, torque limits) solved by our condenser + QP back end and by the ``qpmpc`` package.
+
+Each entry reports the median and 99th percentile of the wall time, its ratio to the QR (LAPACK)
+solve measured in the same run, and the solution's error against a tight reference (QR without
+limits; a fresh DAQP active-set solve with limits). Repetitions are interleaved in one process:
+every repetition walks the problems in order and runs every method on each problem. Set
+``OPENBLAS_NUM_THREADS=1`` before numpy is imported (the script does).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import sys
+import time
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.linalg import lapack
+
+from .controller import GPCController
+from .dynamics import ReducedModel
+from .plant import ConstrainedPlant
+from .prediction import Horizons, Prediction, _identity_map as _identity, condense
+from .references import SCurve
+from .robot import ParallelRobot
+from .simulation import simulate
+from .solvers import (
+    DAQPBackend,
+    LeastSquaresProblem,
+    QRSolver,
+    Weights,
+    _scaled_qp,
+    build_problem,
+    make_solver,
+)
+
+#: the targets of the benchmark issue (s): full linear step at N = 20 with 4 drives, etc.
+TARGETS = {
+    "step_median_s": 0.5e-3,
+    "step_p99_s": 1.0e-3,
+    "limited_over_unconstrained": 2.0,
+    "qpmpc_speedup": 3.0,
+    "nonlinear_step_median_s": 2.0e-3,
+}
+#: velocity coordinates are scaled by this in the qpmpc problem: qpmpc weighs the whole state
+#: with one scalar, our criterion only the pose; the scaled velocities weigh ε² = 1e-12.
+QPMPC_VELOCITY_SCALE = 1e-6
+
+
+@dataclass
+class BenchConfig:
+    """What to run.
+
+    Attributes:
+        robots: embedded robot names. Ns: horizons. Ts: sample time (s).
+        qu: square-root input weight of the benchmark problems: small (the S-curve is tracked
+            to < 0.1 mm at Ts = 2 ms, N = 20) and positive (strictly convex QPs with unique
+            solutions to compare, and qpmpc needs a positive input weight).
+        segments: start times (s) of the stretches of consecutive samples along the S-curve.
+        segment_length: samples per stretch; the first ``warmup`` of each are not timed.
+        reps: interleaved repetitions (after one untimed recording pass).
+        limit_quantile: the torque limit is this quantile of |u| of the unconstrained solutions.
+        qp_solvers: qpsolvers back ends. direct: persistent back ends.
+    """
+
+    robots: tuple[str, ...] = ("planar_4rrr", "planar_3rrr")
+    Ns: tuple[int, ...] = (10, 20, 40)
+    Ts: float = 0.002
+    qu: float = 1e-5
+    segments: tuple[float, ...] = (0.35, 0.75, 1.15, 1.55)
+    segment_length: int = 30
+    warmup: int = 5
+    reps: int = 5
+    limit_quantile: float = 0.5
+    qp_solvers: tuple[str, ...] = ("osqp", "proxqp", "daqp")
+    direct: tuple[str, ...] = ("osqp-direct", "proxqp-direct", "daqp-direct")
+    qpmpc_solvers: tuple[str, ...] = ("proxqp", "daqp")
+    progress: bool = True
+
+    @classmethod
+    def quick(cls) -> "BenchConfig":
+        """A short run (< 3 min on 2 cores): fewer stretches, samples and repetitions."""
+        return cls(segments=(0.5, 1.2), segment_length=9, warmup=3, reps=3)
+
+    @classmethod
+    def tiny(cls) -> "BenchConfig":
+        """The smallest meaningful run (tests): one robot, one horizon, two repetitions."""
+        return cls(robots=("planar_4rrr",), Ns=(10,), segments=(0.8,), segment_length=5, warmup=2, reps=2,
+                   progress=False)
+
+
+# ------------------------------------------------------------------------------- machine
+def machine_info() -> dict:
+    """CPU, core count and library versions of this machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    versions = {}
+    for mod in ("numpy", "scipy", "pinocchio", "qpsolvers", "osqp", "proxsuite", "daqp", "qpmpc"):
+        try:
+            versions[mod] = getattr(__import__(mod), "__version__", "?")
+        except Exception:  # an optional package is missing: report it, do not fail
+            versions[mod] = None
+    try:
+        load = [round(x, 2) for x in os.getloadavg()]
+    except OSError:  # not available on this platform
+        load = None
+    return {"cpu": cpu, "nproc": os.cpu_count(), "load_average": load, "python": platform.python_version(),
+            "platform": platform.platform(), "OPENBLAS_NUM_THREADS": os.environ.get("OPENBLAS_NUM_THREADS"),
+            "versions": versions}
+
+
+# ------------------------------------------------------------------------------- problems
+@dataclass
+class _Sample:
+    """One control instant along the S-curve: time, state, reference window, and the input
+    applied and the plan held just before it (to start a controller mid-curve)."""
+
+    t: float
+    X: np.ndarray
+    w: np.ndarray | None
+    u_prev: np.ndarray
+    plan: np.ndarray
+
+
+def _closed_loop_states(robot: ParallelRobot, cfg: BenchConfig, ref: SCurve) -> dict[float, list[_Sample]]:
+    """States of a closed-loop run (absolute GPC, N = 20, full constrained plant) on the S-curve,
+    cut into the configured stretches of consecutive samples."""
+    Ts = cfg.Ts
+    ctl = GPCController(ReducedModel(robot), Ts, Horizons(20), Weights(1.0, cfg.qu), form="absolute")
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    plans = [ctl.plan.copy()]
+    step = ctl.step
+
+    def recording_step(X, w):
+        info = step(X, w)
+        plans.append(ctl.plan.copy())
+        return info
+
+    ctl.step = recording_step
+    end = max(cfg.segments) + cfg.segment_length * Ts + Ts
+    res = simulate(ctl, plant, ref, end, progress=False)
+    X = np.hstack([res.pose, res.velocity])
+    out = {}
+    for start in cfg.segments:
+        k0 = int(round(start / Ts))
+        out[start] = [_Sample(float(res.t[k]), X[k].copy(), None, res.u[k - 1].copy(), plans[k])
+                      for k in range(k0, k0 + cfg.segment_length)]
+    return out
+
+
+def _start_at(ctl: GPCController, smp: _Sample) -> None:
+    """Put a controller in the state it would have at ``smp`` had it run from the start."""
+    ctl.reset(smp.u_prev)
+    N = ctl.horizons.N
+    plan = smp.plan[:N]
+    ctl.plan = np.vstack([plan, np.repeat(plan[-1:], N - len(plan), axis=0)])
+
+
+# ------------------------------------------------------------------------------- timing store
+@dataclass
+class _Entry:
+    section: str
+    robot: str
+    N: int
+    method: str
+    times: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    cost_gaps: list = field(default_factory=list)
+    violations: list = field(default_factory=list)
+    failures: int = 0
+    note: str = ""
+
+    def summary(self) -> dict:
+        t = np.asarray(self.times)
+        err = np.asarray([e for e in self.errors if e is not None and np.isfinite(e)])
+        gap = np.asarray([g for g in self.cost_gaps if g is not None and np.isfinite(g)])
+        return {
+            "section": self.section, "robot": self.robot, "N": self.N, "method": self.method,
+            "samples": int(t.size),
+            "median_us": float(np.median(t) * 1e6) if t.size else None,
+            "p99_us": float(np.percentile(t, 99) * 1e6) if t.size else None,
+            "mean_us": float(np.mean(t) * 1e6) if t.size else None,
+            "max_rel_error": float(err.max()) if err.size else None,
+            "median_rel_error": float(np.median(err)) if err.size else None,
+            "max_rel_cost_gap": float(gap.max()) if gap.size else None,
+            "max_violation_Nm": float(max(self.violations)) if self.violations else None,
+            "failures": self.failures,
+            "note": self.note,
+        }
+
+
+def _rel(v, ref) -> float:
+    if v is None or not np.all(np.isfinite(v)):
+        return math.inf
+    return float(np.linalg.norm(v - ref) / max(np.linalg.norm(ref), 1e-300))
+
+
+# ------------------------------------------------------------------------------- methods
+def cholesky_least_squares(problem: LeastSquaresProblem) -> np.ndarray:
+    """The normal equations AᵀA v = Aᵀb by Cholesky (LAPACK ``posv``), with the same structure
+    shortcuts as the QP back ends. Squares the condition number; fails (NaN) when AᵀA is singular
+    (Qu = 0 with redundant drives)."""
+    P, q, _ = _scaled_qp(problem)  # scaled AᵀA (+ a 1e-10 ridge) and −Aᵀb
+    _, v, info = lapack.dposv(P, -q)
+    return v if info == 0 else np.full(problem.n, np.nan)
+
+
+class _QpmpcPeer:
+    """The LTV MPC problem in the ``qpmpc`` package's terms (see :func:`qpmpc_problem`)."""
+
+    def __init__(self, solver: str):
+        import qpmpc  # noqa: F401
+
+        self.solver = solver
+        self.name = f"qpmpc:{solver}"
+
+    def solve(self, problem) -> np.ndarray | None:
+        from qpmpc import solve_mpc
+
+        plan = solve_mpc(problem, solver=self.solver, **({"eps_abs": 1e-10, "eps_rel": 0.0}
+                                                           if self.solver == "proxqp" else {}))
+        return None if plan.is_empty else plan.inputs.reshape(-1)
+
+
+def qpmpc_problem(A_seq, B_seq, c_seq, X0, w, wdot, w0, tau, qu, scale=1.0):
+    """Our absolute LTV problem as a ``qpmpc.MPCProblem``.
+
+    qpmpc's model has no affine term and one scalar weight per cost: the state becomes
+    x' = S [X; 1] with S = diag(I, ε I, 1) (the constant 1 carries c_i; velocities scaled by
+    ε = :data:`QPMPC_VELOCITY_SCALE` so that their error weighs ε²), stage + terminal weight κ on
+    x'(1..N) against [w; ε ẇ; 1], input weight κ·Qu², and the box ±τ as D u ≤ e. κ = ``scale``
+    multiplies the whole cost (same minimizer): qpmpc does not scale its QP, so the caller picks
+    κ ≈ 1/max diag(GᵀG) as a user tuning it once would (our back ends scale every QP).
+    """
+    from qpmpc import MPCProblem
+
+    N, n, m = B_seq.shape
+    ny = n // 2
+    s = np.concatenate([np.ones(ny), np.full(ny, QPMPC_VELOCITY_SCALE), [1.0]])
+    A_list, B_list = [], []
+    for i in range(N):
+        At = np.zeros((n + 1, n + 1))
+        At[:n, :n] = A_seq[i]
+        At[:n, n] = c_seq[i]
+        At[n, n] = 1.0
+        A_list.append(s[:, None] * At / s[None, :])
+        B_list.append(s[:, None] * np.vstack([B_seq[i], np.zeros((1, m))]))
+    targets = np.hstack([np.vstack([w0, w[:-1]]), np.vstack([np.zeros(ny), wdot[:-1]]), np.ones((N, 1))]) * s
+    goal = np.concatenate([w[-1], wdot[-1], [1.0]]) * s
+    D = np.vstack([np.eye(m), -np.eye(m)])
+    e = np.concatenate([tau, tau])
+    return MPCProblem(
+        transition_state_matrix=A_list, transition_input_matrix=B_list, ineq_state_matrix=None,
+        ineq_input_matrix=D, ineq_vector=e, nb_timesteps=N, terminal_cost_weight=scale,
+        stage_state_cost_weight=scale, stage_input_cost_weight=scale * qu * qu,
+        initial_state=np.append(X0, 1.0) * s, goal_state=goal, target_states=targets.reshape(-1),
+    )
+
+
+# ------------------------------------------------------------------------------- the run
+class _Run:
+    def __init__(self, cfg: BenchConfig):
+        self.cfg = cfg
+        self.entries: dict[tuple, _Entry] = {}
+        self.limits: dict[tuple, float] = {}
+
+    def entry(self, section, robot, N, method, note="") -> _Entry:
+        key = (section, robot, N, method)
+        if key not in self.entries:
+            self.entries[key] = _Entry(section, robot, N, method, note=note)
+        return self.entries[key]
+
+
+def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
+    """The full-step configurations: (name, controller)."""
+    H = Horizons(N)
+    W = Weights(1.0, cfg.qu)
+    out = []
+    for form in ("absolute", "incremental", "nonlinear"):
+        out.append((f"{form}", GPCController(model_factory(), cfg.Ts, H, W, form=form)))
+        out.append((f"{form} +limits", GPCController(model_factory(), cfg.Ts, H, W, form=form, torque_limit=tau)))
+    for form in ("absolute", "incremental"):  # the paper's Fig. 2 weights: Qu = 0, minimum-norm QR
+        out.append((f"{form} Qu=0", GPCController(model_factory(), cfg.Ts, H, Weights(1.0, 0.0), form=form)))
+    for form in ("absolute", "incremental"):  # limits through DAQP alone (no QR first)
+        out.append((f"{form} +limits daqp-direct", GPCController(model_factory(), cfg.Ts, H, W, form=form,
+                                                                 torque_limit=tau, solver="daqp-direct")))
+    return out
+
+
+_STATE = ("u_prev", "plan", "_v_prev", "disturbance", "_x_next")
+
+
+def _snapshot(ctl) -> dict:
+    return {k: (None if getattr(ctl, k) is None else np.array(getattr(ctl, k), copy=True)) for k in _STATE}
+
+
+def _restore(ctl, snap: dict) -> None:
+    for k, v in snap.items():
+        setattr(ctl, k, None if v is None else v.copy())
+
+
+def _record(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: int, entry: _Entry | None = None,
+            warmup: int = 0) -> list[list[tuple]]:
+    """Run ``ctl`` in closed loop on the full plant over each stretch (from the recorded state,
+    with the recorded input and plan) and keep, per sample, (X, w, controller state before the
+    step): the problems this controller really meets, replayed identically in every repetition.
+    With ``entry``, the step times of this closed loop (controller and plant alternating, as in
+    a real-time loop) are recorded there too."""
+    Ts = ctl.Ts
+    out = []
+    for stretch in stretches:
+        _start_at(ctl, stretch[0])
+        plant = ConstrainedPlant(robot, stretch[0].X)
+        rows = []
+        for k, smp in enumerate(stretch):
+            X, w = plant.X, ref.window(smp.t, Ts, N)
+            rows.append((X, w, _snapshot(ctl)))
+            t0 = time.perf_counter()
+            info = ctl.step(X, w)
+            dt = time.perf_counter() - t0
+            if entry is not None and k >= warmup:
+                entry.times.append(dt)
+                entry.failures += int(info.fallback)
+            plant.step(info.u, Ts)
+        out.append(rows)
+    return out
+
+
+def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCurve, bar) -> None:
+    cfg = run.cfg
+    Ts, name = cfg.Ts, robot.name
+    m = robot.n_u
+    W = Weights(1.0, cfg.qu)
+    H = Horizons(N)
+    stretches = list(stretches.values())
+    # ---- the absolute controller's own closed loop: its problems, and the torque limit τ
+    seq_abs = _record(GPCController(ReducedModel(robot), Ts, H, W, form="absolute"), robot, stretches, ref, N)
+    abs_ctl = GPCController(ReducedModel(robot), Ts, H, W, form="absolute")
+    problems = [[(pred := abs_ctl.predict(X), build_problem(pred, w, W, robot.n_y, m)) for X, w, _ in rows]
+                for rows in seq_abs]
+    qr = QRSolver()
+    u_all = np.concatenate([np.abs(qr.solve(p).v) for rows in problems for _, p in rows])
+    tau = float(np.quantile(u_all, cfg.limit_quantile))
+    run.limits[(name, N)] = tau
+    limited = [[build_problem(pred, w, W, robot.n_y, m, torque_limit=tau) for (pred, _), (_, w, _) in zip(rows, seq)]
+               for rows, seq in zip(problems, seq_abs)]
+    # references: QR (unconstrained), a fresh DAQP active-set solve (limited)
+    ref_free = [[qr.solve(p).v for _, p in rows] for rows in problems]
+    ref_lim = [[DAQPBackend().solve(p).v for p in rows] for rows in limited]
+
+    free_methods = [("qr (LAPACK)", QRSolver()), ("qr (numpy)", QRSolver("numpy")),
+                    ("qr (pivoted, scipy)", QRSolver("pivoted")), ("cholesky (normal eq.)", None)]
+    free_methods += [(f"qpsolvers:{s}", make_solver(f"qpsolvers:{s}")) for s in cfg.qp_solvers]
+    free_methods += [(d, make_solver(d)) for d in cfg.direct]
+    lim_methods = [(f"qpsolvers:{s}", make_solver(f"qpsolvers:{s}")) for s in cfg.qp_solvers]
+    lim_methods += [(d, make_solver(d)) for d in cfg.direct]
+    lim_methods += [("qr-first:proxqp-direct", make_solver("qr-first:proxqp-direct"))]
+
+    # ---- full steps: each controller's own closed loop (untimed recording pass)
+    steps = _controllers(lambda: ReducedModel(robot), cfg, N, tau)
+    seqs = {cname: _record(ctl, robot, stretches, ref, N, run.entry("loop", name, N, cname), cfg.warmup)
+            for cname, ctl in steps}
+    # ---- qpmpc: the LTV models of the nonlinear pre-simulation at each sample
+    nl = dict(steps)["nonlinear"]
+    ltv = []
+    for stretch, rows in zip(stretches, seqs["nonlinear"]):
+        out = []
+        for smp, (X, w, snap) in zip(stretch, rows):
+            _restore(nl, snap)
+            u_sim = np.vstack([nl.plan[1:], nl.plan[-1:]])
+            A_seq, B_seq, c_seq, _ = nl.model.simulate_factorized(X, u_sim, Ts, nl.disturbance)
+            c_seq = c_seq + nl.disturbance
+            wdot = np.array([(ref.pose(smp.t + (j + 1) * Ts + 1e-6) - ref.pose(smp.t + (j + 1) * Ts - 1e-6)) / 2e-6
+                             for j in range(N)])
+            f, G = condense(A_seq, B_seq, c_seq, robot_C(robot), X, H, hold_inputs=True)
+            pred = Prediction(f, G, np.zeros(N * m), np.eye(N * m), H, "absolute")
+            v_ref = DAQPBackend().solve(build_problem(pred, w, W, robot.n_y, m, torque_limit=tau)).v
+            out.append((A_seq, B_seq, c_seq, X, w, wdot, v_ref))
+            if not ltv and not out[1:]:  # the cost scale a qpmpc user would pick, once
+                kappa = 1.0 / float(np.max(np.einsum("ij,ij->j", G, G)))
+        ltv.append(out)
+    ours_ltv = [("ours: condense + qr-first:proxqp-direct", make_solver("qr-first:proxqp-direct")),
+                ("ours: condense + proxqp-direct", make_solver("proxqp-direct")),
+                ("ours: condense + daqp-direct", make_solver("daqp-direct"))]
+    peers = []
+    for s in cfg.qpmpc_solvers:
+        try:
+            peers.append(_QpmpcPeer(s))
+        except ImportError:  # qpmpc not installed: the section reports nothing
+            break
+
+    # ---- interleaved repetitions
+    warm = {}
+    for rep in range(cfg.reps):
+        for si, stretch in enumerate(stretches):
+            for k in range(len(stretch)):
+                timed = k >= cfg.warmup
+                prob, prob_l = problems[si][k][1], limited[si][k]
+                v_ref, v_ref_l = ref_free[si][k], ref_lim[si][k]
+                # unconstrained solves
+                for mname, solver in free_methods:
+                    t0 = time.perf_counter()
+                    if solver is None:
+                        v = cholesky_least_squares(prob)
+                    else:
+                        v = solver.solve(prob, warm.get(("free", mname))).v
+                    dt = time.perf_counter() - t0
+                    warm[("free", mname)] = _shift(v, m)
+                    if timed:
+                        e = run.entry("unconstrained", name, N, mname)
+                        e.times.append(dt)
+                        e.failures += int(not np.all(np.isfinite(v)))
+                        e.errors.append(_rel(v, v_ref))
+                        e.cost_gaps.append(_cost_gap(prob, v, v_ref))
+                # limited solves
+                for mname, solver in lim_methods:
+                    t0 = time.perf_counter()
+                    res = solver.solve(prob_l, warm.get(("lim", mname)))
+                    dt = time.perf_counter() - t0
+                    warm[("lim", mname)] = _shift(res.v, m) if res.ok else None
+                    if timed:
+                        e = run.entry("limited", name, N, mname)
+                        e.times.append(dt)
+                        e.failures += int(not res.ok)
+                        e.errors.append(_rel(res.v, v_ref_l))
+                        e.cost_gaps.append(_cost_gap(prob_l, res.v, v_ref_l))
+                        e.violations.append(prob_l.violation(res.v) if res.ok else math.inf)
+                # full control steps, each on its own closed-loop sample and state
+                for cname, ctl in steps:
+                    X, w, snap = seqs[cname][si][k]
+                    _restore(ctl, snap)
+                    t0 = time.perf_counter()
+                    info = ctl.step(X, w)
+                    dt = time.perf_counter() - t0
+                    if timed:
+                        e = run.entry("step", name, N, cname)
+                        e.times.append(dt)
+                        e.failures += int(info.fallback)
+                # the LTV problem: our condenser + QP vs qpmpc
+                A_seq, B_seq, c_seq, X, w, wdot, v_ref_ltv = ltv[si][k]
+                for mname, solver in ours_ltv:
+                    t0 = time.perf_counter()
+                    f, G = condense(A_seq, B_seq, c_seq, robot_C(robot), X, H, hold_inputs=True)
+                    pred = Prediction(f, G, np.zeros(N * m), _identity(N * m), H, "absolute")
+                    p = build_problem(pred, w, W, robot.n_y, m, torque_limit=tau)
+                    res = solver.solve(p, warm.get(("ltv", mname)))
+                    dt = time.perf_counter() - t0
+                    warm[("ltv", mname)] = _shift(res.v, m) if res.ok else None
+                    if timed:
+                        e = run.entry("qpmpc", name, N, mname)
+                        e.times.append(dt)
+                        e.failures += int(not res.ok)
+                        e.errors.append(_rel(res.v, v_ref_ltv))
+                for peer in peers:
+                    t0 = time.perf_counter()
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        mp = qpmpc_problem(A_seq, B_seq, c_seq, X, w, wdot, X[:robot.n_y], np.full(m, tau), cfg.qu,
+                                           kappa)
+                        v = peer.solve(mp)
+                    dt = time.perf_counter() - t0
+                    if timed:
+                        e = run.entry("qpmpc", name, N, peer.name,
+                                      note=f"velocities scaled by {QPMPC_VELOCITY_SCALE:g} (weight ε²), "
+                                           f"cost scaled by κ = {kappa:.3g}")
+                        e.times.append(dt)
+                        e.failures += int(v is None)
+                        e.errors.append(_rel(v, v_ref_ltv))
+                if bar is not None:
+                    bar.update(1)
+
+
+def robot_C(robot: ParallelRobot) -> np.ndarray:
+    return np.hstack([np.eye(robot.n_y), np.zeros((robot.n_y, robot.n_y))])
+
+
+def _shift(v, m: int):
+    """The absolute controller's warm start: the previous solution shifted by one sample."""
+    if v is None or not np.all(np.isfinite(v)):
+        return None
+    return np.concatenate([v[m:], v[-m:]])
+
+
+def _cost_gap(problem: LeastSquaresProblem, v, v_ref) -> float:
+    if v is None or not np.all(np.isfinite(v)):
+        return math.inf
+    j, j_ref = problem.cost(v), problem.cost(v_ref)
+    return float((j - j_ref) / max(abs(j_ref), 1e-300))
+
+
+# ------------------------------------------------------------------------------- report
+def _ratios(rows: list[dict]) -> None:
+    """ratio_to_qr: median / median of the QR (LAPACK) solve of the same robot and N; limited
+    steps also get ratio_to_unconstrained_step."""
+    qr = {(r["robot"], r["N"]): r["median_us"] for r in rows
+          if r["section"] == "unconstrained" and r["method"] == "qr (LAPACK)"}
+    steps = {(r["section"], r["robot"], r["N"], r["method"]): r["median_us"] for r in rows
+             if r["section"] in ("step", "loop")}
+    for r in rows:
+        base = qr.get((r["robot"], r["N"]))
+        r["ratio_to_qr"] = r["median_us"] / base if base and r["median_us"] else None
+        if r["section"] in ("step", "loop") and " +limits" in r["method"]:
+            free = steps.get((r["section"], r["robot"], r["N"], r["method"].split(" +limits")[0]))
+            r["ratio_to_unconstrained_step"] = r["median_us"] / free if free else None
+
+
+def evaluate_targets(rows: list[dict], robot: str = "planar_4rrr", N: int = 20) -> list[dict]:
+    """The issue's targets at N = 20 on the 4-drive robot (or the nearest measured robot and N):
+    met or missed and by how much."""
+    get = {(r["section"], r["robot"], r["N"], r["method"]): r for r in rows}
+    robots = sorted({r["robot"] for r in rows})
+    if robots and robot not in robots:
+        robot = robots[0]
+    Ns = sorted({r["N"] for r in rows if r["robot"] == robot})
+    if Ns and N not in Ns:
+        N = min(Ns, key=lambda n: abs(n - N))
+    out = []
+
+    def add(name, value, limit, unit="", better="lower"):
+        if value is None:
+            return
+        ok = value <= limit if better == "lower" else value >= limit
+        out.append({"target": name, "robot": robot, "N": N, "value": value, "limit": limit, "unit": unit,
+                    "met": bool(ok), "off_by": None if ok else (value / limit if better == "lower" else limit / value)})
+
+    for sec, label in (("step", "interleaved"), ("loop", "closed loop")):
+        for form in ("absolute", "incremental"):
+            r = get.get((sec, robot, N, form))
+            if r:
+                add(f"{form} step median ({label})", r["median_us"], TARGETS["step_median_s"] * 1e6, "us")
+                add(f"{form} step p99 ({label})", r["p99_us"], TARGETS["step_p99_s"] * 1e6, "us")
+            for suffix in (" +limits", " +limits daqp-direct"):
+                lim = get.get((sec, robot, N, f"{form}{suffix}"))
+                if lim and lim.get("ratio_to_unconstrained_step"):
+                    solver = "qr-first:proxqp-direct" if suffix == " +limits" else "daqp-direct"
+                    add(f"{form} limited ({solver}) / unconstrained step ({label})",
+                        lim["ratio_to_unconstrained_step"], TARGETS["limited_over_unconstrained"], "x")
+        r = get.get((sec, robot, N, "nonlinear"))
+        if r:
+            add(f"nonlinear step median ({label})", r["median_us"], TARGETS["nonlinear_step_median_s"] * 1e6, "us")
+    section = [r for k, r in get.items() if k[0] == "qpmpc" and k[1] == robot and k[2] == N and r["median_us"]]
+    ours = [r for r in section if r["method"].startswith("ours:")]
+    peers = [r for r in section if r["method"].startswith("qpmpc:")]
+    if ours and peers:
+        best_ours = min(ours, key=lambda r: r["median_us"])
+        best_peer = min(peers, key=lambda r: r["median_us"])
+        add(f"speed-up over qpmpc ({best_ours['method']} vs {best_peer['method']})",
+            best_peer["median_us"] / best_ours["median_us"], TARGETS["qpmpc_speedup"], "x", better="higher")
+    return out
+
+
+def format_table(rows: list[dict]) -> str:
+    """The results as an aligned text table (µs)."""
+    head = f"{'section':<14}{'robot':<13}{'N':>3}  {'method':<42}{'median':>9}{'p99':>9}{'÷QR':>7}  {'error':>8}"
+    lines = [head, "-" * len(head)]
+    for r in rows:
+        ratio = r.get("ratio_to_qr")
+        err = r.get("max_rel_error")
+        extra = ""
+        if r.get("ratio_to_unconstrained_step"):
+            extra = f"  ({r['ratio_to_unconstrained_step']:.2f}× unconstrained)"
+        if r.get("failures"):
+            extra += f"  failures {r['failures']}"
+        lines.append(
+            f"{r['section']:<14}{r['robot']:<13}{r['N']:>3}  {r['method']:<42}"
+            f"{_fmt(r['median_us']):>9}{_fmt(r['p99_us']):>9}{(f'{ratio:.2f}' if ratio else '-'):>7}  "
+            f"{(f'{err:.1e}' if err is not None else '-'):>8}{extra}")
+    return "\n".join(lines)
+
+
+def markdown_report(result: dict) -> str:
+    """Markdown: per section, median (p99) in µs for every robot and N, ratio to QR at N = 20 and
+    the worst relative solution error; then the targets. (The README's table.)"""
+    rows = result["results"]
+    robots = list(dict.fromkeys(r["robot"] for r in rows))
+    Ns = sorted({r["N"] for r in rows})
+    cols = [(rb, n) for rb in robots for n in Ns]
+    get = {(r["section"], r["method"], r["robot"], r["N"]): r for r in rows}
+    titles = {"unconstrained": "Unconstrained solve", "limited": "Solve with torque limits binding at ~half the inputs",
+              "step": "Full control step `GPCController.step` (interleaved with all other methods)",
+              "loop": "Full control step in the closed loop (controller and plant alternating)",
+              "qpmpc": "LTV MPC problem along the nonlinear pre-simulation: ours vs qpmpc"}
+    n_ref = 20 if 20 in Ns else Ns[len(Ns) // 2]
+    out = []
+    for section in ("unconstrained", "limited", "step", "loop", "qpmpc"):
+        methods = list(dict.fromkeys(r["method"] for r in rows if r["section"] == section))
+        if not methods:
+            continue
+        out.append(f"**{titles[section]}** — median (p99) µs")
+        out.append("")
+        head = "| method | " + " | ".join(f"{rb.replace('planar_', '')} N={n}" for rb, n in cols)
+        head += f" | ÷QR ({robots[0].replace('planar_', '')}, N={n_ref}) | max rel. error |"
+        out.append(head)
+        out.append("|" + "---|" * (len(cols) + 3))
+        for method in methods:
+            cells = []
+            for rb, n in cols:
+                r = get.get((section, method, rb, n))
+                cells.append("-" if r is None or r["median_us"] is None else
+                             f"{r['median_us']:.0f} ({r['p99_us']:.0f})")
+            ref = get.get((section, method, robots[0], n_ref))
+            ratio = f"{ref['ratio_to_qr']:.2f}" if ref and ref.get("ratio_to_qr") else "-"
+            if ref and ref.get("ratio_to_unconstrained_step"):
+                ratio += f" ({ref['ratio_to_unconstrained_step']:.2f}× unconstr.)"
+            errs = [get[(section, method, rb, n)]["max_rel_error"] for rb, n in cols
+                    if (section, method, rb, n) in get and get[(section, method, rb, n)]["max_rel_error"] is not None]
+            fails = sum(get[(section, method, rb, n)]["failures"] for rb, n in cols if (section, method, rb, n) in get)
+            err = f"{max(errs):.1e}" if errs else "-"
+            if fails:
+                err += f" ({fails} failed)"
+            out.append(f"| {method} | " + " | ".join(cells) + f" | {ratio} | {err} |")
+        out.append("")
+    out.append("**Targets** (planar_4rrr, N = 20)")
+    out.append("")
+    out.append("| target | measured | limit | status |")
+    out.append("|---|---|---|---|")
+    for t in result["targets"]:
+        status = "met" if t["met"] else f"missed ({t['off_by']:.2f}× off)"
+        out.append(f"| {t['target']} | {t['value']:.3g} {t['unit']} | {t['limit']:.3g} {t['unit']} | {status} |")
+    return "\n".join(out) + "\n"
+
+
+def _fmt(x) -> str:
+    return "-" if x is None else (f"{x:.0f}" if x >= 10 else f"{x:.1f}")
+
+
+def plot_results(rows: list[dict], path: Path) -> Path:
+    """Median time vs N per back end: one panel per section, one line style per robot."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    sections = ["unconstrained", "limited", "step", "loop", "qpmpc"]
+    robots = list(dict.fromkeys(r["robot"] for r in rows))  # run order: the default robot first
+    fig, axes = plt.subplots(3, 2, figsize=(13, 14))
+    axes = axes.ravel()
+    styles = ["-", "--", ":", "-."]
+    titles = {"unconstrained": "unconstrained solve", "limited": "solve with binding torque limits",
+              "step": "full control step (GPCController.step), interleaved",
+              "loop": "full control step in the closed loop", "qpmpc": "LTV MPC problem: ours vs qpmpc"}
+    for ax, section in zip(axes, sections):
+        methods = list(dict.fromkeys(r["method"] for r in rows if r["section"] == section))
+        colors = plt.cm.tab10(np.arange(len(methods)) % 10)
+        for mi, method in enumerate(methods):
+            for ri, robot in enumerate(robots):
+                pts = sorted((r["N"], r["median_us"]) for r in rows if r["section"] == section
+                             and r["method"] == method and r["robot"] == robot and r["median_us"])
+                if pts:
+                    ax.plot([p[0] for p in pts], [p[1] for p in pts], styles[ri % 4], marker="o", ms=3,
+                            color=colors[mi], label=method if ri == 0 else None)
+        ax.set_yscale("log")
+        ax.set_xlabel("horizon N")
+        ax.set_title(titles[section])
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+        ax.set_ylabel("median time per call [µs]")
+    for ax in axes[len(sections):]:
+        ax.axis("off")
+    fig.suptitle("GPC on the S-curve: " + ", ".join(f"{r} ({styles[i % 4]})" for i, r in enumerate(robots)))
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------------- entry points
+def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None = None) -> dict:
+    """Run the benchmark; print the table; write ``bench_gpc.json``, ``bench_gpc.md`` and
+    ``bench_gpc.png``.
+
+    Args:
+        quick: a short run (fewer stretches, samples and repetitions).
+        out_dir: folder for the JSON and the plot (created); None writes nothing.
+        config: full control over what runs (overrides ``quick``).
+
+    Returns:
+        {"machine", "config", "limits_Nm", "results" (one dict per entry), "targets"}.
+    """
+    cfg = config or (BenchConfig.quick() if quick else BenchConfig())
+    if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
+        warnings.warn("OPENBLAS_NUM_THREADS is not 1: BLAS threads distort small-matrix timings", stacklevel=2)
+    run = _Run(cfg)
+    ref = SCurve()
+    total = len(cfg.robots) * len(cfg.Ns) * cfg.reps * len(cfg.segments) * cfg.segment_length
+    bar = None
+    if cfg.progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, desc="benchmark", unit="problem", leave=False)
+    t_start = time.perf_counter()
+    try:
+        for rname in cfg.robots:
+            robot = ParallelRobot.load(rname)
+            stretches = _closed_loop_states(robot, cfg, ref)
+            for N in cfg.Ns:
+                if bar is not None:
+                    bar.set_description(f"{rname} N={N}")
+                _bench_robot_N(run, robot, N, stretches, ref, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    order = {k: i for i, k in enumerate(("unconstrained", "limited", "step", "loop", "qpmpc"))}
+    robots = {r: i for i, r in enumerate(cfg.robots)}
+    entries = sorted(enumerate(run.entries.values()),
+                     key=lambda ie: (robots.get(ie[1].robot, 99), ie[1].N, order[ie[1].section], ie[0]))
+    rows = [e.summary() for _, e in entries]
+    _ratios(rows)
+    targets = evaluate_targets(rows)
+    result = {
+        "machine": machine_info(),
+        "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
+        "limits_Nm": {f"{r}/N={n}": tau for (r, n), tau in run.limits.items()},
+        "results": rows,
+        "targets": targets,
+        "wall_time_s": time.perf_counter() - t_start,
+    }
+    print(format_table(rows))
+    print()
+    for t in targets:
+        status = "met" if t["met"] else f"MISSED ({t['off_by']:.2f}× off)"
+        print(f"target {t['target']} ({t['robot']}, N = {t['N']}): {t['value']:.3g} {t['unit']} "
+              f"(limit {t['limit']:.3g}) {status}")
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "bench_gpc.json").write_text(json.dumps(result, indent=1, default=_json_default))
+        (out / "bench_gpc.md").write_text(markdown_report(result))
+        plot_results(rows, out / "bench_gpc.png")
+        print(f"wrote {out / 'bench_gpc.json'}, {out / 'bench_gpc.md'} and {out / 'bench_gpc.png'}")
+    return result
+
+
+def _json_default(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    return str(x)
+
+
+def cmd_bench(args) -> int:
+    if os.environ.get("OPENBLAS_NUM_THREADS") != "1" and not os.environ.get("PARALLEL_GPC_BENCH_CHILD"):
+        # BLAS threads must be fixed before numpy loads: run again in a fresh interpreter
+        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PARALLEL_GPC_BENCH_CHILD="1")
+        argv = [sys.executable, "-m", "parallel_gpc.cli", "bench", "--out", str(args.out)]
+        if args.quick:
+            argv.append("--quick")
+        sys.stdout.flush()
+        os.execve(sys.executable, argv, env)
+    run_benchmark(quick=args.quick, out_dir=args.out)
+    return 0
+
+
+def register_bench(sub) -> None:
+    """``parallel-gpc bench [--quick] [--out DIR]``."""
+    p = sub.add_parser("bench", help="time QR vs QP back ends, qpmpc and the full GPC step along the S-curve")
+    p.add_argument("--quick", action="store_true", help="short run (< 3 min on 2 cores)")
+    p.add_argument("--out", default="bench-results", help="folder for bench_gpc.json and bench_gpc.png")
+    p.set_defaults(func=cmd_bench)

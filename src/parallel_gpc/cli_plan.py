@@ -1,0 +1,123 @@
+"""``parallel-gpc plan``: quadratically-optimal A → B planning, modes (a) and (b) (the paper's
+Fig. 3/4). A thin layer over :func:`parallel_gpc.planning.plan_point_to_point`.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .robot import DEFAULT_ROBOT
+
+#: The paper's poses, in the units of the command line (m, m, deg).
+DEFAULT_A = (0.2, 0.2, -20.0)
+DEFAULT_B = (0.8, 0.8, 20.0)
+
+
+def _pose_rad(values) -> np.ndarray:
+    x, y, psi_deg = (float(v) for v in values)
+    return np.array([x, y, math.radians(psi_deg)])
+
+
+def _fmt(value: float, spec: str = ".3g") -> str:
+    return "not reached" if isinstance(value, float) and math.isnan(value) else format(value, spec)
+
+
+def metrics_rows(results) -> list[tuple[str, list[str]]]:
+    """Table rows (label, one value per result) comparing planned moves."""
+    tol_p, tol_a = results[0].settings.reach_tolerance
+    rows = []
+    for label, get in (
+        ("end-point error, position [m]", lambda r: _fmt(r.end_error[0], ".2e")),
+        ("end-point error, orientation [deg]", lambda r: _fmt(math.degrees(r.end_error[1]), ".2e")),
+        ("error at t = Nmax·Ts [m, deg]",
+         lambda r: f"{r.arrival_error[0]:.2e}, {math.degrees(r.arrival_error[1]):.2e}"),
+        ("end speed [m/s, deg/s]", lambda r: f"{r.end_speed[0]:.2e}, {math.degrees(r.end_speed[1]):.2e}"),
+        (f"time to reach B ±{tol_p:g} m, ±{math.degrees(tol_a):.2g}° [s]", lambda r: _fmt(r.time_to_reach, ".3f")),
+        ("drive energy Σ‖u‖²·Ts [N²·m²·s]", lambda r: _fmt(r.energy, ".4g")),
+        ("peak torque [N·m]", lambda r: _fmt(r.peak_torque, ".4g")),
+        ("recorded duration [s]", lambda r: f"{r.t[-1]:.2f}"),
+        ("solves (failed)", lambda r: f"{r.metrics()['solves']} ({r.metrics()['failed_solves']})"),
+        ("mean solve time [ms]", lambda r: f"{1000 * r.metrics()['mean_solve_time_s']:.2f}"),
+    ):
+        rows.append((label, [get(r) for r in results]))
+    return rows
+
+
+def print_comparison(results, rows, out=None) -> None:
+    """Print the rows as an aligned table with one column per result."""
+    headers = [r.label for r in results]
+    lw = max(len(label) for label, _ in rows)
+    widths = [max(len(h), *(len(vals[i]) for _, vals in rows)) for i, h in enumerate(headers)]
+    print("  " + " " * lw + "  " + "  ".join(h.ljust(w) for h, w in zip(headers, widths)), file=out)
+    for label, vals in rows:
+        print("  " + label.ljust(lw) + "  " + "  ".join(v.ljust(w) for v, w in zip(vals, widths)), file=out)
+
+
+def cmd_plan(args) -> int:
+    from .dynamics import ReducedModel
+    from .planning import PlanSettings, deadbeat_inputs, plan_point_to_point
+    from .plots_planning import plot_fig3, plot_fig4
+    from .robot import ParallelRobot
+
+    robot = ParallelRobot.load(args.robot)
+    A, B = _pose_rad(args.A), _pose_rad(args.B)
+    settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, Qy=args.Qy, Qu=args.Qu,
+                            torque_limit=args.torque_limit, solver=args.solver, settle_steps=args.settle)
+    print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, m, rad); "
+          f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
+          f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
+          f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
+    results = []
+    for mode in ("a", "b"):
+        res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=not args.no_progress)
+        if res.stopped:
+            print(f"  mode ({mode}): {res.stopped}")
+        results.append(res)
+    deadbeat = deadbeat_inputs(ReducedModel(robot), np.concatenate([A, np.zeros(robot.n_y)]), B, settings)
+    print_comparison(results, metrics_rows(results))
+    print(f"  for comparison, the dead-beat move (same criterion, minimal horizon N = k = {settings.k}) needs a "
+          f"peak torque of {np.max(np.abs(deadbeat)):.4g} N·m")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    plot_fig3(results, out / "plan_fig3.png", robot=robot)
+    plot_fig4(results, out / "plan_fig4.png")
+    written = [out / "plan_fig3.png", out / "plan_fig4.png"] + [res.save(out / f"plan_{res.mode}.npz")
+                                                                for res in results]
+    print("wrote " + ", ".join(str(p) for p in written))
+    print("use a plan as reference: parallel_gpc.references.SampledTrajectory.load('"
+          f"{out / 'plan_b.npz'}')")
+    return 0
+
+
+def register_plan(sub) -> None:
+    """Add the ``plan`` sub-command."""
+    p = sub.add_parser(
+        "plan", help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
+        description="Plan a point-to-point move with the end-point criterion (20): N = Nmax, No = N − k, "
+                    "Qu over the whole horizon. Mode (a) solves once and applies the sequence open loop; "
+                    "mode (b) re-solves every step with N := Nmax, …, Nmin (21) on the nonlinear plant.")
+    p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
+    p.add_argument("--A", nargs=3, type=float, default=DEFAULT_A, metavar=("X", "Y", "PSI_DEG"),
+                   help="start pose: x [m], y [m], psi [deg] (default 0.2 0.2 -20)")
+    p.add_argument("--B", nargs=3, type=float, default=DEFAULT_B, metavar=("X", "Y", "PSI_DEG"),
+                   help="end pose: x [m], y [m], psi [deg] (default 0.8 0.8 20)")
+    p.add_argument("--Nmax", type=int, default=120,
+                   help="first horizon in samples; the move lasts Nmax·Ts (default 120)")
+    p.add_argument("--Nmin", type=int, default=10, help="smallest horizon of mode (b), k < Nmin ≤ Nmax (default 10)")
+    p.add_argument("--Ts", type=float, default=0.01, help="sample time in s (default 0.01)")
+    p.add_argument("--Qy", type=float, default=1.0, help="square-root weight of the end-point outputs (default 1)")
+    p.add_argument("--Qu", type=float, default=1e-6,
+                   help="square-root input weight over the horizon (default 1e-6; larger values shorten the move)")
+    p.add_argument("--torque-limit", type=float, default=None, metavar="NM",
+                   help="drive torque limit |u| ≤ NM in N·m, enforced by the QP back end (default none)")
+    p.add_argument("--solver", default=None,
+                   help="back end: qr (default without limits), qr-first:daqp-direct (default with limits), "
+                        "osqp-direct, proxqp-direct, qpsolvers:<name>, …")
+    p.add_argument("--settle", type=int, default=30, help="samples recorded after Nmax in mode (b) (default 30)")
+    p.add_argument("--out", default="out/plan", help="output folder for figures and trajectories (default ./out/plan)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_plan)

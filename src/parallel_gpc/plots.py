@@ -1,0 +1,76 @@
+"""Figures of closed-loop runs (paper Fig. 2): path in the plane and time histories.
+
+Matplotlib with the non-interactive Agg backend; every function writes a PNG and returns its path.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from .simulation import SimulationResult  # noqa: E402
+
+_LABELS = ("x [m]", "y [m]", "ψ [rad]")
+
+
+def plot_paths(results: dict[str, SimulationResult], path, title: str = "platform path") -> Path:
+    """Reference and tracked platform paths in the x–y plane, one line per algorithm."""
+    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+    first = next(iter(results.values()))
+    ax.plot(first.reference[:, 0], first.reference[:, 1], "k--", lw=2, label="reference")
+    for name, res in results.items():
+        ax.plot(res.pose[:, 0], res.pose[:, 1], lw=1.2, label=name)
+        step = max(1, len(res.t) // 12)
+        for k in range(0, len(res.t), step):  # platform orientation markers
+            x, y, psi = res.pose[k, :3]
+            ax.plot([x, x + 0.03 * np.cos(psi)], [y, y + 0.03 * np.sin(psi)], color="0.4", lw=0.8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(title)
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize=8)
+    return _save(fig, path)
+
+
+def plot_time_histories(results: dict[str, SimulationResult], path, title: str = "time histories") -> Path:
+    """Tracking error, platform velocity and drive torques over time, one column per algorithm."""
+    names = list(results)
+    fig, axes = plt.subplots(3, len(names), figsize=(5.0 * len(names), 8.0), sharex=True, squeeze=False)
+    for col, name in enumerate(names):
+        res = results[name]
+        ax_e, ax_v, ax_u = axes[:, col]
+        err = res.error
+        ax_e.plot(res.t, 1e3 * err[:, 0], label="x")
+        ax_e.plot(res.t, 1e3 * err[:, 1], label="y")
+        ax_e.plot(res.t, 1e3 * err[:, 2], label="ψ [mrad]")
+        ax_e.set_ylabel("error [mm, mrad]")
+        ax_e.set_title(f"{name}")
+        ax_e.legend(fontsize=7)
+        for i, lab in enumerate(("ẋ [m/s]", "ẏ [m/s]", "ψ̇ [rad/s]")):
+            ax_v.plot(res.t, res.velocity[:, i], label=lab)
+        ax_v.set_ylabel("velocity")
+        ax_v.legend(fontsize=7)
+        for j in range(res.u.shape[1]):
+            ax_u.plot(res.t, res.u[:, j], label=f"u{j + 1}")
+        ax_u.set_ylabel("drive torque [N·m]")
+        ax_u.set_xlabel("t [s]")
+        ax_u.legend(fontsize=7, ncol=2)
+        for ax in (ax_e, ax_v, ax_u):
+            ax.grid(True, alpha=0.3)
+    fig.suptitle(title)
+    return _save(fig, path)
+
+
+def _save(fig, path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,322 @@
+"""Robustness study: tracking error of each GPC form under model mismatch, noise and a load.
+
+For every prediction form (absolute, incremental, incremental-nonlinear) the controller keeps
+the nominal model while the plant (the full constrained model, :class:`ConstrainedPlant`)
+changes one thing at a time:
+
+* **mass** — every body's mass and inertia scaled by s (−30 … +30 %: s = 0.7 … 1.3);
+* **noise** — Gaussian measurement noise of standard deviation σ on the platform pose
+  (m and rad) and σ·√2/Ts on its velocity (the noise of a finite-difference velocity);
+* **disturbance** — a constant force F (N) along x on the platform, unknown to the model.
+
+Each case is one closed-loop run of :func:`~parallel_gpc.simulation.simulate` along the
+paper's S-curve (or a hold of the home pose); the table reports RMS/max position error,
+orientation error, the steady-state error (mean over the last 10 % of the run), peak torque,
+saturated steps and solver fallbacks. A run that leaves the workspace or meets a singular pose
+is kept as a row with status ``diverged (…)``; Ctrl-C stops the study and keeps the rows so far.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .controller import FORMS, GPCController
+from .dynamics import ReducedModel
+from .errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
+from .plant import ConstrainedPlant
+from .prediction import Horizons
+from .references import Hold, Reference, SCurve
+from .robot import DEFAULT_ROBOT, ParallelRobot
+from .simulation import simulate
+from .solvers import Weights
+from .validation import finite_vector, positive
+
+#: Plant mass/inertia scales of the default study (−30 … +30 %).
+DEFAULT_MASS_SCALES = (0.7, 0.85, 1.15, 1.3)
+#: Measurement-noise standard deviations on the pose (m, rad) of the default study.
+DEFAULT_NOISE_LEVELS = (1e-5, 1e-4)
+#: Constant platform forces along x (N) of the default study.
+DEFAULT_DISTURBANCES = (10.0, 20.0)
+#: Square-root weights of the study, the same for every form: Qy = 1 /m, Qu = 1e-4 /(N·m).
+#: (Qu = 0, the paper's tracking setting, is dead-beat and diverges under noise or a lighter plant.)
+DEFAULT_WEIGHTS = Weights(1.0, 1e-4)
+#: Fraction of the run at its end over which the steady-state error is averaged.
+SETTLE_FRACTION = 0.1
+#: Errors that mean "this closed loop diverged", recorded as a row instead of ending the study.
+_DIVERGED = (AssemblyError, SingularPoseError, SolverError, NonFiniteError)
+
+COLUMNS = ("form", "study", "value", "unit", "rms_position_error_mm", "max_position_error_mm",
+           "rms_orientation_error_mrad", "steady_state_error_mm", "peak_torque_Nm", "saturated_steps",
+           "fallbacks", "steps", "status")
+
+
+@dataclass(frozen=True)
+class RobustnessCase:
+    """One plant variation.
+
+    Attributes:
+        study: ``"nominal"``, ``"mass"``, ``"noise"`` or ``"disturbance"``.
+        mass_scale: plant mass/inertia scale (1 = the controller's model).
+        noise: pose measurement noise standard deviation (m, rad).
+        force: constant platform force along x (N).
+    """
+
+    study: str
+    mass_scale: float = 1.0
+    noise: float = 0.0
+    force: float = 0.0
+
+    @property
+    def value(self) -> float:
+        """The varied quantity: mass change in %, σ in m, or F in N."""
+        return {"nominal": 0.0, "mass": round(100.0 * (self.mass_scale - 1.0), 6), "noise": self.noise,
+                "disturbance": self.force}[self.study]
+
+    @property
+    def unit(self) -> str:
+        return {"nominal": "", "mass": "%", "noise": "m", "disturbance": "N"}[self.study]
+
+
+def robustness_cases(mass_scales=DEFAULT_MASS_SCALES, noise_levels=DEFAULT_NOISE_LEVELS,
+                     disturbances=DEFAULT_DISTURBANCES) -> list[RobustnessCase]:
+    """The nominal case, then one case per mass scale, noise level and disturbance force.
+
+    Raises:
+        InvalidParameterError: a mass scale ≤ 0, a negative noise level or a non-finite value.
+    """
+    cases = [RobustnessCase("nominal")]
+    for s in finite_vector("mass_scales", list(mass_scales)):
+        if s <= 0:
+            raise InvalidParameterError(f"mass scale {s} must be > 0 (1.0 = nominal, 0.7 = −30 %)")
+        if s != 1.0:
+            cases.append(RobustnessCase("mass", mass_scale=float(s)))
+    for n in finite_vector("noise_levels", list(noise_levels)):
+        if n < 0:
+            raise InvalidParameterError(f"noise level {n} m must be ≥ 0")
+        if n > 0:
+            cases.append(RobustnessCase("noise", noise=float(n)))
+    for f in finite_vector("disturbances", list(disturbances)):
+        if f != 0:
+            cases.append(RobustnessCase("disturbance", force=float(f)))
+    return cases
+
+
+@dataclass
+class RobustnessResult:
+    """Rows of a robustness study (one per form and case) and its settings.
+
+    Attributes:
+        rows: dicts with the keys of :data:`COLUMNS` (errors in mm/mrad, torques in N·m).
+        settings: robot, forms, Ts, N, duration, weights, reference.
+        interrupted: True if Ctrl-C stopped the study (the last row may cover a partial run).
+    """
+
+    rows: list = field(default_factory=list)
+    settings: dict = field(default_factory=dict)
+    interrupted: bool = False
+
+    def format_table(self) -> str:
+        """The rows as an aligned text table."""
+        head = ("form", "study", "value", "RMS pos [mm]", "max pos [mm]", "RMS ψ [mrad]", "steady [mm]",
+                "peak τ [N·m]", "sat", "fallb", "status")
+        lines = []
+        for r in self.rows:
+            value = "" if r["study"] == "nominal" else f"{r['value']:g} {r['unit']}"
+            lines.append((r["form"], r["study"], value, *(_fmt(r[k], 4) for k in (
+                "rms_position_error_mm", "max_position_error_mm", "rms_orientation_error_mrad",
+                "steady_state_error_mm")), _fmt(r["peak_torque_Nm"], 1), str(r["saturated_steps"]),
+                str(r["fallbacks"]), r["status"]))
+        widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h) for i, h in enumerate(head)]
+        out = ["  ".join(h.ljust(w) for h, w in zip(head, widths))]
+        out.append("  ".join("-" * w for w in widths))
+        out += ["  ".join(c.ljust(w) for c, w in zip(line, widths)) for line in lines]
+        return "\n".join(out)
+
+    def save_csv(self, path) -> Path:
+        path = Path(path)
+        with path.open("w", newline="") as fh:
+            wr = csv.DictWriter(fh, fieldnames=COLUMNS)
+            wr.writeheader()
+            wr.writerows(self.rows)
+        return path
+
+    def save_json(self, path) -> Path:
+        path = Path(path)
+        path.write_text(json.dumps({"settings": self.settings, "interrupted": self.interrupted,
+                                    "rows": self.rows}, indent=1, default=_json_default))
+        return path
+
+
+def _fmt(x, digits: int) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _json_default(obj):
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, (np.floating, np.integer)):
+        return obj.item()
+    return str(obj)
+
+
+def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
+    if isinstance(reference, Reference):
+        return reference
+    if reference == "scurve":  # the path takes 80 % of the run, the rest is a hold (steady state)
+        return SCurve(duration=0.8 * duration)
+    if reference == "hold":
+        return Hold(tuple(robot.home_pose))
+    raise InvalidParameterError(f"reference {reference!r} is not 'scurve', 'hold' or a Reference object")
+
+
+def _row(form: str, case: RobustnessCase, res, status: str) -> dict:
+    row = {"form": form, "study": case.study, "value": case.value, "unit": case.unit}
+    if res is None:
+        nan = float("nan")
+        row.update(rms_position_error_mm=nan, max_position_error_mm=nan, rms_orientation_error_mrad=nan,
+                   steady_state_error_mm=nan, peak_torque_Nm=nan, saturated_steps=0, fallbacks=0, steps=0)
+    else:
+        m = res.metrics()
+        tail = max(1, int(round(SETTLE_FRACTION * len(res.t))))
+        steady = float(np.mean(np.linalg.norm(res.error[-tail:, :2], axis=1)))
+        row.update(rms_position_error_mm=1e3 * m["rms_position_error_m"],
+                   max_position_error_mm=1e3 * m["max_position_error_m"],
+                   rms_orientation_error_mrad=1e3 * m["rms_orientation_error_rad"],
+                   steady_state_error_mm=1e3 * steady, peak_torque_Nm=m["peak_torque_Nm"],
+                   saturated_steps=m["saturated_steps"], fallbacks=m["fallbacks"], steps=m["steps"])
+    row["status"] = status
+    return row
+
+
+def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=DEFAULT_MASS_SCALES,
+                     noise_levels=DEFAULT_NOISE_LEVELS, disturbances=DEFAULT_DISTURBANCES,
+                     duration: float = 2.5, Ts: float = 0.005, N: int = 10, progress: bool = False,
+                     weights: Weights = DEFAULT_WEIGHTS, reference="scurve", seed: int = 0,
+                     on_row=None) -> RobustnessResult:
+    """Tracking error of each form under plant mismatch, measurement noise and a constant load.
+
+    Args:
+        robot_name: embedded robot name or path to a robot file.
+        forms: prediction forms to compare (subset of ``FORMS``).
+        mass_scales: plant mass/inertia scales (1 = nominal; 0.7 … 1.3 = −30 … +30 %).
+        noise_levels: pose measurement-noise standard deviations σ (m, rad); velocity noise
+            σ·√2/Ts (m/s, rad/s).
+        disturbances: constant platform forces along x (N).
+        duration: length of each run in s. Ts: sample time in s. N: prediction horizon
+            (No = 0, Nu = N).
+        progress: show a progress bar over the runs.
+        weights: square-root weights Qy, Qu, the same for every form.
+        reference: ``"scurve"`` (the paper's S-curve over 80 % of the run, then a hold),
+            ``"hold"`` (the home pose) or a :class:`~parallel_gpc.references.Reference`.
+        seed: seed of the measurement noise (the same noise sequence for every form).
+        on_row: optional callback receiving each row as soon as its run finishes.
+
+    Returns:
+        :class:`RobustnessResult`; ``interrupted`` is True if Ctrl-C stopped it early.
+
+    Raises:
+        InvalidParameterError: an unknown form, a bad Ts, N, duration, scale or noise level.
+        RobotFormatError: the robot cannot be loaded.
+    """
+    forms = tuple(forms)
+    bad = [f for f in forms if f not in FORMS]
+    if bad or not forms:
+        raise InvalidParameterError(f"forms {list(forms)} must be a non-empty subset of {list(FORMS)}")
+    Ts = positive("Ts", Ts, " s")
+    duration = positive("duration", duration, " s")
+    if duration < 2 * Ts:
+        raise InvalidParameterError(f"duration = {duration} s must cover at least two samples of Ts = {Ts} s")
+    horizons = Horizons(N)
+    cases = robustness_cases(mass_scales, noise_levels, disturbances)
+    robot = ParallelRobot.load(robot_name)
+    ref = _reference(reference, robot, duration)
+    X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
+    for form in forms:  # validate the controller settings once, before any run
+        GPCController(ReducedModel(robot), Ts, horizons, weights, form=form)
+    result = RobustnessResult(settings={
+        "robot": robot.name, "forms": list(forms), "Ts": Ts, "N": N, "duration": duration,
+        "Qy": weights.Qy, "Qu": weights.Qu, "reference": reference if isinstance(reference, str) else repr(reference),
+        "plant": "ConstrainedPlant, drive saturation at the robot's torque limits",
+        "noise": "pose σ (m, rad); velocity σ·√2/Ts", "disturbance": "constant force along x (N)",
+        "steady_state": f"mean position error over the last {SETTLE_FRACTION:.0%} of the run",
+    })
+    plants = {}
+    runs = [(form, case) for case in cases for form in forms]
+    from tqdm import tqdm
+
+    try:
+        for form, case in tqdm(runs, disable=not progress, desc="robustness", unit="run"):
+            if case.mass_scale not in plants:
+                plants[case.mass_scale] = robot.with_mass_scale(case.mass_scale) if case.mass_scale != 1.0 else robot
+            ctl = GPCController(ReducedModel(robot), Ts, horizons, weights, form=form)
+            plant = ConstrainedPlant(plants[case.mass_scale], X0, torque_limit=robot.torque_limit,
+                                     platform_force=[case.force] + [0.0] * (robot.n_y - 1))
+            noise = None if case.noise == 0 else np.concatenate(
+                [np.full(robot.n_y, case.noise), np.full(robot.n_y, case.noise * math.sqrt(2.0) / Ts)])
+            try:
+                res = simulate(ctl, plant, ref, duration, noise_std=noise, seed=seed, progress=False,
+                               meta={"study": case.study, "value": case.value})
+                status = "interrupted" if res.interrupted else "ok"
+            except _DIVERGED as exc:
+                res, status = None, f"diverged ({type(exc).__name__})"
+            row = _row(form, case, res, status)
+            result.rows.append(row)
+            if on_row is not None:
+                on_row(row)
+            if status == "interrupted":
+                result.interrupted = True
+                break
+    except KeyboardInterrupt:  # between runs, or before the first step of a run
+        result.interrupted = True
+    return result
+
+
+def plot_robustness(result: RobustnessResult, path) -> Path:
+    """Three panels (matplotlib, Agg): RMS position error vs mass change, vs noise level, and
+    steady-state error vs disturbance force, one line per form. Diverged runs are left out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    forms = list(dict.fromkeys(r["form"] for r in result.rows))
+    panels = (("mass", "plant mass / inertia change [%]", "rms_position_error_mm", "RMS position error [mm]"),
+              ("noise", "pose noise σ [m]", "rms_position_error_mm", "RMS position error [mm]"),
+              ("disturbance", "force on the platform along x [N]", "steady_state_error_mm",
+               "steady-state position error [mm]"))
+    fig, axes = plt.subplots(1, 3, figsize=(14, 4.2), constrained_layout=True)
+    for ax, (study, xlabel, key, ylabel) in zip(axes, panels):
+        for form in forms:
+            nominal = [r for r in result.rows if r["form"] == form and r["study"] == "nominal"]
+            rows = nominal + [r for r in result.rows if r["form"] == form and r["study"] == study]
+            pts = sorted((r["value"], r[key]) for r in rows if r["status"] != "interrupted")
+            pts = [(x, y) for x, y in pts if not math.isnan(y)]
+            if pts:
+                xs, ys = zip(*pts)
+                ax.plot(xs, ys, "o-", label=form)
+            for r in rows:
+                if r["status"].startswith("diverged"):
+                    ax.annotate("diverged", (r["value"], 0), textcoords="offset points", xytext=(0, 5),
+                                fontsize=7, rotation=90)
+        if study == "noise":
+            ax.set_xscale("symlog", linthresh=1e-6)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_title(study)
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    s = result.settings
+    fig.suptitle(f"GPC robustness, {s.get('robot')}: Ts = {s.get('Ts')} s, N = {s.get('N')}, "
+                 f"Qy = {s.get('Qy')}, Qu = {s.get('Qu')}, {s.get('reference')} reference"
+                 + (" (interrupted)" if result.interrupted else ""))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path

@@ -1,0 +1,129 @@
+"""Tracking experiments: the paper's Fig. 2 comparison as one library call.
+
+``run_tracking(TrackingSettings(...), forms)`` builds the controller's model and the plant
+(with optional mass mismatch, noise, disturbance force, drive saturation), runs each GPC form on
+the reference and returns the results; ``metrics_table`` formats them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .controller import FORMS, GPCController
+from .dynamics import ReducedModel
+from .errors import InvalidParameterError
+from .plant import ConstrainedPlant
+from .prediction import Horizons
+from .references import Hold, Reference, SCurve
+from .robot import DEFAULT_ROBOT, ParallelRobot
+from .simulation import SimulationResult, simulate
+from .solvers import Weights
+
+
+@dataclass(frozen=True)
+class TrackingSettings:
+    """Settings of a tracking run (SI units).
+
+    Attributes:
+        robot: embedded robot name or path.
+        Ts: sample time in s (default 2 ms).
+        N, No, Nu: horizons in samples (Nu None = N).
+        Qy, Qu: square-root weights (paper Fig. 2: Qy = 1, Qu = 0).
+        solver: back-end name or None (QR without limits, QR-first + ProxQP with limits).
+        torque_limit: drive torque limit in N·m for the controller and the plant, or None.
+        du_limit: increment limit in N·m per sample (incremental forms), or None.
+        mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
+        noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
+        platform_force: constant disturbance on the platform coordinates (N, N, N·m).
+        reference: "s-curve" or "hold"; duration: run length in s (default: reference + 0.2 s).
+        s_curve_duration: time of the S-curve motion in s.
+    """
+
+    robot: str = DEFAULT_ROBOT
+    Ts: float = 0.002
+    N: int = 20
+    No: int = 0
+    Nu: int | None = None
+    Qy: float = 1.0
+    Qu: float = 0.0
+    solver: str | None = None
+    torque_limit: float | None = None
+    du_limit: float | None = None
+    mass_scale: float = 1.0
+    noise_std: float = 0.0
+    platform_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    reference: str = "s-curve"
+    duration: float | None = None
+    s_curve_duration: float = 2.0
+    hold_pose: tuple[float, float, float] = (0.55, 0.55, math.radians(5.0))
+    extra: dict = field(default_factory=dict)
+
+    def make_reference(self, robot: ParallelRobot) -> Reference:
+        if self.reference == "s-curve":
+            return SCurve(duration=self.s_curve_duration)
+        if self.reference == "hold":
+            return Hold(tuple(self.hold_pose))
+        raise InvalidParameterError(f"reference {self.reference!r} is not one of ['s-curve', 'hold']")
+
+    @property
+    def run_duration(self) -> float:
+        if self.duration is not None:
+            return float(self.duration)
+        return self.s_curve_duration + 0.2 if self.reference == "s-curve" else 2.0
+
+
+def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
+                 robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
+    """Run each GPC form on the reference with the plant of ``settings``; returns results by form."""
+    for form in forms:
+        if form not in FORMS:
+            raise InvalidParameterError(f"form {form!r} is not one of {FORMS}")
+    robot = robot or ParallelRobot.load(settings.robot)
+    plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
+    reference = settings.make_reference(robot)
+    start = reference.pose(0.0)
+    if settings.reference == "hold":
+        start = robot.home_pose
+    results = {}
+    for form in forms:
+        ctrl = GPCController(
+            ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
+            Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
+            torque_limit=settings.torque_limit, du_limit=settings.du_limit if form != "absolute" else None,
+        )
+        plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
+                                 torque_limit=settings.torque_limit, platform_force=settings.platform_force)
+        try:
+            res = simulate(ctrl, plant, reference, settings.run_duration,
+                           noise_std=settings.noise_std or None, progress=progress,
+                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std})
+        except KeyboardInterrupt:  # interrupted before this form's first step: keep the earlier forms
+            if not results:
+                raise
+            break
+        results[form] = res
+        if res.interrupted:
+            break
+    return results
+
+
+def metrics_table(results: dict[str, SimulationResult]) -> str:
+    """A text table of the tracking metrics (mm, mrad, N·m, ms) by form."""
+    head = (f"{'form':<12} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
+            f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
+    units = (f"{'':<12} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
+             f"{'[N·m]':>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
+    lines = [head, units]
+    for form, res in results.items():
+        m = res.metrics()
+        lines.append(
+            f"{form:<12} {1e3 * m['rms_position_error_m']:9.4f} {1e3 * m['max_position_error_m']:9.4f} "
+            f"{1e3 * m['rms_orientation_error_rad']:9.4f} {1e3 * m['max_orientation_error_rad']:9.4f} "
+            f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
+            f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
+            + ("  (interrupted)" if res.interrupted else "")
+        )
+    return "\n".join(lines)

@@ -1,0 +1,281 @@
+"""meshcat view (DESIGN §8): loopback-only servers, offline HTML, animation content, CLI view."""
+
+from __future__ import annotations
+
+import io
+import re
+import socket
+import threading
+import urllib.request
+from pathlib import Path as FsPath
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import psutil
+import pytest
+
+from parallel_gpc import viz  # before meshcat: viz silences meshcat's import-time DeprecationWarning
+from parallel_gpc.cli import main as cli_main
+from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, ShapeError, ViewerError
+
+MeshcatPath = viz.meshcat.path.Path
+
+NON_LOOPBACK = ["0.0.0.0", "192.168.1.5", "10.0.0.1", "::", "::1", "example.com", ""]
+
+
+def line_motion(robot, n: int = 41, duration: float = 2.0):
+    """(t, qs, poses): the platform along a line from [0.3, 0.3, -0.2] to [0.7, 0.7, 0.2]."""
+    t = np.linspace(0.0, duration, n)
+    poses = np.array([0.3, 0.3, -0.2]) + np.outer(t / duration, [0.4, 0.4, 0.4])
+    qs, q = [], None
+    for pose in poses:
+        q = robot.assemble(pose, q)
+        qs.append(q)
+    return t, np.array(qs), poses
+
+
+def listening() -> set[tuple[str, int]]:
+    """(address, port) of every TCP socket this process listens on."""
+    return {(c.laddr.ip, c.laddr.port) for c in psutil.Process().net_connections(kind="inet")
+            if c.status == psutil.CONN_LISTEN}
+
+
+def port_open(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(1.0)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def zmq_port(url: str) -> int:
+    return int(url.rsplit(":", 1)[1])
+
+
+# ------------------------------------------------------------------------- live viewer
+def test_live_viewer_listens_on_loopback_only():
+    before = listening()
+    with viz.LiveViewer() as viewer:
+        assert viewer.url == f"http://127.0.0.1:{viewer.port}/static/"
+        new = listening() - before
+        ports = {port for _, port in new}
+        assert {viewer.port, zmq_port(viewer.zmq_url)} <= ports
+        assert {addr for addr, _ in new} == {"127.0.0.1"}, new
+        page = urllib.request.urlopen(viewer.url, timeout=5).read().decode()
+        assert "main.min.js" in page and "MeshCat.Viewer" in page
+        web, zmq = viewer.port, zmq_port(viewer.zmq_url)
+    assert listening() == before
+    assert not port_open(web) and not port_open(zmq)
+    assert not any(t.name == "parallel-gpc-meshcat" for t in threading.enumerate())
+    assert viewer.vis is None
+
+
+def test_live_viewer_stops_after_keyboard_interrupt():
+    before = listening()
+    with pytest.raises(KeyboardInterrupt):
+        with viz.LiveViewer() as viewer:
+            web, zmq = viewer.port, zmq_port(viewer.zmq_url)
+            assert port_open(web)
+            raise KeyboardInterrupt
+    assert listening() == before
+    assert not port_open(web) and not port_open(zmq)
+
+
+@pytest.mark.parametrize("host", NON_LOOPBACK)
+def test_non_loopback_bind_address_is_rejected(host):
+    for make in (lambda: viz.LiveViewer(host=host), lambda: viz.GalleryServer(".", host=host)):
+        with pytest.raises(InvalidParameterError, match=re.escape(repr(host))):
+            make()
+
+
+def test_loopback_aliases_and_ports():
+    assert viz.loopback_host("localhost") == "127.0.0.1"
+    assert viz.loopback_host("127.0.0.2") == "127.0.0.2"
+    for port in (-1, 65536, 1.5, "80", True):
+        with pytest.raises(InvalidParameterError, match="port"):
+            viz.LiveViewer(port=port)
+
+
+def test_live_viewer_reports_a_port_in_use():
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        before = listening()
+        with pytest.raises(ViewerError, match=f"127.0.0.1:{port}"):
+            viz.LiveViewer(port=port).start()
+        assert listening() == before
+
+
+def test_serve_until_interrupt_prints_url_and_stops(robot4):
+    seen = {}
+
+    def interrupt(viewer):
+        seen["port"], seen["listening"] = viewer.port, listening()
+        raise KeyboardInterrupt
+
+    before = listening()
+    out = io.StringIO()
+    t, qs, poses = line_motion(robot4, n=5)
+    viz.serve_until_interrupt(robot4, t, qs, reference=poses, out=out, wait=interrupt)
+    assert ("127.0.0.1", seen["port"]) in seen["listening"]
+    assert f"http://127.0.0.1:{seen['port']}/static/" in out.getvalue()
+    assert "stopped" in out.getvalue()
+    assert listening() == before and not port_open(seen["port"])
+    with pytest.raises(InvalidParameterError, match="0.0.0.0"):
+        viz.serve_until_interrupt(robot4, host="0.0.0.0", wait=interrupt)
+
+
+# ------------------------------------------------------------------------- scene content
+def test_placements_follow_the_legs_and_closures_close(robot4):
+    scene = viz.RobotScene(SimpleNamespace(path=MeshcatPath(("meshcat",))), robot4)
+    q = robot4.assemble([0.6, 0.4, 0.1])
+    T = dict(zip(scene.paths, scene.placements(q)))
+    data = robot4.model.createData()
+    gdata = scene.geom_model.createData()
+    pin.forwardKinematics(robot4.model, data, q)
+    pin.updateGeometryPlacements(robot4.model, data, scene.geom_model, gdata)
+    for k, g in enumerate(scene.geom_model.geometryObjects):
+        # three.js cylinders are along y: the intrinsic fix-up maps y onto the URDF's z axis
+        np.testing.assert_allclose(T[f"robot/{g.name}"][:3, 3], gdata.oMg[k].translation, atol=1e-12)
+        np.testing.assert_allclose(T[f"robot/{g.name}"][:3, 1], gdata.oMg[k].rotation[:, 2], atol=1e-12)
+    for c in robot4.description.closures:  # closed loops: the two closure spheres coincide
+        np.testing.assert_allclose(T[f"robot/closures/{c.name}_a"][:3, 3], T[f"robot/closures/{c.name}_b"][:3, 3],
+                                   atol=1e-9)
+    open_q = q.copy()
+    open_q[robot4.drive_idx[0]] += 0.2  # a drive moved without re-assembly: leg 1 opens
+    T_open = dict(zip(scene.paths, scene.placements(open_q)))
+    gap = np.linalg.norm(T_open["robot/closures/leg_1_a"][:3, 3] - T_open["robot/closures/leg_1_b"][:3, 3])
+    assert gap > 0.05
+    assert not np.allclose(T_open["robot/distal_1_0"], T["robot/distal_1_0"])  # legs follow q
+
+
+def test_animation_keyframes_match_configurations(robot4):
+    vis = SimpleNamespace(path=MeshcatPath(("meshcat",)))
+    scene = viz.RobotScene(vis, robot4)
+    t, qs, _ = line_motion(robot4, n=41)
+    saturated = np.zeros((t.size, robot4.n_u), dtype=bool)
+    saturated[10:20, 2] = True
+    fps = 10.0
+    anim = scene.animation(t, qs, saturated, fps=fps, max_frames=300)
+    idx = viz.frame_indices(t, fps, 300)
+    assert idx.tolist() == list(range(0, 41, 2))  # 2 s at 10 fps: 21 key frames
+    clip = anim.clips[MeshcatPath(("meshcat", "robot", "distal_3_0"))]
+    position = clip.tracks["position"]
+    np.testing.assert_allclose(position.frames, (t[idx] - t[0]) * fps)
+    expected = [scene.placements(qs[k])[scene.paths.index("robot/distal_3_0")][:3, 3] for k in idx]
+    np.testing.assert_allclose(position.values, expected, atol=1e-12)
+    visible = anim.clips[MeshcatPath(("meshcat", "robot", "saturation", "drive_3"))].tracks["visible"]
+    assert visible.values == saturated[idx, 2].tolist() and any(visible.values)
+    lowered = anim.lower()
+    assert len(lowered) == len(scene.paths) + robot4.n_u
+
+
+def test_frame_indices_are_bounded_and_keep_the_ends():
+    t = np.linspace(0.0, 10.0, 1001)
+    idx = viz.frame_indices(t, fps=30.0, max_frames=300)
+    assert len(idx) == 300 and idx[0] == 0 and idx[-1] == 1000
+    assert viz.frame_indices(t[:5], fps=30.0).tolist() == [0, 4]  # 0.04 s at 30 fps: the two ends
+    assert viz.frame_indices(np.arange(5.0), fps=30.0).tolist() == [0, 1, 2, 3, 4]  # never more than K
+    assert viz.frame_indices(np.array([0.0]), fps=30.0).tolist() == [0]
+    with pytest.raises(InvalidParameterError, match="increasing"):
+        viz.frame_indices(np.array([0.0, 1.0, 1.0]), fps=30.0)
+
+
+def test_animate_checks_shapes(robot4):
+    vis = SimpleNamespace(path=MeshcatPath(("meshcat",)))
+    scene = viz.RobotScene(vis, robot4)
+    t, qs, _ = line_motion(robot4, n=5)
+    with pytest.raises(ShapeError, match=rf"expected \(5, {robot4.model.nq}\)"):
+        scene.animation(t, qs[:, :-1])
+    with pytest.raises(ShapeError, match="saturated"):
+        scene.animation(t, qs, np.zeros((5, 3), dtype=bool))
+    with pytest.raises(ShapeError, match="reference path"):
+        viz._path_points("reference path", np.zeros((5, 1)))
+
+
+def test_saturation_flags():
+    u = np.array([[10.0, -60.0], [59.0, 60.0]])
+    assert viz.saturation_flags(u, 60.0).tolist() == [[False, True], [False, True]]
+
+
+# ------------------------------------------------------------------------- offline HTML
+def test_export_html_is_self_contained(robot4, tmp_path):
+    t, qs, poses = line_motion(robot4, n=21)
+    before = listening()
+    out = viz.export_html(tmp_path / "motion.html", robot4, t, qs, reference=poses, planned=poses,
+                          saturated=np.zeros((t.size, robot4.n_u), bool), title="line <A to B>")
+    assert listening() == before  # the private viewer is stopped
+    page = out.read_text(encoding="utf-8")
+    bundle = (FsPath(viz.VIEWER_ROOT) / "main.min.js").read_text()
+    assert bundle[:2000] in page and bundle[-2000:] in page  # viewer inlined
+    assert "new MeshCat.Viewer" in page and "<title>line &lt;A to B&gt;</title>" in page
+    assert not re.search(r"<script[^>]*\bsrc\s*=", page, re.IGNORECASE)
+    assert viz.network_references(page) == []
+    # the only absolute URLs are the XHTML namespace string and the same-origin websocket
+    # template of viewer.connect() (never called by the static page) inside the bundle
+    urls = set(re.findall(r"(?:https?|wss?)://[^\s\"'<>)\\]+", page))
+    assert urls <= {"http://www.w3.org/1999/xhtml", "ws://${location.host}`"}, urls
+    assert page.count("fetch(\"data:application/octet-binary;base64,") > 10  # the scene commands
+
+
+def test_network_references_detects_remote_loads():
+    for snippet in ('<script src="https://cdn.example/x.js"></script>', "<link href='//cdn.example/a.css'>",
+                    'fetch("http://example.com/scene")', "new WebSocket('ws://example.com')",
+                    "<style>@import url(https://x/y.css)</style>"):
+        assert viz.network_references(snippet), snippet
+    assert viz.network_references('<a id="x">"http://www.w3.org/1999/xhtml"</a>') == []
+
+
+# ------------------------------------------------------------------------- gallery
+def test_gallery_binds_loopback_and_lists_pages(robot4, tmp_path):
+    t, qs, _ = line_motion(robot4, n=5)
+    viz.export_html(tmp_path / "a.html", robot4, t, qs, title="Run A")
+    before = listening()
+    with viz.GalleryServer(tmp_path) as gallery:
+        new = listening() - before
+        assert new == {("127.0.0.1", gallery.port)}
+        index = urllib.request.urlopen(gallery.url, timeout=5).read().decode()
+        assert 'href="a.html"' in index and "Run A" in index
+        page = urllib.request.urlopen(gallery.url + "a.html", timeout=5).read().decode()
+        assert "new MeshCat.Viewer" in page
+        port = gallery.port
+    assert listening() == before and not port_open(port)
+
+
+def test_serve_gallery_stops_on_keyboard_interrupt(tmp_path):
+    seen = {}
+
+    def interrupt(server):
+        seen["port"] = server.port
+        assert port_open(server.port)
+        raise KeyboardInterrupt
+
+    out = io.StringIO()
+    viz.serve_gallery(tmp_path, out=out, wait=interrupt)
+    assert f"http://127.0.0.1:{seen['port']}/" in out.getvalue()
+    assert not port_open(seen["port"])
+    with pytest.raises(InvalidParameterError, match="does not exist"):
+        viz.GalleryServer(tmp_path / "missing")
+
+
+# ------------------------------------------------------------------------- files and CLI
+def test_trajectory_roundtrip_and_cli_view(robot4, tmp_path, capsys):
+    t, qs, poses = line_motion(robot4, n=9)
+    sat = np.zeros((t.size, robot4.n_u), bool)
+    npz = viz.save_trajectory(tmp_path / "run.npz", robot4, t, qs, reference=poses, saturated=sat)
+    loaded = viz.load_trajectory(npz)
+    assert loaded.robot == "planar_4rrr"
+    np.testing.assert_array_equal(loaded.q, qs)
+    np.testing.assert_array_equal(loaded.reference, poses)
+    assert loaded.planned is None and loaded.saturated.dtype == bool
+
+    assert cli_main(["view", str(npz), "--html", str(tmp_path / "out" / "run.html")]) == 0
+    assert (tmp_path / "out" / "run.html").stat().st_size > 500_000
+    assert cli_main(["view", str(npz)]) == 0  # default: RESULT.html next to the file
+    assert (tmp_path / "run.html").exists()
+
+    np.savez(tmp_path / "bad.npz", t=t, q=qs)
+    assert cli_main(["view", str(tmp_path / "bad.npz")]) == 2
+    assert "lacks the keys ['robot']" in capsys.readouterr().err
+    with pytest.raises(ParallelGPCError, match="does not exist"):
+        viz.load_trajectory(tmp_path / "none.npz")
