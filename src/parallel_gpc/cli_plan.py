@@ -90,6 +90,11 @@ def cmd_plan(args) -> int:
     print("wrote " + ", ".join(str(p) for p in written))
     print("use a plan as reference: parallel_gpc.references.SampledTrajectory.load('"
           f"{out / 'plan_b.npz'}')")
+    from .cli_view import show_trajectory
+
+    plan_b = results[-1]
+    show_trajectory(args, robot, plan_b.t, plan_b.q, planned=results[0].poses, reference=plan_b.poses,
+                    title="A→B plan, mode (b) with stopping (path of mode (a) drawn too)")
     return 0
 
 
@@ -120,4 +125,7 @@ def register_plan(sub) -> None:
     p.add_argument("--settle", type=int, default=30, help="samples recorded after Nmax in mode (b) (default 30)")
     p.add_argument("--out", default="out/plan", help="output folder for figures and trajectories (default ./out/plan)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from .cli_view import add_view_arguments
+
+    add_view_arguments(p)
     p.set_defaults(func=cmd_plan)

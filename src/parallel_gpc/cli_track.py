@@ -85,6 +85,8 @@ def cmd_track(args) -> int:
 def cmd_demo(args) -> int:
     """The paper's Fig. 2: absolute vs incremental-nonlinear GPC, Qy = 1, Qu = 0, default robot."""
     settings = settings_from_args(args)
+    if getattr(args, "html", "unset") is None:
+        args.html = str(Path(args.out) / "demo.html")  # the demo always writes its animation
     return run_and_report(settings, ["absolute", "nonlinear"], Path(args.out), args,
                           "Fig. 2 demo (absolute vs incremental-nonlinear)")
 

@@ -98,9 +98,10 @@ class SimulationResult:
                                  self.status[k], int(self.fallback[k])])
             return path
         arrays = {k: getattr(self, k) for k in ("t", "reference", "pose", "velocity", "u", "internal_force", "q",
-                                                "step_time", "solve_time", "iterations", "status", "fallback",
-                                                "saturated")}
-        np.savez(path, robot=str(self.meta.get("robot", "")), meta=repr(self.meta),
+                                                "step_time", "solve_time", "iterations", "status", "fallback")}
+        # (K,) plant clipping flags; "saturated" in a trajectory file means (K, n_u) drive flags (viz)
+        arrays["plant_saturated"] = self.saturated
+        np.savez(path, robot=str(self.meta.get("robot_file", self.meta.get("robot", ""))), meta=repr(self.meta),
                  interrupted=self.interrupted, **arrays)
         return path
 
@@ -169,7 +170,10 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
-    info_meta = {"robot": robot.name, "form": controller.form, "solver": controller.solver,
+    from .robot import embedded_robots
+
+    robot_file = robot.name if robot.name in embedded_robots() else str(robot.description.urdf_path)
+    info_meta = {"robot": robot.name, "robot_file": robot_file, "form": controller.form, "solver": controller.solver,
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "torque_limit": controller.torque_limit, **(meta or {})}

@@ -120,8 +120,8 @@ def metrics_table(results: dict[str, SimulationResult]) -> str:
     for form, res in results.items():
         m = res.metrics()
         lines.append(
-            f"{form:<12} {1e3 * m['rms_position_error_m']:9.4f} {1e3 * m['max_position_error_m']:9.4f} "
-            f"{1e3 * m['rms_orientation_error_rad']:9.4f} {1e3 * m['max_orientation_error_rad']:9.4f} "
+            f"{form:<12} {1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
+            f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
             f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
             f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
             + ("  (interrupted)" if res.interrupted else "")
