@@ -530,15 +530,22 @@ class QpsolversBackend:
         try:
             sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **settings)
         except Exception as exc:  # a solver's own exception becomes a reported failure
-            return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self.name,
-                               solve_time=time.perf_counter() - t0, message=f"{type(exc).__name__}: {exc}")
+            return _failed(problem, self.name, "failed", None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
         dt = time.perf_counter() - t0
         if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
-            return SolveResult(np.full(problem.n, np.nan), np.inf, "infeasible", self.name, solve_time=dt,
-                               message=f"{self.solver} found no solution")
-        v = sol.x
-        iters = _iterations_from_extras(sol.extras)
-        return SolveResult(v, problem.cost(v), "optimal", self.name, iters, dt, problem.active(v))
+            return _failed(problem, self.name, "infeasible", None, dt, f"{self.solver} found no solution")
+        return _solved(problem, self.name, sol.x, _iterations_from_extras(sol.extras), dt)
+
+
+def _failed(problem: LeastSquaresProblem, name: str, kind: str, iterations, dt: float, message: str) -> SolveResult:
+    """A reported failure: NaN solution, infinite cost, status ``kind`` (never swallowed)."""
+    return SolveResult(np.full(problem.n, np.nan), np.inf, kind, name, iterations, dt, message=message)
+
+
+def _solved(problem: LeastSquaresProblem, name: str, x, iterations, dt: float) -> SolveResult:
+    """A successful QP solve: cost and active limits evaluated on the original problem."""
+    v = np.asarray(x, dtype=float)
+    return SolveResult(v, problem.cost(v), "optimal", name, iterations, dt, problem.active(v))
 
 
 def _iterations_from_extras(extras) -> int | None:
@@ -611,10 +618,8 @@ class OSQPBackend:
         status = str(res.info.status)
         if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):
             kind = "infeasible" if "infeasible" in status else "failed"
-            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(res.info.iter), dt,
-                               message=f"OSQP status: {status}")
-        v = np.asarray(res.x)
-        return SolveResult(v, problem.cost(v), "optimal", self.name, int(res.info.iter), dt, problem.active(v))
+            return _failed(problem, self.name, kind, int(res.info.iter), dt, f"OSQP status: {status}")
+        return _solved(problem, self.name, res.x, int(res.info.iter), dt)
 
 
 class ProxQPBackend:
@@ -653,9 +658,8 @@ class ProxQPBackend:
         if "SOLVED" not in status.upper() or "CLOSEST" in status.upper() or not np.all(np.isfinite(v)):
             kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
             self._qp = None  # its warm start is now meaningless: set up afresh next time
-            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(info.iter), dt,
-                               message=f"ProxQP status: {status}")
-        return SolveResult(v, problem.cost(v), "optimal", self.name, int(info.iter), dt, problem.active(v))
+            return _failed(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
+        return _solved(problem, self.name, v, int(info.iter), dt)
 
 
 class DAQPBackend:
@@ -702,11 +706,9 @@ class DAQPBackend:
         dt = time.perf_counter() - t0
         if flag != 1 or not np.all(np.isfinite(x)):
             kind = "infeasible" if flag == -1 else "failed"
-            return SolveResult(np.full(problem.n, np.nan), np.inf, kind, self.name, int(info.get("iterations", 0)), dt,
-                               message=f"DAQP exit flag {flag}")
+            return _failed(problem, self.name, kind, int(info.get("iterations", 0)), dt, f"DAQP exit flag {flag}")
         self._sense = (np.abs(np.asarray(info["lam"])) > 0).astype(np.int32) if "lam" in info else None
-        v = np.asarray(x)
-        return SolveResult(v, problem.cost(v), "optimal", self.name, int(info.get("iterations", 0)), dt, problem.active(v))
+        return _solved(problem, self.name, x, int(info.get("iterations", 0)), dt)
 
 
 class QRFirst:
