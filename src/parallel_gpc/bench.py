@@ -118,12 +118,14 @@ def machine_info() -> dict:
                 break
     except OSError:
         pass
+    from importlib import metadata
+
     versions = {}
-    for mod in ("numpy", "scipy", "pinocchio", "qpsolvers", "osqp", "proxsuite", "daqp", "qpmpc"):
+    for dist in ("numpy", "scipy", "pin", "qpsolvers", "osqp", "proxsuite", "daqp", "qpmpc"):
         try:
-            versions[mod] = getattr(__import__(mod), "__version__", "?")
-        except Exception:  # an optional package is missing: report it, do not fail
-            versions[mod] = None
+            versions[dist] = metadata.version(dist)
+        except metadata.PackageNotFoundError:  # an optional package is missing: report it
+            versions[dist] = None
     try:
         load = [round(x, 2) for x in os.getloadavg()]
     except OSError:  # not available on this platform
@@ -764,13 +766,16 @@ def _json_default(x):
     return str(x)
 
 
+def _add_arguments(p, default_out: str) -> None:
+    p.add_argument("--quick", action="store_true", help="short run (< 1 min on 2 cores; the full run takes ~6 min)")
+    p.add_argument("--out", default=default_out, help="folder for bench_gpc.json, bench_gpc.md and bench_gpc.png")
+
+
 def cmd_bench(args) -> int:
     if os.environ.get("OPENBLAS_NUM_THREADS") != "1" and not os.environ.get("PARALLEL_GPC_BENCH_CHILD"):
         # BLAS threads must be fixed before numpy loads: run again in a fresh interpreter
         env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PARALLEL_GPC_BENCH_CHILD="1")
-        argv = [sys.executable, "-m", "parallel_gpc.cli", "bench", "--out", str(args.out)]
-        if args.quick:
-            argv.append("--quick")
+        argv = [sys.executable, "-m", "parallel_gpc.bench", "--out", str(args.out)] + (["--quick"] if args.quick else [])
         sys.stdout.flush()
         os.execve(sys.executable, argv, env)
     run_benchmark(quick=args.quick, out_dir=args.out)
@@ -780,6 +785,18 @@ def cmd_bench(args) -> int:
 def register_bench(sub) -> None:
     """``parallel-gpc bench [--quick] [--out DIR]``."""
     p = sub.add_parser("bench", help="time QR vs QP back ends, qpmpc and the full GPC step along the S-curve")
-    p.add_argument("--quick", action="store_true", help="short run (< 3 min on 2 cores)")
-    p.add_argument("--out", default="bench-results", help="folder for bench_gpc.json and bench_gpc.png")
+    _add_arguments(p, "bench-results")
     p.set_defaults(func=cmd_bench)
+
+
+def main(argv: list[str] | None = None, default_out: str = "bench-results") -> int:
+    """``python -m parallel_gpc.bench [--quick] [--out DIR]`` (also used by benchmarks/bench_gpc.py)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="parallel_gpc.bench", description=__doc__.splitlines()[0])
+    _add_arguments(parser, default_out)
+    return cmd_bench(parser.parse_args(argv))
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

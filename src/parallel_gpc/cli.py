@@ -17,6 +17,7 @@ from .cli_track import register_demo, register_track
 from .cli_view import register_view
 from .cli_plan import register_plan
 from .cli_robustness import register_robustness
+from .bench import register_bench
 from .errors import ParallelGPCError
 from .robot import DEFAULT_ROBOT, ParallelRobot
 
@@ -79,7 +80,7 @@ def register_info(sub) -> None:
 
 
 #: Sub-command registrars, in help order.
-REGISTRARS = [register_info, register_demo, register_track, register_plan, register_robustness, register_view]
+REGISTRARS = [register_info, register_demo, register_track, register_plan, register_robustness, register_bench, register_view]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -21,7 +21,7 @@ def add_tracking_arguments(p) -> None:
     p.add_argument("--Qy", type=float, default=d.Qy, help="square-root output weight (default 1)")
     p.add_argument("--Qu", type=float, default=d.Qu, help="square-root input / increment weight (default 0)")
     p.add_argument("--solver", default=None, help="back end: qr, osqp-direct, proxqp-direct, daqp-direct, "
-                   "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:proxqp-direct with limits)")
+                   "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:daqp-direct with limits)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
     p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample")
     p.add_argument("--mass-scale", type=float, default=1.0, help="plant mass / model mass (default 1)")

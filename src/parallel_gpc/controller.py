@@ -35,7 +35,7 @@ from .validation import finite_vector, positive
 
 FORMS = ("absolute", "incremental", "nonlinear")
 #: QP back end used when torque limits are given and no solver is named.
-DEFAULT_LIMITED_SOLVER = "qr-first:proxqp-direct"
+DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
 #: the QP is given limits tightened by this relative margin so that a solution within the
 #: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
 LIMIT_MARGIN = 1e-6
@@ -75,7 +75,7 @@ class GPCController:
         weights: square-root weights Qy, Qu.
         form: ``"absolute"``, ``"incremental"`` or ``"nonlinear"``.
         solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`); default ``"qr"``
-            without limits, ``"qr-first:proxqp-direct"`` with limits.
+            without limits, ``"qr-first:daqp-direct"`` with limits.
         torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
         du_limit: symmetric increment limit (N·m per sample), incremental forms only.
         u0: (m,) input applied before the first step, u(−1) (N·m); default zero.

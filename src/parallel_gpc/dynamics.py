@@ -25,7 +25,7 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from .errors import AssemblyError, NonFiniteError
+from .errors import NonFiniteError
 from .robot import ParallelRobot
 from .validation import finite_vector, positive
 
