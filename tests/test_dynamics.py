@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pinocchio as pin
-import pytest
 from scipy.integrate import solve_ivp
 
 from parallel_gpc import ReducedModel, discretize_zoh, rk4_step

@@ -11,7 +11,6 @@ from parallel_gpc.controller import GPCController
 from parallel_gpc.prediction import Horizons, absolute_prediction, incremental_prediction
 from parallel_gpc.references import SCurve
 from parallel_gpc.solvers import (
-    LeastSquaresProblem,
     QRSolver,
     Weights,
     build_problem,

@@ -5,7 +5,6 @@ Fig. 3/4). A thin layer over :func:`parallel_gpc.planning.plan_point_to_point`.
 from __future__ import annotations
 
 import math
-import sys
 from pathlib import Path
 
 import numpy as np

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dynamics import ReducedModel, discretize_zoh
+from .dynamics import ReducedModel
 from .errors import (
     InfeasibleLimitsError,
     InvalidParameterError,
