@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -736,8 +736,3 @@ class ParallelRobot:
     def __repr__(self) -> str:
         return (f"ParallelRobot({self.name!r}, dof={self.n_y}, drives={self.n_u}, "
                 f"closures={len(self.description.closures)}, mass_scale={self.mass_scale})")
-
-
-def replace_description(desc: RobotDescription, **changes) -> RobotDescription:
-    """A copy of ``desc`` with fields replaced (e.g. other torque limits)."""
-    return replace(desc, **changes)
