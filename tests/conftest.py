@@ -41,3 +41,14 @@ def random_states(rng: np.random.Generator, n: int) -> list[np.ndarray]:
 @pytest.fixture
 def model4(robot4) -> ReducedModel:
     return ReducedModel(robot4)
+
+
+def line_motion(robot, n: int = 41, duration: float = 2.0):
+    """(t, qs, poses): the platform along a line from [0.3, 0.3, -0.2] to [0.7, 0.7, 0.2]."""
+    t = np.linspace(0.0, duration, n)
+    poses = np.array([0.3, 0.3, -0.2]) + np.outer(t / duration, [0.4, 0.4, 0.4])
+    qs, q = [], None
+    for pose in poses:
+        q = robot.assemble(pose, q)
+        qs.append(q)
+    return t, np.array(qs), poses

@@ -15,6 +15,8 @@ import pytest
 
 from parallel_gpc import viz
 
+from conftest import line_motion
+
 pytestmark = pytest.mark.browser
 
 CHROMIUM = "/usr/bin/chromium"
@@ -62,15 +64,6 @@ def browser():
         browser.close()
 
 
-def line_motion(robot, n: int = 101, duration: float = 2.0):
-    """(t, qs, poses): the platform along a line from [0.3, 0.3, -0.2] to [0.7, 0.7, 0.2]."""
-    t = np.linspace(0.0, duration, n)
-    poses = np.array([0.3, 0.3, -0.2]) + np.outer(t / duration, [0.4, 0.4, 0.4])
-    qs, q = [], None
-    for pose in poses:
-        q = robot.assemble(pose, q)
-        qs.append(q)
-    return t, np.array(qs), poses
 
 
 def canvas_pixels(page) -> np.ndarray:
@@ -123,7 +116,7 @@ def wait_for_scene(page, n_commands: int) -> None:
 
 
 def test_exported_html_renders_offline_and_animates(browser, robot4, tmp_path):
-    t, qs, poses = line_motion(robot4)
+    t, qs, poses = line_motion(robot4, n=101)
     path = viz.export_html(tmp_path / "line.html", robot4, t, qs, reference=poses, title="browser test")
     requests = []
     page = new_page(browser, requests)

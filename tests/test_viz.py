@@ -19,20 +19,13 @@ from parallel_gpc import viz  # before meshcat: viz silences meshcat's import-ti
 from parallel_gpc.cli import main as cli_main
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, ShapeError, ViewerError
 
+from conftest import line_motion
+
 MeshcatPath = viz.meshcat.path.Path
 
 NON_LOOPBACK = ["0.0.0.0", "192.168.1.5", "10.0.0.1", "::", "::1", "example.com", ""]
 
 
-def line_motion(robot, n: int = 41, duration: float = 2.0):
-    """(t, qs, poses): the platform along a line from [0.3, 0.3, -0.2] to [0.7, 0.7, 0.2]."""
-    t = np.linspace(0.0, duration, n)
-    poses = np.array([0.3, 0.3, -0.2]) + np.outer(t / duration, [0.4, 0.4, 0.4])
-    qs, q = [], None
-    for pose in poses:
-        q = robot.assemble(pose, q)
-        qs.append(q)
-    return t, np.array(qs), poses
 
 
 def listening() -> set[tuple[str, int]]:

@@ -36,9 +36,9 @@ import numpy as np
 from scipy.linalg import lapack
 
 from .controller import GPCController
-from .dynamics import ReducedModel
+from .dynamics import ReducedModel, _identity
 from .plant import ConstrainedPlant
-from .prediction import Horizons, Prediction, _identity_map as _identity, condense
+from .prediction import Horizons, Prediction, condense
 from .references import SCurve
 from .robot import ParallelRobot
 from .simulation import simulate

@@ -405,6 +405,7 @@ def expm(M: np.ndarray) -> np.ndarray:
 
 @lru_cache(maxsize=32)
 def _identity(n: int) -> np.ndarray:
+    """Cached read-only n × n identity (shared by the expm and the absolute form's u = v map)."""
     eye = np.eye(n)
     eye.setflags(write=False)
     return eye

@@ -19,6 +19,7 @@ from functools import lru_cache
 
 import numpy as np
 
+from .dynamics import _identity
 from .errors import InvalidParameterError, ShapeError
 
 
@@ -234,20 +235,12 @@ def _cumulative_map(K: int, Nu: int, m: int) -> np.ndarray:
     return M
 
 
-@lru_cache(maxsize=64)
-def _identity_map(size: int) -> np.ndarray:
-    """Cached read-only identity: the absolute form's u = v."""
-    M = np.eye(size)
-    M.setflags(write=False)
-    return M
-
-
 def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
     """Absolute prediction, eq. (7): v = [u(k) … u(k+Nu−1)] (N·m), held after Nu."""
     f, G = condense(Ad, Bd, cd, C, X, horizons, hold_inputs=True)
     m = np.asarray(Bd).shape[-1]
     size = horizons.Nu * m
-    return Prediction(f, G, np.zeros(size), _identity_map(size), horizons, "absolute")
+    return Prediction(f, G, np.zeros(size), _identity(size), horizons, "absolute")  # u = v
 
 
 def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons) -> Prediction:
