@@ -14,7 +14,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from parallel_gpc.bench import main  # noqa: E402
+from parallel_gpc.studies.bench import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main(default_out=str(Path(__file__).resolve().parent / "results")))

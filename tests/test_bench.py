@@ -11,10 +11,11 @@ import pytest
 import scipy.linalg as sla
 
 from parallel_gpc import ReducedModel, discretize_zoh
-from parallel_gpc.bench import BenchConfig, register_bench, run_benchmark
-from parallel_gpc.dynamics import expm
-from parallel_gpc.prediction import Horizons, _condense_ltv, condense, incremental_prediction
-from parallel_gpc.solvers import QRSolver, Weights, build_problem, qr_least_squares
+from parallel_gpc.studies.bench import BenchConfig, register_bench, run_benchmark
+from parallel_gpc.model.dynamics import expm
+from parallel_gpc.gpc.prediction import Horizons, _condense_ltv, condense, incremental_prediction
+from parallel_gpc.solvers import QRSolver, qr_least_squares
+from parallel_gpc.gpc.criterion import Weights, build_problem
 
 from conftest import POSE_A, POSE_B, random_states
 
@@ -134,7 +135,7 @@ def test_qr_paths_agree(shape):
 @pytest.mark.parametrize("qu", [0.0, 1e-3, [1e-3, 0.0, 2e-3, 1e-3]])
 @pytest.mark.parametrize("form", ["absolute", "incremental"])
 def test_structured_qr_equals_dense_pivoted_qr_on_gpc_problems(model4, form, qu):
-    from parallel_gpc.prediction import absolute_prediction
+    from parallel_gpc.gpc.prediction import absolute_prediction
 
     X = np.concatenate([0.5 * (POSE_A + POSE_B), [0.3, -0.2, 0.4]])
     Ad, Bd, cd = model4.discrete(X, 0.002)

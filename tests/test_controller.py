@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ParallelRobot, ReducedModel
-from parallel_gpc.controller import GPCController
+from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.errors import InvalidParameterError
-from parallel_gpc.plant import ConstrainedPlant
-from parallel_gpc.prediction import Horizons
-from parallel_gpc.references import Hold, SCurve
-from parallel_gpc.simulation import SimulationResult, simulate
-from parallel_gpc.solvers import Weights
+from parallel_gpc.model.plant import ConstrainedPlant
+from parallel_gpc.gpc.prediction import Horizons
+from parallel_gpc.gpc.references import Hold, SCurve
+from parallel_gpc.studies.simulation import SimulationResult, simulate
+from parallel_gpc.gpc.criterion import Weights
 
 TS = 0.01
 TILT = np.radians(10.0)

@@ -7,8 +7,8 @@ import pinocchio as pin
 from scipy.integrate import solve_ivp
 
 from parallel_gpc import ReducedModel, discretize_zoh, rk4_step
-from parallel_gpc.dynamics import kinetic_energy
-from parallel_gpc.plant import ConstrainedPlant, ReducedPlant
+from parallel_gpc.model.dynamics import kinetic_energy
+from parallel_gpc.model.plant import ConstrainedPlant, ReducedPlant
 
 from conftest import POSE_A, POSE_B, random_states
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ParallelRobot, ReducedModel, cli, discretize_zoh, load_description
-from parallel_gpc.cli_robustness import register_robustness
-from parallel_gpc.controller import GPCController
+from parallel_gpc.cli.robustness import register_robustness
+from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.errors import (
     AssemblyError,
     InfeasibleLimitsError,
@@ -24,13 +24,14 @@ from parallel_gpc.errors import (
     SolverNotFoundError,
     UnreachablePoseError,
 )
-from parallel_gpc.plant import ConstrainedPlant, ReducedPlant
-from parallel_gpc.prediction import Horizons
-from parallel_gpc.references import Hold, SampledTrajectory
-from parallel_gpc.robot import urdf_dir
-from parallel_gpc.robustness import robustness_study
-from parallel_gpc.simulation import SimulationResult, simulate
-from parallel_gpc.solvers import Weights, make_solver
+from parallel_gpc.model.plant import ConstrainedPlant, ReducedPlant
+from parallel_gpc.gpc.prediction import Horizons
+from parallel_gpc.gpc.references import Hold, SampledTrajectory
+from parallel_gpc.model.robot import urdf_dir
+from parallel_gpc.studies.robustness import robustness_study
+from parallel_gpc.studies.simulation import SimulationResult, simulate
+from parallel_gpc.gpc.criterion import Weights
+from parallel_gpc.solvers import make_solver
 
 #: A direct (actuation) singularity of planar_3rrr: B_r loses rank there.
 SINGULAR_3RRR = np.array([0.15021993, 0.1311108, 0.0])
@@ -343,7 +344,7 @@ def test_ctrl_c_keeps_and_saves_the_partial_run(r4, tmp_path):
 
 def test_cli_robustness_ctrl_c_saves_partial_table_and_exits_130(cli_with_robustness, monkeypatch, tmp_path,
                                                                   capsys):
-    from parallel_gpc import references
+    from parallel_gpc.gpc import references as references
 
     calls = {"n": 0}
     original = references.SCurve.window

@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ReducedModel
-from parallel_gpc.controller import GPCController
+from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, UnreachablePoseError
-from parallel_gpc.plant import ConstrainedPlant
-from parallel_gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
-from parallel_gpc.prediction import Horizons
-from parallel_gpc.references import SampledTrajectory
-from parallel_gpc.simulation import simulate
-from parallel_gpc.solvers import Weights
+from parallel_gpc.model.plant import ConstrainedPlant
+from parallel_gpc.gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
+from parallel_gpc.gpc.prediction import Horizons
+from parallel_gpc.gpc.references import SampledTrajectory
+from parallel_gpc.studies.simulation import simulate
+from parallel_gpc.gpc.criterion import Weights
 
 from conftest import POSE_A, POSE_B
 
@@ -236,7 +236,7 @@ def test_bad_requests_are_rejected(robot4, g_frozen):
 def test_cli_plan_writes_figures_and_trajectories(tmp_path, capsys):
     import matplotlib.image as mpimg
 
-    from parallel_gpc.cli_plan import register_plan
+    from parallel_gpc.cli.plan import register_plan
 
     parser = argparse.ArgumentParser()
     register_plan(parser.add_subparsers())

@@ -9,7 +9,7 @@ import pytest
 
 from parallel_gpc import ParallelRobot, load_description
 from parallel_gpc.errors import RobotFormatError, UnreachablePoseError, ParallelGPCError
-from parallel_gpc.robot import urdf_dir
+from parallel_gpc.model.robot import urdf_dir
 
 from conftest import POSE_A, POSE_B
 

@@ -6,7 +6,13 @@ import math
 
 import pytest
 
-from parallel_gpc.robustness import COLUMNS, RobustnessResult, plot_robustness, robustness_cases, robustness_study
+from parallel_gpc.studies.robustness import (
+    COLUMNS,
+    RobustnessResult,
+    plot_robustness,
+    robustness_cases,
+    robustness_study,
+)
 
 
 @pytest.fixture(scope="module")
@@ -56,7 +62,7 @@ def test_outputs_are_written(hold_study, tmp_path):
 
 
 def test_a_diverging_run_is_recorded_not_raised(monkeypatch):
-    from parallel_gpc import robustness
+    from parallel_gpc.studies import robustness as robustness
     from parallel_gpc.errors import UnreachablePoseError
 
     real = robustness.simulate

@@ -1,8 +1,8 @@
 """parallel-gpc: Generalized Predictive Control of parallel robots (state-space GPC, Belda et al.)."""
 
 from .errors import ParallelGPCError
-from .robot import ParallelRobot, load_description, embedded_robots, DEFAULT_ROBOT
-from .dynamics import ReducedModel, discretize_zoh, rk4_step
+from .model.robot import ParallelRobot, load_description, embedded_robots, DEFAULT_ROBOT
+from .model.dynamics import ReducedModel, discretize_zoh, rk4_step
 
 __all__ = [
     "ParallelGPCError",

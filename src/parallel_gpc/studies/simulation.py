@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .controller import GPCController
-from .references import Reference
-from .errors import InvalidParameterError, ShapeError
-from .validation import finite_vector, positive
+from ..gpc.controller import GPCController
+from ..gpc.references import Reference
+from ..errors import InvalidParameterError, ShapeError
+from ..validation import finite_vector, positive
 
 
 @dataclass
@@ -170,7 +170,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
-    from .robot import embedded_robots
+    from ..model.robot import embedded_robots
 
     robot_file = robot.name if robot.name in embedded_robots() else str(robot.description.urdf_path)
     info_meta = {"robot": robot.name, "robot_file": robot_file, "form": controller.form, "solver": controller.solver,

@@ -45,12 +45,13 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from .dynamics import ReducedModel, discretize_zoh
-from .errors import AssemblyError, InvalidParameterError, SingularPoseError, SolverError
+from ..model.dynamics import ReducedModel, discretize_zoh
+from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, SolverError
 from .prediction import Horizons, Prediction, absolute_prediction
 from .references import SampledTrajectory
-from .solvers import LeastSquaresProblem, SolveResult, Weights, build_problem, make_solver
-from .validation import finite_vector, positive
+from ..solvers import LeastSquaresProblem, SolveResult, make_solver
+from .criterion import Weights, build_problem
+from ..validation import finite_vector, positive
 
 MODES = ("a", "b")
 #: Back end used when torque limits are given and no solver is named: the paper's QR while the
@@ -342,7 +343,7 @@ class PlanResult:
 
 # ---------------------------------------------------------------------------- planner
 def _default_plant(robot, X0, settings: PlanSettings):
-    from .plant import ConstrainedPlant
+    from ..model.plant import ConstrainedPlant
 
     return ConstrainedPlant(robot, X0, substeps=settings.plant_substeps, torque_limit=robot.torque_limit)
 

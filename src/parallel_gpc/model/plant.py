@@ -17,7 +17,7 @@ import pinocchio as pin
 
 from .dynamics import ReducedModel, rk4_step
 from .robot import ParallelRobot
-from .validation import finite_vector, positive
+from ..validation import finite_vector, positive
 
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
 

@@ -10,8 +10,8 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .errors import InvalidParameterError
-from .robot import DEFAULT_ROBOT
+from ..errors import InvalidParameterError
+from ..model.robot import DEFAULT_ROBOT
 
 #: Exit code of a run stopped by Ctrl-C (after saving what it computed).
 EXIT_INTERRUPTED = 130
@@ -28,9 +28,15 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def cmd_robustness(args) -> int:
-    from .robustness import (DEFAULT_DISTURBANCES, DEFAULT_MASS_SCALES, DEFAULT_NOISE_LEVELS, DEFAULT_WEIGHTS,
-                             plot_robustness, robustness_study)
-    from .solvers import Weights
+    from ..studies.robustness import (
+        DEFAULT_DISTURBANCES,
+        DEFAULT_MASS_SCALES,
+        DEFAULT_NOISE_LEVELS,
+        DEFAULT_WEIGHTS,
+        plot_robustness,
+        robustness_study,
+    )
+    from ..gpc.criterion import Weights
 
     forms = tuple(f.strip() for f in args.forms.split(",") if f.strip())
     settings = dict(mass_scales=DEFAULT_MASS_SCALES, noise_levels=DEFAULT_NOISE_LEVELS,

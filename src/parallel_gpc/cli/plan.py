@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .robot import DEFAULT_ROBOT
+from ..model.robot import DEFAULT_ROBOT
 
 #: The paper's poses, in the units of the command line (m, m, deg).
 DEFAULT_A = (0.2, 0.2, -20.0)
@@ -57,10 +57,10 @@ def print_comparison(results, rows, out=None) -> None:
 
 
 def cmd_plan(args) -> int:
-    from .dynamics import ReducedModel
-    from .planning import PlanSettings, deadbeat_inputs, plan_point_to_point
-    from .plots_planning import plot_fig3, plot_fig4
-    from .robot import ParallelRobot
+    from ..model.dynamics import ReducedModel
+    from ..gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
+    from ..studies.plots_planning import plot_fig3, plot_fig4
+    from ..model.robot import ParallelRobot
 
     robot = ParallelRobot.load(args.robot)
     A, B = _pose_rad(args.A), _pose_rad(args.B)
@@ -89,7 +89,7 @@ def cmd_plan(args) -> int:
     print("wrote " + ", ".join(str(p) for p in written))
     print("use a plan as reference: parallel_gpc.references.SampledTrajectory.load('"
           f"{out / 'plan_b.npz'}')")
-    from .cli_view import show_trajectory
+    from .view import show_trajectory
 
     plan_b = results[-1]
     show_trajectory(args, robot, plan_b.t, plan_b.q, planned=results[0].poses, reference=plan_b.poses,
@@ -124,7 +124,7 @@ def register_plan(sub) -> None:
     p.add_argument("--settle", type=int, default=30, help="samples recorded after Nmax in mode (b) (default 30)")
     p.add_argument("--out", default="out/plan", help="output folder for figures and trajectories (default ./out/plan)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from .cli_view import add_view_arguments
+    from .view import add_view_arguments
 
     add_view_arguments(p)
     p.set_defaults(func=cmd_plan)

@@ -60,9 +60,9 @@ with warnings.catch_warnings():  # meshcat 0.3.2 imports the deprecated zmq.even
     )
     from meshcat.visualizer import ViewerWindow
 
-from .errors import InvalidParameterError, RobotFormatError, ShapeError, ViewerError
-from .robot import ParallelRobot, embedded_robots, urdf_dir
-from .validation import finite_matrix, finite_vector, positive
+from ..errors import InvalidParameterError, RobotFormatError, ShapeError, ViewerError
+from ..model.robot import ParallelRobot, embedded_robots, urdf_dir
+from ..validation import finite_matrix, finite_vector, positive
 
 #: The only address our servers bind by default.
 LOOPBACK = "127.0.0.1"

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import InvalidParameterError, NonFiniteError, ShapeError
-from .validation import finite_vector, positive
+from ..errors import InvalidParameterError, NonFiniteError, ShapeError
+from ..validation import finite_vector, positive
 
 
 class Reference:

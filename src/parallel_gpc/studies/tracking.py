@@ -12,15 +12,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .controller import FORMS, GPCController
-from .dynamics import ReducedModel
-from .errors import InvalidParameterError
-from .plant import ConstrainedPlant
-from .prediction import Horizons
-from .references import Hold, Reference, SCurve
-from .robot import DEFAULT_ROBOT, ParallelRobot
+from ..gpc.controller import FORMS, GPCController
+from ..model.dynamics import ReducedModel
+from ..errors import InvalidParameterError
+from ..model.plant import ConstrainedPlant
+from ..gpc.prediction import Horizons
+from ..gpc.references import Hold, Reference, SCurve
+from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from .simulation import SimulationResult, simulate
-from .solvers import Weights
+from ..gpc.criterion import Weights
 
 
 @dataclass(frozen=True)

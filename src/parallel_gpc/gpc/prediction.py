@@ -19,8 +19,8 @@ from functools import lru_cache
 
 import numpy as np
 
-from .dynamics import _identity
-from .errors import InvalidParameterError, ShapeError
+from ..model.dynamics import _identity
+from ..errors import InvalidParameterError, ShapeError
 
 
 @dataclass(frozen=True)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .robot import ParallelRobot
+from ..model.robot import ParallelRobot
 
 
 def add_view_arguments(parser) -> None:
@@ -36,7 +36,7 @@ def show_trajectory(args, robot: ParallelRobot, t, qs, reference=None, planned=N
     html, serve = getattr(args, "html", None), bool(getattr(args, "serve", False))
     if not html and not serve:
         return
-    from . import viz
+    from .. import viz
 
     if html:
         path = viz.export_html(html, robot, t, qs, reference=reference, planned=planned,
@@ -48,7 +48,7 @@ def show_trajectory(args, robot: ParallelRobot, t, qs, reference=None, planned=N
 
 def cmd_view(args) -> int:
     """Load a trajectory file and show it; without --html/--serve write RESULT.html next to it."""
-    from . import viz
+    from .. import viz
 
     trajectory = viz.load_trajectory(args.result)
     robot = ParallelRobot.load(trajectory.robot)

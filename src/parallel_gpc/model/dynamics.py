@@ -25,9 +25,9 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from .errors import NonFiniteError
+from ..errors import NonFiniteError
 from .robot import ParallelRobot
-from .validation import finite_vector, positive
+from ..validation import finite_vector, positive
 
 @dataclass
 class ReducedTerms:

@@ -13,13 +13,13 @@ import sys
 
 import numpy as np
 
-from .cli_track import register_demo, register_track
-from .cli_view import register_view
-from .cli_plan import register_plan
-from .cli_robustness import register_robustness
-from .bench import register_bench
-from .errors import ParallelGPCError
-from .robot import DEFAULT_ROBOT, ParallelRobot
+from .track import register_demo, register_track
+from .view import register_view
+from .plan import register_plan
+from .robustness import register_robustness
+from ..studies.bench import register_bench
+from ..errors import ParallelGPCError
+from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 
 #: The paper's poses A and B (m, m, rad).
 POSE_A = np.array([0.2, 0.2, math.radians(-20.0)])
@@ -28,7 +28,7 @@ POSE_B = np.array([0.8, 0.8, math.radians(20.0)])
 
 def robot_info(robot: ParallelRobot) -> list[tuple[str, str]]:
     """Rows (label, value) describing a robot: DOF, drives, closures, conditioning, A/B reach."""
-    from .dynamics import ReducedModel
+    from ..model.dynamics import ReducedModel
 
     q = robot.q_home
     terms = ReducedModel(robot).terms_at_q(q, np.zeros(robot.n_y))

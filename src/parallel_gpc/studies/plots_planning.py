@@ -19,7 +19,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
-from .planning import PlanResult
+from ..gpc.planning import PlanResult
 
 #: Colors of the two modes (and of anything else the figures draw per mode).
 MODE_COLORS = {"a": "tab:red", "b": "tab:blue"}

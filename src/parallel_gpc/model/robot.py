@@ -21,18 +21,18 @@ import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from .errors import (
+from ..errors import (
     AssemblyError,
     InvalidParameterError,
     RobotFormatError,
     SingularPoseError,
     UnreachablePoseError,
 )
-from .validation import finite_vector
+from ..validation import finite_vector
 
 #: Folder of the embedded robot files (installed with the package or at the repo top level).
-_PACKAGE_URDF = Path(__file__).resolve().parent / "urdf"
-_REPO_URDF = Path(__file__).resolve().parents[2] / "urdf"
+_PACKAGE_URDF = Path(__file__).resolve().parents[1] / "urdf"
+_REPO_URDF = Path(__file__).resolve().parents[3] / "urdf"
 DEFAULT_ROBOT = "planar_4rrr"
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED

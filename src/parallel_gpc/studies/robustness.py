@@ -26,16 +26,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .controller import FORMS, GPCController
-from .dynamics import ReducedModel
-from .errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
-from .plant import ConstrainedPlant
-from .prediction import Horizons
-from .references import Hold, Reference, SCurve
-from .robot import DEFAULT_ROBOT, ParallelRobot
+from ..gpc.controller import FORMS, GPCController
+from ..model.dynamics import ReducedModel
+from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
+from ..model.plant import ConstrainedPlant
+from ..gpc.prediction import Horizons
+from ..gpc.references import Hold, Reference, SCurve
+from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from .simulation import simulate
-from .solvers import Weights
-from .validation import finite_vector, positive
+from ..gpc.criterion import Weights
+from ..validation import finite_vector, positive
 
 #: Plant mass/inertia scales of the default study (−30 … +30 %).
 DEFAULT_MASS_SCALES = (0.7, 0.85, 1.15, 1.3)

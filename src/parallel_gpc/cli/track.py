@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .controller import FORMS
-from .plots import plot_paths, plot_time_histories
-from .robot import DEFAULT_ROBOT, ParallelRobot
-from .tracking import TrackingSettings, metrics_table, run_tracking
+from ..gpc.controller import FORMS
+from ..studies.plots_tracking import plot_paths, plot_time_histories
+from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..studies.tracking import TrackingSettings, metrics_table, run_tracking
 
 
 def add_tracking_arguments(p) -> None:
@@ -32,7 +32,7 @@ def add_tracking_arguments(p) -> None:
     p.add_argument("--duration", type=float, default=None, help="run length in s (default: motion + 0.2 s)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     try:
-        from .cli_view import add_view_arguments
+        from .view import add_view_arguments
 
         add_view_arguments(p)
     except ImportError:  # the view is optional (meshcat)
@@ -63,8 +63,8 @@ def run_and_report(settings: TrackingSettings, forms, out: Path, args, title: st
              plot_time_histories(results, out / "track_time.png", f"{title}: error, velocity, torque")]
     print("wrote " + ", ".join(str(p) for p in paths) + f" and track_<form>.npz in {out}")
     if hasattr(args, "html") or hasattr(args, "serve"):
-        from .cli_view import show_trajectory
-        from .viz import saturation_flags
+        from .view import show_trajectory
+        from ..viz import saturation_flags
 
         last = results[list(results)[-1]]
         flags = (None if settings.torque_limit is None

@@ -35,22 +35,16 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import lapack
 
-from .controller import GPCController
-from .dynamics import ReducedModel, _identity
-from .plant import ConstrainedPlant
-from .prediction import Horizons, Prediction, condense
-from .references import SCurve
-from .robot import ParallelRobot
+from ..gpc.controller import GPCController
+from ..model.dynamics import ReducedModel, _identity
+from ..model.plant import ConstrainedPlant
+from ..gpc.prediction import Horizons, Prediction, condense
+from ..gpc.references import SCurve
+from ..model.robot import ParallelRobot
 from .simulation import simulate
-from .solvers import (
-    DAQPBackend,
-    LeastSquaresProblem,
-    QRSolver,
-    Weights,
-    _scaled_qp,
-    build_problem,
-    make_solver,
-)
+from ..solvers import DAQPBackend, LeastSquaresProblem, QRSolver, make_solver
+from ..solvers.problem import _scaled_qp
+from ..gpc.criterion import Weights, build_problem
 
 #: the targets of the benchmark issue (s): full linear step at N = 20 with 4 drives, etc.
 TARGETS = {

@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .dynamics import ReducedModel
-from .errors import (
+from ..model.dynamics import ReducedModel
+from ..errors import (
     InfeasibleLimitsError,
     InvalidParameterError,
     NonFiniteError,
@@ -29,9 +29,16 @@ from .errors import (
     SingularPoseError,
     SolverError,
 )
-from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
-from .solvers import SolveResult, Weights, _limit_vector, build_problem, make_solver, qr_least_squares
-from .validation import finite_vector, positive
+from .prediction import (
+    Horizons,
+    Prediction,
+    absolute_prediction,
+    incremental_prediction,
+    simulative_prediction,
+)
+from ..solvers import SolveResult, make_solver, qr_least_squares
+from .criterion import Weights, _limit_vector, build_problem
+from ..validation import finite_vector, positive
 
 FORMS = ("absolute", "incremental", "nonlinear")
 #: QP back end used when torque limits are given and no solver is named.

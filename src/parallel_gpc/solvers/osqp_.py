@@ -1,0 +1,57 @@
+"""Persistent OSQP back end (set up once per problem structure, then updated and warm-started)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+
+class OSQPBackend:
+    """Persistent OSQP: set up once per problem structure, then updated and warm-started."""
+
+    name = "osqp-direct"
+
+    def __init__(self, eps: float = 1e-10, max_iter: int = 20000):
+        import osqp  # noqa: F401  (fail early with ImportError if missing)
+
+        self.eps, self.max_iter = eps, max_iter
+        self._solver = None
+        self._shape = None
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import osqp
+        import scipy.sparse as sp
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        shape = (P.shape, C.shape)
+        if self._shape != shape:  # dense patterns (upper triangle of P, all of C): updates keep them
+            n = P.shape[0]
+            self._P_pattern = sp.csc_matrix(np.triu(np.ones((n, n))))
+            self._P_take = np.concatenate([np.arange(j + 1) * n + j for j in range(n)])  # column-major upper
+            self._C_pattern = sp.csc_matrix(np.ones(C.shape)) if C.size else sp.csc_matrix(C)
+        P_up = self._P_pattern.copy()
+        P_up.data = P.reshape(-1)[self._P_take]
+        C_csc = self._C_pattern.copy()
+        if C.size:
+            C_csc.data = C.T.reshape(-1)
+        if self._solver is None or self._shape != shape:
+            self._solver = osqp.OSQP()
+            self._solver.setup(P=P_up, q=q, A=C_csc, l=lo, u=hi, eps_abs=self.eps, eps_rel=self.eps,
+                               polishing=bool(C.size), max_iter=self.max_iter, verbose=False, warm_starting=True)
+            self._shape = shape
+        else:
+            self._solver.update(q=q, l=lo, u=hi, Px=P_up.data, Ax=C_csc.data if C.size else None)
+        if warm_start is not None and np.all(np.isfinite(warm_start)):
+            self._solver.warm_start(x=warm_start)
+        res = self._solver.solve(raise_error=False)
+        dt = time.perf_counter() - t0
+        status = str(res.info.status)
+        if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):
+            kind = "infeasible" if "infeasible" in status else "failed"
+            return _failed(problem, self.name, kind, int(res.info.iter), dt, f"OSQP status: {status}")
+        return _solved(problem, self.name, res.x, int(res.info.iter), dt)
+

@@ -1,0 +1,177 @@
+"""Least-squares problem and solve result shared by every back end (the square-root form of eq. (15)–(16))."""
+
+from __future__ import annotations
+
+import numpy as np
+from dataclasses import dataclass, field
+
+#: relative pivot size below which a column of A counts as dependent (rank-revealing QR).
+RANK_RTOL = 1e-10
+#: relative Tikhonov term added to the scaled QP Hessian (approximates the min-norm solution).
+QP_REGULARIZATION = 1e-10
+#: feasibility tolerance (N·m, relative to the limit) when checking limits.
+LIMIT_TOL = 1e-7
+#: reciprocal condition (estimate, 1-norm) of the unpivoted triangular factor above which the
+#: fast QR path trusts full rank; below it the rank-revealing (pivoted) path decides.
+FAST_QR_RCOND = 1e-8
+
+@dataclass
+class LeastSquaresProblem:
+    """``min ‖A v − b‖²`` subject to ``lb ≤ v ≤ ub`` and ``lo ≤ L v ≤ hi`` (either may be None).
+
+    Attributes:
+        A: (r, n); b: (r,); lb, ub: (n,) or None; L: (k, n) or None; lo, hi: (k,) or None.
+        min_norm_of: (M, m0) with M (n, n) lower-triangular invertible: when A is
+            rank-deficient, the QR back end returns the minimizer with the smallest ‖M v + m0‖
+            (incremental forms: the smallest absolute drive torques u, not the smallest Δu).
+    """
+
+    A: np.ndarray
+    b: np.ndarray
+    lb: np.ndarray | None = None
+    ub: np.ndarray | None = None
+    L: np.ndarray | None = None
+    lo: np.ndarray | None = None
+    hi: np.ndarray | None = None
+    min_norm_of: tuple[np.ndarray, np.ndarray] | None = None
+    #: structure known to :func:`build_problem` (private hint for the back ends): ``rows`` =
+    #: number of leading rows of A that can be nonzero (the Qu block is zero below them),
+    #: ``tail_diag`` = diagonal of the Qu block when it is diagonal (``tail_positive``: all > 0,
+    #: so A has full column rank), ``cumulative`` = m when ``min_norm_of[0]`` is the
+    #: cumulative-sum map kron(tri, I_m).
+    _structure: dict | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def n(self) -> int:
+        return self.A.shape[1]
+
+    @property
+    def constrained(self) -> bool:
+        return self.lb is not None or self.L is not None
+
+    def cost(self, v: np.ndarray) -> float:
+        r = self.A @ v - self.b
+        return float(r @ r)
+
+    def violation(self, v: np.ndarray) -> float:
+        """Largest limit violation of v (0 when feasible), in the units of the limits."""
+        worst = 0.0
+        if self.lb is not None:
+            worst = max(worst, float(np.max(self.lb - v, initial=0)), float(np.max(v - self.ub, initial=0)))
+        if self.L is not None:
+            Lv = self.L @ v
+            worst = max(worst, float(np.max(self.lo - Lv, initial=0)), float(np.max(Lv - self.hi, initial=0)))
+        return worst
+
+    def feasible(self, v: np.ndarray) -> bool:
+        scale = 1.0
+        for arr in (self.ub, self.hi):
+            if arr is not None and arr.size:
+                scale = max(scale, float(np.max(np.abs(arr))))
+        return self.violation(v) <= LIMIT_TOL * scale
+
+    def active(self, v: np.ndarray, tol: float = 1e-6) -> bool:
+        """True when a limit is (nearly) active at v."""
+        if self.lb is not None and (np.any(v - self.lb <= tol * (1 + np.abs(self.lb))) or
+                                    np.any(self.ub - v <= tol * (1 + np.abs(self.ub)))):
+            return True
+        if self.L is not None:
+            Lv = self.L @ v
+            return bool(np.any(Lv - self.lo <= tol * (1 + np.abs(self.lo))) or
+                        np.any(self.hi - Lv <= tol * (1 + np.abs(self.hi))))
+        return False
+
+
+# ---------------------------------------------------------------------------- results
+@dataclass
+class SolveResult:
+    """Outcome of one least-squares / QP solve.
+
+    Attributes:
+        v: (n,) solution (N·m or N·m per sample); NaN-free whenever ``ok``.
+        cost: J = ‖A v − b‖² at v.
+        status: ``"optimal"``, ``"unconstrained"`` (QR, limits inactive or absent),
+            ``"infeasible"``, ``"failed"`` or ``"fallback"`` (set by the controller).
+        solver: back-end name.
+        iterations: solver iterations (None if the back end does not report them).
+        solve_time: wall time of the solve in s.
+        active_limits: True when a limit is active at v.
+        message: details (e.g. the solver's own status text).
+    """
+
+    v: np.ndarray
+    cost: float
+    status: str
+    solver: str
+    iterations: int | None = None
+    solve_time: float = 0.0
+    active_limits: bool = False
+    message: str = ""
+
+    @property
+    def ok(self) -> bool:
+        return self.status in ("optimal", "unconstrained")
+
+
+# ---------------------------------------------------------------------------- QR
+# ---------------------------------------------------------------------------- QP
+def _scaled_qp(problem: LeastSquaresProblem):
+    """Hessian P = AᵀA and gradient q = −Aᵀb scaled to max(diag P) = 1, plus a tiny ridge."""
+    A, b = problem.A, problem.b
+    st = problem._structure
+    tail = None
+    if st is not None:
+        if st["rows"] < A.shape[0]:  # Qu = 0: only the leading rows are nonzero
+            A, b = A[:st["rows"]], b[:st["rows"]]
+        elif st["tail_diag"] is not None:  # A = [Qy G; diag(d)], b = [·; 0]: P = (Qy G)ᵀ(Qy G) + diag(d²)
+            top = A.shape[0] - A.shape[1]
+            A, b, tail = A[:top], b[:top], st["tail_diag"]
+    P = A.T @ A
+    q = A.T @ b
+    diag = P.reshape(-1)[::P.shape[0] + 1]  # a view on the diagonal of P
+    if tail is not None:
+        diag += tail * tail
+    scale = 1.0 / max(float(diag.max()), 1e-300)
+    P *= scale
+    diag += QP_REGULARIZATION
+    q *= -scale
+    return P, q, scale
+
+
+def _failed(problem: LeastSquaresProblem, name: str, kind: str, iterations, dt: float, message: str) -> SolveResult:
+    """A reported failure: NaN solution, infinite cost, status ``kind`` (never swallowed)."""
+    return SolveResult(np.full(problem.n, np.nan), np.inf, kind, name, iterations, dt, message=message)
+
+
+def _solved(problem: LeastSquaresProblem, name: str, x, iterations, dt: float) -> SolveResult:
+    """A successful QP solve: cost and active limits evaluated on the original problem."""
+    v = np.asarray(x, dtype=float)
+    return SolveResult(v, problem.cost(v), "optimal", name, iterations, dt, problem.active(v))
+
+
+def _iterations_from_extras(extras) -> int | None:
+    info = extras.get("info") if isinstance(extras, dict) else None
+    for attr in ("iter", "iterations"):
+        if info is not None and hasattr(info, attr):
+            return int(getattr(info, attr))
+    if isinstance(extras, dict) and "iterations" in extras:
+        return int(extras["iterations"])
+    return None
+
+
+def _stacked_constraints(problem: LeastSquaresProblem):
+    """All limits as lo ≤ C v ≤ hi (box rows first), with ±1e20 where unbounded."""
+    rows, lo, hi = [], [], []
+    if problem.lb is not None:
+        rows.append(np.eye(problem.n))
+        lo.append(problem.lb)
+        hi.append(problem.ub)
+    if problem.L is not None:
+        rows.append(problem.L)
+        lo.append(problem.lo)
+        hi.append(problem.hi)
+    if not rows:
+        return np.zeros((0, problem.n)), np.zeros(0), np.zeros(0)
+    return np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+
+

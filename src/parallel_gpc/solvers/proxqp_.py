@@ -1,0 +1,49 @@
+"""Persistent ProxQP dense back end (warm-started with the previous result)."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+
+class ProxQPBackend:
+    """Persistent ProxQP dense solver, warm-started with the previous solution."""
+
+    name = "proxqp-direct"
+
+    def __init__(self, eps: float = 1e-10, max_iter: int = 10000):
+        import proxsuite  # noqa: F401
+
+        self.eps, self.max_iter = eps, max_iter
+        self._qp = None
+        self._shape = None
+
+    def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        import proxsuite
+
+        t0 = time.perf_counter()
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        shape = (P.shape, C.shape)
+        if self._qp is None or self._shape != shape:
+            self._qp = proxsuite.proxqp.dense.QP(problem.n, 0, C.shape[0])
+            s = self._qp.settings
+            s.eps_abs, s.eps_rel, s.max_iter, s.verbose = self.eps, 0.0, self.max_iter, False
+            s.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
+            self._qp.init(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
+            self._shape = shape
+        else:
+            self._qp.update(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
+        self._qp.solve()
+        dt = time.perf_counter() - t0
+        info = self._qp.results.info
+        status = str(info.status)
+        v = np.asarray(self._qp.results.x).copy()
+        if "SOLVED" not in status.upper() or "CLOSEST" in status.upper() or not np.all(np.isfinite(v)):
+            kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
+            self._qp = None  # its warm start is now meaningless: set up afresh next time
+            return _failed(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
+        return _solved(problem, self.name, v, int(info.iter), dt)
+
