@@ -1,17 +1,55 @@
-"""parallel-gpc: Generalized Predictive Control of parallel robots (state-space GPC, Belda et al.)."""
+"""parallel-gpc: Generalized Predictive Control of parallel robots (state-space GPC, Belda et al.).
+
+The public API, one import away::
+
+    from parallel_gpc import ParallelRobot, ReducedModel, GPCController, Horizons, Weights, simulate
+
+Names are resolved lazily (PEP 562), so ``import parallel_gpc`` and the command line's
+``--help`` do not import Pinocchio or matplotlib until a name that needs them is used.
+Layers, left to right (a module imports only from layers to its left): ``model`` (robot,
+reduced dynamics, plants) → ``solvers`` (least squares, QP back ends) → ``gpc`` (criterion,
+predictions, controller, planning, references) → ``studies`` (simulation, tracking,
+robustness, benchmark, plots) → ``viz`` (meshcat) → ``cli``.
+"""
+
+from __future__ import annotations
+
+import importlib
 
 from .errors import ParallelGPCError
-from .model.robot import ParallelRobot, load_description, embedded_robots, DEFAULT_ROBOT
-from .model.dynamics import ReducedModel, discretize_zoh, rk4_step
 
-__all__ = [
-    "ParallelGPCError",
-    "ParallelRobot",
-    "load_description",
-    "embedded_robots",
-    "DEFAULT_ROBOT",
-    "ReducedModel",
-    "discretize_zoh",
-    "rk4_step",
-]
 __version__ = "0.1.0"
+
+#: public name -> submodule that defines it
+_PUBLIC = {
+    # model
+    "ParallelRobot": "model", "RobotDescription": "model", "load_description": "model",
+    "embedded_robots": "model", "DEFAULT_ROBOT": "model", "ReducedModel": "model",
+    "discretize_zoh": "model", "rk4_step": "model", "ConstrainedPlant": "model", "ReducedPlant": "model",
+    # solvers
+    "LeastSquaresProblem": "solvers", "SolveResult": "solvers", "make_solver": "solvers",
+    "available_solvers": "solvers",
+    # gpc
+    "Horizons": "gpc", "Weights": "gpc", "GPCController": "gpc", "FORMS": "gpc", "StepInfo": "gpc",
+    "Prediction": "gpc", "build_problem": "gpc", "PlanSettings": "gpc", "PlanResult": "gpc",
+    "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
+    "SampledTrajectory": "gpc",
+    # studies
+    "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
+    "run_tracking": "studies", "robustness_study": "studies",
+}
+
+__all__ = ["ParallelGPCError", "__version__", *_PUBLIC]
+
+
+def __getattr__(name: str):
+    module = _PUBLIC.get(name)
+    if module is None:
+        raise AttributeError(f"module 'parallel_gpc' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{module}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_PUBLIC))
