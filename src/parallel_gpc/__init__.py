@@ -28,12 +28,13 @@ _PUBLIC = {
     "discretize_zoh": "model", "rk4_step": "model", "ConstrainedPlant": "model", "ReducedPlant": "model",
     # solvers
     "LeastSquaresProblem": "solvers", "SolveResult": "solvers", "make_solver": "solvers",
-    "available_solvers": "solvers",
+    "available_solvers": "solvers", "MinNormOf": "solvers",
     # gpc
     "Horizons": "gpc", "Weights": "gpc", "GPCController": "gpc", "FORMS": "gpc", "StepInfo": "gpc",
     "Prediction": "gpc", "build_problem": "gpc", "PlanSettings": "gpc", "PlanResult": "gpc",
     "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
-    "SampledTrajectory": "gpc",
+    "SampledTrajectory": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
+    "ControlModel": "gpc", "Criterion": "gpc",
     # studies
     "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
     "run_tracking": "studies", "robustness_study": "studies",

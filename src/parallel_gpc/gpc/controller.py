@@ -9,40 +9,32 @@ Three forms (``form=``):
   X(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) and the deviation
   model along that trajectory gives ŷ = ŷ_sim + G Δu.
 
-The model at a state is the state-dependent factorization (3), discretized by ZOH (4).
+The model is any :class:`~parallel_gpc.gpc.ControlModel`: a robot's
+:class:`~parallel_gpc.model.ReducedModel` (the state-dependent factorization (3), discretized
+by ZOH (4)) or a plain :class:`~parallel_gpc.gpc.DiscreteLinearModel`. The settings are a
+frozen :class:`~parallel_gpc.gpc.GPCSettings`; what the controller carries between steps is
+snapshot by :attr:`GPCController.state` and put back by :meth:`GPCController.restore`.
 Only the first move is applied; the rest of the plan warm-starts the next step.
 """
 
 from __future__ import annotations
 
+import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..model.dynamics import ReducedModel
-from ..errors import (
-    InfeasibleLimitsError,
-    InvalidParameterError,
-    NonFiniteError,
-    ShapeError,
-    SingularPoseError,
-    SolverError,
-)
-from .prediction import (
-    Horizons,
-    Prediction,
-    absolute_prediction,
-    incremental_prediction,
-    simulative_prediction,
-)
+from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError
 from ..solvers import SolveResult, make_solver, qr_least_squares
-from .criterion import Weights, _limit_vector, build_problem
-from ..validation import finite_vector, positive
+from ..validation import finite_vector
+from .criterion import Criterion, Weights, _limit_vector
+from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
+from .protocol import ControlModel, conditioning_rule
+from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
-FORMS = ("absolute", "incremental", "nonlinear")
-#: QP back end used when torque limits are given and no solver is named.
-DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
+__all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN"]
+
 #: the QP is given limits tightened by this relative margin so that a solution within the
 #: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
 LIMIT_MARGIN = 1e-6
@@ -71,12 +63,12 @@ class StepInfo:
         return self.model_time + self.predict_time + self.solve_time
 
 
-@dataclass
 class GPCController:
-    """State-space GPC on the reduced model of a parallel robot.
+    """State-space GPC of any :class:`~parallel_gpc.gpc.ControlModel` (a robot's reduced model,
+    or a plain discrete linear model).
 
     Args:
-        model: the controller's reduced model (may differ from the plant: mismatch studies).
+        model: the controller's model (may differ from the plant: mismatch studies).
         Ts: sample time in s.
         horizons: N, No, Nu.
         weights: square-root weights Qy, Qu.
@@ -96,79 +88,133 @@ class GPCController:
             :class:`~parallel_gpc.errors.SingularPoseError` instead of commanding the unbounded
             torques a (near-)singular pose calls for. Default 1e3: cond(g) is 10–20 along the paper's
             S-curve and A→B on both embedded robots, 1e3 is about 1 cm from a planar_3rrr direct
-            singularity.
+            singularity. Which gain is checked for other models: :class:`~parallel_gpc.gpc.ControlModel`
+            (a :class:`~parallel_gpc.gpc.DiscreteLinearModel` is not checked).
+
+    The same settings as one frozen object: :meth:`from_settings`, :attr:`settings`.
 
     Raises:
-        InvalidParameterError: bad Ts, form, horizons, weights or limits.
+        InvalidParameterError: bad Ts (or one that differs from the model's own Ts), form,
+            horizons, weights or limits.
         InfeasibleLimitsError: limits that admit no input (≤ 0, or u0 outside ±(τ + δ) in the
             incremental forms: no Δu within ±δ brings it within ±τ).
     """
 
-    model: ReducedModel
-    Ts: float
-    horizons: Horizons
-    weights: Weights = field(default_factory=Weights)
-    form: str = "absolute"
-    solver: str | None = None
-    torque_limit: object = None
-    du_limit: object = None
-    u0: object = None
-    disturbance_gain: float | None = None
-    max_condition: float = 1e3
+    def __init__(self, model: ControlModel, Ts: float, horizons: Horizons, weights: Weights | None = None,
+                 form: str = "absolute", solver: str | None = None, torque_limit=None, du_limit=None, u0=None,
+                 disturbance_gain: float | None = None, max_condition: float = 1e3):
+        settings = GPCSettings(Ts, horizons, Weights() if weights is None else weights, form, solver, torque_limit,
+                               du_limit, disturbance_gain, max_condition)
+        self._setup(model, settings, u0)
 
-    def __post_init__(self):
-        self.Ts = positive("Ts", self.Ts, " s")
-        if self.form not in FORMS:
-            raise InvalidParameterError(f"form {self.form!r} is not one of {FORMS}")
-        if not isinstance(self.horizons, Horizons):
-            raise InvalidParameterError(f"horizons must be a Horizons(N, No, Nu), got {self.horizons!r}")
-        self.n_y, self.n_u, self.n_x = self.model.n_y, self.model.n_u, self.model.n_x
-        self.weights.blocks(self.n_y, self.n_u)  # validate once, at the boundary
-        if self.torque_limit is not None:
-            self.torque_limit = _limit_vector("torque_limit", self.torque_limit, self.n_u)
-        if self.du_limit is not None:
-            self.du_limit = _limit_vector("du_limit", self.du_limit, self.n_u)
-        if self.du_limit is not None and self.form == "absolute":
-            raise InvalidParameterError("du_limit applies to the incremental forms; form is 'absolute'")
-        if self.solver is None:
-            self.solver = DEFAULT_LIMITED_SOLVER if self._has_limits else "qr"
-        if self.solver == "qr" and self._has_limits:
+    @classmethod
+    def from_settings(cls, model: ControlModel, settings: GPCSettings, u0=None) -> "GPCController":
+        """A controller of ``model`` with validated ``settings``; u0 as in the constructor."""
+        if not isinstance(settings, GPCSettings):
+            raise InvalidParameterError(f"settings must be a GPCSettings, got {type(settings).__name__}")
+        self = cls.__new__(cls)
+        self._setup(model, settings, u0)
+        return self
+
+    def _setup(self, model: ControlModel, settings: GPCSettings, u0) -> None:
+        for name in ("n_x", "n_y", "n_u", "C", "discrete"):
+            if not hasattr(model, name):
+                raise InvalidParameterError(f"model {type(model).__name__} has no {name!r}: a controller's model "
+                                            f"implements parallel_gpc.gpc.ControlModel")
+        self.model = model
+        self.n_y, self.n_u, self.n_x = model.n_y, model.n_u, model.n_x
+        model_Ts = getattr(model, "Ts", None)
+        if model_Ts is not None and not math.isclose(float(model_Ts), settings.Ts, rel_tol=1e-12, abs_tol=0.0):
             raise InvalidParameterError(
-                "solver 'qr' cannot enforce torque/Δu limits; use a QP back end such as "
-                f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
-            )
-        if self.disturbance_gain is None:
-            self.disturbance_gain = 0.0 if self.form == "absolute" else 0.5
-        if not 0.0 <= float(self.disturbance_gain) <= 1.0:
-            raise InvalidParameterError(f"disturbance_gain = {self.disturbance_gain!r} must lie in [0, 1]")
-        self.max_condition = positive("max_condition", self.max_condition)
-        self._backend = make_solver(self.solver)
-        self.reset(self.u0)
+                f"controller Ts = {settings.Ts!r} s differs from the model's sample time Ts = {model_Ts!r} s; "
+                f"use Ts = {model_Ts!r} s (a discrete model holds at its own sample time only)")
+        self._apply(settings)
+        self._gain = conditioning_rule(model)
+        self._backend = make_solver(settings.solver)
+        self.reset(u0)
+
+    def _apply(self, settings: GPCSettings) -> None:
+        """Check ``settings`` against the model's sizes and make them current."""
+        self._criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
+        tau = None if settings.torque_limit is None else _limit_vector("torque_limit", settings.torque_limit, self.n_u)
+        delta = None if settings.du_limit is None else _limit_vector("du_limit", settings.du_limit, self.n_u)
+        self._limits = (tau, delta, self._tightened(tau), self._tightened(delta))
+        self._settings = settings
+
+    # ------------------------------------------------------------------ settings (read-only views)
+    @property
+    def settings(self) -> GPCSettings:
+        """The frozen, validated settings."""
+        return self._settings
+
+    Ts = property(lambda self: self._settings.Ts, doc="Sample time (s).")
+    horizons = property(lambda self: self._settings.horizons, doc="Horizons N, No, Nu.")
+    weights = property(lambda self: self._settings.weights, doc="Square-root weights Qy, Qu.")
+    form = property(lambda self: self._settings.form, doc="Prediction form.")
+    solver = property(lambda self: self._settings.solver, doc="Back-end name.")
+    disturbance_gain = property(lambda self: self._settings.disturbance_gain, doc="α of the disturbance estimate.")
+    max_condition = property(lambda self: self._settings.max_condition, doc="Largest accepted cond(input gain).")
 
     @property
-    def _has_limits(self) -> bool:
-        return self.torque_limit is not None or self.du_limit is not None
+    def torque_limit(self) -> np.ndarray | None:
+        """(m,) symmetric drive torque limit (N·m) or None. Assigning a new value (a drive derated
+        while running) re-validates it; the plan and estimates are kept."""
+        return self._limits[0]
 
+    @torque_limit.setter
+    def torque_limit(self, value) -> None:
+        self._apply(replace(self._settings, torque_limit=value))
+
+    @property
+    def du_limit(self) -> np.ndarray | None:
+        """(m,) symmetric increment limit (N·m per sample) or None; assignable like :attr:`torque_limit`."""
+        return self._limits[1]
+
+    @du_limit.setter
+    def du_limit(self, value) -> None:
+        self._apply(replace(self._settings, du_limit=value))
+
+    # ------------------------------------------------------------------ state
     def reset(self, u_prev=None) -> None:
         """Forget the plan; set u(k−1) (N·m, default zero)."""
         self.u_prev = np.zeros(self.n_u) if u_prev is None else finite_vector("u_prev", u_prev, self.n_u)
-        if self.form != "absolute" and self.torque_limit is not None and self.du_limit is not None:
-            reach = _limit_vector("torque_limit", self.torque_limit, self.n_u) + _limit_vector(
-                "du_limit", self.du_limit, self.n_u)
-            if np.any(np.abs(self.u_prev) > reach):
-                raise InfeasibleLimitsError(
-                    f"u(k−1) = {self.u_prev.tolist()} N·m cannot be brought within torque_limit "
-                    f"{np.broadcast_to(self.torque_limit, (self.n_u,)).tolist()} by one increment within du_limit "
-                    f"{np.broadcast_to(self.du_limit, (self.n_u,)).tolist()}; valid: |u(k−1)| ≤ torque_limit + du_limit"
-                )
+        tau, delta = self._limits[:2]
+        if self.form != "absolute" and tau is not None and delta is not None and np.any(np.abs(self.u_prev) > tau + delta):
+            raise InfeasibleLimitsError(
+                f"u(k−1) = {self.u_prev.tolist()} N·m cannot be brought within torque_limit {tau.tolist()} by one "
+                f"increment within du_limit {delta.tolist()}; valid: |u(k−1)| ≤ torque_limit + du_limit"
+            )
         self.plan = np.tile(self.u_prev, (self.horizons.N, 1))
         self._v_prev = None
         self.disturbance = np.zeros(self.n_x)
         self._x_next = None  # X̂(k+1|k) of the last step, for the disturbance estimate
 
+    @property
+    def state(self) -> ControllerState:
+        """A read-only snapshot of what the controller carries between steps."""
+        return ControllerState(self.u_prev, self.plan, self.disturbance, self._x_next, self._v_prev)
+
+    def restore(self, state: ControllerState) -> None:
+        """Put the controller back to ``state`` (a snapshot of a controller with the same sizes).
+
+        Raises:
+            InvalidParameterError: not a ControllerState. ShapeError: sizes that do not match.
+        """
+        if not isinstance(state, ControllerState):
+            raise InvalidParameterError(f"restore() takes a ControllerState, got {type(state).__name__}")
+        shapes = {"u_prev": (self.n_u,), "plan": (self.horizons.N, self.n_u), "disturbance": (self.n_x,),
+                  "x_next": (self.n_x,)}
+        for name, shape in shapes.items():
+            value = getattr(state, name)
+            if value is not None and value.shape != shape:
+                raise ShapeError(f"state.{name} has shape {value.shape}; this controller needs {shape}")
+        self.u_prev, self.plan, self.disturbance = state.u_prev.copy(), state.plan.copy(), state.disturbance.copy()
+        self._x_next = None if state.x_next is None else state.x_next.copy()
+        self._v_prev = None if state.warm_start is None else state.warm_start.copy()
+
     # ------------------------------------------------------------------ model + prediction
     def discrete_model(self, X: np.ndarray):
-        """(A_d, B_d, c_d) of the factorized model (3) at X, ZOH-discretized at Ts (4)."""
+        """(A_d, B_d, c_d) of the model at X, discrete at Ts (a robot: the factorization (3), ZOH (4))."""
         return self.model.discrete(X, self.Ts)
 
     def predict(self, X: np.ndarray) -> Prediction:
@@ -221,8 +267,8 @@ class GPCController:
         """One control step.
 
         Args:
-            X: (2·n_y,) measured state [y, ẏ] (m, rad, m/s, rad/s).
-            w: (N, n_y) reference poses at k+1..k+N (m, rad).
+            X: (n_x,) measured state (a robot: [y, ẏ] in m, rad, m/s, rad/s).
+            w: (N, n_y) reference outputs at k+1..k+N (a robot: poses in m, rad).
 
         Returns:
             StepInfo with the applied u(k) (N·m).
@@ -232,10 +278,10 @@ class GPCController:
         t0 = time.perf_counter()
         self._update_disturbance(X)
         pred = self.predict(X)
-        self._check_conditioning(X, self._one_step[1])
+        if self._gain is not None:
+            self._check_conditioning(X, self._gain(self._one_step[1]))
         t1 = time.perf_counter()
-        problem = build_problem(pred, w, self.weights, self.n_y, self.n_u, self._tightened(self.torque_limit),
-                                self._tightened(self.du_limit))
+        problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
         t2 = time.perf_counter()
         try:
             result = self._backend.solve(problem, self._warm_start(problem.n))
@@ -255,14 +301,15 @@ class GPCController:
         self._x_next = Ad @ X + Bd @ u + cd
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback)
 
-    def _check_conditioning(self, X: np.ndarray, Bd: np.ndarray) -> None:
+    def _check_conditioning(self, X: np.ndarray, gain: np.ndarray) -> None:
         """Raise :class:`SingularPoseError` when the input gain at X is near-singular.
 
-        ``Bd[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition number grows without
-        bound at an actuation (direct) singularity and as a leg stretches or folds.
+        For a robot, ``gain = B_d[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition
+        number grows without bound at an actuation (direct) singularity and as a leg stretches
+        or folds. Other models: :func:`~parallel_gpc.gpc.protocol.conditioning_rule`.
         """
-        s = np.linalg.svd(Bd[self.n_y:], compute_uv=False)
-        cond = s[0] / s[-1] if s[-1] > 0 else np.inf
+        s = np.linalg.svd(gain, compute_uv=False)
+        cond = s[0] / s[-1] if s.size and s[-1] > 0 else np.inf
         if not cond <= self.max_condition:
             raise SingularPoseError(
                 f"near-singular pose {np.round(X[:self.n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
@@ -292,7 +339,7 @@ class GPCController:
         """
         v, _, _ = qr_least_squares(problem.A, problem.b)
         m = self.n_u
-        tau = None if self.torque_limit is None else _limit_vector("torque_limit", self.torque_limit, m)
+        tau = self._limits[0]
         if pred.kind == "absolute":
             if tau is not None:
                 v = np.clip(v, -np.tile(tau, len(v) // m), np.tile(tau, len(v) // m))

@@ -6,8 +6,8 @@ import numpy as np
 from dataclasses import dataclass
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
-from ..solvers import LeastSquaresProblem
-from .prediction import Prediction, _cumulative_map
+from ..solvers import LeastSquaresProblem, MinNormOf
+from .prediction import Horizons, Prediction, _cumulative_map
 
 
 # ---------------------------------------------------------------------------- weights
@@ -63,9 +63,100 @@ def _limit_vector(name: str, value, m: int) -> np.ndarray:
     return arr
 
 
+@dataclass(frozen=True, eq=False)
+class Criterion:
+    """The criterion (5) stacked for one controller: the weights validated and tiled over the
+    horizons once, then reused by every step's :meth:`problem`.
+
+    Args:
+        weights: square-root weights Qy, Qu.
+        horizons: N, No, Nu.
+        n_outputs, n_inputs: p and m.
+
+    Attributes (derived, read-only arrays):
+        Wy: (p, p) output weight; wy: (n_rows·p,) its diagonal tiled when Wy is diagonal, else None.
+        Qu_block: (Nu·m, Nu·m) kron(I, Qu); qu_diag: (Nu·m,) its diagonal when Qu is diagonal, else None.
+        qu_zero: Qu = 0 (the regularization rows of A are zero).
+
+    Raises:
+        ShapeError, InvalidParameterError: a weight of the wrong shape, not finite, negative or
+            not positive semi-definite.
+    """
+
+    weights: Weights
+    horizons: Horizons
+    n_outputs: int
+    n_inputs: int
+
+    def __post_init__(self):
+        p, m, H = self.n_outputs, self.n_inputs, self.horizons
+        Wy, Wu = self.weights.blocks(p, m)
+        diag_y = not np.any(Wy - np.diag(np.diag(Wy)))
+        diag_u = not np.any(Wu - np.diag(np.diag(Wu)))
+        qu_diag = np.tile(np.diag(Wu), H.Nu) if diag_u else None
+        derived = {"Wy": Wy, "wy": np.tile(np.diag(Wy), H.n_rows) if diag_y else None, "qu_diag": qu_diag,
+                   "Qu_block": np.diag(qu_diag) if diag_u else np.kron(np.eye(H.Nu), Wu)}
+        for name, arr in derived.items():
+            if arr is not None:
+                arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+        object.__setattr__(self, "qu_zero", not np.any(Wu))
+        object.__setattr__(self, "qu_positive", qu_diag is not None and bool(np.all(qu_diag > 0)))
+
+    def problem(self, pred: Prediction, w: np.ndarray, torque_limit=None, du_limit=None) -> LeastSquaresProblem:
+        """Stack the square-root system (15)–(16) and the limits for one step.
+
+        Args:
+            pred: the prediction ŷ = f + G v (with these horizons).
+            w: reference outputs over the penalized rows, (n_rows, p) or (n_rows·p,) (m, rad).
+            torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
+            du_limit: symmetric increment limit |Δu| ≤ δ (N·m per sample), incremental forms only.
+
+        Raises:
+            ShapeError: w has the wrong shape. InvalidParameterError: Δu limits on the absolute
+                form, or a prediction with other horizons.
+        """
+        p, m, H = self.n_outputs, self.n_inputs, self.horizons
+        if pred.horizons is not H and pred.horizons != H:
+            raise InvalidParameterError(f"prediction horizons {pred.horizons} differ from the criterion's {H}")
+        w = np.asarray(w, dtype=float)
+        if w.size != H.n_rows * p:
+            raise ShapeError(f"reference w has shape {w.shape}; expected ({H.n_rows}, {p}) for N − No = {H.n_rows} rows")
+        r, n = H.n_rows * p, H.Nu * m
+        A = np.empty((r + n, n))
+        b = np.empty(r + n)
+        if self.wy is not None:  # diagonal Qy: kron(I, Qy) scales rows
+            np.multiply(pred.G, self.wy[:, None], out=A[:r])
+            np.subtract(w.reshape(-1), pred.f, out=b[:r])
+            b[:r] *= self.wy
+        else:
+            A[:r] = (self.Wy @ pred.G.reshape(H.n_rows, p, n)).reshape(r, n)
+            b[:r] = (self.Wy @ (w.reshape(H.n_rows, p) - pred.f.reshape(H.n_rows, p)).T).T.reshape(-1)
+        A[r:] = self.Qu_block
+        b[r:] = 0.0
+        prob = LeastSquaresProblem(A, b, nonzero_rows=r if self.qu_zero else r + n, tail_diag=self.qu_diag,
+                                   tail_positive=self.qu_positive)
+        if torque_limit is not None:
+            tau = np.tile(_limit_vector("torque_limit", torque_limit, m), len(pred.u_base) // m)
+            if pred.kind == "absolute":
+                prob.lb, prob.ub = -tau, tau
+            else:
+                prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
+        if pred.kind != "absolute":
+            block = m if _is_cumulative_map(pred.u_map, H.Nu, m) else None
+            prob.min_norm_of = MinNormOf(pred.u_map[:n], pred.u_base[:n], block)
+        if du_limit is not None:
+            if pred.kind == "absolute":
+                raise InvalidParameterError("du_limit applies to the incremental forms (v = Δu); the absolute form has v = u")
+            d = np.tile(_limit_vector("du_limit", du_limit, m), H.Nu)
+            prob.lb, prob.ub = -d, d
+        return prob
+
+
 def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: int, n_inputs: int,
                   torque_limit=None, du_limit=None) -> LeastSquaresProblem:
-    """Stack the square-root system (15)–(16) and the limits.
+    """Stack the square-root system (15)–(16) and the limits (one-off; a controller keeps a
+    :class:`Criterion` and calls :meth:`Criterion.problem` every step instead).
 
     Args:
         pred: the prediction ŷ = f + G v.
@@ -78,70 +169,7 @@ def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: 
     Raises:
         ShapeError: w has the wrong shape. InvalidParameterError: Δu limits on the absolute form.
     """
-    p, m = n_outputs, n_inputs
-    H = pred.horizons
-    w = np.asarray(w, dtype=float)
-    if w.size != H.n_rows * p:
-        raise ShapeError(f"reference w has shape {w.shape}; expected ({H.n_rows}, {p}) for N − No = {H.n_rows} rows")
-    wy, Wy, Qu_block, qu_diag, qu_zero = _stacked_weights(weights, p, m, H.n_rows, H.Nu)
-    r, n = H.n_rows * p, H.Nu * m
-    A = np.empty((r + n, n))
-    b = np.empty(r + n)
-    if wy is not None:  # diagonal Qy: kron(I, Qy) scales rows
-        np.multiply(pred.G, wy[:, None], out=A[:r])
-        np.subtract(w.reshape(-1), pred.f, out=b[:r])
-        b[:r] *= wy
-    else:
-        A[:r] = (Wy @ pred.G.reshape(H.n_rows, p, n)).reshape(r, n)
-        b[:r] = (Wy @ (w.reshape(H.n_rows, p) - pred.f.reshape(H.n_rows, p)).T).T.reshape(-1)
-    A[r:] = Qu_block
-    b[r:] = 0.0
-    structure = {"rows": r if qu_zero else r + n, "tail_diag": qu_diag, "cumulative": None,
-                 "tail_positive": qu_diag is not None and bool(np.all(qu_diag > 0))}
-    prob = LeastSquaresProblem(A, b, _structure=structure)
-    if torque_limit is not None:
-        tau = np.tile(_limit_vector("torque_limit", torque_limit, m), len(pred.u_base) // m)
-        if pred.kind == "absolute":
-            prob.lb, prob.ub = -tau, tau
-        else:
-            prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
-    if pred.kind != "absolute":
-        prob.min_norm_of = (pred.u_map[:n], pred.u_base[:n])
-        if _is_cumulative_map(pred.u_map, H.Nu, m):
-            structure["cumulative"] = m
-    if du_limit is not None:
-        if pred.kind == "absolute":
-            raise InvalidParameterError("du_limit applies to the incremental forms (v = Δu); the absolute form has v = u")
-        d = np.tile(_limit_vector("du_limit", du_limit, m), H.Nu)
-        prob.lb, prob.ub = -d, d
-    return prob
-
-
-#: last stacked weights per (Weights object, sizes): validated once, reused every step.
-_WEIGHT_CACHE: dict = {}
-
-
-def _stacked_weights(weights: Weights, p: int, m: int, n_rows: int, Nu: int):
-    """Validated, stacked weights: (wy tiled or None, Qy block, kron(I, Qu), Qu diagonal tiled or
-    None, Qu == 0). Cached on the (frozen) :class:`Weights` object."""
-    key = (id(weights), p, m, n_rows, Nu)
-    hit = _WEIGHT_CACHE.get(key)
-    if hit is not None and hit[0] is weights:
-        return hit[1]
-    Wy, Wu = weights.blocks(p, m)
-    diag_y = not np.any(Wy - np.diag(np.diag(Wy)))
-    diag_u = not np.any(Wu - np.diag(np.diag(Wu)))
-    wy = np.tile(np.diag(Wy), n_rows) if diag_y else None
-    qu_diag = np.tile(np.diag(Wu), Nu) if diag_u else None
-    Qu_block = np.diag(qu_diag) if diag_u else np.kron(np.eye(Nu), Wu)
-    value = (wy, Wy, Qu_block, qu_diag, not np.any(Wu))
-    for arr in value:
-        if isinstance(arr, np.ndarray):
-            arr.setflags(write=False)
-    if len(_WEIGHT_CACHE) > 64:
-        _WEIGHT_CACHE.clear()
-    _WEIGHT_CACHE[key] = (weights, value)
-    return value
+    return Criterion(weights, pred.horizons, n_outputs, n_inputs).problem(pred, w, torque_limit, du_limit)
 
 
 def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:
@@ -152,5 +180,3 @@ def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:
     ref = _cumulative_map(Nu, Nu, m)
     top = u_map[:Nu * m]
     return top is ref or (u_map.base is not None and u_map.base is ref.base) or bool(np.array_equal(top, ref))
-
-

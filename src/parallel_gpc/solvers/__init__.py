@@ -1,48 +1,87 @@
-"""Square-root least squares of the GPC criterion and its QP back ends (DESIGN §3, §5).
+"""Square-root least squares and its QP back ends (eq. (15)–(19)); knows nothing about GPC.
 
-The criterion (5) with square-root weights is ``J = ‖A v − b‖²`` with, eq. (15)–(16),
-
-    A = [Qy·G; Qu],   b = [Qy·(w − f); 0].
+A problem is ``min ‖A v − b‖²`` with optional box and linear limits (:class:`LeastSquaresProblem`,
+with named structure hints that its builder fills in).
 
 * :class:`QRSolver` — the reference: Householder QR and back substitution, eq. (17)–(19)
   (the paper's (19) prints (R₁)ᵀ; it means R₁⁻¹). ``‖c_z‖² = J``. When A is rank-deficient
-  (Qu = 0 with redundant drives) it returns the minimum-norm solution through a complete
-  orthogonal decomposition — exactly "no drive fighting".
-* :class:`QpsolversBackend` — ``qpsolvers.solve_qp`` for any installed solver, scaled, with
-  drive torque limits (box on v, or linear inequalities ``u_lo ≤ u_base + L v ≤ u_hi``).
+  it returns the minimum-norm solution (or the minimizer of ``‖M v + offset‖``, see
+  :class:`MinNormOf`) through a complete orthogonal decomposition.
+* :class:`QpsolversBackend` — ``qpsolvers.solve_problem`` for any installed solver, scaled.
 * :class:`OSQPBackend`, :class:`ProxQPBackend`, :class:`DAQPBackend` — persistent direct APIs
   (set up once, updated and warm-started every step).
 * :class:`QRFirst` — solves by QR and calls the QP only when the QR solution violates a limit.
 
-Every solve returns a :class:`SolveResult` (status, iterations, time, cost, active limits); a
-failed solve is reported in the result, never swallowed.
+Back ends register themselves (qpsolvers' style): each module is imported inside
+``try/except ImportError`` and only those whose package imports are listed by
+:func:`available_solvers`. Every solve returns a :class:`SolveResult` (status, iterations,
+time, cost, active limits); a failed solve is reported in the result, never swallowed.
 """
 
 from __future__ import annotations
 
 from ..errors import SolverNotFoundError
-from .problem import LeastSquaresProblem, SolveResult, QP_REGULARIZATION, LIMIT_TOL, RANK_RTOL, FAST_QR_RCOND
+from .problem import (
+    FAST_QR_RCOND,
+    LIMIT_TOL,
+    QP_REGULARIZATION,
+    RANK_RTOL,
+    LeastSquaresProblem,
+    MinNormOf,
+    SolveResult,
+)
 from .qr import QRSolver, qr_least_squares
-from .qpsolvers_ import QpsolversBackend, installed_qp_solvers
-from .osqp_ import OSQPBackend
-from .proxqp_ import ProxQPBackend
-from .daqp_ import DAQPBackend
 from .qr_first import QRFirst
 
 __all__ = [
-    "LeastSquaresProblem", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL", "FAST_QR_RCOND",
-    "QRSolver", "qr_least_squares", "QpsolversBackend", "installed_qp_solvers", "OSQPBackend",
-    "ProxQPBackend", "DAQPBackend", "QRFirst", "DIRECT_BACKENDS", "available_solvers", "make_solver",
+    "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
+    "FAST_QR_RCOND", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
+    "available_solvers", "installed_qp_solvers", "make_solver",
 ]
 
+#: every direct back-end name this package knows, installed or not (for error messages).
+KNOWN_DIRECT_BACKENDS = ("qr", "osqp-direct", "proxqp-direct", "daqp-direct")
+#: Back ends whose Python package imported on this machine, by :func:`make_solver` name.
+DIRECT_BACKENDS: dict[str, type] = {"qr": QRSolver}
 
-#: Back-end names accepted by :func:`make_solver` besides ``qpsolvers:<name>``.
-DIRECT_BACKENDS = {"qr": QRSolver, "osqp-direct": OSQPBackend, "proxqp-direct": ProxQPBackend,
-                   "daqp-direct": DAQPBackend}
+try:
+    from .osqp_ import OSQPBackend
+
+    DIRECT_BACKENDS["osqp-direct"] = OSQPBackend
+    __all__.append("OSQPBackend")
+except ImportError:
+    pass
+
+try:
+    from .proxqp_ import ProxQPBackend
+
+    DIRECT_BACKENDS["proxqp-direct"] = ProxQPBackend
+    __all__.append("ProxQPBackend")
+except ImportError:
+    pass
+
+try:
+    from .daqp_ import DAQPBackend
+
+    DIRECT_BACKENDS["daqp-direct"] = DAQPBackend
+    __all__.append("DAQPBackend")
+except ImportError:
+    pass
+
+try:
+    from .qpsolvers_ import QpsolversBackend, installed_qp_solvers
+
+    __all__.append("QpsolversBackend")
+except ImportError:
+    QpsolversBackend = None
+
+    def installed_qp_solvers() -> list[str]:
+        """QP solvers available through qpsolvers: none (qpsolvers is not installed)."""
+        return []
 
 
 def available_solvers() -> list[str]:
-    """Every name :func:`make_solver` accepts on this machine."""
+    """Every name :func:`make_solver` accepts on this machine (only back ends that imported)."""
     names = list(DIRECT_BACKENDS) + [f"qpsolvers:{s}" for s in installed_qp_solvers()]
     names += [f"qr-first:{n}" for n in names if n != "qr"]
     return names
@@ -64,11 +103,10 @@ def make_solver(name: str):
             raise SolverNotFoundError("qr-first needs a QP back end, not 'qr'")
         return QRFirst(inner)
     if name in DIRECT_BACKENDS:
-        try:
-            return DIRECT_BACKENDS[name]()
-        except ImportError as exc:  # its Python package is missing on this machine
-            raise SolverNotFoundError(
-                f"solver {name!r} is not installed ({exc}); available: {available_solvers()}") from None
+        return DIRECT_BACKENDS[name]()
+    if name in KNOWN_DIRECT_BACKENDS:
+        raise SolverNotFoundError(f"solver {name!r} is not installed (its Python package did not import); "
+                                  f"available: {available_solvers()}")
     qp_name = name[len("qpsolvers:"):] if name.startswith("qpsolvers:") else name
     if qp_name in installed_qp_solvers():
         return QpsolversBackend(qp_name)

@@ -1,9 +1,15 @@
-"""DAQP dual active-set back end through its direct API (warm-started working set)."""
+"""DAQP dual active-set back end through its direct API.
+
+Warm start: yes — the working set: the limits active at the given primal warm start, else
+the previous solve's active set. Importing this module raises ImportError when ``daqp`` is
+not installed.
+"""
 
 from __future__ import annotations
 
 import time
 
+import daqp
 import numpy as np
 
 from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved
@@ -19,13 +25,9 @@ class DAQPBackend:
     name = "daqp-direct"
 
     def __init__(self):
-        import daqp  # noqa: F401
-
         self._sense = None
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
-        import daqp
-
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
         parts_lo, parts_hi = [], []

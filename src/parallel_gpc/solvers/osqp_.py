@@ -1,10 +1,18 @@
-"""Persistent OSQP back end (set up once per problem structure, then updated and warm-started)."""
+"""Persistent OSQP back end (set up once per problem structure, then updated every step).
+
+Warm start: yes — the given primal warm start (the controller passes its previous solution
+shifted by one sample) through ``OSQP.warm_start``; OSQP also keeps its previous iterate.
+Importing this module raises ImportError when ``osqp`` is not installed (the registry then
+leaves ``osqp-direct`` out).
+"""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
+import osqp
+import scipy.sparse as sp
 
 from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
 
@@ -14,16 +22,11 @@ class OSQPBackend:
     name = "osqp-direct"
 
     def __init__(self, eps: float = 1e-10, max_iter: int = 20000):
-        import osqp  # noqa: F401  (fail early with ImportError if missing)
-
         self.eps, self.max_iter = eps, max_iter
         self._solver = None
         self._shape = None
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
-        import osqp
-        import scipy.sparse as sp
-
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
         C, lo, hi = _stacked_constraints(problem)

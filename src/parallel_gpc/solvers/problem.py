@@ -15,15 +15,36 @@ LIMIT_TOL = 1e-7
 #: fast QR path trusts full rank; below it the rank-revealing (pivoted) path decides.
 FAST_QR_RCOND = 1e-8
 
+@dataclass(frozen=True)
+class MinNormOf:
+    """Which minimizer a rank-deficient problem returns: the one with the smallest ‖M v + offset‖.
+
+    Attributes:
+        M: (n, n) lower-triangular invertible matrix.
+        offset: (n,) vector.
+        block: when M is the cumulative-sum map kron(tri(n/block), I_block), its block size
+            (the QR back end then applies M⁻¹ as block differences); None for a general M.
+    """
+
+    M: np.ndarray
+    offset: np.ndarray
+    block: int | None = None
+
+
 @dataclass
 class LeastSquaresProblem:
     """``min ‖A v − b‖²`` subject to ``lb ≤ v ≤ ub`` and ``lo ≤ L v ≤ hi`` (either may be None).
 
     Attributes:
         A: (r, n); b: (r,); lb, ub: (n,) or None; L: (k, n) or None; lo, hi: (k,) or None.
-        min_norm_of: (M, m0) with M (n, n) lower-triangular invertible: when A is
-            rank-deficient, the QR back end returns the minimizer with the smallest ‖M v + m0‖
-            (incremental forms: the smallest absolute drive torques u, not the smallest Δu).
+        min_norm_of: when A is rank-deficient, the QR back end returns the minimizer with the
+            smallest ‖M v + offset‖ (see :class:`MinNormOf`); None: the smallest ‖v‖.
+        nonzero_rows: number of leading rows of A (and b) that can be nonzero; the rows below
+            are zero and the back ends skip them. None: all rows.
+        tail_diag: (n,) when the last n rows are ``[diag(tail_diag) | b = 0]`` (a diagonal
+            regularization block), else None.
+        tail_positive: True when ``tail_diag`` is given and all its entries are > 0 (A then
+            has full column rank: one minimizer).
     """
 
     A: np.ndarray
@@ -33,13 +54,16 @@ class LeastSquaresProblem:
     L: np.ndarray | None = None
     lo: np.ndarray | None = None
     hi: np.ndarray | None = None
-    min_norm_of: tuple[np.ndarray, np.ndarray] | None = None
-    #: structure known to :func:`build_problem` (private hint for the back ends): ``rows`` =
-    #: number of leading rows of A that can be nonzero (the Qu block is zero below them),
-    #: ``tail_diag`` = diagonal of the Qu block when it is diagonal (``tail_positive``: all > 0,
-    #: so A has full column rank), ``cumulative`` = m when ``min_norm_of[0]`` is the
-    #: cumulative-sum map kron(tri, I_m).
-    _structure: dict | None = field(default=None, repr=False, compare=False)
+    min_norm_of: MinNormOf | None = None
+    nonzero_rows: int | None = None
+    tail_diag: np.ndarray | None = field(default=None, repr=False)
+    tail_positive: bool = False
+
+    def leading_rows(self) -> tuple[np.ndarray, np.ndarray]:
+        """(A, b) without the rows known to be zero (views, no copy)."""
+        if self.nonzero_rows is not None and self.nonzero_rows < self.A.shape[0]:
+            return self.A[:self.nonzero_rows], self.b[:self.nonzero_rows]
+        return self.A, self.b
 
     @property
     def n(self) -> int:
@@ -113,19 +137,15 @@ class SolveResult:
         return self.status in ("optimal", "unconstrained")
 
 
-# ---------------------------------------------------------------------------- QR
 # ---------------------------------------------------------------------------- QP
 def _scaled_qp(problem: LeastSquaresProblem):
     """Hessian P = AᵀA and gradient q = −Aᵀb scaled to max(diag P) = 1, plus a tiny ridge."""
-    A, b = problem.A, problem.b
-    st = problem._structure
+    A, b = problem.leading_rows()
     tail = None
-    if st is not None:
-        if st["rows"] < A.shape[0]:  # Qu = 0: only the leading rows are nonzero
-            A, b = A[:st["rows"]], b[:st["rows"]]
-        elif st["tail_diag"] is not None:  # A = [Qy G; diag(d)], b = [·; 0]: P = (Qy G)ᵀ(Qy G) + diag(d²)
-            top = A.shape[0] - A.shape[1]
-            A, b, tail = A[:top], b[:top], st["tail_diag"]
+    if A.shape[0] == problem.A.shape[0] and problem.tail_diag is not None:
+        # A = [A_top; diag(d)], b = [b_top; 0]: P = A_topᵀ A_top + diag(d²)
+        top = A.shape[0] - A.shape[1]
+        A, b, tail = A[:top], b[:top], problem.tail_diag
     P = A.T @ A
     q = A.T @ b
     diag = P.reshape(-1)[::P.shape[0] + 1]  # a view on the diagonal of P

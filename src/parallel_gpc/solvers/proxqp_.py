@@ -1,10 +1,16 @@
-"""Persistent ProxQP dense back end (warm-started with the previous result)."""
+"""Persistent ProxQP dense back end.
+
+Warm start: yes — ProxQP's ``WARM_START_WITH_PREVIOUS_RESULT`` (its own previous primal and
+dual solution; the ``warm_start`` argument is not used). After a failed solve the next one
+starts cold. Importing this module raises ImportError when ``proxsuite`` is not installed.
+"""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
+import proxsuite
 
 from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
 
@@ -14,15 +20,11 @@ class ProxQPBackend:
     name = "proxqp-direct"
 
     def __init__(self, eps: float = 1e-10, max_iter: int = 10000):
-        import proxsuite  # noqa: F401
-
         self.eps, self.max_iter = eps, max_iter
         self._qp = None
         self._shape = None
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
-        import proxsuite
-
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
         C, lo, hi = _stacked_constraints(problem)

@@ -1,10 +1,16 @@
-"""qpsolvers back end: ``qpsolvers.solve_problem`` with any installed solver (rebuilt every call, no warm start)."""
+"""qpsolvers back end: ``qpsolvers.solve_problem`` with any installed solver (rebuilt every call).
+
+Warm start: the given primal warm start is passed as ``initvals``; solvers that accept an
+initial guess use it, the others ignore it (qpsolvers' rule). No solver state is kept between
+calls. Importing this module raises ImportError when ``qpsolvers`` is not installed.
+"""
 
 from __future__ import annotations
 
 import time
 
 import numpy as np
+import qpsolvers
 
 from ..errors import SolverNotFoundError
 from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, _solved
@@ -12,8 +18,6 @@ from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from
 
 def installed_qp_solvers() -> list[str]:
     """QP solvers available through qpsolvers on this machine."""
-    import qpsolvers
-
     return sorted(qpsolvers.available_solvers)
 
 
@@ -39,8 +43,6 @@ class QpsolversBackend:
         self.settings = {**self._DEFAULTS.get(solver, {}), **settings}
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
-        import qpsolvers
-
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
         G = h = None

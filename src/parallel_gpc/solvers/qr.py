@@ -1,4 +1,8 @@
-"""QR back end: square-root least squares by Householder QR, eq. (17)–(19)."""
+"""QR back end: square-root least squares by Householder QR, eq. (17)–(19).
+
+Warm start: none (a direct method; the ``warm_start`` argument is accepted and ignored).
+Enforces no limits: use a QP back end, or :class:`~parallel_gpc.solvers.QRFirst`, when limits are given.
+"""
 
 from __future__ import annotations
 
@@ -9,9 +13,8 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from ..errors import InvalidParameterError
-from .problem import FAST_QR_RCOND, RANK_RTOL, LeastSquaresProblem, SolveResult
+from .problem import FAST_QR_RCOND, RANK_RTOL, LeastSquaresProblem, MinNormOf, SolveResult
 
-# ---------------------------------------------------------------------------- QR
 def qr_least_squares(A: np.ndarray, b: np.ndarray, method: str = "lapack") -> tuple[np.ndarray, float, int]:
     """Minimum-norm least-squares solution of A v ≈ b by QR, eq. (17)–(19).
 
@@ -134,6 +137,24 @@ def _qr_numpy(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float, int]:
     return v, float(res @ res), int(rank)
 
 
+def _min_norm_of(A: np.ndarray, b: np.ndarray, mn: MinNormOf, method: str) -> tuple[np.ndarray, float, int]:
+    """Least squares in s = M v + m0: the minimum-norm s among the minimizers (the same v as
+    plain least squares when A has full column rank)."""
+    M, m0, m = mn.M, mn.offset, mn.block
+    if m:  # M = kron(tri, I_m): A M⁻¹ and M⁻¹ are block differences
+        AMinv = A.copy()
+        AMinv[:, :-m] -= A[:, m:]
+    else:
+        AMinv = sla.solve_triangular(M, A.T, trans="T", lower=True, check_finite=False).T
+    s, cost, rank = qr_least_squares(AMinv, b + AMinv @ m0, method)
+    if m:
+        v = s - m0
+        v[m:] -= (s - m0)[:-m]
+    else:
+        v = sla.solve_triangular(M, s - m0, lower=True, check_finite=False)
+    return v, cost, rank
+
+
 class QRSolver:
     """Unconstrained square-root solve by QR (the reference back end). Ignores limits.
 
@@ -152,34 +173,19 @@ class QRSolver:
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        A, b = problem.A, problem.b
-        st = problem._structure
-        if st is not None and st["rows"] < A.shape[0]:  # drop the zero Qu rows (Qu = 0)
-            A, b = A[:st["rows"]], b[:st["rows"]]
+        A, b = problem.leading_rows()  # drops the zero regularization rows (Qu = 0)
         out = None
-        if st is not None and st.get("tail_positive") and self.method == "lapack":
-            # A = [Qy G; diag(d)], d > 0: full column rank, one minimizer (no minimum-norm
-            # transform needed); QR of the triangular-pentagonal pair [diag(d); Qy G]
+        if problem.tail_positive and problem.tail_diag is not None and self.method == "lapack":
+            # A = [A_top; diag(d)], d > 0: full column rank, one minimizer (no minimum-norm
+            # transform needed); QR of the triangular-pentagonal pair [diag(d); A_top]
             top = A.shape[0] - A.shape[1]
-            out = _qr_diag_tail(A[:top], b[:top], st["tail_diag"])
+            out = _qr_diag_tail(A[:top], b[:top], problem.tail_diag)
         if out is not None:
             v, cost, rank = out
         elif problem.min_norm_of is None:
             v, cost, rank = qr_least_squares(A, b, self.method)
-        else:  # s = M v + m0; the minimum-norm s among the minimizers (same v when A has full rank)
-            M, m0 = problem.min_norm_of
-            m = st["cumulative"] if st is not None else None
-            if m:  # M = kron(tri, I_m): A M⁻¹ and M⁻¹ are block differences
-                AMinv = A.copy()
-                AMinv[:, :-m] -= A[:, m:]
-            else:
-                AMinv = sla.solve_triangular(M, A.T, trans="T", lower=True, check_finite=False).T
-            s, cost, rank = qr_least_squares(AMinv, b + AMinv @ m0, self.method)
-            if m:
-                v = s - m0
-                v[m:] -= (s - m0)[:-m]
-            else:
-                v = sla.solve_triangular(M, s - m0, lower=True, check_finite=False)
+        else:
+            v, cost, rank = _min_norm_of(A, b, problem.min_norm_of, self.method)
         dt = time.perf_counter() - t0
         return SolveResult(v, cost, "unconstrained", self.name, None, dt, False,
                            f"rank {rank} of {problem.n}" if rank < problem.n else "")

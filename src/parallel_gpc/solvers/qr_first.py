@@ -1,4 +1,7 @@
-"""QR first: solve by QR, call the QP back end only when the QR solution violates a limit."""
+"""QR first: solve by QR, call the QP back end only when the QR solution violates a limit.
+
+Warm start: passed on to the QP back end when it is called.
+"""
 
 from __future__ import annotations
 
@@ -25,5 +28,3 @@ class QRFirst:
         qp.solver = self.name
         return qp
 
-
-#: Back-end names accepted by :func:`make_solver` besides ``qpsolvers:<name>``.

@@ -307,18 +307,6 @@ def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
     return out
 
 
-_STATE = ("u_prev", "plan", "_v_prev", "disturbance", "_x_next")
-
-
-def _snapshot(ctl) -> dict:
-    return {k: (None if getattr(ctl, k) is None else np.array(getattr(ctl, k), copy=True)) for k in _STATE}
-
-
-def _restore(ctl, snap: dict) -> None:
-    for k, v in snap.items():
-        setattr(ctl, k, None if v is None else v.copy())
-
-
 def _record(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: int, entry: _Entry | None = None,
             warmup: int = 0) -> list[list[tuple]]:
     """Run ``ctl`` in closed loop on the full plant over each stretch (from the recorded state,
@@ -334,7 +322,7 @@ def _record(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N:
         rows = []
         for k, smp in enumerate(stretch):
             X, w = plant.X, ref.window(smp.t, Ts, N)
-            rows.append((X, w, _snapshot(ctl)))
+            rows.append((X, w, ctl.state))
             t0 = time.perf_counter()
             info = ctl.step(X, w)
             dt = time.perf_counter() - t0
@@ -386,7 +374,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
     for stretch, rows in zip(stretches, seqs["nonlinear"]):
         out = []
         for smp, (X, w, snap) in zip(stretch, rows):
-            _restore(nl, snap)
+            nl.restore(snap)
             u_sim = np.vstack([nl.plan[1:], nl.plan[-1:]])
             A_seq, B_seq, c_seq, _ = nl.model.simulate_factorized(X, u_sim, Ts, nl.disturbance)
             c_seq = c_seq + nl.disturbance
@@ -448,7 +436,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                 # full control steps, each on its own closed-loop sample and state
                 for cname, ctl in steps:
                     X, w, snap = seqs[cname][si][k]
-                    _restore(ctl, snap)
+                    ctl.restore(snap)
                     t0 = time.perf_counter()
                     info = ctl.step(X, w)
                     dt = time.perf_counter() - t0
