@@ -10,12 +10,11 @@ import numpy as np
 import pytest
 import scipy.linalg as sla
 
-from parallel_gpc import ReducedModel, discretize_zoh
-from parallel_gpc.studies.bench import BenchConfig, register_bench, run_benchmark
+from parallel_gpc import Horizons, ReducedModel, Weights, build_problem, discretize_zoh
+from parallel_gpc.gpc import absolute_prediction, condense, incremental_prediction
 from parallel_gpc.model.dynamics import expm
-from parallel_gpc.gpc.prediction import Horizons, _condense_ltv, condense, incremental_prediction
 from parallel_gpc.solvers import QRSolver, qr_least_squares
-from parallel_gpc.gpc.criterion import Weights, build_problem
+from parallel_gpc.studies.bench import BenchConfig, register_bench, run_benchmark
 
 from conftest import POSE_A, POSE_B, random_states
 
@@ -101,8 +100,9 @@ def test_block_toeplitz_condenser_equals_the_ltv_recursion(N, No, Nu, hold):
     B, c, C, x = rng.normal(size=(5, 3)), rng.normal(size=5), rng.normal(size=(2, 5)), rng.normal(size=5)
     H = Horizons(N, No, Nu)
     f1, G1 = condense(A, B, c, C, x, H, hold)
-    f2, G2 = _condense_ltv(np.broadcast_to(A, (N, 5, 5)), np.broadcast_to(B, (N, 5, 3)),
-                           np.broadcast_to(c, (N, 5)), C, x, H, hold)
+    # per-step (N, n, n) stacks take the LTV recursion
+    f2, G2 = condense(np.broadcast_to(A, (N, 5, 5)), np.broadcast_to(B, (N, 5, 3)),
+                      np.broadcast_to(c, (N, 5)), C, x, H, hold)
     np.testing.assert_allclose(f1, f2, rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(G1, G2, rtol=1e-12, atol=1e-12)
 
@@ -135,8 +135,6 @@ def test_qr_paths_agree(shape):
 @pytest.mark.parametrize("qu", [0.0, 1e-3, [1e-3, 0.0, 2e-3, 1e-3]])
 @pytest.mark.parametrize("form", ["absolute", "incremental"])
 def test_structured_qr_equals_dense_pivoted_qr_on_gpc_problems(model4, form, qu):
-    from parallel_gpc.gpc.prediction import absolute_prediction
-
     X = np.concatenate([0.5 * (POSE_A + POSE_B), [0.3, -0.2, 0.4]])
     Ad, Bd, cd = model4.discrete(X, 0.002)
     H = Horizons(15)

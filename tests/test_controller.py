@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
-from parallel_gpc import ParallelRobot, ReducedModel
-from parallel_gpc.gpc.controller import GPCController
-from parallel_gpc.errors import InvalidParameterError
-from parallel_gpc.model.plant import ConstrainedPlant
-from parallel_gpc.gpc.prediction import Horizons
-from parallel_gpc.gpc.references import Hold, SCurve
-from parallel_gpc.studies.simulation import SimulationResult, simulate
-from parallel_gpc.gpc.criterion import Weights
+from parallel_gpc import (
+    ConstrainedPlant,
+    ControllerState,
+    GPCController,
+    GPCSettings,
+    Hold,
+    Horizons,
+    ParallelRobot,
+    ReducedModel,
+    SCurve,
+    SimulationResult,
+    Weights,
+    simulate,
+)
+from parallel_gpc.errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 
 TS = 0.01
 TILT = np.radians(10.0)
@@ -89,3 +98,63 @@ def test_result_round_trips_through_npz_and_csv(s_curve_runs, tmp_path):
 def test_qr_solver_with_limits_is_rejected(robot4):
     with pytest.raises(InvalidParameterError, match="cannot enforce"):
         GPCController(ReducedModel(robot4), TS, Horizons(5), solver="qr", torque_limit=10.0)
+
+
+def _closed_loop(ctrl, robot, ref, steps):
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]))
+    for k in range(steps):
+        plant.step(ctrl.step(plant.X, ref.window(k * TS, TS, ctrl.horizons.N)).u, TS)
+    return plant
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+def test_state_snapshot_restores_bit_identical_steps(robot4, form):
+    """restore(state) puts plan, u(k−1), disturbance estimate, one-step prediction and warm start
+    back: the replayed step gives the same u, on a fresh controller too (to rounding: the robot
+    model's assembly warm start is the model's, not the controller's, state)."""
+    ref = SCurve()
+    kw = dict(form=form, torque_limit=12.0, solver="daqp-direct")
+    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
+    plant = _closed_loop(ctrl, robot4, ref, 8)
+    X, w = plant.X.copy(), ref.window(8 * TS, TS, 10)
+    state = ctrl.state
+    assert isinstance(state, ControllerState) and state.x_next is not None and state.warm_start is not None
+    with pytest.raises(ValueError):  # read-only snapshot
+        state.plan[0, 0] = 1.0
+    u = ctrl.step(X, w).u
+    ctrl.step(X + 1e-3, w)  # move on
+    ctrl.restore(state)
+    np.testing.assert_allclose(ctrl.step(X, w).u, u, rtol=0, atol=1e-12)
+    other = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
+    other.restore(state)
+    np.testing.assert_allclose(other.step(X, w).u, u, rtol=0, atol=1e-12)
+    with pytest.raises(ShapeError, match="plan"):
+        GPCController(ReducedModel(robot4), TS, Horizons(12), form=form).restore(state)
+
+
+def test_settings_are_frozen_validated_and_equivalent_to_keywords(robot4):
+    settings = GPCSettings(TS, Horizons(10), Weights(1.0, 1e-3), form="incremental", torque_limit=12.0)
+    assert settings.solver == "qr-first:daqp-direct" and settings.disturbance_gain == 0.5
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        settings.Ts = 0.02
+    from_settings = GPCController.from_settings(ReducedModel(robot4), settings)
+    keywords = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), form="incremental",
+                             torque_limit=12.0)
+    assert from_settings.settings is settings and keywords.solver == settings.solver
+    ref = SCurve()
+    a, b = _closed_loop(from_settings, robot4, ref, 6), _closed_loop(keywords, robot4, ref, 6)
+    np.testing.assert_array_equal(a.X, b.X)
+    with pytest.raises(InvalidParameterError, match="1.5"):
+        GPCSettings(TS, Horizons(10), disturbance_gain=1.5)
+
+
+def test_assigning_a_limit_revalidates_it(robot4):
+    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(5), torque_limit=10.0)
+    ctrl.torque_limit = [5.0, 6.0, 7.0, 8.0]
+    np.testing.assert_array_equal(ctrl.torque_limit, [5.0, 6.0, 7.0, 8.0])
+    assert ctrl.settings.torque_limit.tolist() == [5.0, 6.0, 7.0, 8.0]
+    with pytest.raises(InfeasibleLimitsError, match="-1.0"):
+        ctrl.torque_limit = -1.0
+    with pytest.raises(ShapeError, match="(3,)"):
+        ctrl.torque_limit = [1.0, 2.0, 3.0]
+    np.testing.assert_array_equal(ctrl.torque_limit, [5.0, 6.0, 7.0, 8.0])  # unchanged by the failures

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from parallel_gpc.errors import InvalidParameterError
-from parallel_gpc.gpc.prediction import (
+from parallel_gpc.gpc import (
     Horizons,
     absolute_prediction,
     condense,

@@ -13,9 +13,9 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from parallel_gpc.gpc.prediction import Horizons, Prediction, condense, incremental_prediction
-from parallel_gpc.solvers import LeastSquaresProblem, QRSolver, make_solver
-from parallel_gpc.gpc.criterion import Weights, build_problem
+from parallel_gpc import Horizons, LeastSquaresProblem, Prediction, Weights, build_problem, make_solver
+from parallel_gpc.gpc import condense, incremental_prediction
+from parallel_gpc.solvers import QRSolver
 
 QP_BACKENDS = ["osqp-direct", "proxqp-direct", "daqp-direct", "qpsolvers:osqp", "qpsolvers:proxqp",
                "qpsolvers:daqp"]

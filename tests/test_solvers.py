@@ -6,12 +6,9 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
-from parallel_gpc import ParallelRobot, ReducedModel
-from parallel_gpc.gpc.controller import GPCController
-from parallel_gpc.gpc.prediction import Horizons, absolute_prediction, incremental_prediction
-from parallel_gpc.gpc.references import SCurve
+from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights, build_problem
+from parallel_gpc.gpc import absolute_prediction, incremental_prediction
 from parallel_gpc.solvers import QRSolver, make_solver, qr_least_squares
-from parallel_gpc.gpc.criterion import Weights, build_problem
 
 QP_BACKENDS = ["qpsolvers:osqp", "qpsolvers:proxqp", "qpsolvers:daqp", "osqp-direct", "proxqp-direct", "daqp-direct"]
 

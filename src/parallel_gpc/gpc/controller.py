@@ -278,8 +278,9 @@ class GPCController:
         t0 = time.perf_counter()
         self._update_disturbance(X)
         pred = self.predict(X)
-        if self._gain is not None:
-            self._check_conditioning(X, self._gain(self._one_step[1]))
+        gain = None if self._gain is None else self._gain(self._one_step[1])
+        if gain is not None:
+            self._check_conditioning(X, gain)
         t1 = time.perf_counter()
         problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
         t2 = time.perf_counter()

@@ -119,8 +119,9 @@ def _frozen(value):
 class ControllerState:
     """Everything a controller carries from one step to the next (read-only copies).
 
-    ``controller.restore(controller.state)`` puts a controller back exactly where it was: the
-    next step gives bit-identical inputs.
+    ``controller.restore(controller.state)`` puts a controller back where it was: the next step
+    gives the same inputs (to rounding: caches kept by the model, such as a robot's assembly
+    warm start, and a QP back end's internal working set are not controller state).
 
     Attributes:
         u_prev: (m,) last applied input u(k−1) (N·m).
