@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights, build_problem
 from parallel_gpc.gpc import absolute_prediction, incremental_prediction
-from parallel_gpc.solvers import QRSolver, make_solver, qr_least_squares
+from parallel_gpc.solvers import LeastSquaresProblem, MinNormOf, QRSolver, available_solvers, make_solver, qr_least_squares
 
 QP_BACKENDS = ["qpsolvers:osqp", "qpsolvers:proxqp", "qpsolvers:daqp", "osqp-direct", "proxqp-direct", "daqp-direct"]
 
@@ -117,3 +121,47 @@ def test_incremental_min_norm_picks_smallest_absolute_torques():
     u = (pred.u_base + pred.u_map @ v).reshape(-1, 2)
     np.testing.assert_allclose(u[:, 0], u[:, 1], atol=1e-9)  # no drive fighting
     assert prob.cost(v) <= prob.cost(np.linalg.lstsq(prob.A, prob.b, rcond=None)[0]) + 1e-12
+
+
+@pytest.mark.parametrize("qu", [0.0, 1e-3, [1e-3, 2e-3, 1e-3, 5e-4]])
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_structure_fields_are_hints_only(gpc_problems, form, qu):
+    """The named structure fields (zero rows, diagonal tail, cumulative min-norm map) change the
+    route, not the answer: the same A, b without hints (dense min-norm map) give the same v."""
+    pred, w = gpc_problems[form]
+    prob = build_problem(pred, w, Weights(1.0, qu), 3, 4)
+    assert prob.nonzero_rows == (prob.A.shape[0] - prob.n if qu == 0.0 else prob.A.shape[0])
+    assert prob.tail_positive == (qu != 0.0)
+    bare = LeastSquaresProblem(prob.A.copy(), prob.b.copy())
+    if prob.min_norm_of is not None:
+        assert prob.min_norm_of.block == 4
+        bare.min_norm_of = MinNormOf(np.array(prob.min_norm_of.M), prob.min_norm_of.offset.copy())
+    hinted, plain = QRSolver().solve(prob), QRSolver().solve(bare)
+    np.testing.assert_allclose(hinted.v, plain.v, rtol=0, atol=1e-9 * np.abs(plain.v).max())
+    for backend in ("daqp-direct", "osqp-direct"):
+        np.testing.assert_allclose(make_solver(backend).solve(prob).v, make_solver(backend).solve(bare).v,
+                                   rtol=0, atol=1e-6 * np.abs(plain.v).max())
+
+
+def test_back_ends_register_only_when_their_package_imports():
+    """qpsolvers-style registry: with daqp unimportable, 'daqp-direct' is not listed and asking
+    for it is one clear error (run in a fresh interpreter)."""
+    code = (
+        "import sys; sys.modules['daqp'] = None\n"
+        "from parallel_gpc.solvers import available_solvers, make_solver\n"
+        "from parallel_gpc.errors import SolverNotFoundError\n"
+        "names = available_solvers()\n"
+        "assert 'daqp-direct' not in names and 'qr-first:daqp-direct' not in names, names\n"
+        "assert 'osqp-direct' in names and 'qr' in names, names\n"
+        "try:\n    make_solver('daqp-direct')\nexcept SolverNotFoundError as e:\n    print('ERR', e)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)})
+    assert "ERR solver 'daqp-direct' is not installed" in out.stdout
+
+
+def test_every_listed_solver_can_be_made():
+    names = available_solvers()
+    assert {"qr", "osqp-direct", "proxqp-direct", "daqp-direct", "qpsolvers:osqp"} <= set(names)
+    for name in names:
+        assert make_solver(name).name == name
