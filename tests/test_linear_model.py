@@ -192,3 +192,17 @@ def test_model_function_returning_wrong_shapes_is_reported():
     ctl = GPCController(model, TS, Horizons(5))
     with pytest.raises(ShapeError, match=r"\(3, 3\)"):
         ctl.step(np.zeros(4), np.zeros((5, 2)))
+
+
+def test_an_object_without_the_protocol_is_rejected():
+    class NoSim:
+        n_x, n_y, n_u, C = 2, 1, 1, np.array([[1.0, 0.0]])
+
+        def discrete(self, X, Ts):
+            return np.eye(2), np.ones((2, 1)), np.zeros(2)
+
+    GPCController(NoSim(), TS, Horizons(3))  # enough for the linear forms
+    with pytest.raises(InvalidParameterError, match="simulate_factorized"):
+        GPCController(NoSim(), TS, Horizons(3), form="nonlinear")
+    with pytest.raises(InvalidParameterError, match="'C'"):
+        GPCController(object(), TS, Horizons(3))

@@ -117,7 +117,8 @@ class GPCController:
         return self
 
     def _setup(self, model: ControlModel, settings: GPCSettings, u0) -> None:
-        for name in ("n_x", "n_y", "n_u", "C", "discrete"):
+        needed = ("n_x", "n_y", "n_u", "C", "discrete") + (("simulate_factorized",) if settings.form == "nonlinear" else ())
+        for name in needed:
             if not hasattr(model, name):
                 raise InvalidParameterError(f"model {type(model).__name__} has no {name!r}: a controller's model "
                                             f"implements parallel_gpc.gpc.ControlModel")
