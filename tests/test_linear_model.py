@@ -204,5 +204,5 @@ def test_an_object_without_the_protocol_is_rejected():
     GPCController(NoSim(), TS, Horizons(3))  # enough for the linear forms
     with pytest.raises(InvalidParameterError, match="simulate_factorized"):
         GPCController(NoSim(), TS, Horizons(3), form="nonlinear")
-    with pytest.raises(InvalidParameterError, match="'C'"):
+    with pytest.raises(InvalidParameterError, match="'n_x'.*ControlModel"):
         GPCController(object(), TS, Horizons(3))
