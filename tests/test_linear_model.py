@@ -65,7 +65,7 @@ def test_closed_loop_equals_finite_horizon_riccati(form):
 def _batch_oracle(form, c, x0, u_prev, w, H: Horizons, Wy, Wu):
     """u(k) from stacked least squares, the prediction built by simulating the model step by step
     (f = response to v = 0, column j of G = response to v = e_j minus f) and solved by lstsq."""
-    m, p = B.shape[1], C2.shape[0]
+    m = B.shape[1]
 
     def outputs(v):
         blocks = v.reshape(H.Nu, m)
