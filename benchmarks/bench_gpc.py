@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Benchmark QR vs QP back ends, qpmpc and the full GPC step on the S-curve (DESIGN §9).
+"""Benchmark QR vs QP back ends, qpmpc and the full GPC step on the S-curve.
 
 Usage: ``python benchmarks/bench_gpc.py [--quick] [--out DIR]`` (the same as ``parallel-gpc bench``;
 default DIR: benchmarks/results). Writes DIR/bench_gpc.json, DIR/bench_gpc.md and DIR/bench_gpc.png
@@ -14,7 +14,7 @@ os.environ.setdefault("MPLBACKEND", "Agg")
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from parallel_gpc.studies.bench import main  # noqa: E402
+from parallel_gpc.cli.bench import main  # noqa: E402
 
 if __name__ == "__main__":
     sys.exit(main(default_out=str(Path(__file__).resolve().parent / "results")))

@@ -14,7 +14,8 @@ from parallel_gpc import Horizons, ReducedModel, Weights, build_problem, discret
 from parallel_gpc.gpc import absolute_prediction, condense, incremental_prediction
 from parallel_gpc.model.dynamics import expm
 from parallel_gpc.solvers import QRSolver, qr_least_squares
-from parallel_gpc.studies.bench import BenchConfig, register_bench, run_benchmark
+from parallel_gpc.cli.bench import register_bench
+from parallel_gpc.studies.bench import BenchConfig, run_benchmark
 
 from conftest import POSE_A, POSE_B, random_states
 

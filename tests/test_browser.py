@@ -1,4 +1,4 @@
-"""The exported animation and the live viewer in headless Chromium (DESIGN §8).
+"""The exported animation and the live viewer in headless Chromium.
 
 Needs Debian's /usr/bin/chromium (Playwright drives it; no Playwright browser download). WebGL
 runs on SwiftShader (``--use-angle=swiftshader --enable-unsafe-swiftshader``).

@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ParallelRobot, ReducedModel, cli, discretize_zoh, load_description
-from parallel_gpc.cli.robustness import register_robustness
 from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.errors import (
     AssemblyError,
@@ -204,10 +203,8 @@ def test_bad_input_raises_specific_error_naming_the_value(tmp_path, r4, r3, call
 
 # ---------------------------------------------------------------------------- CLI
 @pytest.fixture
-def cli_with_robustness(monkeypatch):
-    """The CLI with the robustness command registered (the lead adds it to cli.REGISTRARS)."""
-    if register_robustness not in cli.REGISTRARS:
-        monkeypatch.setattr(cli, "REGISTRARS", [*cli.REGISTRARS, register_robustness])
+def cli_with_robustness():
+    """The CLI (its robustness command is registered)."""
     return cli
 
 

@@ -3,21 +3,24 @@ torque limits, the dead-beat comparison, tracking of the planned trajectory, fil
 
 from __future__ import annotations
 
-import argparse
 import math
 
 import numpy as np
 import pytest
 
-from parallel_gpc import ReducedModel
-from parallel_gpc.gpc.controller import GPCController
+from parallel_gpc import (
+    ConstrainedPlant,
+    GPCController,
+    Horizons,
+    PlanSettings,
+    ReducedModel,
+    SampledTrajectory,
+    Weights,
+    plan_point_to_point,
+    simulate,
+)
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, UnreachablePoseError
-from parallel_gpc.model.plant import ConstrainedPlant
-from parallel_gpc.gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
-from parallel_gpc.gpc.prediction import Horizons
-from parallel_gpc.gpc.references import SampledTrajectory
-from parallel_gpc.studies.simulation import simulate
-from parallel_gpc.gpc.criterion import Weights
+from parallel_gpc.gpc import deadbeat_inputs
 
 from conftest import POSE_A, POSE_B
 
@@ -236,11 +239,9 @@ def test_bad_requests_are_rejected(robot4, g_frozen):
 def test_cli_plan_writes_figures_and_trajectories(tmp_path, capsys):
     import matplotlib.image as mpimg
 
-    from parallel_gpc.cli.plan import register_plan
+    from parallel_gpc.cli import build_parser
 
-    parser = argparse.ArgumentParser()
-    register_plan(parser.add_subparsers())
-    args = parser.parse_args(["plan", "--Nmax", "40", "--Nmin", "8", "--Ts", "0.03", "--settle", "10",
+    args = build_parser().parse_args(["plan", "--Nmax", "40", "--Nmin", "8", "--Ts", "0.03", "--settle", "10",
                               "--no-progress", "--out", str(tmp_path)])
     assert args.func(args) == 0
     out = capsys.readouterr().out

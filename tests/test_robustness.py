@@ -6,13 +6,9 @@ import math
 
 import pytest
 
-from parallel_gpc.studies.robustness import (
-    COLUMNS,
-    RobustnessResult,
-    plot_robustness,
-    robustness_cases,
-    robustness_study,
-)
+from parallel_gpc import robustness_study
+from parallel_gpc.studies import COLUMNS, RobustnessResult, robustness_cases, save_figure
+from parallel_gpc.studies.plots_robustness import plot_robustness
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +49,7 @@ def test_incremental_forms_remove_the_steady_state_error_of_a_constant_force(hol
 
 
 def test_outputs_are_written(hold_study, tmp_path):
-    png = plot_robustness(hold_study, tmp_path / "r.png")
+    png = save_figure(plot_robustness(hold_study), tmp_path / "r.png")
     csv_path = hold_study.save_csv(tmp_path / "r.csv")
     json_path = hold_study.save_json(tmp_path / "r.json")
     assert png.stat().st_size > 10_000

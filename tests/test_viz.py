@@ -1,4 +1,4 @@
-"""meshcat view (DESIGN §8): loopback-only servers, offline HTML, animation content, CLI view."""
+"""meshcat view: loopback-only servers, offline HTML, animation content, CLI view."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pinocchio as pin
 import psutil
 import pytest
 
-from parallel_gpc import viz  # before meshcat: viz silences meshcat's import-time DeprecationWarning
+from parallel_gpc import load_result, save_result, viz
 from parallel_gpc.cli import main as cli_main
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, ShapeError, ViewerError
 
@@ -183,7 +183,7 @@ def test_animate_checks_shapes(robot4):
     with pytest.raises(ShapeError, match="saturated"):
         scene.animation(t, qs, np.zeros((5, 3), dtype=bool))
     with pytest.raises(ShapeError, match="reference path"):
-        viz._path_points("reference path", np.zeros((5, 1)))
+        viz.draw_path(vis, "reference", np.zeros((5, 1)), viz.REFERENCE_COLOR)
 
 
 def test_saturation_flags():
@@ -255,8 +255,8 @@ def test_serve_gallery_stops_on_keyboard_interrupt(tmp_path):
 def test_trajectory_roundtrip_and_cli_view(robot4, tmp_path, capsys):
     t, qs, poses = line_motion(robot4, n=9)
     sat = np.zeros((t.size, robot4.n_u), bool)
-    npz = viz.save_trajectory(tmp_path / "run.npz", robot4, t, qs, reference=poses, saturated=sat)
-    loaded = viz.load_trajectory(npz)
+    npz = save_result(tmp_path / "run.npz", robot4, t, qs, reference=poses, saturated=sat)
+    loaded = load_result(npz)
     assert loaded.robot == "planar_4rrr"
     np.testing.assert_array_equal(loaded.q, qs)
     np.testing.assert_array_equal(loaded.reference, poses)
@@ -271,4 +271,4 @@ def test_trajectory_roundtrip_and_cli_view(robot4, tmp_path, capsys):
     assert cli_main(["view", str(tmp_path / "bad.npz")]) == 2
     assert "lacks the keys ['robot']" in capsys.readouterr().err
     with pytest.raises(ParallelGPCError, match="does not exist"):
-        viz.load_trajectory(tmp_path / "none.npz")
+        load_result(tmp_path / "none.npz")

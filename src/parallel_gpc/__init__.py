@@ -9,7 +9,8 @@ Names are resolved lazily (PEP 562), so ``import parallel_gpc`` and the command 
 Layers, left to right (a module imports only from layers to its left): ``model`` (robot,
 reduced dynamics, plants) → ``solvers`` (least squares, QP back ends) → ``gpc`` (criterion,
 predictions, controller, planning, references) → ``studies`` (simulation, tracking,
-robustness, benchmark, plots) → ``viz`` (meshcat) → ``cli``.
+robustness, benchmark, plots) → ``viz`` (meshcat) → ``cli``. ``results`` (the one result file
+format) and ``errors`` sit beside them and import only NumPy and the robot description.
 """
 
 from __future__ import annotations
@@ -37,7 +38,9 @@ _PUBLIC = {
     "ControlModel": "gpc", "Criterion": "gpc",
     # studies
     "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
-    "run_tracking": "studies", "robustness_study": "studies",
+    "run_tracking": "studies", "robustness_study": "studies", "save_figure": "studies",
+    # result files
+    "save_result": "results", "load_result": "results", "ResultFile": "results",
 }
 
 __all__ = ["ParallelGPCError", "__version__", *_PUBLIC]

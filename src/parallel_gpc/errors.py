@@ -54,3 +54,7 @@ class InfeasibleLimitsError(InvalidParameterError):
 
 class ViewerError(ParallelGPCError):
     """The meshcat viewer or gallery server could not start or stop, or an export is not offline."""
+
+
+class ResultFormatError(InvalidParameterError):
+    """A result file is unreadable, of an unknown format or version, or lacks a needed key."""

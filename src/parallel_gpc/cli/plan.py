@@ -1,5 +1,6 @@
 """``parallel-gpc plan``: quadratically-optimal A → B planning, modes (a) and (b) (the paper's
-Fig. 3/4). A thin layer over :func:`parallel_gpc.planning.plan_point_to_point`.
+Fig. 3/4). A thin layer over :func:`parallel_gpc.plan_point_to_point`; writes ``plan_a.npz`` and
+``plan_b.npz`` (result files that ``parallel-gpc view`` opens) and the two figures.
 """
 
 from __future__ import annotations
@@ -9,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..model.robot import DEFAULT_ROBOT
+from .defaults import DEFAULT_ROBOT
+from .view import add_view_arguments, show_trajectory
 
 #: The paper's poses, in the units of the command line (m, m, deg).
 DEFAULT_A = (0.2, 0.2, -20.0)
@@ -59,8 +61,9 @@ def print_comparison(results, rows, out=None) -> None:
 def cmd_plan(args) -> int:
     from ..model.dynamics import ReducedModel
     from ..gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
-    from ..studies.plots_planning import plot_fig3, plot_fig4
     from ..model.robot import ParallelRobot
+    from ..studies.plots_common import save_figure
+    from ..studies.plots_planning import plot_fig3, plot_fig4
 
     robot = ParallelRobot.load(args.robot)
     A, B = _pose_rad(args.A), _pose_rad(args.B)
@@ -82,15 +85,12 @@ def cmd_plan(args) -> int:
           f"peak torque of {np.max(np.abs(deadbeat)):.4g} N·m")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    plot_fig3(results, out / "plan_fig3.png", robot=robot)
-    plot_fig4(results, out / "plan_fig4.png")
-    written = [out / "plan_fig3.png", out / "plan_fig4.png"] + [res.save(out / f"plan_{res.mode}.npz")
-                                                                for res in results]
+    written = [save_figure(plot_fig3(results, robot=robot), out / "plan_fig3.png", dpi=120, bbox_inches="tight"),
+               save_figure(plot_fig4(results), out / "plan_fig4.png")]
+    written += [res.save(out / f"plan_{res.mode}.npz") for res in results]
     print("wrote " + ", ".join(str(p) for p in written))
-    print("use a plan as reference: parallel_gpc.references.SampledTrajectory.load('"
-          f"{out / 'plan_b.npz'}')")
-    from .view import show_trajectory
-
+    print(f"view a plan: parallel-gpc view {out / 'plan_b.npz'}; use it as reference: "
+          f"parallel_gpc.SampledTrajectory.load('{out / 'plan_b.npz'}')")
     plan_b = results[-1]
     show_trajectory(args, robot, plan_b.t, plan_b.q, planned=results[0].poses, reference=plan_b.poses,
                     title="A→B plan, mode (b) with stopping (path of mode (a) drawn too)")
@@ -124,7 +124,5 @@ def register_plan(sub) -> None:
     p.add_argument("--settle", type=int, default=30, help="samples recorded after Nmax in mode (b) (default 30)")
     p.add_argument("--out", default="out/plan", help="output folder for figures and trajectories (default ./out/plan)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    from .view import add_view_arguments
-
     add_view_arguments(p)
     p.set_defaults(func=cmd_plan)

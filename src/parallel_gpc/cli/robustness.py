@@ -1,6 +1,6 @@
 """``parallel-gpc robustness``: tracking error of each GPC form under mismatch, noise and a load.
 
-A thin layer over :func:`parallel_gpc.robustness.robustness_study`: prints the table and writes
+A thin layer over :func:`parallel_gpc.robustness_study`: prints the table and writes
 ``robustness.csv``, ``robustness.json`` and ``robustness.png`` into ``--out``. Ctrl-C stops the
 study, saves the rows computed so far (marked interrupted) and exits with code 130.
 """
@@ -11,7 +11,7 @@ import sys
 from pathlib import Path
 
 from ..errors import InvalidParameterError
-from ..model.robot import DEFAULT_ROBOT
+from .defaults import DEFAULT_ROBOT
 
 #: Exit code of a run stopped by Ctrl-C (after saving what it computed).
 EXIT_INTERRUPTED = 130
@@ -33,9 +33,10 @@ def cmd_robustness(args) -> int:
         DEFAULT_MASS_SCALES,
         DEFAULT_NOISE_LEVELS,
         DEFAULT_WEIGHTS,
-        plot_robustness,
         robustness_study,
     )
+    from ..studies.plots_common import save_figure
+    from ..studies.plots_robustness import plot_robustness
     from ..gpc.criterion import Weights
 
     forms = tuple(f.strip() for f in args.forms.split(",") if f.strip())
@@ -66,7 +67,7 @@ def cmd_robustness(args) -> int:
     print(result.format_table())
     paths = [result.save_csv(out / "robustness.csv"), result.save_json(out / "robustness.json")]
     if result.rows:
-        paths.append(plot_robustness(result, out / "robustness.png"))
+        paths.append(save_figure(plot_robustness(result), out / "robustness.png"))
     print("wrote " + ", ".join(str(p) for p in paths))
     if result.interrupted:
         print(f"parallel-gpc: interrupted after {len(result.rows)} runs; the partial table is saved",

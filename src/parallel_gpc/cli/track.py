@@ -1,25 +1,29 @@
-"""``parallel-gpc track`` and ``parallel-gpc demo``: S-curve tracking (paper Fig. 2)."""
+"""``parallel-gpc track``: S-curve (or hold) tracking with each GPC form on the nonlinear plant.
+
+Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
+and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) is the same run with the
+paper's Fig. 2 settings.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from ..gpc.controller import FORMS
-from ..studies.plots_tracking import plot_paths, plot_time_histories
-from ..model.robot import DEFAULT_ROBOT, ParallelRobot
-from ..studies.tracking import TrackingSettings, metrics_table, run_tracking
+from .defaults import DEFAULT_ROBOT, FORMS, TRACKING
+from .view import add_view_arguments
 
 
 def add_tracking_arguments(p) -> None:
     """Options shared by ``track`` and ``demo``."""
-    d = TrackingSettings()
+    d = TRACKING
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
-    p.add_argument("--Ts", type=float, default=d.Ts, help=f"sample time in s (default {d.Ts})")
-    p.add_argument("--N", type=int, default=d.N, help=f"prediction horizon (default {d.N})")
-    p.add_argument("--No", type=int, default=d.No, help="insensitivity horizon (default 0)")
+    p.add_argument("--Ts", type=float, default=d["Ts"], help=f"sample time in s (default {d['Ts']})")
+    p.add_argument("--N", type=int, default=d["N"], help=f"prediction horizon (default {d['N']})")
+    p.add_argument("--No", type=int, default=d["No"], help=f"insensitivity horizon (default {d['No']})")
     p.add_argument("--Nu", type=int, default=None, help="control horizon (default N)")
-    p.add_argument("--Qy", type=float, default=d.Qy, help="square-root output weight (default 1)")
-    p.add_argument("--Qu", type=float, default=d.Qu, help="square-root input / increment weight (default 0)")
+    p.add_argument("--Qy", type=float, default=d["Qy"], help=f"square-root output weight (default {d['Qy']:g})")
+    p.add_argument("--Qu", type=float, default=d["Qu"],
+                   help=f"square-root input / increment weight (default {d['Qu']:g})")
     p.add_argument("--solver", default=None, help="back end: qr, osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:daqp-direct with limits)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
@@ -31,15 +35,13 @@ def add_tracking_arguments(p) -> None:
     p.add_argument("--reference", choices=["s-curve", "hold"], default="s-curve")
     p.add_argument("--duration", type=float, default=None, help="run length in s (default: motion + 0.2 s)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    try:
-        from .view import add_view_arguments
-
-        add_view_arguments(p)
-    except ImportError:  # the view is optional (meshcat)
-        pass
+    add_view_arguments(p)
 
 
-def settings_from_args(args) -> TrackingSettings:
+def settings_from_args(args):
+    """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments."""
+    from ..studies.tracking import TrackingSettings
+
     return TrackingSettings(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
@@ -48,8 +50,15 @@ def settings_from_args(args) -> TrackingSettings:
     )
 
 
-def run_and_report(settings: TrackingSettings, forms, out: Path, args, title: str) -> int:
-    """Run, print the metrics table, write plots and results; returns the exit code."""
+def run_and_report(settings, forms, out: Path, args, title: str) -> int:
+    """Run, print the metrics table, write plots and result files; returns the exit code."""
+    from ..model.robot import ParallelRobot
+    from ..results import saturation_flags
+    from ..studies.plots_common import save_figure
+    from ..studies.plots_tracking import plot_paths, plot_time_histories
+    from ..studies.tracking import metrics_table, run_tracking
+    from .view import show_trajectory
+
     robot = ParallelRobot.load(settings.robot)
     results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
@@ -59,19 +68,13 @@ def run_and_report(settings: TrackingSettings, forms, out: Path, args, title: st
     out.mkdir(parents=True, exist_ok=True)
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
-    paths = [plot_paths(results, out / "track_path.png", f"{title}: platform path"),
-             plot_time_histories(results, out / "track_time.png", f"{title}: error, velocity, torque")]
+    paths = [save_figure(plot_paths(results, f"{title}: platform path"), out / "track_path.png"),
+             save_figure(plot_time_histories(results, f"{title}: error, velocity, torque"), out / "track_time.png")]
     print("wrote " + ", ".join(str(p) for p in paths) + f" and track_<form>.npz in {out}")
-    if hasattr(args, "html") or hasattr(args, "serve"):
-        from .view import show_trajectory
-        from ..viz import saturation_flags
-
-        last = results[list(results)[-1]]
-        flags = (None if settings.torque_limit is None
-                 else saturation_flags(last.u, settings.torque_limit, rtol=1e-5))
-        show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
-    interrupted = any(r.interrupted for r in results.values())
-    if interrupted:
+    last = results[list(results)[-1]]
+    flags = None if settings.torque_limit is None else saturation_flags(last.u, settings.torque_limit, rtol=1e-5)
+    show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
+    if any(r.interrupted for r in results.values()):
         print("interrupted: partial results saved")
         return 130
     return 0
@@ -82,26 +85,10 @@ def cmd_track(args) -> int:
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, "S-curve tracking")
 
 
-def cmd_demo(args) -> int:
-    """The paper's Fig. 2: absolute vs incremental-nonlinear GPC, Qy = 1, Qu = 0, default robot."""
-    settings = settings_from_args(args)
-    if getattr(args, "html", "unset") is None:
-        args.html = str(Path(args.out) / "demo.html")  # the demo always writes its animation
-    return run_and_report(settings, ["absolute", "nonlinear"], Path(args.out), args,
-                          "Fig. 2 demo (absolute vs incremental-nonlinear)")
-
-
 def register_track(sub) -> None:
+    """Add the ``track`` sub-command."""
     p = sub.add_parser("track", help="track the S-curve (or a hold pose) with GPC on the nonlinear plant")
     p.add_argument("--form", choices=[*FORMS, "all"], default="all", help="GPC form (default all)")
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)
     p.set_defaults(func=cmd_track)
-
-
-def register_demo(sub) -> None:
-    p = sub.add_parser("demo", help="the main job: the paper's Fig. 2 comparison on the default robot")
-    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    add_tracking_arguments(p)
-    p.set_defaults(func=cmd_demo)
-

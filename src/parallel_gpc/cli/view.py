@@ -1,15 +1,17 @@
-"""``parallel-gpc view``: show a saved trajectory in meshcat (offline HTML and/or a live viewer).
+"""``parallel-gpc view``: show a result file in meshcat (offline HTML and/or a live viewer).
 
-Other commands (demo, track, plan) reuse :func:`add_view_arguments` and
-:func:`show_trajectory` so every run can be exported or watched the same way. meshcat is
-imported only when a view is requested, so the other commands start fast.
+Opens every file ``track``, ``demo`` and ``plan`` write (:mod:`parallel_gpc.results`). Other
+commands reuse :func:`add_view_arguments` and :func:`show_trajectory` so every run can be
+exported or watched the same way. meshcat is imported only when a view is requested.
 """
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
-from ..model.robot import ParallelRobot
+#: How to get the view when meshcat is not installed.
+INSTALL_HINT = 'the meshcat view is an optional extra: pip install "parallel-gpc[view]"'
 
 
 def add_view_arguments(parser) -> None:
@@ -21,52 +23,81 @@ def add_view_arguments(parser) -> None:
                        help="show the animation in a live meshcat viewer on 127.0.0.1 until Ctrl-C")
 
 
-def show_trajectory(args, robot: ParallelRobot, t, qs, reference=None, planned=None, saturated=None,
+def _viz():
+    """The view modules, or None when meshcat is not installed."""
+    if importlib.util.find_spec("meshcat") is None:
+        return None
+    from ..viz import html_export, live
+
+    return html_export, live
+
+
+def show_trajectory(args, robot, t, qs, reference=None, planned=None, saturated=None,
                     title: str | None = None) -> None:
     """Export and/or serve a trajectory as the ``--html`` / ``--serve`` arguments ask.
 
     Args:
-        args: parsed arguments with ``html`` (path or None) and ``serve`` (bool) attributes.
-        robot: the robot of the trajectory.
+        args: parsed arguments with ``html`` (path or None) and ``serve`` (bool) attributes;
+            ``html_optional`` True turns a missing meshcat into a printed hint.
+        robot: the :class:`~parallel_gpc.ParallelRobot` of the trajectory.
         t: (K,) times, s. qs: (K, nq) assembled configurations.
         reference, planned: optional (K', 2 or 3) platform poses drawn as lines (x, y in m).
         saturated: optional (K, n_u) flags, True while a drive is at its torque limit.
         title: page title of the HTML file (default: the robot name).
+
+    Raises:
+        ViewerError: a view was asked for explicitly and meshcat is not installed.
     """
     html, serve = getattr(args, "html", None), bool(getattr(args, "serve", False))
     if not html and not serve:
         return
-    from .. import viz
+    modules = _viz()
+    if modules is None:
+        if getattr(args, "html_optional", False) and not serve:
+            print(f"no {html} written: {INSTALL_HINT}")
+            return
+        from ..errors import ViewerError
 
+        raise ViewerError(f"--html/--serve need meshcat; {INSTALL_HINT}")
+    html_export, live = modules
     if html:
-        path = viz.export_html(html, robot, t, qs, reference=reference, planned=planned,
-                               saturated=saturated, title=title)
+        path = html_export.export_html(html, robot, t, qs, reference=reference, planned=planned,
+                                       saturated=saturated, title=title)
         print(f"wrote {path} (self-contained HTML, open it in a browser)")
     if serve:
-        viz.serve_until_interrupt(robot, t, qs, reference=reference, planned=planned, saturated=saturated)
+        live.serve_until_interrupt(robot, t, qs, reference=reference, planned=planned, saturated=saturated)
 
 
 def cmd_view(args) -> int:
-    """Load a trajectory file and show it; without --html/--serve write RESULT.html next to it."""
-    from .. import viz
+    """Load a result file and show it; without --html/--serve write RESULT.html next to it."""
+    from ..errors import ResultFormatError
+    from ..model.robot import ParallelRobot
+    from ..results import load_result
 
-    trajectory = viz.load_trajectory(args.result)
-    robot = ParallelRobot.load(trajectory.robot)
+    result = load_result(args.result)
+    name = args.robot or result.robot
+    if not name:
+        raise ResultFormatError(f"{args.result!r} names no robot (kind {result.kind!r}); give it with --robot NAME")
+    if result.q is None:
+        raise ResultFormatError(f"{args.result!r} (kind {result.kind!r}) has no configurations q to animate; "
+                                "view shows the files of track, demo and plan")
+    robot = ParallelRobot.load(name)
     if not args.html and not args.serve:
         args.html = str(Path(args.result).with_suffix(".html"))
-    show_trajectory(args, robot, trajectory.t, trajectory.q, reference=trajectory.reference,
-                    planned=trajectory.planned, saturated=trajectory.saturated,
-                    title=f"parallel-gpc: {robot.name}, {Path(args.result).stem}")
+    show_trajectory(args, robot, result.t, result.q, reference=result.reference, planned=result.planned,
+                    saturated=result.saturated, title=f"parallel-gpc: {robot.name}, {Path(args.result).stem}")
     return 0
 
 
 def register_view(sub) -> None:
     """Add the ``view`` sub-command."""
     p = sub.add_parser(
-        "view", help="show a saved trajectory (.npz: t, q, robot[, reference, planned, saturated]) in meshcat",
-        description="Animate a saved trajectory: write a self-contained HTML file (--html, the default "
+        "view", help="show a result file (.npz written by track, demo, plan) in meshcat",
+        description="Animate a result file: write a self-contained HTML file (--html, the default "
                     "RESULT.html) and/or serve it live on 127.0.0.1 (--serve, until Ctrl-C).",
     )
-    p.add_argument("result", metavar="RESULT.npz", help="trajectory file with keys t (K,), q (K, nq), robot")
+    p.add_argument("result", metavar="RESULT.npz", help="result file (t, q, robot; see the README's file format)")
+    p.add_argument("--robot", default=None,
+                   help="robot name or path, overriding the file's (for files that name none)")
     add_view_arguments(p)
     p.set_defaults(func=cmd_view)

@@ -1,4 +1,4 @@
-"""Receding-horizon GPC controller (DESIGN §3–§5): model update → prediction → solve → u(k).
+"""Receding-horizon GPC controller: model update → prediction → solve → u(k).
 
 Three forms (``form=``):
 

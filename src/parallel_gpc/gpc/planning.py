@@ -1,4 +1,4 @@
-"""Quadratically-optimal point-to-point trajectory planning, eq. (20)–(21) (DESIGN §6).
+"""Quadratically-optimal point-to-point trajectory planning, eq. (20)–(21).
 
 The platform moves from pose A to pose B with no prescribed path. The criterion (5) is used
 with N = Nmax and No = N − k (k = order of the system in samples; k = 2 for X = [y, ẏ]): only
@@ -47,6 +47,7 @@ from tqdm import tqdm
 
 from ..model.dynamics import ReducedModel, discretize_zoh
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, SolverError
+from ..results import robot_reference, save_result
 from .prediction import Horizons, Prediction, absolute_prediction
 from .references import SampledTrajectory
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
@@ -222,6 +223,7 @@ class PlanResult:
         saturated: number of samples at which the plant saturated its drives.
         stopped: empty if the plan ran to its end; otherwise why the recording stopped early
             (e.g. the open-loop plant of mode (a) left the workspace), the arrays then end there.
+        robot: how the result file names the robot (embedded name or absolute URDF path; "" for none).
     """
 
     mode: str
@@ -238,6 +240,7 @@ class PlanResult:
     settings: PlanSettings
     saturated: int = 0
     stopped: str = ""
+    robot: str = ""
 
     @property
     def label(self) -> str:
@@ -329,16 +332,15 @@ class PlanResult:
         return SampledTrajectory(self.t, self.poses, self.velocities)
 
     def save(self, path) -> Path:
-        """Write an ``.npz`` that :meth:`SampledTrajectory.load` reads (``t``, ``poses``,
-        ``velocities``), plus ``u``, ``horizon``, ``status``, ``solve_time``, ``q`` (if
-        recorded), ``mode``, ``start``, ``target`` and ``settings`` (JSON)."""
-        path = Path(path)
-        extra = {} if self.q is None else {"q": self.q}
-        np.savez(path, t=self.t, poses=self.poses, velocities=self.velocities, u=self.u,
-                 horizon=self.horizon, status=self.status.astype(str), solve_time=self.solve_time,
-                 mode=self.mode, start=self.start, target=self.target, settings=self.settings.to_json(),
-                 **extra)
-        return path
+        """Write a result file (:mod:`parallel_gpc.results`, kind ``"plan"``) that ``parallel-gpc
+        view`` and :meth:`SampledTrajectory.load` open: ``t``, ``q`` (if recorded), ``planned``
+        (the poses), plus ``velocities``, ``u``, ``horizon``, ``status``, ``solve_time``,
+        ``mode``, ``start``, ``target``; the settings in ``meta``."""
+        arrays = dict(velocities=self.velocities, u=self.u, horizon=self.horizon, status=self.status.astype(str),
+                      solve_time=self.solve_time, mode=np.array(self.mode), start=self.start, target=self.target)
+        return save_result(path, self.robot or None, self.t, self.q, planned=self.poses, kind="plan",
+                           meta={"settings": json.loads(self.settings.to_json()), "stopped": self.stopped},
+                           arrays=arrays)
 
 
 # ---------------------------------------------------------------------------- planner
@@ -411,7 +413,7 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
                       rec.X[: n + 1, n_y:].copy(), rec.u[:n].copy(), rec.horizon[:n].copy(),
                       rec.status[:n].astype(str), rec.solve_time[:n].copy(),
                       None if rec.q is None else rec.q[: n + 1].copy(), settings,
-                      int(getattr(plant, "saturated", 0) - sat0), rec.stopped)
+                      int(getattr(plant, "saturated", 0) - sat0), rec.stopped, robot_reference(robot))
 
 
 class _Recorder:

@@ -1,4 +1,4 @@
-"""Output predictions ``ŷ = f + G v`` (DESIGN §4, paper eq. (6)–(13)).
+"""Output predictions ``ŷ = f + G v`` (paper eq. (6)–(13)).
 
 One LTV condenser, :func:`condense`, serves all three forms; they differ only in the per-step
 matrices they feed it:

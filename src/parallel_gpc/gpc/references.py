@@ -1,4 +1,4 @@
-"""Reference platform motions w(t) (DESIGN §7): the paper's S-curve, holds, sampled trajectories.
+"""Reference platform motions w(t): the paper's S-curve, holds, sampled trajectories.
 
 Every reference gives ``pose(t)`` (n_y,) in m and rad, and ``window(t, Ts, N)`` — the poses at
 t + Ts, …, t + N·Ts that the controller compares its predictions with.
@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InvalidParameterError, NonFiniteError, ShapeError
+from ..errors import InvalidParameterError, NonFiniteError, ResultFormatError, ShapeError
+from ..results import load_result, save_result
 from ..validation import finite_vector, positive
 
 
@@ -25,6 +26,14 @@ class Reference:
     def window(self, t: float, Ts: float, N: int) -> np.ndarray:
         """(N, n_y) poses at t + Ts … t + N·Ts."""
         return np.array([self.pose(t + (j + 1) * Ts) for j in range(N)])
+
+    def initial_state(self, t: float = 0.0) -> np.ndarray:
+        """(2·n_y,) state X = [y, ẏ] at rest on the reference at time t (s): pose (m, rad), zero velocity.
+
+        The usual start of a closed-loop run: ``ConstrainedPlant(robot, ref.initial_state())``.
+        """
+        pose = np.asarray(self.pose(t), dtype=float)
+        return np.concatenate([pose, np.zeros_like(pose)])
 
     def sample(self, times) -> np.ndarray:
         """(K, n_y) poses at the given times (s)."""
@@ -117,13 +126,21 @@ class SampledTrajectory(Reference):
         return np.stack([np.interp(times, self.t, self.poses[:, i]) for i in range(self.poses.shape[1])], axis=1)
 
     def save(self, path) -> Path:
-        """Write ``t``, ``poses`` (and ``velocities``) to an ``.npz`` file."""
-        path = Path(path)
+        """Write a result file (:mod:`parallel_gpc.results`, kind ``"reference"``): ``t``,
+        ``reference`` (the poses) and ``velocities`` if given."""
         extra = {} if self.velocities is None else {"velocities": self.velocities}
-        np.savez(path, t=self.t, poses=self.poses, **extra)
-        return path
+        return save_result(path, None, self.t, reference=self.poses, kind="reference", arrays=extra)
 
     @classmethod
     def load(cls, path) -> "SampledTrajectory":
-        with np.load(path) as data:
-            return cls(data["t"], data["poses"], data["velocities"] if "velocities" in data else None)
+        """Read the poses of a result file: a plan's (``parallel-gpc plan``), a saved reference's,
+        or a tracking run's reference.
+
+        Raises:
+            ResultFormatError: the file holds no poses (or is not a result file).
+        """
+        result = load_result(path)
+        poses = result.planned if result.planned is not None else result.reference
+        if poses is None:
+            raise ResultFormatError(f"{str(path)!r} (kind {result.kind!r}) holds no planned or reference poses")
+        return cls(result.t, poses, result.arrays.get("velocities"))

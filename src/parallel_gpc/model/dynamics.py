@@ -1,4 +1,4 @@
-"""Reduced ODE of the closed-chain robot, state space, factorization, ZOH (DESIGN §2, eq. (1)–(4)).
+"""Reduced ODE of the closed-chain robot, state space, factorization, ZOH (eq. (1)–(4)).
 
 Full model (Pinocchio): ``M q̈ + h = Sᵀ u + Φ_qᵀ λ`` with closures Φ(q) = 0. With the platform
 coordinates y independent and the leg coordinates z dependent,

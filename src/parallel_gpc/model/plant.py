@@ -1,4 +1,4 @@
-"""Plants: nonlinear simulation of the robot, used as the controlled system (DESIGN §7).
+"""Plants: nonlinear simulation of the robot, used as the controlled system.
 
 * :class:`ConstrainedPlant` integrates the **full** constrained model with Pinocchio's
   ``constraintDynamics`` (legacy ``RigidConstraintModel`` CONTACT_3D / CONTACT_6D closures with

@@ -1,4 +1,4 @@
-"""Benchmark of the GPC control step on the real problems along the S-curve (DESIGN §9).
+"""Benchmark of the GPC control step on the real problems along the S-curve.
 
 ``run_benchmark(quick, out_dir)`` times, for each robot and horizon N, on the problems the
 controller solves while tracking the paper's S-curve (Fig. 2):
@@ -26,7 +26,6 @@ import json
 import math
 import os
 import platform
-import sys
 import time
 import warnings
 from dataclasses import asdict, dataclass, field
@@ -41,6 +40,8 @@ from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons, Prediction, condense
 from ..gpc.references import SCurve
 from ..model.robot import ParallelRobot
+from .plots_bench import plot_results
+from .plots_common import save_figure
 from .simulation import simulate
 from ..solvers import DAQPBackend, LeastSquaresProblem, QRSolver, make_solver
 from ..solvers.problem import _scaled_qp
@@ -632,47 +633,6 @@ def _fmt(x) -> str:
     return "-" if x is None else (f"{x:.0f}" if x >= 10 else f"{x:.1f}")
 
 
-def plot_results(rows: list[dict], path: Path) -> Path:
-    """Median time vs N per back end: one panel per section, one line style per robot."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    sections = ["unconstrained", "limited", "step", "loop", "qpmpc"]
-    robots = list(dict.fromkeys(r["robot"] for r in rows))  # run order: the default robot first
-    fig, axes = plt.subplots(3, 2, figsize=(13, 14))
-    axes = axes.ravel()
-    styles = ["-", "--", ":", "-."]
-    titles = {"unconstrained": "unconstrained solve", "limited": "solve with binding torque limits",
-              "step": "full control step (GPCController.step), interleaved",
-              "loop": "full control step in the closed loop", "qpmpc": "LTV MPC problem: ours vs qpmpc"}
-    for ax, section in zip(axes, sections):
-        methods = list(dict.fromkeys(r["method"] for r in rows if r["section"] == section))
-        colors = plt.cm.tab10(np.arange(len(methods)) % 10)
-        for mi, method in enumerate(methods):
-            for ri, robot in enumerate(robots):
-                pts = sorted((r["N"], r["median_us"]) for r in rows if r["section"] == section
-                             and r["method"] == method and r["robot"] == robot and r["median_us"])
-                if pts:
-                    ax.plot([p[0] for p in pts], [p[1] for p in pts], styles[ri % 4], marker="o", ms=3,
-                            color=colors[mi], label=method if ri == 0 else None)
-        ax.set_yscale("log")
-        ax.set_xlabel("horizon N")
-        ax.set_title(titles[section])
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
-        ax.set_ylabel("median time per call [µs]")
-    for ax in axes[len(sections):]:
-        ax.axis("off")
-    fig.suptitle("GPC on the S-curve: " + ", ".join(f"{r} ({styles[i % 4]})" for i, r in enumerate(robots)))
-    fig.tight_layout()
-    path = Path(path)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
 # ------------------------------------------------------------------------------- entry points
 def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None = None) -> dict:
     """Run the benchmark; print the table; write ``bench_gpc.json``, ``bench_gpc.md`` and
@@ -735,7 +695,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench_gpc.json").write_text(json.dumps(result, indent=1, default=_json_default))
         (out / "bench_gpc.md").write_text(markdown_report(result))
-        plot_results(rows, out / "bench_gpc.png")
+        save_figure(plot_results(rows), out / "bench_gpc.png")
         print(f"wrote {out / 'bench_gpc.json'}, {out / 'bench_gpc.md'} and {out / 'bench_gpc.png'}")
     return result
 
@@ -746,39 +706,3 @@ def _json_default(x):
     if isinstance(x, np.ndarray):
         return x.tolist()
     return str(x)
-
-
-def _add_arguments(p, default_out: str) -> None:
-    p.add_argument("--quick", action="store_true", help="short run (< 1 min on 2 cores; the full run takes ~6 min)")
-    p.add_argument("--out", default=default_out, help="folder for bench_gpc.json, bench_gpc.md and bench_gpc.png")
-
-
-def cmd_bench(args) -> int:
-    if os.environ.get("OPENBLAS_NUM_THREADS") != "1" and not os.environ.get("PARALLEL_GPC_BENCH_CHILD"):
-        # BLAS threads must be fixed before numpy loads: run again in a fresh interpreter
-        env = dict(os.environ, OPENBLAS_NUM_THREADS="1", PARALLEL_GPC_BENCH_CHILD="1")
-        argv = [sys.executable, "-m", "parallel_gpc.bench", "--out", str(args.out)] + (["--quick"] if args.quick else [])
-        sys.stdout.flush()
-        os.execve(sys.executable, argv, env)
-    run_benchmark(quick=args.quick, out_dir=args.out)
-    return 0
-
-
-def register_bench(sub) -> None:
-    """``parallel-gpc bench [--quick] [--out DIR]``."""
-    p = sub.add_parser("bench", help="time QR vs QP back ends, qpmpc and the full GPC step along the S-curve")
-    _add_arguments(p, "bench-results")
-    p.set_defaults(func=cmd_bench)
-
-
-def main(argv: list[str] | None = None, default_out: str = "bench-results") -> int:
-    """``python -m parallel_gpc.bench [--quick] [--out DIR]`` (also used by benchmarks/bench_gpc.py)."""
-    import argparse
-
-    parser = argparse.ArgumentParser(prog="parallel_gpc.bench", description=__doc__.splitlines()[0])
-    _add_arguments(parser, default_out)
-    return cmd_bench(parser.parse_args(argv))
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

@@ -1,4 +1,4 @@
-"""Figures of the planner (the paper's Fig. 3 and Fig. 4), drawn with matplotlib's Agg canvas.
+"""Figures of the planner (the paper's Fig. 3 and Fig. 4), returned as matplotlib figures.
 
 * :func:`plot_fig3` — the platform path in the x-y plane for each mode, with small platform
   markers along it showing the orientation ψ, the start A and end B, and the robot sketched at
@@ -13,7 +13,6 @@ work headless and do not change the caller's matplotlib backend.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 from matplotlib.figure import Figure
@@ -90,13 +89,12 @@ def _angle_text(rad: float) -> str:
     return f"{deg:.3g}°" if deg < 1 else f"{deg:.1f}°"
 
 
-def plot_fig3(results: list[PlanResult], path=None, robot=None, n_markers: int = 11,
+def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
               marker_size: float = 0.04) -> Figure:
     """Fig. 3: the planned platform paths in the x-y plane, one panel per mode.
 
     Args:
         results: plans to draw (usually modes a and b, same A and B).
-        path: write a PNG here if given.
         robot: draw the robot at A and the platform at the last pose (needs the results' ``q``).
         n_markers: number of orientation markers along each path.
         marker_size: marker length in m.
@@ -141,12 +139,10 @@ def plot_fig3(results: list[PlanResult], path=None, robot=None, n_markers: int =
     fig.suptitle(f"Quadratically-optimal planning A → B (Nmax = {s.Nmax}, Nmin = {s.Nmin}, k = {s.k}, "
                  f"Ts = {1000 * s.Ts:g} ms)", fontsize=11, y=0.98)
     fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08, top=0.86, wspace=0.12)
-    if path is not None:
-        fig.savefig(Path(path), dpi=120, bbox_inches="tight")
     return fig
 
 
-def plot_fig4(results: list[PlanResult], path=None) -> Figure:
+def plot_fig4(results: list[PlanResult]) -> Figure:
     """Fig. 4: time histories of the plans, one column per mode.
 
     Rows: platform position x, y (m); orientation ψ (deg); linear velocity (m/s); angular
@@ -194,6 +190,4 @@ def plot_fig4(results: list[PlanResult], path=None) -> Figure:
         note = "dashed: planned arrival Nmax·Ts" + ("; dash-dot: N reaches Nmin" if res.mode == "b" else "")
         ax[4].set_xlabel(f"t [s]    ({note})")
     fig.suptitle("Time histories of the planned moves", fontsize=11)
-    if path is not None:
-        fig.savefig(Path(path), dpi=110)
     return fig

@@ -1,26 +1,21 @@
 """Figures of closed-loop runs (paper Fig. 2): path in the plane and time histories.
 
-Matplotlib with the non-interactive Agg backend; every function writes a PNG and returns its path.
+Each function returns a :class:`matplotlib.figure.Figure`; save it with
+:func:`~parallel_gpc.studies.plots_common.save_figure` or ``fig.savefig``.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
+import numpy as np
+from matplotlib.figure import Figure
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .simulation import SimulationResult  # noqa: E402
-
-_LABELS = ("x [m]", "y [m]", "ψ [rad]")
+from .simulation import SimulationResult
 
 
-def plot_paths(results: dict[str, SimulationResult], path, title: str = "platform path") -> Path:
-    """Reference and tracked platform paths in the x–y plane, one line per algorithm."""
-    fig, ax = plt.subplots(figsize=(5.5, 5.5))
+def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
+    """Reference and tracked platform paths in the x–y plane (m), one line per GPC form."""
+    fig = Figure(figsize=(5.5, 5.5), layout="tight")
+    ax = fig.subplots()
     first = next(iter(results.values()))
     ax.plot(first.reference[:, 0], first.reference[:, 1], "k--", lw=2, label="reference")
     for name, res in results.items():
@@ -35,13 +30,15 @@ def plot_paths(results: dict[str, SimulationResult], path, title: str = "platfor
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
-    return _save(fig, path)
+    return fig
 
 
-def plot_time_histories(results: dict[str, SimulationResult], path, title: str = "time histories") -> Path:
-    """Tracking error, platform velocity and drive torques over time, one column per algorithm."""
+def plot_time_histories(results: dict[str, SimulationResult], title: str = "time histories") -> Figure:
+    """Tracking error (mm, mrad), platform velocity and drive torques (N·m) over time (s), one
+    column per GPC form."""
     names = list(results)
-    fig, axes = plt.subplots(3, len(names), figsize=(5.0 * len(names), 8.0), sharex=True, squeeze=False)
+    fig = Figure(figsize=(5.0 * len(names), 8.0), layout="tight")
+    axes = fig.subplots(3, len(names), sharex=True, squeeze=False)
     for col, name in enumerate(names):
         res = results[name]
         ax_e, ax_v, ax_u = axes[:, col]
@@ -64,13 +61,4 @@ def plot_time_histories(results: dict[str, SimulationResult], path, title: str =
         for ax in (ax_e, ax_v, ax_u):
             ax.grid(True, alpha=0.3)
     fig.suptitle(title)
-    return _save(fig, path)
-
-
-def _save(fig, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig

@@ -1,4 +1,4 @@
-"""Closed-loop simulation: GPC controller on a nonlinear plant (DESIGN §7).
+"""Closed-loop simulation: GPC controller on a nonlinear plant.
 
 ``simulate`` runs the controller against a plant (full constrained model by default), with
 optional measurement noise; the plant may carry model mismatch, drive saturation and a
@@ -19,6 +19,7 @@ from tqdm import tqdm
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference
 from ..errors import InvalidParameterError, ShapeError
+from ..results import robot_reference, save_result, saturation_flags
 from ..validation import finite_vector, positive
 
 
@@ -82,7 +83,8 @@ class SimulationResult:
         }
 
     def save(self, path) -> Path:
-        """Save to ``.npz`` (everything) or ``.csv`` (time histories)."""
+        """Save to ``.npz`` (a result file of :mod:`parallel_gpc.results`: everything, viewable with
+        ``parallel-gpc view``) or ``.csv`` (time histories)."""
         path = Path(path)
         if path.suffix == ".csv":
             n_y, n_u = self.pose.shape[1], self.u.shape[1]
@@ -97,12 +99,14 @@ class SimulationResult:
                                  self.internal_force[k], self.step_time[k], self.solve_time[k],
                                  self.status[k], int(self.fallback[k])])
             return path
-        arrays = {k: getattr(self, k) for k in ("t", "reference", "pose", "velocity", "u", "internal_force", "q",
-                                                "step_time", "solve_time", "iterations", "status", "fallback")}
-        # (K,) plant clipping flags; "saturated" in a trajectory file means (K, n_u) drive flags (viz)
-        arrays["plant_saturated"] = self.saturated
-        np.savez(path, robot=str(self.meta.get("robot_file", self.meta.get("robot", ""))), meta=repr(self.meta),
-                 interrupted=self.interrupted, **arrays)
+        limit = self.meta.get("torque_limit")
+        extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
+                                               "solve_time", "iterations", "status", "fallback")}
+        # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
+        extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted))
+        save_result(path, self.meta.get("robot_file") or None, self.t, self.q, reference=self.reference,
+                    saturated=None if limit is None else saturation_flags(self.u, limit, rtol=1e-5),
+                    kind="tracking", meta=self.meta, arrays=extra)
         return path
 
 
@@ -170,10 +174,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
-    from ..model.robot import embedded_robots
-
-    robot_file = robot.name if robot.name in embedded_robots() else str(robot.description.urdf_path)
-    info_meta = {"robot": robot.name, "robot_file": robot_file, "form": controller.form, "solver": controller.solver,
+    info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form, "solver": controller.solver,
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "torque_limit": controller.torque_limit, **(meta or {})}

@@ -1,0 +1,63 @@
+"""The ``parallel-gpc`` parser and entry point.
+
+Each sub-command module has a ``register_*`` function that adds its parser and sets ``func``;
+the function receives the parsed arguments and returns an exit code. Command modules import
+their heavy dependencies (Pinocchio, matplotlib, meshcat) inside the handler, so ``--help``
+starts fast. Package errors end the program with a one-line message and exit code 2 (a
+traceback only with ``--debug``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from .. import __version__
+from ..errors import ParallelGPCError
+from .bench import register_bench
+from .demo import register_demo
+from .gallery import register_gallery
+from .info import register_info
+from .plan import register_plan
+from .robots import register_robots
+from .robustness import register_robustness
+from .track import register_track
+from .view import register_view
+
+#: Sub-command registrars, in help order.
+REGISTRARS = [register_robots, register_info, register_demo, register_track, register_plan, register_robustness,
+              register_bench, register_view, register_gallery]
+
+
+def build_parser(registrars=None) -> argparse.ArgumentParser:
+    """The ``parallel-gpc`` parser with every sub-command of ``registrars`` (default :data:`REGISTRARS`)."""
+    parser = argparse.ArgumentParser(
+        prog="parallel-gpc",
+        description="Generalized Predictive Control of parallel robots (Pinocchio closed-chain models).",
+    )
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for register in REGISTRARS if registrars is None else registrars:
+        register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command; returns its exit code (2: bad input, 130: interrupted)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 1
+    try:
+        return int(args.func(args) or 0)
+    except (ParallelGPCError, OSError) as exc:  # bad input or an unreadable/unwritable file
+        if args.debug:
+            raise
+        message = " ".join(str(exc).split())  # one line, even for multi-line parser messages
+        print(f"parallel-gpc: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("parallel-gpc: interrupted", file=sys.stderr)
+        return 130

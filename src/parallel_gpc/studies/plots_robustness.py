@@ -1,0 +1,47 @@
+"""Figure of the robustness study: tracking error vs mass change, noise and a constant force."""
+
+from __future__ import annotations
+
+import math
+
+from matplotlib.figure import Figure
+
+from .robustness import RobustnessResult
+
+
+def plot_robustness(result: RobustnessResult) -> Figure:
+    """Three panels: RMS position error vs mass change, vs noise level, and
+    steady-state error vs disturbance force, one line per form. Diverged runs are left out."""
+    forms = list(dict.fromkeys(r["form"] for r in result.rows))
+    panels = (("mass", "plant mass / inertia change [%]", "rms_position_error_mm", "RMS position error [mm]"),
+              ("noise", "pose noise σ [m]", "rms_position_error_mm", "RMS position error [mm]"),
+              ("disturbance", "force on the platform along x [N]", "steady_state_error_mm",
+               "steady-state position error [mm]"))
+    fig = Figure(figsize=(14, 4.2), layout="constrained")
+    axes = fig.subplots(1, 3)
+    for ax, (study, xlabel, key, ylabel) in zip(axes, panels):
+        for form in forms:
+            nominal = [r for r in result.rows if r["form"] == form and r["study"] == "nominal"]
+            rows = nominal + [r for r in result.rows if r["form"] == form and r["study"] == study]
+            pts = sorted((r["value"], r[key]) for r in rows if r["status"] != "interrupted")
+            pts = [(x, y) for x, y in pts if not math.isnan(y)]
+            if pts:
+                xs, ys = zip(*pts)
+                ax.plot(xs, ys, "o-", label=form)
+            for r in rows:
+                if r["status"].startswith("diverged"):
+                    ax.annotate("diverged", (r["value"], 0), textcoords="offset points", xytext=(0, 5),
+                                fontsize=7, rotation=90)
+        if study == "noise":
+            ax.set_xscale("symlog", linthresh=1e-6)
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.set_title(study)
+        ax.grid(True, alpha=0.3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=8)
+    s = result.settings
+    fig.suptitle(f"GPC robustness, {s.get('robot')}: Ts = {s.get('Ts')} s, N = {s.get('N')}, "
+                 f"Qy = {s.get('Qy')}, Qu = {s.get('Qu')}, {s.get('reference')} reference"
+                 + (" (interrupted)" if result.interrupted else ""))
+    return fig

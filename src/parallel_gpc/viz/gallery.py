@@ -1,0 +1,144 @@
+"""Gallery: serve a folder of exported animations on 127.0.0.1 with a generated index page.
+
+No meshcat, no Pinocchio: ``parallel-gpc gallery`` works with the lean install.
+"""
+
+from __future__ import annotations
+
+import html
+import re
+import sys
+import threading
+from functools import partial
+from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+from ..errors import InvalidParameterError, ViewerError
+from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever
+
+
+def _page_title(path: Path) -> str:
+    with open(path, encoding="utf-8", errors="replace") as f:
+        head = f.read(4096)
+    match = re.search(r"<title>(.*?)</title>", head, re.IGNORECASE | re.DOTALL)
+    return html.unescape(match.group(1).strip()) if match else path.stem
+
+
+def gallery_index(directory) -> str:
+    """HTML index page linking every ``*.html`` file of ``directory`` (except index.html)."""
+    directory = Path(directory)
+    pages = sorted(p for p in directory.glob("*.html") if p.name != "index.html")
+    items = "\n".join(
+        f'<li><a href="{html.escape(p.name, quote=True)}">{html.escape(_page_title(p))}</a> '
+        f"<small>({html.escape(p.name)})</small></li>" for p in pages
+    ) or "<li>no exported animations (*.html) in this folder yet</li>"
+    return (
+        "<!DOCTYPE html>\n<html><head><meta charset=utf-8><title>parallel-gpc gallery</title></head>\n"
+        "<body style=\"font:14px sans-serif;margin:2em\"><h1>parallel-gpc animations</h1>\n"
+        f"<p>{html.escape(str(directory.resolve()))}</p>\n<ul>\n{items}\n</ul></body></html>\n"
+    )
+
+
+class _GalleryHandler(SimpleHTTPRequestHandler):
+    """Static files of one folder, with a generated index at ``/``."""
+
+    def do_GET(self):  # noqa: N802 — http.server naming
+        if self.path.split("?", 1)[0] == "/":
+            body = gallery_index(self.directory).encode("utf-8")
+            self.send_response(200)
+            self.send_header("Content-Type", "text/html; charset=utf-8")
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body)
+            return
+        super().do_GET()
+
+    def log_message(self, format, *args):  # noqa: A002 — http.server signature
+        pass
+
+
+class GalleryServer:
+    """Serve a folder of exported pages on a loopback address, as a context manager.
+
+    Args:
+        directory: folder holding the ``*.html`` files.
+        host: bind address; must be IPv4 loopback (default 127.0.0.1).
+        port: port (0: any free port).
+
+    Attributes:
+        url: ``http://127.0.0.1:<port>/`` (the generated index).
+        server: the ``http.server.ThreadingHTTPServer`` (None when stopped).
+
+    Raises:
+        InvalidParameterError: bad host or port, or ``directory`` is not a folder.
+    """
+
+    def __init__(self, directory, host: str = LOOPBACK, port: int = 0):
+        self.directory = Path(directory)
+        if not self.directory.is_dir():
+            raise InvalidParameterError(f"gallery folder {str(directory)!r} does not exist or is not a folder")
+        self.host = loopback_host(host)
+        self.requested_port = check_port(port)
+        self.server: ThreadingHTTPServer | None = None
+        self._thread: threading.Thread | None = None
+
+    @property
+    def port(self) -> int:
+        if self.server is None:
+            raise ViewerError("the gallery server is not running")
+        return int(self.server.server_address[1])
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.host}:{self.port}/"
+
+    def start(self) -> "GalleryServer":
+        """Bind and serve in a daemon thread.
+
+        Raises:
+            ViewerError: if the address cannot be bound (e.g. port in use).
+        """
+        handler = partial(_GalleryHandler, directory=str(self.directory))
+        try:
+            self.server = ThreadingHTTPServer((self.host, self.requested_port), handler)
+        except OSError as exc:
+            raise ViewerError(f"cannot serve the gallery on {self.host}:{self.requested_port}: {exc}") from exc
+        self.server.daemon_threads = True
+        self._thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.1},
+                                        name="parallel-gpc-gallery", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop serving and close the socket (idempotent)."""
+        server, self.server = self.server, None
+        if server is None:
+            return
+        server.shutdown()
+        server.server_close()
+        self._thread.join(START_TIMEOUT_S)
+
+    def __enter__(self) -> "GalleryServer":
+        return self.start()
+
+    def __exit__(self, exc_type, exc, tb) -> bool:
+        self.stop()
+        return False
+
+
+def serve_gallery(directory, port: int = 0, host: str = LOOPBACK, out=None, wait=wait_forever) -> None:
+    """Serve ``directory``'s exported pages on 127.0.0.1 until Ctrl-C (prints the URL).
+
+    Args:
+        directory: folder of ``*.html`` animations. port: 0 for any free port.
+        host: loopback bind address. out: stream for messages (default stdout).
+        wait: blocks while serving; gets the :class:`GalleryServer` (default: until Ctrl-C).
+    """
+    out = sys.stdout if out is None else out
+    with GalleryServer(directory, host, port) as server:
+        print(f"gallery of {server.directory.resolve()}: {server.url}  (Ctrl-C to stop)", file=out, flush=True)
+        try:
+            wait(server)
+        except KeyboardInterrupt:
+            pass
+    print("gallery stopped", file=out, flush=True)
