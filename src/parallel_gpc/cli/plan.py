@@ -8,8 +8,6 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-import numpy as np
-
 from .defaults import DEFAULT_ROBOT
 from .view import add_view_arguments, show_trajectory
 
@@ -18,7 +16,10 @@ DEFAULT_A = (0.2, 0.2, -20.0)
 DEFAULT_B = (0.8, 0.8, 20.0)
 
 
-def _pose_rad(values) -> np.ndarray:
+def _pose_rad(values):
+    """(3,) pose x, y (m), psi (rad) from command-line x, y (m), psi (deg)."""
+    import numpy as np
+
     x, y, psi_deg = (float(v) for v in values)
     return np.array([x, y, math.radians(psi_deg)])
 
@@ -59,6 +60,8 @@ def print_comparison(results, rows, out=None) -> None:
 
 
 def cmd_plan(args) -> int:
+    import numpy as np
+
     from ..model.dynamics import ReducedModel
     from ..gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
     from ..model.robot import ParallelRobot

@@ -1,0 +1,108 @@
+"""The command line: ``--version``, ``python -m parallel_gpc``, ``robots``, ``gallery``, a ``--help``
+that imports neither Pinocchio nor matplotlib, and the help defaults against the library's."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+import parallel_gpc
+from parallel_gpc import DEFAULT_ROBOT, FORMS, TrackingSettings, embedded_robots, load_description
+from parallel_gpc.cli import REGISTRARS, build_parser, main
+from parallel_gpc.cli import defaults
+
+ROOT = Path(__file__).resolve().parents[1]
+COMMANDS = ["robots", "info", "demo", "track", "plan", "robustness", "bench", "view", "gallery"]
+
+
+def run(args: list[str], **kwargs) -> subprocess.CompletedProcess:
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src"))
+    return subprocess.run([sys.executable, *args], capture_output=True, text=True, env=env, timeout=120, **kwargs)
+
+
+def test_every_command_is_registered():
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    assert list(sub.choices) == COMMANDS and len(REGISTRARS) == len(COMMANDS)
+
+
+def test_version_and_python_m(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["--version"])
+    assert stop.value.code == 0 and capsys.readouterr().out.strip() == f"parallel-gpc {parallel_gpc.__version__}"
+    done = run(["-m", "parallel_gpc", "--version"])
+    assert done.returncode == 0 and done.stdout.strip() == f"parallel-gpc {parallel_gpc.__version__}"
+
+
+def test_help_imports_neither_pinocchio_nor_matplotlib():
+    """--help of the program and of every command, in a fresh interpreter."""
+    probe = (
+        "import sys\n"
+        "from parallel_gpc.cli import build_parser\n"
+        "parser = build_parser()\n"
+        f"for argv in [['--help']] + [[c, '--help'] for c in {COMMANDS!r}]:\n"
+        "    try:\n"
+        "        parser.parse_args(argv)\n"
+        "    except SystemExit:\n"
+        "        pass\n"
+        "heavy = sorted(m for m in sys.modules if m.split('.')[0] in ('pinocchio', 'matplotlib', 'meshcat', 'scipy'))\n"
+        "print('HEAVY', heavy, file=sys.stderr)\n"
+    )
+    done = run(["-c", probe])
+    assert done.returncode == 0, done.stderr
+    assert "HEAVY []" in done.stderr
+    for command in COMMANDS:
+        assert f"parallel-gpc {command}" in done.stdout
+
+
+def test_help_defaults_are_the_library_defaults():
+    assert defaults.DEFAULT_ROBOT == DEFAULT_ROBOT and defaults.FORMS == tuple(FORMS)
+    library = TrackingSettings()
+    assert defaults.TRACKING == {k: getattr(library, k) for k in defaults.TRACKING}
+    args = build_parser().parse_args(["track"])
+    assert (args.robot, args.Ts, args.N, args.No, args.Qy, args.Qu) == (
+        library.robot, library.Ts, library.N, library.No, library.Qy, library.Qu)
+
+
+def test_robots_lists_every_embedded_robot(capsys):
+    assert main(["robots"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0].split()[:3] == ["robot", "DOF", "drives"]
+    for name in embedded_robots():
+        d = load_description(name)
+        row = next(line for line in lines if line.startswith(name + " "))
+        assert row.split()[1:3] == [str(len(d.output_joints)), str(len(d.drive_joints))]
+        assert all(j in row for j in d.drive_joints)
+
+
+@pytest.mark.parametrize("entry", [["-m", "parallel_gpc", "gallery"], [str(ROOT / "viz" / "serve_gallery.py")]])
+def test_gallery_serves_a_folder_until_ctrl_c(tmp_path, entry):
+    (tmp_path / "motion.html").write_text("<html><head><title>my motion</title></head></html>")
+    proc = subprocess.Popen([sys.executable, *entry, str(tmp_path), "--port", "0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONPATH=str(ROOT / "src")))
+    try:
+        line = proc.stdout.readline()
+        assert "http://127.0.0.1:" in line, (line, proc.stderr.read() if proc.poll() is not None else "")
+        url = line.split()[line.split().index("(Ctrl-C") - 1]
+        with urllib.request.urlopen(url, timeout=10) as page:
+            body = page.read().decode()
+        assert "my motion" in body and 'href="motion.html"' in body
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=20) == 0
+        assert "gallery stopped" in proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_gallery_bad_folder_is_one_line_error(tmp_path, capsys):
+    assert main(["gallery", str(tmp_path / "missing")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("parallel-gpc: error:") and "missing" in err and "\n" not in err
