@@ -106,3 +106,16 @@ def test_gallery_bad_folder_is_one_line_error(tmp_path, capsys):
     assert main(["gallery", str(tmp_path / "missing")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.startswith("parallel-gpc: error:") and "missing" in err and "\n" not in err
+
+
+def test_without_meshcat_demo_hints_and_an_explicit_view_fails(tmp_path, monkeypatch, capsys):
+    """The lean install (no ``view`` extra): demo still runs and says how to get the animation."""
+    from parallel_gpc.cli import view
+
+    monkeypatch.setattr(view, "_viz", lambda: None)
+    quick = ["--duration", "0.03", "--Ts", "0.01", "--N", "4", "--no-progress"]
+    assert main(["demo", "--out", str(tmp_path), *quick]) == 0
+    assert view.INSTALL_HINT in capsys.readouterr().out
+    assert not (tmp_path / "demo.html").exists() and len(list(tmp_path.glob("track_*.npz"))) == 2
+    assert main(["view", str(tmp_path / "track_absolute.npz"), "--html", str(tmp_path / "x.html")]) == 2
+    assert view.INSTALL_HINT in capsys.readouterr().err

@@ -1,0 +1,47 @@
+"""Packaging facts that must stay true: every subpackage is shipped, the licence file matches the
+metadata, the package is typed, requires-python holds, no docstring cites a missing document."""
+
+from __future__ import annotations
+
+import sys
+import tomllib
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "src" / "parallel_gpc"
+PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+
+
+def test_every_subpackage_is_listed():
+    found = {"parallel_gpc." + ".".join(p.parent.relative_to(PACKAGE).parts) for p in PACKAGE.rglob("__init__.py")}
+    found = {name.rstrip(".") for name in found} | {"parallel_gpc.urdf"}
+    assert set(PROJECT["tool"]["setuptools"]["packages"]) == found
+
+
+def test_license_file_matches_the_metadata():
+    assert PROJECT["project"]["license"] == {"text": "BSD-3-Clause"}
+    text = (ROOT / "LICENSE").read_text(encoding="utf-8")
+    assert text.startswith("BSD 3-Clause License") and "Neither the name of the copyright holder" in text
+
+
+def test_typed_marker_is_shipped():
+    assert (PACKAGE / "py.typed").is_file()
+    assert "py.typed" in PROJECT["tool"]["setuptools"]["package-data"]["parallel_gpc"]
+
+
+def test_requires_python_is_true():
+    """The package imports tomllib (3.11+): the declared floor must be 3.11."""
+    assert PROJECT["project"]["requires-python"] == ">=3.11"
+    assert sys.version_info >= (3, 11)
+
+
+def test_no_docstring_cites_the_unshipped_design_document():
+    cited = [str(p.relative_to(ROOT)) for p in PACKAGE.rglob("*.py") if "DESIGN §" in p.read_text(encoding="utf-8")]
+    assert cited == []
+
+
+def test_meshcat_is_an_extra_that_the_tests_install():
+    deps = " ".join(PROJECT["project"]["dependencies"])
+    extras = PROJECT["project"]["optional-dependencies"]
+    assert "meshcat" not in deps and any(d.startswith("meshcat") for d in extras["view"])
+    assert "parallel-gpc[view]" in extras["test"]
