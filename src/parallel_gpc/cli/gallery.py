@@ -15,7 +15,7 @@ def cmd_gallery(args) -> int:
 
 
 def add_gallery_arguments(p) -> None:
-    """DIR and --port (shared with the repository's ``viz/serve_gallery.py``)."""
+    """Add DIR and --port."""
     p.add_argument("directory", nargs="?", default=".", metavar="DIR",
                    help="folder of exported *.html animations (default: current folder)")
     p.add_argument("--port", type=int, default=0, help="port on 127.0.0.1 (default 0: any free port)")

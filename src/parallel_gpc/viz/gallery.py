@@ -14,7 +14,7 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 from ..errors import InvalidParameterError, ViewerError
-from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever
+from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever, wait_until_interrupt
 
 
 def _page_title(path: Path) -> str:
@@ -136,9 +136,5 @@ def serve_gallery(directory, port: int = 0, host: str = LOOPBACK, out=None, wait
     """
     out = sys.stdout if out is None else out
     with GalleryServer(directory, host, port) as server:
-        print(f"gallery of {server.directory.resolve()}: {server.url}  (Ctrl-C to stop)", file=out, flush=True)
-        try:
-            wait(server)
-        except KeyboardInterrupt:
-            pass
+        wait_until_interrupt(server, f"gallery of {server.directory.resolve()}: {server.url}", out, wait)
     print("gallery stopped", file=out, flush=True)

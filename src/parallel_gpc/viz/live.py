@@ -32,7 +32,7 @@ from ._meshcat import (
     ZMQWebSocketBridge,
     meshcat,
 )
-from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever
+from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever, wait_until_interrupt
 from .scene import animate, draw_robot
 
 _ZMQ_TIMEOUT_MS = 60_000
@@ -279,9 +279,5 @@ def serve_until_interrupt(robot: ParallelRobot, t=None, qs=None, *, reference=No
             draw_robot(viewer.vis, robot)
         else:
             animate(viewer.vis, robot, t, qs, saturated=saturated, reference=reference, planned=planned)
-        print(f"meshcat viewer: {viewer.url}  (Ctrl-C to stop)", file=out, flush=True)
-        try:
-            wait(viewer)
-        except KeyboardInterrupt:
-            pass
+        wait_until_interrupt(viewer, f"meshcat viewer: {viewer.url}", out, wait)
     print("viewer stopped", file=out, flush=True)

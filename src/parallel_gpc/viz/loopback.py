@@ -46,3 +46,12 @@ def wait_forever(_server) -> None:
     """Block until Ctrl-C (KeyboardInterrupt); the default ``wait`` of the serving functions."""
     while True:
         time.sleep(0.5)
+
+
+def wait_until_interrupt(server, message: str, out, wait=wait_forever) -> None:
+    """Print ``message`` (the URL) to ``out``, then block in ``wait(server)`` until Ctrl-C."""
+    print(f"{message}  (Ctrl-C to stop)", file=out, flush=True)
+    try:
+        wait(server)
+    except KeyboardInterrupt:
+        pass
