@@ -40,8 +40,7 @@ def test_no_docstring_cites_the_unshipped_design_document():
     assert cited == []
 
 
-def test_meshcat_is_an_extra_that_the_tests_install():
+def test_the_team_s_required_dependencies_are_installed_by_default():
     deps = " ".join(PROJECT["project"]["dependencies"])
-    extras = PROJECT["project"]["optional-dependencies"]
-    assert "meshcat" not in deps and any(d.startswith("meshcat") for d in extras["view"])
-    assert "parallel-gpc[view]" in extras["test"]
+    for name in ("pin", "qpsolvers", "osqp", "proxsuite", "daqp", "numpy", "scipy", "meshcat", "matplotlib"):
+        assert name in deps, name

@@ -11,7 +11,7 @@ import importlib.util
 from pathlib import Path
 
 #: How to get the view when meshcat is not installed.
-INSTALL_HINT = 'the meshcat view is an optional extra: pip install "parallel-gpc[view]"'
+INSTALL_HINT = 'the meshcat view needs the meshcat package (a dependency of parallel-gpc): pip install "meshcat>=0.3.2"'
 
 
 def add_view_arguments(parser) -> None:
