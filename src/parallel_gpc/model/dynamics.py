@@ -89,7 +89,7 @@ class ReducedModel:
         self.n_x = 2 * robot.n_y
         self.C = np.hstack([np.eye(self.n_y), np.zeros((self.n_y, self.n_y))])
         self._q_last = robot.q_home.copy()
-        self._warm = None  # (q, T, Φ_z⁺, W, ẏ) at the last evaluation: the Newton predictor
+        self._warm = None  # (q, y, T, Φ_z⁺, W, ẏ) at the last evaluation: the Newton predictor
         self._sim_warm = []  # the same at each state of the last pre-simulation
         self._S = robot.drive_selection
         nv, ny, nu = robot.model.nv, self.n_y, self.n_u
@@ -104,7 +104,7 @@ class ReducedModel:
     def _kinematics(self, y: np.ndarray, base=None):
         """(q, T, Φ_z⁺) at platform pose y: warm-started assembly and velocity map.
 
-        The Newton start is a known nearby configuration (``base`` = (q, T, Φ_z⁺, W, ẏ), default
+        The Newton start is a known nearby configuration (``base`` = (q, y, T, Φ_z⁺, W, ẏ), default
         the last evaluation) moved along the constraint manifold to second order:
         z ≈ z₀ + T_z δy + ½ d²z, the curvature term from Φ̇_q of the last factorization when δy
         is along its velocity. The start only changes the number of Newton steps, not the
@@ -117,49 +117,51 @@ class ReducedModel:
         if base is None:
             guess, pinv_b = self._q_last, None
         else:
-            q_b, T_b, pinv_b, W_b, yd_b = base
-            dy = y - q_b[r._ys]
-            guess = q_b + T_b @ dy
+            q_b, y_b, T_b, pinv_b, W_b, yd_b = base
+            dy = y - y_b
+            step = T_b @ dy
             if near:  # an explicitly given base is ~0.1 mm away: first order is enough
                 near = bool(dy @ dy < 1e-8)
             elif W_b is not None:  # z'' along δy ≈ −Φ_z⁺ Φ̇_q(T δy) T δy with T δy ≈ α T ẏ
                 ss = yd_b @ yd_b
                 if ss > 0.0:
-                    guess[r._zs] -= (0.5 * (dy @ yd_b) / ss) * (W_b @ dy)
-        out = r._assemble_map(y, guess, pinv_b, near)
+                    step[r.dependent_v] -= (0.5 * (dy @ yd_b) / ss) * (W_b @ dy)
+            guess = r.integrate(q_b, step)
+        out = r.assemble_warm(y, guess, pinv_b, near)
         if out is None:  # validated path: Newton from the last q, continuation from home, clear errors
             q = r.assemble(y, self._q_last)
-            T, pinv_z = r._velocity_map(q)
+            T, pinv_z = r.velocity_map_nocopy(q)
         else:
             q, T, pinv_z = out
         self._q_last = q
-        self._warm = (q, T, pinv_z, None, None)
+        self._warm = (q, y.copy(), T, pinv_z, None, None)
         return q, T, pinv_z
 
     # -------------------------------------------------------------- reduced terms
     def terms_at_q(self, q: np.ndarray, ydot: np.ndarray) -> ReducedTerms:
         """Reduced terms at an assembled configuration q and platform velocity ẏ."""
         q = np.asarray(q, dtype=float)
-        T, pinv_z = self.robot._velocity_map(q)
+        T, pinv_z = self.robot.velocity_map_nocopy(q)
         return self._terms(q, T, pinv_z, np.asarray(ydot, dtype=float))
 
     def _terms(self, q, T, pinv_z, ydot) -> ReducedTerms:
         r = self.robot
         model, data = r.model, r.data
         v = T @ ydot
-        dPhi = r.closure_jacobian_derivative(q, v)
+        dPhi = r.constraint_jacobian_derivative(q, v)
         gamma = dPhi @ v
-        if self._warm is not None and self._warm[0] is q:  # curvature for the next Newton start
-            self._warm = (q, T, pinv_z, pinv_z @ (dPhi @ T), ydot)
+        warm = self._warm
+        if warm is not None and warm[0] is q:  # curvature for the next Newton start
+            self._warm = (q, warm[1], T, pinv_z, pinv_z @ (dPhi @ T), ydot)
         ell = np.zeros(model.nv)
-        ell[r._zs] = -(pinv_z @ gamma)
+        ell[r.dependent_v] = -(pinv_z @ gamma)
         _, _, M = pin.computeRNEADerivatives(model, data, q, v, self._zero_v)  # M full, data.tau = h
         M = np.array(M)
         h = data.tau + M @ ell
         MT = M @ T
         return ReducedTerms(
             q=q, v=v, T=T.copy(), ell=ell, M=M,
-            M_r=T.T @ MT, h_r=T.T @ h, B_r=T[r._ds].T.copy(), pinv_z=pinv_z.copy(),
+            M_r=T.T @ MT, h_r=T.T @ h, B_r=T[r.drive_v].T.copy(), pinv_z=pinv_z.copy(),
         )
 
     def assemble(self, y: np.ndarray) -> np.ndarray:
@@ -191,21 +193,21 @@ class ReducedModel:
         ny = self.n_y
         q, T, pinv_z = self._kinematics(X[:ny], base)
         v = T @ X[ny:]
-        dPhi = r.closure_jacobian_derivative(q, v)
+        dPhi = r.constraint_jacobian_derivative(q, v)
         # ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ) with γ(v) = Φ̇_q(v) v bilinear in v:
         # ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i); both terms are equal for point
         # closures (Φ_q is the gradient of a position: symmetric second derivatives).
         W = pinv_z @ (dPhi @ T)
-        self._warm = (q, T, pinv_z, W, X[ny:])
-        if not r._point_only:
-            W2 = np.column_stack([r.closure_jacobian_derivative(q, T[:, i]) @ v for i in range(ny)])
+        self._warm = (q, self._warm[1], T, pinv_z, W, X[ny:].copy())
+        if not r.bias_symmetric:
+            W2 = np.column_stack([r.constraint_jacobian_derivative(q, T[:, i]) @ v for i in range(ny)])
             W = 0.5 * (W + pinv_z @ W2)
         _, D, M = pin.computeRNEADerivatives(model, data, q, v, self._zero_v)  # D = ∂h/∂v, M full
         g = pin.computeGeneralizedGravity(model, data, q)
         rhs = self._rhs  # [M T | −K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
         # −C_r = −½ Tᵀ ∂(h + M ℓ)/∂v T = Tᵀ (M_z W − ½ D T);  −g_r = −Tᵀ g
         np.matmul(M, T, out=rhs[:, :ny])
-        rhs[:, ny:2 * ny] = M[:, r._zs] @ W - 0.5 * (D @ T)
+        rhs[:, ny:2 * ny] = M[:, r.dependent_v] @ W - 0.5 * (D @ T)
         rhs[:, -1] = -g  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
         red = T.T @ rhs
         return _spd_solve(red[:, :ny], red[:, ny:])
@@ -293,7 +295,7 @@ class ReducedModel:
             base = None
             if i + 1 < len(prev):
                 cand = prev[i + 1]
-                dy = x[:ny] - cand[0][self.robot._ys]
+                dy = x[:ny] - cand[1]
                 if dy @ dy < 1e-8:
                     base = cand
             Z = self._factor_rows(x, base)

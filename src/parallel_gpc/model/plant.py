@@ -65,7 +65,7 @@ class ConstrainedPlant(_PlantBase):
         self.substeps = int(substeps)
         self.cms = pin.StdVec_RigidConstraintModel()
         params = pin.BaumgarteCorrectorParameters(float(baumgarte[0]), float(baumgarte[1]))
-        for fa, fb, c in robot._closure_frames:
+        for fa, fb, c in robot.closure_frames:
             Fa, Fb = model.frames[fa], model.frames[fb]
             cm = pin.RigidConstraintModel(_CONTACT[c.kind], model, Fa.parentJoint, Fa.placement,
                                           Fb.parentJoint, Fb.placement, pin.ReferenceFrame.LOCAL)

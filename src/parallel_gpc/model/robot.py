@@ -130,7 +130,7 @@ class ParallelRobot:
         self.n_y = len(self.y_idx)
         self.n_u = len(self.drive_idx)
         self.n_z = len(self.z_idx)
-        self._closure_frames = [
+        self.closure_frames = [
             (self._frame_id(c.frames[0], c), self._frame_id(c.frames[1], c), c) for c in description.closures
         ]
         self.n_constraints = sum(_CLOSURE_ROWS[c.kind] for c in description.closures)
@@ -173,7 +173,7 @@ class ParallelRobot:
             q[self.z_idx] -= np.linalg.lstsq(ck.jacobian[:, self.z_idx], ck.residual, rcond=1e-10)[0]
         res = self.closure_residual(q)
         parts, row = [], 0
-        for _, _, c in self._closure_frames:
+        for _, _, c in self.closure_frames:
             rows = _CLOSURE_ROWS[c.kind]
             parts.append((float(np.linalg.norm(res[row:row + rows])), c))
             row += rows
@@ -185,13 +185,13 @@ class ParallelRobot:
 
     def _setup_fast_paths(self) -> None:
         """Index tables and caches of the hot paths (closure evaluation, velocity map)."""
-        self._frames_flat = [f for fa, fb, _ in self._closure_frames for f in (fa, fb)]
-        self._point_only = all(c.kind == "point" for _, _, c in self._closure_frames)
-        rows = [6 * k + i for k, (_, _, c) in enumerate(self._closure_frames) for i in range(_CLOSURE_ROWS[c.kind])]
+        self._frames_flat = [f for fa, fb, _ in self.closure_frames for f in (fa, fb)]
+        self.bias_symmetric = all(c.kind == "point" for _, _, c in self.closure_frames)
+        rows = [6 * k + i for k, (_, _, c) in enumerate(self.closure_frames) for i in range(_CLOSURE_ROWS[c.kind])]
         self._jac_rows = np.array(rows, dtype=int)  # rows of the stacked 6-D frame differences kept
         self._ys = _fast_index(self.y_idx)
-        self._zs = _fast_index(self.z_idx)
-        self._ds = _fast_index(self.drive_idx)
+        self.dependent_v = _fast_index(self.z_idx)
+        self.drive_v = _fast_index(self.drive_idx)
         self._T0 = np.zeros((self.model.nv, self.n_y))
         self._T0[self.y_idx, np.arange(self.n_y)] = 1.0
         self._ck_cache = None  # (q, residual, jacobian) of the last Jacobian evaluation
@@ -254,12 +254,12 @@ class ParallelRobot:
         oMf = data.oMf
         frames = self._frames_flat
         P = np.array([oMf[f].translation for f in frames])
-        if self._point_only:
+        if self.bias_symmetric:
             res = (P[0::2] - P[1::2]).reshape(-1)
         else:
             res = np.empty(self.n_constraints)
             row = 0
-            for fa, fb, c in self._closure_frames:
+            for fa, fb, c in self.closure_frames:
                 oMa, oMb = oMf[fa], oMf[fb]
                 res[row:row + 3] = oMa.translation - oMb.translation
                 if c.kind == "weld":
@@ -268,7 +268,7 @@ class ParallelRobot:
         if not jacobian:
             return res, None
         J = np.array([pin.getFrameJacobian(model, data, f, _LWA) for f in frames])
-        if self._point_only:
+        if self.bias_symmetric:
             jac = (J[0::2, :3] - J[1::2, :3]).reshape(-1, model.nv)
         else:
             jac = (J[0::2] - J[1::2]).reshape(-1, model.nv)[self._jac_rows]
@@ -288,9 +288,17 @@ class ParallelRobot:
         model, data = self.model, self.data
         pin.computeJointJacobiansTimeVariation(model, data, q, v)
         dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA) for f in self._frames_flat])
-        if self._point_only:
+        if self.bias_symmetric:
             return (dJ[0::2, :3] - dJ[1::2, :3]).reshape(-1, model.nv)
         return (dJ[0::2] - dJ[1::2]).reshape(-1, model.nv)[self._jac_rows]
+
+    def constraint_jacobian_derivative(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Φ̇ of the rows solved by assembly (the closures for joint outputs), at (q, v)."""
+        return self.closure_jacobian_derivative(q, v)
+
+    def integrate(self, q: np.ndarray, dv: np.ndarray) -> np.ndarray:
+        """(nq,) configuration q ⊕ dv (a new array; plain addition when nq == nv)."""
+        return q + dv
 
     def closure_residual(self, q: np.ndarray) -> np.ndarray:
         """(m,) Φ(q): closure mismatch in m (and rad for welds)."""
@@ -302,7 +310,7 @@ class ParallelRobot:
         pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
         gamma = np.empty(self.n_constraints)
         row = 0
-        for fa, fb, c in self._closure_frames:
+        for fa, fb, c in self.closure_frames:
             aa = pin.getFrameClassicalAcceleration(model, data, fa, _LWA)
             ab = pin.getFrameClassicalAcceleration(model, data, fb, _LWA)
             gamma[row:row + 3] = aa.linear - ab.linear
@@ -319,7 +327,7 @@ class ParallelRobot:
     def _lstsq_z(self, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
         """Minimum-norm least-squares δz with Φ_z δz ≈ res (SVD, singular values below
         ``1e-10·s_max`` dropped: the same step as ``numpy.linalg.lstsq(rcond=1e-10)``)."""
-        U, s, Vt = svd_thin(jac[:, self._zs])
+        U, s, Vt = svd_thin(jac[:, self.dependent_v])
         r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s[0] > 0 else 0
         if r == s.shape[0]:
             return Vt.T @ ((U.T @ res) / s)
@@ -330,7 +338,7 @@ class ParallelRobot:
         """Solve Φ(q) = 0 for z with y = pose fixed, from q_guess (rank-revealing steps)."""
         q = np.array(q_guess, dtype=float)
         q[self._ys] = pose
-        zs = self._zs
+        zs = self.dependent_v
         for _ in range(max_iter):
             res, jac = self._closure_eval(q)
             err = np.abs(res).max()
@@ -351,7 +359,7 @@ class ParallelRobot:
                 )
         return q
 
-    def _assemble_map(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
+    def assemble_warm(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
                       near: bool = False, tol: float = 1e-12, max_iter: int = 8):
         """Warm-started hot path of :meth:`assemble` + :meth:`velocity_map`: (q, T, Φ_z⁺).
 
@@ -369,7 +377,7 @@ class ParallelRobot:
         """
         q = np.array(q_guess, dtype=float)
         q[self._ys] = pose
-        zs = self._zs
+        zs = self.dependent_v
         tol2 = tol * tol
         for it in range(max_iter):
             res, jac = self._closure_eval(q)
@@ -494,17 +502,17 @@ class ParallelRobot:
         Raises:
             SingularPoseError: if Φ_z loses rank (a leg is stretched or folded).
         """
-        T, pinv_z = self._velocity_map(np.asarray(q, dtype=float))
+        T, pinv_z = self.velocity_map_nocopy(np.asarray(q, dtype=float))
         return T.copy(), pinv_z.copy()
 
-    def _velocity_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def velocity_map_nocopy(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`velocity_map` without copies (cached on q; callers must not modify)."""
         key = q.tobytes()
         cache = self._vm_cache
         if cache is not None and cache[0] == key:
             return cache[1], cache[2]
         _, jac = self._closure_eval(q)
-        U, s, Vt = svd_thin(jac[:, self._zs])
+        U, s, Vt = svd_thin(jac[:, self.dependent_v])
         n_z = self.n_z
         if s[n_z - 1] <= SINGULAR_RCOND * s[0]:
             raise SingularPoseError(
@@ -513,7 +521,7 @@ class ParallelRobot:
             )
         pinv_z = (Vt[:n_z].T / s[:n_z]) @ U[:, :n_z].T
         T = self._T0.copy()
-        T[self._zs] = -(pinv_z @ jac[:, self._ys])
+        T[self.dependent_v] = -(pinv_z @ jac[:, self._ys])
         self._vm_cache = (key, T, pinv_z)
         return T, pinv_z
 
