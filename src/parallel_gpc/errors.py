@@ -16,6 +16,10 @@ class RobotFormatError(ParallelGPCError, ValueError):
     """A URDF or closure sidecar is malformed or names an unknown frame or joint."""
 
 
+class UnderactuatedError(RobotFormatError):
+    """The drives span fewer directions than the robot has DOF (rank of B_r = Tᵀ Sᵀ < n_y)."""
+
+
 class AssemblyError(ParallelGPCError):
     """The loop closures could not be assembled (Newton did not converge)."""
 

@@ -85,12 +85,16 @@ class ConstrainedPlant(_PlantBase):
     @property
     def X(self) -> np.ndarray:
         """(2 n_y,) current state [y, ẏ]."""
-        return np.concatenate([self.q[self.robot.y_idx], self.v[self.robot.y_idx]])
+        r = self.robot
+        return np.concatenate([r.platform_pose(self.q), r.output_velocity(self.q, self.v)])
 
     def accelerations(self, q, v, u) -> np.ndarray:
         """(nv,) q̈ from ``pin.constraintDynamics`` for drive torques u (N·m)."""
         tau = self._S @ u
-        tau[self.robot.y_idx] += self.platform_force
+        if self.robot.task_output is None:
+            tau[self.robot.y_idx] += self.platform_force
+        elif np.any(self.platform_force):  # a force f on y acts as Hᵀ f (H T = I)
+            tau += self.robot.output_jacobian(q).T @ self.platform_force
         return pin.constraintDynamics(self.robot.model, self.data, q, v, tau, self.cms, self.cds, self.prox)
 
     def constraint_forces(self) -> np.ndarray:
@@ -101,21 +105,33 @@ class ConstrainedPlant(_PlantBase):
         """Advance one sample with u held; returns the new state X."""
         Ts = positive("Ts", Ts, " s")
         u = self._saturate(u)
-        nv = self.robot.model.nv
-
-        def deriv(s, _u):
-            return np.concatenate([s[nv:], self.accelerations(s[:nv], s[nv:], u)])
-
-        s = rk4_step(deriv, np.concatenate([self.q, self.v]), u, Ts, self.substeps)
-        self._project(s[:nv], s[nv:])
+        q, v = self.q, self.v
+        h = Ts / self.substeps
+        for _ in range(self.substeps):
+            q, v = self._rk4(q, v, u, h)
+        self._project(q, v)
         return self.X
+
+    def _rk4(self, q, v, u, h):
+        """One classical RK4 step of (q̇, v̇) = (v, q̈) on the configuration manifold (q ⊕ h v)."""
+        r = self.robot
+        a1 = self.accelerations(q, v, u)
+        v2 = v + 0.5 * h * a1
+        a2 = self.accelerations(r.integrate(q, 0.5 * h * v), v2, u)
+        v3 = v + 0.5 * h * a2
+        a3 = self.accelerations(r.integrate(q, 0.5 * h * v2), v3, u)
+        v4 = v + h * a3
+        a4 = self.accelerations(r.integrate(q, h * v3), v4, u)
+        q_next = r.integrate(q, (h / 6.0) * (v + 2 * v2 + 2 * v3 + v4))
+        return q_next, v + (h / 6.0) * (a1 + 2 * a2 + 2 * a3 + a4)
 
     def _project(self, q, v) -> None:
         """Project (q, v) onto Φ(q) = 0 and Φ_q v = 0 keeping the platform coordinates."""
         r = self.robot
-        self.q = r.assemble(q[r.y_idx], q)
+        ydot = r.output_velocity(q, v)
+        self.q = r.assemble(r.platform_pose(q), q)
         T, _ = r.velocity_map(self.q)
-        self.v = T @ v[r.y_idx]
+        self.v = T @ ydot
 
 
 class ReducedPlant(_PlantBase):
