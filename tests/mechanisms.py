@@ -171,8 +171,9 @@ def rps_sidecar(spherical: bool, axes=("z", "rx", "ry"), joint_types: dict | Non
     """Gepetto-style YAML sidecar of :func:`rps_urdf`."""
     tilt = -math.atan2(RB - RP, H)
     length = math.hypot(RB - RP, H)
-    guess = {f"r{k}": tilt for k in (1, 2, 3)} | {f"p{k}": length for k in (1, 2, 3)}
     types = dict(joint_types or {})
+    guess = {f"r{k}": [tilt, 0.0] if types.get(f"r{k}") == "UJOINT" else tilt for k in (1, 2, 3)}
+    guess |= {f"p{k}": length for k in (1, 2, 3)}
     if spherical:
         types["s1"] = "SPHERICAL"
     return ("closed_loop: [[tip2, attach2], [tip3, attach3]]\ntype: [3D, 3D]\n"

@@ -103,6 +103,7 @@ class ParallelRobot:
         self.model = model
         self.data = model.createData()
         self.mass_scale = float(mass_scale)
+        self.redundancy = 0
         self._flat = model.nq == model.nv
         self.drive_idx = np.array([self._joint_index(n, "drive")[1] for n in description.drive_joints], dtype=int)
         self._drive_q = np.array([self._joint_index(n, "drive")[0] for n in description.drive_joints], dtype=int)
@@ -169,6 +170,8 @@ class ParallelRobot:
         """Assemble the home configuration ``q_home`` at ``home_pose``."""
         q0 = pin.neutral(self.model)
         for name, value in description.q_guess.items():
+            if description.joint_types.get(name) == "FIXED":
+                continue  # locked at this value by the builder
             iq, _ = self._joint_index(name, "q_guess joint", nq=len(value) if isinstance(value, tuple) else 1)
             q0[iq:iq + (len(value) if isinstance(value, tuple) else 1)] = value
         if self.task_output is not None:  # the closures alone first: the output's reference is there
