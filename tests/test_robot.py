@@ -107,3 +107,45 @@ def test_mass_scale_scales_reduced_mass_matrix(robot4):
     X = np.concatenate([POSE_A, np.zeros(3)])
     Mr = ReducedModel(robot4).terms(X).M_r
     np.testing.assert_allclose(ReducedModel(heavy).terms(X).M_r, 1.2 * Mr, rtol=1e-12)
+
+
+@pytest.mark.parametrize("edit, match", [
+    (lambda s: "frobnicate = 1\n" + s, r"unknown key\(s\) \['frobnicate'\] in the top level; accepted keys are"),
+    (lambda s: s.replace("[output]\n", "[output]\nframes = 'x'\n"), r"unknown key\(s\) \['frames'\] in \[output\]"),
+    (lambda s: s.replace("[home]\n", "[home]\nposes = [0, 0, 0]\n"), r"unknown key\(s\) \['poses'\] in \[home\]"),
+    (lambda s: s.replace("[drives]\n", "[drives]\nlimit = 3\n"), r"unknown key\(s\) \['limit'\] in \[drives\]"),
+    (lambda s: s.replace('kind = "point"', 'kind = "point"\nframe = "a"', 1), r"\['frame'\] in closure 1"),
+    (lambda s: s.replace("[output]\n", "[output]\nkind = 'orientation'\n"), r"output kind 'orientation' is not one of"),
+    (lambda s: 'root = "floating"\n' + s, r"root = 'floating' is not one of \['fixed', 'free_flyer'\]"),
+])
+def test_unknown_sidecar_keys_and_values_are_errors(tmp_path, edit, match):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r3.urdf")
+    (tmp_path / "r3.toml").write_text(edit((urdf_dir() / "planar_3rrr.toml").read_text()))
+    with pytest.raises(RobotFormatError, match=match):
+        ParallelRobot.load(tmp_path / "r3.urdf")
+
+
+def test_gepetto_sidecar_with_unknown_key_or_joint_type_is_refused(tmp_path):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r3.urdf")
+    base = ("closed_loop: [['tip_1', 'attach_1'], ['tip_2', 'attach_2'], ['tip_3', 'attach_3']]\n"
+            "type: ['3D', '3D', '3D']\nname_mot: ['drive_1', 'drive_2', 'drive_3']\n"
+            "output_joints: ['platform_x', 'platform_y', 'platform_psi']\n")
+    (tmp_path / "r3.yaml").write_text(base + "joint_names: ['elbow_1']\n")
+    with pytest.raises(RobotFormatError, match=r"unknown key\(s\) \['joint_names'\]"):
+        ParallelRobot.load(tmp_path / "r3.urdf")
+    (tmp_path / "r3.yaml").write_text(base + "joint_name: ['elbow_1']\njoint_type: ['CARDAN']\n")
+    with pytest.raises(RobotFormatError, match=r"joint 'elbow_1' has unknown joint_type 'CARDAN'"):
+        ParallelRobot.load(tmp_path / "r3.urdf")
+
+
+def test_every_embedded_sidecar_uses_only_accepted_keys():
+    from parallel_gpc.model.description import embedded_robots
+
+    for name in embedded_robots():
+        robot = ParallelRobot.load(name)
+        assert robot.n_u >= robot.n_y and robot.redundancy == robot.n_u - robot.n_y
+
+
+def test_embedded_planar_robots_report_redundancy(robot4, robot3):
+    assert (robot4.redundancy, robot3.redundancy) == (1, 0)
+    assert "redundancy=1" in repr(robot4) and "redundancy" not in repr(robot3)

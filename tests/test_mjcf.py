@@ -1,0 +1,89 @@
+"""Closed-chain MJCF files: loops from ``<equality><connect/weld>`` (Pinocchio's legacy
+constraint builder), a small sidecar for drives/outputs, and the parser pitfalls."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from parallel_gpc import ParallelRobot, ReducedModel, load_description
+from parallel_gpc.errors import RobotFormatError
+
+import mechanisms as mech
+
+
+@pytest.fixture(scope="module")
+def fivebars(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("mjcf")
+    urdf = ParallelRobot.load(mech.write(folder, "fb", mech.fivebar_urdf(), mech.fivebar_sidecar()))
+    mjcf = ParallelRobot.load(mech.write(folder, "fbm", mech.fivebar_mjcf(), mech.fivebar_mjcf_sidecar(), ".xml"))
+    return urdf, mjcf
+
+
+def test_mjcf_equality_connect_becomes_a_point_closure(fivebars):
+    _, mjcf = fivebars
+    assert mjcf.description.model_format == "mjcf"
+    assert [c.kind for c in mjcf.description.closures] == ["point"]
+    assert (mjcf.n_y, mjcf.n_u, mjcf.model.nv) == (2, 2, 4)
+    np.testing.assert_allclose(mjcf.home_pose, mech.FIVEBAR_HOME, atol=1e-12)
+    assert np.max(np.abs(mjcf.closure_residual(mjcf.q_home))) <= 1e-10
+
+
+def test_mjcf_reduced_dynamics_equal_the_urdf_model(fivebars):
+    urdf, mjcf = fivebars
+    mu, mm = ReducedModel(urdf), ReducedModel(mjcf)
+    rng = np.random.default_rng(11)
+    for X in mech.random_output_states(urdf, rng, 6):
+        u = rng.uniform(-5, 5, 2)
+        np.testing.assert_allclose(mm.acceleration(X, u), mu.acceleration(X, u), rtol=1e-9, atol=1e-10)
+
+
+def test_mjcf_reduced_accelerations_equal_constraint_dynamics_with_the_files_constraints(fivebars, tmp_path):
+    _, mjcf = fivebars
+    path = tmp_path / "fbm.xml"
+    path.write_text(mech.fivebar_mjcf())
+    model, cms = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+    assert len(cms) == 1 and model.nv == mjcf.model.nv
+    mech.assert_reduced_matches_constraint_dynamics(mjcf, cms=list(cms))
+
+
+def test_second_world_body_is_refused_with_the_pitfall_named(tmp_path):
+    text = mech.fivebar_mjcf()
+    # unwrap the legs from the root body: two bodies directly under <worldbody>
+    text = text.replace('<body name="base">', "").replace("    </body>\n  </worldbody>", "  </worldbody>")
+    path = mech.write(tmp_path, "two", text, mech.fivebar_mjcf_sidecar(), ".xml")
+    with pytest.raises(RobotFormatError, match=r"2 bodies directly under <worldbody> \['prox1', 'prox2'\].*keeps only "
+                                               r"the first one.*Wrap them in one root body"):
+        ParallelRobot.load(path)
+
+
+def test_sidecar_by_explicit_path(tmp_path):
+    model = tmp_path / "fivebar_model.xml"
+    model.write_text(mech.fivebar_mjcf())
+    side = tmp_path / "config" / "drives.toml"
+    side.parent.mkdir()
+    side.write_text(mech.fivebar_mjcf_sidecar())
+    with pytest.raises(RobotFormatError, match="no sidecar next to"):
+        ParallelRobot.load(model)
+    robot = ParallelRobot.load(model, sidecar=side)
+    assert robot.n_y == 2 and robot.description.sidecar_path == side
+
+
+def test_ball_joint_becomes_spherical(tmp_path):
+    text = mech.fivebar_mjcf().replace('<joint name="e2" type="hinge" axis="0 1 0"/>', '<joint name="e2" type="ball"/>')
+    # with a ball elbow the second leg can turn out of the plane: a 3-D output and more drives
+    side = ('name = "ball"\n[output]\nframe = "ee"\nkind = "position"\n'
+            '[drives]\njoints = ["a1", "a2", "e1"]\n')
+    path = mech.write(tmp_path, "ball", text, side, ".xml")
+    model, _ = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+    assert model.joints[model.getJointId("e2")].shortname() == "JointModelSpherical"
+    with pytest.raises(RobotFormatError, match="does not parametrize"):
+        ParallelRobot.load(path)  # the ball elbow lets the distal link spin about itself
+
+
+def test_sdf_is_refused_clearly(tmp_path):
+    path = tmp_path / "robot.sdf"
+    path.write_text("<sdf/>")
+    with pytest.raises(RobotFormatError, match="SDF is not supported"):
+        load_description(path)
