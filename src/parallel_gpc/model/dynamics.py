@@ -8,7 +8,11 @@ coordinates y independent and the leg coordinates z dependent,
 * eq. (1): ``ÿ = f + g u``, ``f = −M_r⁻¹ h_r``, ``g = M_r⁻¹ B_r``.
 
 Φ_z⁺ comes from :meth:`ParallelRobot.velocity_map` (rank-revealing SVD: planar point closures
-have zero z rows, so no plain inverse of a rank-deficient block is taken).
+have zero z rows, so no plain inverse of a rank-deficient block is taken). For a task-space
+output y = h(q) the same formulas hold with z = all of v and Φ replaced by the assembly rows
+Ψ = [Φ; h − y]: ``T = K⁺ [0; I]``, ``ℓ = −K⁺ Ψ̇_q v`` with K = [Φ_q; H]
+(:meth:`ParallelRobot.constraint_jacobian_derivative`). With multi-DOF joints (nq ≠ nv) q moves
+by ``pin.integrate``; T, ℓ, M live in v.
 
 State X = [y, ẏ] (m, rad, m/s, rad/s); output y = C X with C = [I 0].
 """

@@ -1,0 +1,268 @@
+"""Assembly and velocity map of a :class:`~parallel_gpc.model.robot.ParallelRobot`.
+
+Newton on the assembly equations Ψ(q) = 0 (rank-revealing steps, continuation from home on
+the home branch), its warm-started hot path, forward/inverse kinematics, and the velocity map
+q̇ = T ẏ with the pseudo-inverse K⁺ of the assembly Jacobian. Mixed into ``ParallelRobot``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import AssemblyError, SingularPoseError, UnreachablePoseError
+from ..validation import finite_vector
+from .linalg import svd_thin
+
+#: K smallest/largest singular value below which the legs count as singular.
+SINGULAR_RCOND = 1e-8
+#: relative singular-value cut of the rank-revealing Newton step (as ``lstsq(rcond=1e-10)``).
+_NEWTON_RCOND = 1e-10
+
+
+class AssemblyMixin:
+    """Assembly, kinematics and velocity map of a closed-chain robot (see ParallelRobot)."""
+
+    def branch_signature(self, q: np.ndarray) -> np.ndarray:
+        """Signs of sin(q) of the branch joints (the elbow configuration)."""
+        return np.sign(np.sin(np.asarray(q)[self._branch_q]))
+
+    def _lstsq_z(self, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+        """Minimum-norm least-squares δz with K δz ≈ res (SVD, singular values below
+        ``1e-10·s_max`` dropped: the same step as ``numpy.linalg.lstsq(rcond=1e-10)``)."""
+        U, s, Vt = svd_thin(jac[:, self.dependent_v])
+        r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s[0] > 0 else 0
+        if r == s.shape[0]:
+            return Vt.T @ ((U.T @ res) / s)
+        return Vt[:r].T @ ((U[:, :r].T @ res) / s[:r])
+
+    def _newton(self, pose, q_guess: np.ndarray, tol: float = 1e-12, max_iter: int = 30) -> np.ndarray:
+        """Solve Ψ(q) = 0 with output ``pose`` (None: the closures only) from q_guess."""
+        q = np.array(q_guess, dtype=float)
+        if self.task_output is None:
+            q[self._y_q] = pose
+        label = "closures" if pose is None else f"platform pose {np.round(pose, 6).tolist()}"
+        for _ in range(max_iter):
+            res, jac = self._eval(q)
+            err_vec = self._error(res, pose)
+            err = np.abs(err_vec).max()
+            if err <= tol:
+                break
+            if not err < 1e6:  # NaN/inf pose or a diverging iteration
+                raise UnreachablePoseError(f"{label} cannot be assembled: closure residual {err:.3g}")
+            q = self._step(q, self._lstsq_z(jac[:len(err_vec)], err_vec))
+        else:
+            err = np.max(np.abs(self._error(self._eval(q)[0], pose)))
+            if err > 1e-9:
+                raise UnreachablePoseError(
+                    f"{label} cannot be assembled: residual {err:.3g} after {max_iter} Newton steps "
+                    f"(outside the workspace of {self.name!r})"
+                )
+        return q
+
+    def assemble_warm(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
+                      near: bool = False, tol: float = 1e-12, max_iter: int = 8):
+        """Warm-started hot path of :meth:`assemble` + :meth:`velocity_map`: (q, T, K⁺) or None.
+
+        Newton from ``q_guess`` (expected within a few steps of the solution), the branch check,
+        and the velocity map at the converged q from the Jacobian of the last Newton
+        evaluation (one kinematics pass less). ``pinv_hint`` (K⁺ at a nearby configuration)
+        makes the first Newton step cheap: the least-squares step is solved by one step of
+        iterative refinement preconditioned with it instead of an SVD (same step to second
+        order in the distance; convergence is checked as always). Returns None when anything
+        is unusual (no convergence in ``max_iter`` steps, another branch, a singular K): the
+        caller then takes the validated path (:meth:`assemble`), which reports the error.
+        ``near`` (the guess is within ~0.1 mm of an assembled configuration on the home branch)
+        skips the branch check when no Newton step was needed: the elbows cannot cross their
+        stretched/folded angle without a step.
+
+        Args:
+            pose: (n_y,) output y (m, rad).
+            q_guess: (nq,) start configuration (not modified).
+            pinv_hint: (n_z, rows) K⁺ at a nearby configuration, or None.
+
+        Returns:
+            (q (nq,), T (nv, n_y), K⁺ (n_z, rows)) — T and K⁺ must not be modified — or None.
+        """
+        q = np.array(q_guess, dtype=float)
+        task = self.task_output is not None
+        if not task:
+            q[self._ys] = pose
+        zs = self.dependent_v
+        tol2 = tol * tol
+        for it in range(max_iter):
+            res, jac = self._eval(q)
+            if task:
+                res = self._error(res, pose)
+            err2 = res @ res  # ‖Ψ‖₂ ≤ tol implies ‖Ψ‖∞ ≤ tol
+            if err2 <= tol2:
+                break
+            if not err2 < 1e-4:
+                return None
+            if it == 0 and pinv_hint is not None:
+                step = pinv_hint @ res
+                step += pinv_hint @ (res - jac[:, zs] @ step)
+                q = self._step(q, step)
+            else:
+                q = self._step(q, self._lstsq_z(jac, res))
+        else:
+            return None
+        if self._branch_q.size and not (near and it == 0) and not (np.sin(q[self._bs]) * self._branch).min() > 0:
+            return None
+        out = self._map_from(jac)
+        if out is None:
+            return None
+        self._vm_cache = (self._ck_cache[0], *out)
+        return q, *out
+
+    def _map_from(self, jac: np.ndarray):
+        """(T, K⁺) from the assembly Jacobian, or None if K has rank < n_z."""
+        U, s, Vt = svd_thin(jac[:, self.dependent_v])
+        n_z = self.n_z
+        if not s[n_z - 1] > SINGULAR_RCOND * s[0]:
+            return None
+        pinv_z = (Vt[:n_z].T / s[:n_z]) @ U[:, :n_z].T
+        if self.task_output is None:
+            T = self._T0.copy()
+            T[self.dependent_v] = -(pinv_z @ jac[:, self._ys])
+        else:
+            T = np.ascontiguousarray(pinv_z[:, self.n_constraints:])
+        return T, pinv_z
+
+    def _on_branch(self, q: np.ndarray) -> bool:
+        return bool(np.all(np.sin(q[self._branch_q]) * self._branch > 0)) if self._branch_q.size else True
+
+    def assemble(self, pose, q_guess: np.ndarray | None = None) -> np.ndarray:
+        """Full configuration q for an output y, on the home branch.
+
+        Args:
+            pose: (n_y,) output y (m, rad).
+            q_guess: (nq,) warm start (e.g. the previous configuration); default: continuation
+                from the home configuration.
+
+        Returns:
+            (nq,) q with ‖Ψ(q)‖∞ ≤ 1e-12 (1e-9 at worst): closures closed, output equal to ``pose``.
+
+        Raises:
+            UnreachablePoseError: if the pose cannot be assembled on the home branch.
+        """
+        pose = finite_vector("platform pose", pose, self.n_y)
+        if q_guess is not None:
+            try:
+                q = self._newton(pose, q_guess)
+                if self._on_branch(q):
+                    return q
+            except AssemblyError:
+                pass
+        return self._continuation(pose)
+
+    def _continuation(self, pose: np.ndarray) -> np.ndarray:
+        dist = np.abs(pose - self.home_pose)
+        ang = self._is_angle
+        steps = int(min(200, max(1, math.ceil(max(dist[~ang].max(initial=0) / 0.05, dist[ang].max(initial=0) / 0.1)))))
+        q = self.q_home.copy()
+        for s in range(1, steps + 1):
+            mid = self.home_pose + (pose - self.home_pose) * s / steps
+            try:
+                q = self._newton(mid, q)
+            except UnreachablePoseError as exc:
+                raise UnreachablePoseError(
+                    f"platform pose {np.round(pose, 6).tolist()} cannot be assembled on the home branch of "
+                    f"{self.name!r}: continuation from home stops at {np.round(mid, 4).tolist()} "
+                    f"({exc})"
+                ) from None
+        if not np.array_equal(self.branch_signature(q), self._branch):
+            raise UnreachablePoseError(
+                f"platform pose {np.round(pose, 6).tolist()} is reachable only on another assembly branch "
+                f"(a leg passes through its singular stretched/folded configuration on the way)"
+            )
+        return q
+
+    # ------------------------------------------------------------------ kinematics
+    def inverse_kinematics(self, pose) -> np.ndarray:
+        """(n_u,) drive coordinates (rad or m) that place the platform at ``pose``."""
+        return self.assemble(pose)[self._drive_q].copy()
+
+    def forward_kinematics(self, drives, q_guess: np.ndarray | None = None, tol: float = 1e-12,
+                           max_iter: int = 50) -> np.ndarray:
+        """(n_y,) output for drive coordinates (rad or m), by Newton from ``q_guess`` (home).
+
+        With redundant drives the drive values must be consistent (e.g. from
+        :meth:`inverse_kinematics`); the least-squares solution is returned otherwise.
+        """
+        drives = finite_vector("drive coordinates", drives, self.n_u)
+        q = (self.q_home if q_guess is None else np.asarray(q_guess, dtype=float)).copy()
+        q[self._drive_q] = drives
+        free = np.array([i for i in range(self.model.nv) if i not in set(self.drive_idx.tolist())])
+        for _ in range(max_iter):
+            ck = self.closure_kinematics(q)
+            if np.max(np.abs(ck.residual)) <= tol:
+                return self.platform_pose(q)
+            step, *_ = np.linalg.lstsq(ck.jacobian[:, free], ck.residual, rcond=1e-10)
+            dv = np.zeros(self.model.nv)
+            dv[free] = -step * min(1.0, 0.2 / max(np.max(np.abs(step)), 1e-300))  # damped: stay on branch
+            q = self.integrate(q, dv)
+        raise AssemblyError(
+            f"forward kinematics did not converge for drives {np.round(drives, 6).tolist()}: "
+            f"closure residual {np.max(np.abs(self.closure_residual(q))):.3g}"
+        )
+
+    def velocity_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """T (q̇ = T ẏ) and the rank-revealing pseudo-inverse K⁺ at q.
+
+        K⁺ uses the n_z leading singular values of K (its zero rows, e.g. the z rows of planar
+        point closures, drop out).
+
+        Returns:
+            T: (nv, n_y); pinv_z: (n_z, rows of K).
+
+        Raises:
+            SingularPoseError: if K loses rank (a leg is stretched or folded, or the output
+                stops parametrizing the mechanism).
+        """
+        T, pinv_z = self.velocity_map_nocopy(np.asarray(q, dtype=float))
+        return T.copy(), pinv_z.copy()
+
+    def velocity_map_nocopy(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`velocity_map` without copies (cached on q; callers must not modify the arrays)."""
+        key = q.tobytes()
+        cache = self._vm_cache
+        if cache is not None and cache[0] == key:
+            return cache[1], cache[2]
+        _, jac = self._eval(q)
+        out = self._map_from(jac)
+        if out is None:
+            s = np.linalg.svd(jac[:, self.z_idx], compute_uv=False)
+            raise SingularPoseError(
+                f"legs singular at platform pose {np.round(self.platform_pose(q), 6).tolist()}: "
+                f"cond(Φ_z) = {s[0] / max(s[self.n_z - 1], 1e-300):.3g} (limit {1 / SINGULAR_RCOND:.0e})"
+            )
+        self._vm_cache = (key, *out)
+        return out
+
+    def singularity(self, q: np.ndarray) -> dict:
+        """Conditioning at q: ``cond_phi_z`` (assembly Jacobian K = Φ_z, or [Φ_q; H] for task
+        outputs: legs) and ``cond_B_r`` (reduced input matrix B_r = Tᵀ Sᵀ, actuation); large
+        numbers mean near-singular."""
+        _, jac = self._eval(np.asarray(q, dtype=float))
+        s = np.linalg.svd(jac[:, self.z_idx], compute_uv=False)[: self.n_z]
+        cond_z = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+        if cond_z * SINGULAR_RCOND >= 1:
+            return {"cond_phi_z": cond_z, "cond_B_r": math.inf}
+        T, _ = self.velocity_map(q)
+        sb = np.linalg.svd(T.T @ self.drive_selection, compute_uv=False)
+        cond_b = float(sb[0] / sb[-1]) if sb[-1] > 0 else math.inf
+        return {"cond_phi_z": cond_z, "cond_B_r": cond_b}
+
+    def check_pose(self, pose, max_cond: float = 1e4) -> np.ndarray:
+        """Assemble ``pose`` and raise :class:`SingularPoseError` if it is near-singular."""
+        q = self.assemble(pose)
+        cond = self.singularity(q)
+        worst = max(cond.values())
+        if worst > max_cond:
+            raise SingularPoseError(
+                f"platform pose {np.round(np.asarray(pose), 6).tolist()} is near-singular: "
+                f"cond(Φ_z) = {cond['cond_phi_z']:.3g}, cond(B_r) = {cond['cond_B_r']:.3g} (limit {max_cond:.3g})"
+            )
+        return q
