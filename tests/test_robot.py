@@ -149,3 +149,14 @@ def test_every_embedded_sidecar_uses_only_accepted_keys():
 def test_embedded_planar_robots_report_redundancy(robot4, robot3):
     assert (robot4.redundancy, robot3.redundancy) == (1, 0)
     assert "redundancy=1" in repr(robot4) and "redundancy" not in repr(robot3)
+
+
+def test_sidecar_default_plan_poses_are_read_and_checked(tmp_path):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r3.urdf")
+    text = (urdf_dir() / "planar_3rrr.toml").read_text()
+    (tmp_path / "r3.toml").write_text(text.replace("[home]\n", "[home]\nA = [0.2, 0.2, -0.3]\nB = [0.8, 0.8, 0.3]\n"))
+    d = load_description(tmp_path / "r3.urdf")
+    assert d.pose_a == (0.2, 0.2, -0.3) and d.pose_b == (0.8, 0.8, 0.3)
+    (tmp_path / "r3.toml").write_text(text.replace("[home]\n", "[home]\nA = [0.2, 0.2]\n"))
+    with pytest.raises(RobotFormatError, match=r"home.A = \[0.2, 0.2\] must hold 3 finite numbers"):
+        load_description(tmp_path / "r3.urdf")

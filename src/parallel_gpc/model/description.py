@@ -51,7 +51,7 @@ SIDECAR_KEYS = {
     "closures": {"name", "kind", "frames"},
     "drives": {"joints", "torque_limit"},
     "output": {"joints", "frame", "kind", "axes", "labels", "units"},
-    "home": {"pose", "q_guess", "branch_joints"},
+    "home": {"pose", "q_guess", "branch_joints", "A", "B"},
 }
 
 
@@ -105,6 +105,8 @@ class RobotDescription:
         root: ``"fixed"`` or ``"free_flyer"`` (a 6-DOF root joint named ``root_joint``).
         model_format: ``"urdf"`` or ``"mjcf"``.
         sidecar_path: the sidecar read.
+        pose_a, pose_b: (n_y,) default start and end poses of point-to-point planning
+            (sidecar ``[home] A = [...]``, ``B = [...]``, output units m and rad), or None.
     """
 
     name: str
@@ -124,6 +126,8 @@ class RobotDescription:
     root: str = "fixed"
     model_format: str = "urdf"
     sidecar_path: Path | None = None
+    pose_a: tuple[float, ...] | None = None
+    pose_b: tuple[float, ...] | None = None
 
     @property
     def n_y(self) -> int:
@@ -305,6 +309,20 @@ def _torque_limits(limits, n: int, where: str):
     return limits
 
 
+def _pose(value, key: str, n_y: int, where: str) -> tuple[float, ...] | None:
+    """An optional pose of ``n_y`` finite numbers from the sidecar (None if absent)."""
+    if value is None:
+        return None
+    try:
+        pose = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        pose = ()
+    if len(pose) != n_y or not all(math.isfinite(x) for x in pose):
+        raise RobotFormatError(f"sidecar {where}: {key} = {value!r} must hold {n_y} finite numbers "
+                               f"(one per output coordinate, m or rad)")
+    return pose
+
+
 def _q_guess(raw, where: str) -> dict:
     out = {}
     for k, v in (raw or {}).items():
@@ -355,7 +373,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     labels = tuple(output.get("labels", list(axes) if axes else [f"y{i}" for i in range(n_y)]))
     if len(labels) != n_y:
         raise RobotFormatError(f"sidecar {where}: output labels {list(labels)} must name the {n_y} outputs")
-    pose = home.get("pose")
+    pose, ends = home.get("pose"), {key: _pose(home.get(key), f"home.{key}", n_y, where) for key in ("A", "B")}
     return RobotDescription(
         name=str(data.get("name", model_file.stem)),
         urdf_path=model_file,
@@ -365,7 +383,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         output_frame=out_frame,
         output_labels=labels,
         torque_limit=_torque_limits(limits, len(drives), where),
-        home_pose=tuple(float(x) for x in pose) if pose is not None else None,
+        home_pose=_pose(pose, "home.pose", n_y, where),
         q_guess=_q_guess(home.get("q_guess"), where),
         branch_joints=_names(home.get("branch_joints", []), "home.branch_joints", where),
         output_kind=kind,
@@ -374,4 +392,6 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         root=root,
         model_format=fmt,
         sidecar_path=sidecar,
+        pose_a=ends["A"],
+        pose_b=ends["B"],
     )

@@ -232,6 +232,12 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         return self.description.name
 
     @property
+    def output_angular(self) -> np.ndarray:
+        """(n_y,) bool: True where the output coordinate is an angle in rad (a revolute output
+        joint or a rotation-vector component), False where it is a length in m."""
+        return self._is_angle.copy()
+
+    @property
     def drive_selection(self) -> np.ndarray:
         """(nv, n_u) Sᵀ: maps drive torques (N·m) to generalized forces."""
         S = np.zeros((self.model.nv, self.n_u))
