@@ -160,3 +160,11 @@ def test_sidecar_default_plan_poses_are_read_and_checked(tmp_path):
     (tmp_path / "r3.toml").write_text(text.replace("[home]\n", "[home]\nA = [0.2, 0.2]\n"))
     with pytest.raises(RobotFormatError, match=r"home.A = \[0.2, 0.2\] must hold 3 finite numbers"):
         load_description(tmp_path / "r3.urdf")
+
+
+def test_output_units_are_checked_not_ignored(tmp_path):
+    shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r3.urdf")
+    text = (urdf_dir() / "planar_3rrr.toml").read_text()
+    (tmp_path / "r3.toml").write_text(text.replace('units = ["m", "m", "rad"]', 'units = ["m", "m", "deg"]'))
+    with pytest.raises(RobotFormatError, match=r"units = \['m', 'm', 'deg'\] do not match .* \['m', 'm', 'rad'\]"):
+        ParallelRobot.load(tmp_path / "r3.urdf")

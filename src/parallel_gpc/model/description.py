@@ -105,6 +105,8 @@ class RobotDescription:
         root: ``"fixed"`` or ``"free_flyer"`` (a 6-DOF root joint named ``root_joint``).
         model_format: ``"urdf"`` or ``"mjcf"``.
         sidecar_path: the sidecar read.
+        output_units: ``[output] units`` as written (checked against the output kinds at build
+            time: "m" for lengths, "rad" for angles), or None.
         pose_a, pose_b: (n_y,) default start and end poses of point-to-point planning
             (sidecar ``[home] A = [...]``, ``B = [...]``, output units m and rad), or None.
     """
@@ -126,6 +128,7 @@ class RobotDescription:
     root: str = "fixed"
     model_format: str = "urdf"
     sidecar_path: Path | None = None
+    output_units: tuple[str, ...] | None = None
     pose_a: tuple[float, ...] | None = None
     pose_b: tuple[float, ...] | None = None
 
@@ -392,6 +395,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         root=root,
         model_format=fmt,
         sidecar_path=sidecar,
+        output_units=_names(output["units"], "output units", where) if "units" in output else None,
         pose_a=ends["A"],
         pose_b=ends["B"],
     )

@@ -128,6 +128,10 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             self.z_idx = np.arange(nv)
             self._is_angle = self.task_output.is_angle
         self.n_y = description.n_y
+        units = tuple("rad" if a else "m" for a in self._is_angle)
+        if description.output_units is not None and tuple(description.output_units) != units:
+            raise RobotFormatError(f"[output] units = {list(description.output_units)} do not match the outputs "
+                                   f"{list(description.output_labels)}, which are in {list(units)}")
         self.n_u = len(self.drive_idx)
         self.n_z = len(self.z_idx)
 
