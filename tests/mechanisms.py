@@ -182,6 +182,49 @@ def rps_sidecar(spherical: bool, axes=("z", "rx", "ry"), joint_types: dict | Non
             f"home: {{q_guess: {guess}}}\n").replace("'", "")
 
 
+def _mj_quat(R: np.ndarray) -> str:
+    x, y, z, w = pin.Quaternion(R).coeffs()
+    return f"{w:.15g} {x:.15g} {y:.15g} {z:.15g}"
+
+
+def rps_mjcf() -> str:
+    """The 3-RPS of :func:`rps_urdf` as MJCF, drawn assembled at home (joint values measured
+    from home): hinge-slide legs, a ``ball`` joint carrying the platform on leg 1, the other
+    legs closed on the platform by equality connects."""
+    tilt = -math.atan2(RB - RP, H)
+    length = math.hypot(RB - RP, H)
+    legs = []
+    for k in range(3):
+        alpha = 2 * math.pi * k / 3
+        R = pin.rpy.rpyToMatrix(0, 0, alpha) @ pin.rpy.rpyToMatrix(0, tilt, 0)
+        platform = ""
+        if k == 0:
+            platform = f"""
+          <body name="platform_body" quat="{_mj_quat(R.T)}">
+            <joint name="s1" type="ball"/>
+            <inertial pos="{-RP} 0 0" mass="{M_PLAT}" diaginertia="0.02 0.02 0.04"/>
+            <site name="platform" pos="{-RP} 0 0"/>
+          </body>"""
+        legs.append(f"""
+      <body name="lower{k + 1}" pos="{RB * math.cos(alpha):.15g} {RB * math.sin(alpha):.15g} 0" quat="{_mj_quat(R)}">
+        <joint name="r{k + 1}" type="hinge" axis="0 1 0"/>
+        <inertial pos="0 0 0.1" mass="{M_LOWER}" diaginertia="0.003 0.003 0.0002"/>
+        <body name="upper{k + 1}" pos="0 0 {length:.15g}">
+          <joint name="p{k + 1}" type="slide" axis="0 0 1"/>
+          <inertial pos="0 0 -0.1" mass="{M_UPPER}" diaginertia="0.002 0.002 0.0001"/>{platform}
+        </body>
+      </body>""")
+    return ('<mujoco model="rps">\n  <worldbody>\n    <body name="base">' + "".join(legs)
+            + '\n    </body>\n  </worldbody>\n  <equality>\n'
+            + '    <connect body1="upper2" body2="platform_body" anchor="0 0 0"/>\n'
+            + '    <connect body1="upper3" body2="platform_body" anchor="0 0 0"/>\n  </equality>\n</mujoco>\n')
+
+
+def rps_mjcf_sidecar() -> str:
+    return ('name = "rps_mjcf"\n[output]\nframe = "platform"\nkind = "pose"\naxes = ["z", "rx", "ry"]\n'
+            '[drives]\njoints = ["p1", "p2", "p3"]\n')
+
+
 def write(tmp_path, stem: str, model: str, sidecar: str, model_suffix: str = ".urdf",
           sidecar_suffix: str = ".toml"):
     """Write ``stem`` + suffixes to ``tmp_path``; returns the model file's path."""

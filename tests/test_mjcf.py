@@ -87,3 +87,18 @@ def test_sdf_is_refused_clearly(tmp_path):
     path.write_text("<sdf/>")
     with pytest.raises(RobotFormatError, match="SDF is not supported"):
         load_description(path)
+
+
+def test_spatial_mjcf_with_a_ball_joint_equals_the_urdf_model_and_constraint_dynamics(tmp_path):
+    mjcf = ParallelRobot.load(mech.write(tmp_path, "rpsm", mech.rps_mjcf(), mech.rps_mjcf_sidecar(), ".xml"))
+    urdf = ParallelRobot.load(mech.write(tmp_path, "rps", mech.rps_urdf(True), mech.rps_sidecar(True), ".urdf", ".yaml"))
+    assert mjcf.model.joints[mjcf.model.getJointId("s1")].shortname() == "JointModelSpherical"
+    assert (mjcf.model.nq, mjcf.model.nv, mjcf.n_y) == (10, 9, 3)
+    mm, mu = ReducedModel(mjcf), ReducedModel(urdf)
+    rng = np.random.default_rng(12)
+    for X in mech.random_output_states(urdf, rng, 5):
+        u = rng.uniform(-5, 5, 3)
+        np.testing.assert_allclose(mm.acceleration(X, u), mu.acceleration(X, u), rtol=1e-9, atol=1e-10)
+    _, cms = pin.buildModelAndLegacyConstraintsFromMJCF(str(tmp_path / "rpsm.xml"))
+    assert len(cms) == 2
+    mech.assert_reduced_matches_constraint_dynamics(mjcf, cms=list(cms))
