@@ -66,8 +66,10 @@ class ClosureMixin:
         pin.updateFramePlacements(model, data)
         oMf = data.oMf
         frames = self._frames_flat
-        P = np.array([oMf[f].translation for f in frames]).reshape(-1, 3)
-        if self._point_only:
+        if not frames:  # no closure (the output alone fixes the configuration)
+            res = np.zeros(0)
+        elif self._point_only:
+            P = np.array([oMf[f].translation for f in frames])
             res = (P[0::2] - P[1::2]).reshape(-1)
         else:
             res = np.empty(self.n_constraints)
@@ -83,11 +85,14 @@ class ClosureMixin:
             res = np.concatenate([res, task.value(data)])
         if not jacobian:
             return res, None
-        J = np.array([pin.getFrameJacobian(model, data, f, _LWA) for f in frames]).reshape(-1, 6, model.nv)
-        if self._point_only:
-            jac = (J[0::2, :3] - J[1::2, :3]).reshape(-1, model.nv)
+        if not frames:
+            jac = np.zeros((0, model.nv))
         else:
-            jac = (J[0::2] - J[1::2]).reshape(-1, model.nv)[self._jac_rows]
+            J = np.array([pin.getFrameJacobian(model, data, f, _LWA) for f in frames])
+            if self._point_only:
+                jac = (J[0::2, :3] - J[1::2, :3]).reshape(-1, model.nv)
+            else:
+                jac = (J[0::2] - J[1::2]).reshape(-1, model.nv)[self._jac_rows]
         if task is not None:
             jac = np.vstack([jac, task.jacobian(model, data)])
         self._ck_cache = (key, res, jac)
@@ -114,13 +119,11 @@ class ClosureMixin:
 
         Φ̇_q is linear in v. Updates ``self.data``.
         """
-        pin.computeJointJacobiansTimeVariation(self.model, self.data, q, v)
-        return self._closure_dJ()
-
-    def _closure_dJ(self) -> np.ndarray:
         model, data = self.model, self.data
-        dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA)
-                       for f in self._frames_flat]).reshape(-1, 6, model.nv)
+        pin.computeJointJacobiansTimeVariation(model, data, q, v)
+        if not self._frames_flat:
+            return np.zeros((0, model.nv))
+        dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA) for f in self._frames_flat])
         if self._point_only:
             return (dJ[0::2, :3] - dJ[1::2, :3]).reshape(-1, model.nv)
         return (dJ[0::2] - dJ[1::2]).reshape(-1, model.nv)[self._jac_rows]
@@ -129,10 +132,10 @@ class ClosureMixin:
         """Ψ̇_q at (q, v): the assembly rows' Jacobian derivative, closures then (task-space) outputs.
 
         The acceleration offset of the reduced model is ℓ_z = −K⁺ Ψ̇_q v (linear in v). Updates
-        ``self.data``.
+        ``self.data``. For joint outputs the constructor binds this name to
+        :meth:`closure_jacobian_derivative` (one call less in the control step).
         """
-        pin.computeJointJacobiansTimeVariation(self.model, self.data, q, v)
-        dPhi = self._closure_dJ()
+        dPhi = self.closure_jacobian_derivative(q, v)
         if self.task_output is None:
             return dPhi
         return np.vstack([dPhi, self.task_output.jacobian_derivative(self.model, self.data, v)])

@@ -149,6 +149,8 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         self._T0 = np.zeros((self.model.nv, self.n_y))
         self._T0[self.y_idx, np.arange(len(self.y_idx))] = 1.0
         self._target = np.zeros(self.n_constraints + (self.n_y if self.task_output else 0))
+        if self.task_output is None:  # the assembly rows are the closures: skip a call in the hot path
+            self.constraint_jacobian_derivative = self.closure_jacobian_derivative
         self._ck_cache = None  # (q, residual, jacobian) of the last Jacobian evaluation
         self._vm_cache = None  # (q, T, pinv_z) of the last velocity map
 
