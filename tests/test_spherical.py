@@ -151,3 +151,9 @@ def test_free_flyer_root_welded_to_the_world_matches_the_fixed_base(tmp_path):
     np.testing.assert_allclose(tb.acceleration(u), ta.acceleration(u), rtol=1e-9)
     np.testing.assert_allclose(tb.M_r, ta.M_r, rtol=1e-10)
     mech.assert_reduced_matches_constraint_dynamics(floating)
+
+
+def test_inverse_then_forward_kinematics_round_trip_with_spherical_joint(rps_pair):
+    sph = rps_pair[0]
+    y = sph.home_pose + [0.02, 0.05, -0.04]
+    np.testing.assert_allclose(sph.forward_kinematics(sph.inverse_kinematics(y)), y, atol=1e-10)
