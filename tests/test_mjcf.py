@@ -102,3 +102,11 @@ def test_spatial_mjcf_with_a_ball_joint_equals_the_urdf_model_and_constraint_dyn
     _, cms = pin.buildModelAndLegacyConstraintsFromMJCF(str(tmp_path / "rpsm.xml"))
     assert len(cms) == 2
     mech.assert_reduced_matches_constraint_dynamics(mjcf, cms=list(cms))
+
+
+def test_the_view_reads_the_visual_geometry_of_an_mjcf_model(fivebars):
+    from parallel_gpc.viz.scene import visual_model
+
+    _, mjcf = fivebars
+    geometry = visual_model(mjcf)  # a URDF parser would refuse the MJCF file
+    assert isinstance(geometry, pin.GeometryModel)

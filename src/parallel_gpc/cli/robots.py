@@ -10,7 +10,7 @@ def robot_rows() -> list[tuple[str, str, str, str]]:
     rows = []
     for name in embedded_robots():
         d = load_description(name)
-        rows.append((name, str(len(d.output_joints)), f"{len(d.drive_joints)} ({', '.join(d.drive_joints)})",
+        rows.append((name, str(d.n_y), f"{len(d.drive_joints)} ({', '.join(d.drive_joints)})",
                      ", ".join(d.output_labels)))
     return rows
 

@@ -63,8 +63,11 @@ def _path_points(name: str, points) -> np.ndarray:
 
 
 def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
-    """The robot's URDF visual geometry as a ``pinocchio.GeometryModel``."""
-    return pin.buildGeomFromUrdf(robot.model, str(robot.description.urdf_path), pin.GeometryType.VISUAL)
+    """The robot's visual geometry (from its URDF or MJCF model file) as a ``pinocchio.GeometryModel``."""
+    path = str(robot.description.urdf_path)
+    if robot.description.model_format == "mjcf":
+        return pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
+    return pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL)
 
 
 def _shape(geometry, scale: float = 1.0) -> tuple[mg.Geometry, np.ndarray]:
