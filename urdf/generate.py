@@ -1,6 +1,8 @@
-"""Generate the embedded planar n-RRR robot files (URDF open tree + TOML closure sidecar).
+"""Generate the embedded robot files (URDF open tree + TOML closure sidecar).
 
-Run ``python urdf/generate.py`` to rewrite ``planar_4rrr.*`` and ``planar_3rrr.*``.
+Run ``python urdf/generate.py`` to rewrite ``planar_4rrr.*`` and ``planar_3rrr.*`` (planar n-RRR,
+this module) and the spatial robots ``delta_3rus``, ``hexapod_6ups``, ``hexapod_8ups``
+(:mod:`generate_spatial`).
 The numbers are our own stand-in (the paper gives no robot data); see DESIGN §1.
 
 Geometry (SI units): bases at the corners of a 1 m x 1 m square, proximal and distal links
@@ -189,9 +191,15 @@ def sidecar_text(name: str, n_legs: int) -> str:
 
 
 def main() -> None:
+    from generate_spatial import SPATIAL_ROBOTS  # the Delta robot and the hexapods
+
     for name, n_legs in (("planar_4rrr", 4), ("planar_3rrr", 3)):
         (HERE / f"{name}.urdf").write_text(urdf_text(name, n_legs))
         (HERE / f"{name}.toml").write_text(sidecar_text(name, n_legs))
+    for name, files in SPATIAL_ROBOTS.items():
+        urdf, sidecar = files()
+        (HERE / f"{name}.urdf").write_text(urdf)
+        (HERE / f"{name}.toml").write_text(sidecar)
 
 
 if __name__ == "__main__":
