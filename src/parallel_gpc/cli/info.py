@@ -2,22 +2,38 @@
 
 from __future__ import annotations
 
-import math
-
 from .defaults import DEFAULT_ROBOT
 
-#: The paper's poses A and B (m, m, rad).
-POSE_A = (0.2, 0.2, math.radians(-20.0))
-POSE_B = (0.8, 0.8, math.radians(20.0))
+
+def _reach(robot, pose) -> str:
+    import numpy as np
+
+    qp = robot.assemble(pose)
+    c = robot.singularity(qp)
+    return (f"reachable, residual {np.max(np.abs(robot.closure_residual(qp))):.1e} m, "
+            f"cond(Phi_z) {c['cond_phi_z']:.3g}, cond(B_r) {c['cond_B_r']:.3g}")
+
+
+def _segment(robot, A, B, n: int = 21) -> str:
+    """Reach and worst conditioning along the straight segment A → B in output coordinates."""
+    import numpy as np
+
+    q, worst = None, {"cond_phi_z": 0.0, "cond_B_r": 0.0}
+    for s in np.linspace(0.0, 1.0, n):
+        q = robot.assemble(A + s * (B - A), q)
+        worst = {k: max(v, robot.singularity(q)[k]) for k, v in worst.items()}
+    return f"reachable ({n} poses), max cond(Phi_z) {worst['cond_phi_z']:.3g}, max cond(B_r) {worst['cond_B_r']:.3g}"
 
 
 def robot_info(robot) -> list[tuple[str, str]]:
     """Rows (label, value) describing a :class:`~parallel_gpc.ParallelRobot`: DOF, drives,
-    closures, conditioning, reach of the poses A and B."""
+    closures, conditioning, reach of the poses A and B (the sidecar's, or the paper's for planar
+    robots) and of the segment between them."""
     import numpy as np
 
     from ..errors import ParallelGPCError
     from ..model.dynamics import ReducedModel
+    from .plan import default_poses
 
     q = robot.q_home
     terms = ReducedModel(robot).terms_at_q(q, np.zeros(robot.n_y))
@@ -31,20 +47,22 @@ def robot_info(robot) -> list[tuple[str, str]]:
         ("closures", f"{len(robot.description.closures)} ({robot.n_constraints} constraint rows)"),
         ("joints nq", str(robot.model.nq)),
         ("torque limit [N·m]", str(None if robot.torque_limit is None else robot.torque_limit.tolist())),
-        ("home pose [m, m, rad]", str(np.round(robot.home_pose, 6).tolist())),
+        ("home pose [m, rad]", str(np.round(robot.home_pose, 6).tolist())),
         ("closure residual at home [m]", f"{np.max(np.abs(robot.closure_residual(q))):.2e}"),
         ("cond(M) full / reduced", f"{np.linalg.cond(terms.M):.3g} / {np.linalg.cond(terms.M_r):.3g}"),
         ("cond(Phi_z) / cond(B_r) at home", f"{cond['cond_phi_z']:.3g} / {cond['cond_B_r']:.3g}"),
     ]
-    for label, pose in (("A", np.array(POSE_A)), ("B", np.array(POSE_B))):
+    A, B = default_poses(robot)
+    checks = [(f"pose {label} {np.round(pose, 4).tolist()}", _reach, (pose,))
+              for label, pose in (("A", A), ("B", B)) if pose is not None]
+    if A is not None and B is not None:
+        checks.append(("segment A -> B", _segment, (A, B)))
+    for label, check, poses in checks:
         try:
-            qp = robot.assemble(pose)
-            c = robot.singularity(qp)
-            status = (f"reachable, residual {np.max(np.abs(robot.closure_residual(qp))):.1e} m, "
-                      f"cond(Phi_z) {c['cond_phi_z']:.3g}, cond(B_r) {c['cond_B_r']:.3g}")
+            status = check(robot, *poses)
         except ParallelGPCError as exc:
             status = f"NOT reachable: {exc}"
-        rows.append((f"pose {label} {np.round(pose, 4).tolist()}", status))
+        rows.append((label, status))
     return rows
 
 

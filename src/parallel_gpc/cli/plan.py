@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
 from .view import add_view_arguments, show_trajectory
 
@@ -16,12 +17,31 @@ DEFAULT_A = (0.2, 0.2, -20.0)
 DEFAULT_B = (0.8, 0.8, 20.0)
 
 
-def _pose_rad(values):
-    """(3,) pose x, y (m), psi (rad) from command-line x, y (m), psi (deg)."""
+def default_poses(robot) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(A, B) in m and rad: the sidecar's ``[home] A``, ``B``; for a robot without them whose
+    outputs are planar [x m, y m, ψ rad], the paper's poses; else None."""
     import numpy as np
 
-    x, y, psi_deg = (float(v) for v in values)
-    return np.array([x, y, math.radians(psi_deg)])
+    d = robot.description
+    planar = robot.output_angular.tolist() == [False, False, True]
+    paper = [np.array([*p[:2], math.radians(p[2])]) if planar else None for p in (DEFAULT_A, DEFAULT_B)]
+    return tuple(np.array(p, dtype=float) if p is not None else fallback
+                 for p, fallback in zip((d.pose_a, d.pose_b), paper))
+
+
+def _pose_rad(robot, values, default, name: str) -> np.ndarray:
+    """A pose from the command line (m, angles in deg) in m and rad, or ``default``."""
+    import numpy as np
+
+    if values is None:
+        if default is None:
+            raise InvalidParameterError(f"robot {robot.name!r} has no default pose {name} in its sidecar "
+                                        f"([home] {name} = [...]); give --{name} with {robot.n_y} values")
+        return default
+    if len(values) != robot.n_y:
+        raise InvalidParameterError(f"--{name} has {len(values)} values; robot {robot.name!r} has {robot.n_y} "
+                                    f"outputs {list(robot.description.output_labels)} (m, angles in deg)")
+    return np.where(robot.output_angular, np.radians(values), np.asarray(values, dtype=float))
 
 
 def _fmt(value: float, spec: str = ".3g") -> str:
@@ -69,10 +89,11 @@ def cmd_plan(args) -> int:
     from ..studies.plots_planning import plot_fig3, plot_fig4
 
     robot = ParallelRobot.load(args.robot)
-    A, B = _pose_rad(args.A), _pose_rad(args.B)
+    A, B = (_pose_rad(robot, values, default, name)
+            for values, default, name in zip((args.A, args.B), default_poses(robot), "AB"))
     settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, Qy=args.Qy, Qu=args.Qu,
                             torque_limit=args.torque_limit, solver=args.solver, settle_steps=args.settle)
-    print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, m, rad); "
+    print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, rad); "
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
           f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
           f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
@@ -108,10 +129,12 @@ def register_plan(sub) -> None:
                     "Qu over the whole horizon. Mode (a) solves once and applies the sequence open loop; "
                     "mode (b) re-solves every step with N := Nmax, …, Nmin (21) on the nonlinear plant.")
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
-    p.add_argument("--A", nargs=3, type=float, default=DEFAULT_A, metavar=("X", "Y", "PSI_DEG"),
-                   help="start pose: x [m], y [m], psi [deg] (default 0.2 0.2 -20)")
-    p.add_argument("--B", nargs=3, type=float, default=DEFAULT_B, metavar=("X", "Y", "PSI_DEG"),
-                   help="end pose: x [m], y [m], psi [deg] (default 0.8 0.8 20)")
+    p.add_argument("--A", nargs="+", type=float, default=None, metavar="Y",
+                   help="start pose, one value per output: m, angles in deg (default: the sidecar's [home] A; "
+                        "planar robots: 0.2 0.2 -20)")
+    p.add_argument("--B", nargs="+", type=float, default=None, metavar="Y",
+                   help="end pose, one value per output: m, angles in deg (default: the sidecar's [home] B; "
+                        "planar robots: 0.8 0.8 20)")
     p.add_argument("--Nmax", type=int, default=120,
                    help="first horizon in samples; the move lasts Nmax·Ts (default 120)")
     p.add_argument("--Nmin", type=int, default=10, help="smallest horizon of mode (b), k < Nmin ≤ Nmax (default 10)")

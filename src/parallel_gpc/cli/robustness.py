@@ -95,8 +95,9 @@ def register_robustness(sub) -> None:
     p.add_argument("--mass-scales", default=None, help="comma-separated plant mass scales (default 0.7,0.85,1.15,1.3)")
     p.add_argument("--noise", default=None, help="comma-separated pose noise σ in m (default 1e-5,1e-4)")
     p.add_argument("--disturbances", default=None, help="comma-separated platform forces along x in N (default 10,20)")
-    p.add_argument("--reference", choices=("scurve", "hold"), default="scurve",
-                   help="the paper's S-curve (then a hold) or a hold of the home pose")
+    p.add_argument("--reference", choices=("path", "scurve", "helix", "hold"), default="path",
+                   help="the robot's path (then a hold): the paper's S-curve for planar robots, the helix "
+                        "for spatial ones; or a hold of the home pose")
     p.add_argument("--out", default="out/robustness", help="output folder (default out/robustness)")
     p.add_argument("--quick", action="store_true", help="fewer cases: ±30 %% mass, noise 1e-4 m, 20 N (about half the time)")
     p.set_defaults(func=cmd_robustness)

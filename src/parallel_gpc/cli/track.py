@@ -30,9 +30,10 @@ def add_tracking_arguments(p) -> None:
     p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample")
     p.add_argument("--mass-scale", type=float, default=1.0, help="plant mass / model mass (default 1)")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise std on [y, ẏ] (SI)")
-    p.add_argument("--force", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("FX", "FY", "MZ"),
-                   help="constant disturbance on the platform (N, N, N·m)")
-    p.add_argument("--reference", choices=["s-curve", "hold"], default="s-curve")
+    p.add_argument("--force", type=float, nargs="+", default=(0.0, 0.0, 0.0), metavar="F",
+                   help="constant disturbance on the platform, one value per coordinate (N, N·m), e.g. FX FY MZ")
+    p.add_argument("--reference", choices=["auto", "s-curve", "helix", "hold"], default="auto",
+                   help="auto: the S-curve for planar robots, the 3-D helix for spatial ones")
     p.add_argument("--duration", type=float, default=None, help="run length in s (default: motion + 0.2 s)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_view_arguments(p)

@@ -49,7 +49,7 @@ from ..model.dynamics import ReducedModel, discretize_zoh
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, SolverError
 from ..results import robot_reference, save_result
 from .prediction import Horizons, Prediction, absolute_prediction
-from .references import SampledTrajectory
+from .references import SampledTrajectory, pose_error_norms
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
 from .criterion import Weights, build_problem
 from ..validation import finite_vector, positive
@@ -148,11 +148,16 @@ class PlanSettings:
 
 
 # ---------------------------------------------------------------------------- one solve
-def end_point_problem(model, X, target, N: int, settings: PlanSettings) -> tuple[LeastSquaresProblem, Prediction]:
+def end_point_problem(model, X, target, N: int, settings: PlanSettings,
+                      u_hold: np.ndarray | None = None) -> tuple[LeastSquaresProblem, Prediction]:
     """The least squares (20) at state X: horizon N, No = N − k, Nu = N.
 
     The model is the state-dependent factorization (3) at X, ZOH-discretized at Ts (4); only
-    the last k predicted outputs are compared with ``target``.
+    the last k predicted outputs are compared with ``target``. With ``u_hold`` (the static
+    torque that holds the platform at the target against gravity, :func:`hold_torque`) the
+    unknowns are the deviations v = u − u_hold, so Qu penalizes ‖u − u_hold‖: without it, the
+    receding-horizon plan of a robot under gravity settles short of B (on our Delta robot by
+    0.7 mm, whatever Qu), because the minimum-‖u‖ plan from rest at B is not u_hold.
 
     Args:
         model: a :class:`~parallel_gpc.dynamics.ReducedModel` (or any object with
@@ -161,30 +166,49 @@ def end_point_problem(model, X, target, N: int, settings: PlanSettings) -> tuple
         target: (n_y,) end pose B (m, rad).
         N: horizon, N ≥ k.
         settings: weights, k, Ts, torque limit.
+        u_hold: (n_u,) N·m, or None (zero).
 
     Returns:
-        (problem, prediction): ``min ‖A v − b‖²`` over v = [u(0) … u(N−1)] (N·n_u, N·m).
+        (problem, prediction): ``min ‖A v − b‖²`` over v = [u(0) … u(N−1)] − u_hold (N·n_u, N·m).
     """
     A, B, c = model.factorize(X)
     Ad, Bd, cd = discretize_zoh(A, B, c, settings.Ts)
     pred = absolute_prediction(Ad, Bd, cd, model.C, X, Horizons(int(N), int(N) - settings.k, int(N)))
     w = np.tile(target, (settings.k, 1))
+    hold = None if u_hold is None else np.tile(u_hold, int(N))
+    if hold is not None:  # ŷ = f + G (v + hold)
+        pred = replace(pred, f=pred.f + pred.G @ hold, u_base=pred.u_base + hold)
     problem = build_problem(pred, w, settings.weights, model.n_y, model.n_u, settings.torque_limit)
+    if hold is not None and problem.lb is not None:
+        problem.lb, problem.ub = problem.lb - hold, problem.ub - hold
     return problem, pred
 
 
+def hold_torque(model, target) -> np.ndarray | None:
+    """(n_u,) minimum-norm drive torques (N·m) that hold the platform at rest at ``target``
+    (ÿ = f + g u = 0, eq. (1)); None when it is zero (a horizontal robot) or the model is not a
+    :class:`~parallel_gpc.model.dynamics.ReducedModel`."""
+    if not isinstance(model, ReducedModel):
+        return None
+    terms = model.terms(np.concatenate([target, np.zeros(model.n_y)]))
+    u = -np.linalg.pinv(terms.g) @ terms.f
+    return u if np.any(u != 0.0) else None
+
+
 def solve_end_point(model, X, target, N: int, settings: PlanSettings, backend=None,
-                    warm_start: np.ndarray | None = None) -> tuple[np.ndarray, SolveResult]:
+                    warm_start: np.ndarray | None = None, u_hold: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, SolveResult]:
     """Solve (20) at state X with horizon N.
 
     Returns:
         (u, result): u is the (N, n_u) input sequence in N·m (NaN if the solve failed; check
         ``result.ok``).
     """
-    problem, _ = end_point_problem(model, X, target, N, settings)
+    problem, _ = end_point_problem(model, X, target, N, settings, u_hold)
     backend = make_solver(settings.solver_name) if backend is None else backend
     result = backend.solve(problem, warm_start)
-    return np.asarray(result.v, dtype=float).reshape(int(N), model.n_u), result
+    u = np.asarray(result.v, dtype=float).reshape(int(N), model.n_u)
+    return (u if u_hold is None else u + u_hold), result
 
 
 def deadbeat_inputs(model, X, target, settings: PlanSettings) -> np.ndarray:
@@ -224,6 +248,8 @@ class PlanResult:
         stopped: empty if the plan ran to its end; otherwise why the recording stopped early
             (e.g. the open-loop plant of mode (a) left the workspace), the arrays then end there.
         robot: how the result file names the robot (embedded name or absolute URDF path; "" for none).
+        angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
+            convention [x, y, ψ].
     """
 
     mode: str
@@ -241,6 +267,7 @@ class PlanResult:
     saturated: int = 0
     stopped: str = ""
     robot: str = ""
+    angular: np.ndarray | None = None
 
     @property
     def label(self) -> str:
@@ -254,11 +281,9 @@ class PlanResult:
 
     # ------------------------------------------------------------ errors
     def error_norms(self) -> tuple[np.ndarray, np.ndarray]:
-        """(K+1,) position error ‖(x, y) − B‖ in m and orientation error |ψ − ψ_B| in rad."""
-        e = self.poses - self.target
-        pos = np.linalg.norm(e[:, :2], axis=1)
-        ang = np.linalg.norm(e[:, 2:], axis=1)
-        return pos, ang
+        """(K+1,) position error ‖p − p_B‖ in m and orientation error ‖ψ − ψ_B‖ in rad
+        (translational and angular output coordinates, see :attr:`angular`)."""
+        return pose_error_norms(self.poses - self.target, self.angular)
 
     @property
     def end_error(self) -> tuple[float, float]:
@@ -276,8 +301,8 @@ class PlanResult:
     @property
     def end_speed(self) -> tuple[float, float]:
         """(m/s, rad/s) platform speed at the last sample."""
-        v = self.velocities[-1]
-        return float(np.linalg.norm(v[:2])), float(np.linalg.norm(v[2:]))
+        lin, ang = pose_error_norms(self.velocities[-1:], self.angular)
+        return float(lin[0]), float(ang[0])
 
     @property
     def time_to_reach(self) -> float:
@@ -413,7 +438,8 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
                       rec.X[: n + 1, n_y:].copy(), rec.u[:n].copy(), rec.horizon[:n].copy(),
                       rec.status[:n].astype(str), rec.solve_time[:n].copy(),
                       None if rec.q is None else rec.q[: n + 1].copy(), settings,
-                      int(getattr(plant, "saturated", 0) - sat0), rec.stopped, robot_reference(robot))
+                      int(getattr(plant, "saturated", 0) - sat0), rec.stopped, robot_reference(robot),
+                      None if robot is None else robot.output_angular)
 
 
 class _Recorder:
@@ -454,7 +480,8 @@ def _run_open_loop(model, plant, B, settings: PlanSettings, backend, rec: _Recor
     """Mode (a): one solve at N = Nmax from the model at A, the whole sequence applied."""
     Nmax, Ts = settings.Nmax, settings.Ts
     t0 = time.perf_counter()
-    u_seq, result = solve_end_point(model, np.asarray(plant.X, dtype=float), B, Nmax, settings, backend)
+    u_seq, result = solve_end_point(model, np.asarray(plant.X, dtype=float), B, Nmax, settings, backend,
+                                    u_hold=hold_torque(model, B))
     rec.solve_time[0] = time.perf_counter() - t0
     if not result.ok:
         raise SolverError(f"planning solve (mode a, N = {Nmax}) failed with {result.solver}: {result.status} "
@@ -469,6 +496,7 @@ def _run_shrinking(model, plant, B, settings: PlanSettings, backend, rec: _Recor
     Nmax, Nmin, Ts, m = settings.Nmax, settings.Nmin, settings.Ts, model.n_u
     remaining = None  # the last successful plan's inputs not yet applied, (n, m)
     v_prev = None
+    u_hold = hold_torque(model, B)
     steps = tqdm(range(len(rec.u)), disable=not progress, desc="plan (b) with stopping", unit="step", leave=False)
     for i in steps:
         N = max(Nmax - i, Nmin)
@@ -479,7 +507,8 @@ def _run_shrinking(model, plant, B, settings: PlanSettings, backend, rec: _Recor
                 warm = np.concatenate([warm, np.tile(v_prev[-m:], N - len(warm) // m)])
             warm = warm[: N * m]
         t0 = time.perf_counter()
-        u_seq, result = solve_end_point(model, np.asarray(plant.X, dtype=float), B, N, settings, backend, warm)
+        u_seq, result = solve_end_point(model, np.asarray(plant.X, dtype=float), B, N, settings, backend, warm,
+                                        u_hold)
         rec.solve_time[i] = time.perf_counter() - t0
         if result.ok:
             plan, v_prev, status = u_seq, result.v, result.status

@@ -7,7 +7,7 @@ t + Ts, …, t + N·Ts that the controller compares its predictions with.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +38,25 @@ class Reference:
     def sample(self, times) -> np.ndarray:
         """(K, n_y) poses at the given times (s)."""
         return np.array([self.pose(float(t)) for t in times])
+
+
+def pose_error_norms(e, angular=None) -> tuple[np.ndarray, np.ndarray]:
+    """Position and orientation parts of pose errors (or velocities).
+
+    Args:
+        e: (K, n_y) differences of poses (m, rad).
+        angular: (n_y,) bool, True for angular coordinates (``ParallelRobot.output_angular``);
+            None: the planar convention, columns 0-1 in m and the rest in rad.
+
+    Returns:
+        (K,) Euclidean norms of the translational columns (m) and of the angular columns (rad;
+        zeros if there are none).
+    """
+    e = np.atleast_2d(np.asarray(e, dtype=float))
+    if angular is None:
+        angular = np.arange(e.shape[1]) >= 2
+    angular = np.asarray(angular, dtype=bool)
+    return np.linalg.norm(e[:, ~angular], axis=1), np.linalg.norm(e[:, angular], axis=1)
 
 
 def quintic(tau: float) -> float:
@@ -83,6 +102,63 @@ class SCurve(Reference):
             cx, cy = x0, y0 + 3 * r
         psi = self.psi_start + (self.psi_end - self.psi_start) * s
         return np.array([cx + r * math.cos(theta), cy + r * math.sin(theta), psi])
+
+
+@dataclass(frozen=True)
+class Helix(Reference):
+    """A spatial helix for robots with three translational outputs (any number of angles).
+
+    The translational columns ``position_columns`` (x, y, z) run ``turns`` turns of a circle
+    of ``radius`` about a vertical axis while z rises by ``rise``; the circle's centre is
+    ``radius`` along −x from ``start``, so the path starts at ``start``. Every other column
+    (angles, in rad) follows ``start + amplitude·sin(2π s)``, leaving and returning to its start
+    value (``angle_amplitude`` per angular column in order; zeros keep the orientation
+    constant). Arc length follows a quintic time scaling over ``duration`` after ``t_start``;
+    before and after, the pose is held.
+
+    Attributes:
+        start: (n_y,) start pose (m, rad). radius, rise: in m. turns: number of turns.
+        angle_amplitude: (n_y − 3,) in rad, or () for constant angles. duration, t_start: in s.
+        position_columns: indices of x, y, z in the pose.
+    """
+
+    start: tuple[float, ...]
+    radius: float = 0.08
+    rise: float = 0.12
+    turns: float = 1.0
+    angle_amplitude: tuple[float, ...] = ()
+    duration: float = 2.0
+    t_start: float = 0.0
+    position_columns: tuple[int, int, int] = (0, 1, 2)
+
+    def __post_init__(self):
+        start = finite_vector("helix start pose", self.start)
+        cols = tuple(int(c) for c in self.position_columns)
+        if len(cols) != 3 or len(set(cols)) != 3 or not all(0 <= c < start.size for c in cols):
+            raise InvalidParameterError(f"helix position_columns = {self.position_columns!r} must be three "
+                                        f"distinct indices into the {start.size} pose coordinates")
+        n_ang = start.size - 3
+        amp = tuple(self.angle_amplitude) or (0.0,) * n_ang
+        if len(amp) != n_ang:
+            raise InvalidParameterError(f"helix angle_amplitude has {len(amp)} values; expected {n_ang} "
+                                        "(one per non-translational pose coordinate, rad) or none")
+        object.__setattr__(self, "angle_amplitude", tuple(finite_vector("helix angle_amplitude", amp, n_ang)))
+        positive("helix radius", self.radius, " m")
+        positive("helix duration", self.duration, " s")
+        positive("helix turns", self.turns, "")
+        finite_vector("helix rise", [self.rise], 1)
+
+    def pose(self, t: float) -> np.ndarray:
+        s = quintic((t - self.t_start) / self.duration)
+        pose = np.array(self.start, dtype=float)
+        ix, iy, iz = self.position_columns
+        phi = 2 * math.pi * self.turns * s
+        pose[ix] += self.radius * (math.cos(phi) - 1.0)
+        pose[iy] += self.radius * math.sin(phi)
+        pose[iz] += self.rise * s
+        others = [i for i in range(pose.size) if i not in self.position_columns]
+        pose[others] += np.asarray(self.angle_amplitude) * math.sin(2 * math.pi * s)
+        return pose
 
 
 @dataclass(frozen=True)
@@ -144,3 +220,57 @@ class SampledTrajectory(Reference):
         if poses is None:
             raise ResultFormatError(f"{str(path)!r} (kind {result.kind!r}) holds no planned or reference poses")
         return cls(result.t, poses, result.arrays.get("velocities"))
+
+
+#: Reference kinds that :func:`path_for` builds.
+PATH_KINDS = ("auto", "s-curve", "helix")
+
+
+def _is_planar(angular: np.ndarray) -> bool:
+    return angular.tolist() == [False, False, True]
+
+
+def path_for(kind: str, home_pose, angular, duration: float) -> Reference:
+    """A tracking path for a robot with the given outputs.
+
+    Args:
+        kind: ``"s-curve"`` (the paper's planar S-curve, for [x m, y m, ψ rad] outputs),
+            ``"helix"`` (one turn of radius 0.08 m rising 0.12 m, centred on the home pose, the
+            angles swinging by ±0.05 rad and back; for three translational outputs plus any
+            angles) or ``"auto"`` (the S-curve for planar outputs, else the helix).
+        home_pose: (n_y,) home pose of the robot (m, rad).
+        angular: (n_y,) bool, True for angular outputs (``ParallelRobot.output_angular``).
+        duration: s, time of the motion.
+
+    Raises:
+        InvalidParameterError: an unknown kind, or a path that does not fit the outputs.
+    """
+    angular = np.asarray(angular, dtype=bool)
+    home = finite_vector("home pose", home_pose, angular.size)
+    if kind not in PATH_KINDS:
+        raise InvalidParameterError(f"reference {kind!r} is not one of {list(PATH_KINDS)}")
+    if kind == "auto":
+        kind = "s-curve" if _is_planar(angular) else "helix"
+    if kind == "s-curve":
+        if not _is_planar(angular):
+            raise InvalidParameterError(f"the S-curve is a path of planar [x m, y m, psi rad] outputs; this robot's "
+                                        f"outputs have angular flags {angular.tolist()} (use 'helix' or 'hold')")
+        return SCurve(duration=duration)
+    lin = np.flatnonzero(~angular)
+    if lin.size != 3:
+        raise InvalidParameterError(f"the helix needs 3 translational outputs (x, y, z in m); this robot has "
+                                    f"{lin.size} (angular flags {angular.tolist()}); use 'hold'")
+    helix = Helix(tuple(home), duration=duration, position_columns=tuple(int(i) for i in lin),
+                  angle_amplitude=(0.05,) * int(angular.sum()))
+    start = home.copy()
+    start[lin] += [helix.radius, 0.0, -helix.rise / 2]  # centre the helix on the home pose
+    return replace(helix, start=tuple(start))
+
+
+def hold_pose_for(home_pose, angular) -> np.ndarray:
+    """A hold target near home: the planar robots' (0.55 m, 0.55 m, 5°) for [x, y, ψ] outputs
+    (the home pose there is (0.5, 0.5, 0)); else home + 0.02 m on each translational output."""
+    angular = np.asarray(angular, dtype=bool)
+    if _is_planar(angular):
+        return np.array([0.55, 0.55, math.radians(5.0)])
+    return finite_vector("home pose", home_pose, angular.size) + np.where(angular, 0.0, 0.02)

@@ -31,8 +31,9 @@ from ..model.dynamics import ReducedModel
 from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
-from ..gpc.references import Hold, Reference, SCurve
+from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..gpc.references import pose_error_norms
 from .simulation import simulate
 from ..gpc.criterion import Weights
 from ..validation import finite_vector, positive
@@ -168,11 +169,14 @@ def _json_default(obj):
 def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
     if isinstance(reference, Reference):
         return reference
-    if reference == "scurve":  # the path takes 80 % of the run, the rest is a hold (steady state)
-        return SCurve(duration=0.8 * duration)
     if reference == "hold":
         return Hold(tuple(robot.home_pose))
-    raise InvalidParameterError(f"reference {reference!r} is not 'scurve', 'hold' or a Reference object")
+    kind = {"scurve": "s-curve", "path": "auto"}.get(reference, reference)
+    if kind not in PATH_KINDS:
+        raise InvalidParameterError(f"reference {reference!r} is not 'scurve', 'helix', 'path', 'hold' or a "
+                                    "Reference object")
+    # the path takes 80 % of the run, the rest is a hold (steady state)
+    return path_for(kind, robot.home_pose, robot.output_angular, 0.8 * duration)
 
 
 def _row(form: str, case: RobustnessCase, res, status: str) -> dict:
@@ -184,7 +188,7 @@ def _row(form: str, case: RobustnessCase, res, status: str) -> dict:
     else:
         m = res.metrics()
         tail = max(1, int(round(SETTLE_FRACTION * len(res.t))))
-        steady = float(np.mean(np.linalg.norm(res.error[-tail:, :2], axis=1)))
+        steady = float(np.mean(pose_error_norms(res.error[-tail:], res.angular)[0]))
         row.update(rms_position_error_mm=1e3 * m["rms_position_error_m"],
                    max_position_error_mm=1e3 * m["max_position_error_m"],
                    rms_orientation_error_mrad=1e3 * m["rms_orientation_error_rad"],
@@ -197,7 +201,7 @@ def _row(form: str, case: RobustnessCase, res, status: str) -> dict:
 def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=DEFAULT_MASS_SCALES,
                      noise_levels=DEFAULT_NOISE_LEVELS, disturbances=DEFAULT_DISTURBANCES,
                      duration: float = 2.5, Ts: float = 0.005, N: int = 10, progress: bool = False,
-                     weights: Weights = DEFAULT_WEIGHTS, reference="scurve", seed: int = 0,
+                     weights: Weights = DEFAULT_WEIGHTS, reference="path", seed: int = 0,
                      on_row=None) -> RobustnessResult:
     """Tracking error of each form under plant mismatch, measurement noise and a constant load.
 
@@ -212,7 +216,9 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=D
             (No = 0, Nu = N).
         progress: show a progress bar over the runs.
         weights: square-root weights Qy, Qu, the same for every form.
-        reference: ``"scurve"`` (the paper's S-curve over 80 % of the run, then a hold),
+        reference: ``"path"`` (the robot's default path: the paper's S-curve for planar
+            outputs, the helix for spatial ones, over 80 % of the run, then a hold), ``"scurve"``,
+            ``"helix"``,
             ``"hold"`` (the home pose) or a :class:`~parallel_gpc.references.Reference`.
         seed: seed of the measurement noise (the same noise sequence for every form).
         on_row: optional callback receiving each row as soon as its run finishes.

@@ -17,7 +17,7 @@ import numpy as np
 from tqdm import tqdm
 
 from ..gpc.controller import GPCController
-from ..gpc.references import Reference
+from ..gpc.references import Reference, pose_error_norms
 from ..errors import InvalidParameterError, ShapeError
 from ..results import robot_reference, save_result, saturation_flags
 from ..validation import finite_vector, positive
@@ -37,6 +37,8 @@ class SimulationResult:
         status: (K,) solver status strings. fallback: (K,) bool. saturated: (K,) bool.
         meta: settings of the run (robot, form, solver, horizons, weights, Ts, …).
         interrupted: True if the run was stopped early (Ctrl-C).
+        angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
+            convention [x, y, ψ] (see :func:`~parallel_gpc.gpc.references.pose_error_norms`).
     """
 
     t: np.ndarray
@@ -54,6 +56,7 @@ class SimulationResult:
     saturated: np.ndarray
     meta: dict = field(default_factory=dict)
     interrupted: bool = False
+    angular: np.ndarray | None = None
 
     @property
     def error(self) -> np.ndarray:
@@ -65,8 +68,7 @@ class SimulationResult:
         (N·m), mean/max internal-force measure (N·m), mean and p99 step time (s), fallbacks."""
         sel = self.t >= skip
         e = self.error[sel]
-        pos = np.linalg.norm(e[:, :2], axis=1)
-        ang = np.abs(e[:, 2]) if e.shape[1] > 2 else np.zeros(len(e))
+        pos, ang = pose_error_norms(e, self.angular)
         return {
             "rms_position_error_m": float(np.sqrt(np.mean(pos**2))),
             "max_position_error_m": float(np.max(pos)),
@@ -178,4 +180,4 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "torque_limit": controller.torque_limit, **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted)
+    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular)

@@ -7,7 +7,6 @@ the reference and returns the results; ``metrics_table`` formats them.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -17,7 +16,7 @@ from ..model.dynamics import ReducedModel
 from ..errors import InvalidParameterError
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
-from ..gpc.references import Hold, Reference, SCurve
+from ..gpc.references import PATH_KINDS, Hold, Reference, hold_pose_for, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from .simulation import SimulationResult, simulate
 from ..gpc.criterion import Weights
@@ -37,9 +36,13 @@ class TrackingSettings:
         du_limit: increment limit in N·m per sample (incremental forms), or None.
         mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
-        platform_force: constant disturbance on the platform coordinates (N, N, N·m).
-        reference: "s-curve" or "hold"; duration: run length in s (default: reference + 0.2 s).
-        s_curve_duration: time of the S-curve motion in s.
+        platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
+            all zeros = none).
+        reference: "auto" (the S-curve for planar [x, y, ψ] outputs, else the helix), "s-curve",
+            "helix" or "hold"; duration: run length in s (default: motion + 0.2 s).
+        s_curve_duration: time of the path's motion (S-curve or helix) in s.
+        hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
+            (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
     """
 
     robot: str = DEFAULT_ROBOT
@@ -54,25 +57,26 @@ class TrackingSettings:
     du_limit: float | None = None
     mass_scale: float = 1.0
     noise_std: float = 0.0
-    platform_force: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    reference: str = "s-curve"
+    platform_force: tuple[float, ...] = (0.0, 0.0, 0.0)
+    reference: str = "auto"
     duration: float | None = None
     s_curve_duration: float = 2.0
-    hold_pose: tuple[float, float, float] = (0.55, 0.55, math.radians(5.0))
+    hold_pose: tuple[float, ...] | None = None
     extra: dict = field(default_factory=dict)
 
     def make_reference(self, robot: ParallelRobot) -> Reference:
-        if self.reference == "s-curve":
-            return SCurve(duration=self.s_curve_duration)
         if self.reference == "hold":
-            return Hold(tuple(self.hold_pose))
-        raise InvalidParameterError(f"reference {self.reference!r} is not one of ['s-curve', 'hold']")
+            pose = hold_pose_for(robot.home_pose, robot.output_angular) if self.hold_pose is None else self.hold_pose
+            return Hold(tuple(pose))
+        if self.reference not in PATH_KINDS:
+            raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']}")
+        return path_for(self.reference, robot.home_pose, robot.output_angular, self.s_curve_duration)
 
     @property
     def run_duration(self) -> float:
         if self.duration is not None:
             return float(self.duration)
-        return self.s_curve_duration + 0.2 if self.reference == "s-curve" else 2.0
+        return 2.0 if self.reference == "hold" else self.s_curve_duration + 0.2
 
 
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
@@ -95,7 +99,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             torque_limit=settings.torque_limit, du_limit=settings.du_limit if form != "absolute" else None,
         )
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
-                                 torque_limit=settings.torque_limit, platform_force=settings.platform_force)
+                                 torque_limit=settings.torque_limit,
+                                 platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
             res = simulate(ctrl, plant, reference, settings.run_duration,
                            noise_std=settings.noise_std or None, progress=progress,
