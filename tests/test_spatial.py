@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -251,3 +252,19 @@ def test_cli_track_runs_the_helix_on_the_hexapod(tmp_path, capsys):
         assert data["reference"].shape == (30, 6) and data["q"].shape == (30, 30)
     rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("nonlinear")]
     assert len(rows) == 1 and float(rows[0][1]) < 1.0  # RMS position error in mm
+
+
+# ------------------------------------------------------------------------------ view
+def test_view_draws_every_leg_and_closes_the_loops(spatial):
+    from parallel_gpc import viz
+
+    scene = viz.RobotScene(SimpleNamespace(path=viz.meshcat.path.Path(("meshcat",))), spatial)
+    n_legs = len(spatial.description.closures)
+    base = scene.base_points()
+    assert base.shape == (n_legs, 3)  # one ground joint per leg, not the platform's virtual joints
+    np.testing.assert_allclose(np.hypot(base[:, 0], base[:, 1]), base[0, 0] if n_legs == 3 else 0.5, atol=1e-12)
+    T = dict(zip(scene.paths, scene.placements(spatial.assemble(spatial.description.pose_b))))
+    assert sum(path.startswith("robot/") and "closures" not in path for path in T) >= 2 * n_legs + 1
+    for c in spatial.description.closures:
+        np.testing.assert_allclose(T[f"robot/closures/{c.name}_a"][:3, 3], T[f"robot/closures/{c.name}_b"][:3, 3],
+                                   atol=1e-9)

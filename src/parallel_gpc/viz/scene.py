@@ -170,10 +170,13 @@ class RobotScene:
         return self
 
     def base_points(self) -> np.ndarray:
-        """(n, 3) world positions (m) of the drive axes fixed to the ground (parent: universe)."""
-        pin.forwardKinematics(self.robot.model, self.data, self.robot.q_home)
-        return np.array([self.data.oMi[j].translation for j in self._drive_jids
-                         if self.robot.model.parents[j] == 0]).reshape(-1, 3)
+        """(n, 3) world positions (m) of the legs' joints on the ground: the joints whose parent
+        is the universe, except the platform's own (virtual output) joints."""
+        model = self.robot.model
+        platform = {j for name in self.robot.description.output_joints for j in model.supports[model.getJointId(name)]}
+        pin.forwardKinematics(model, self.data, self.robot.q_home)
+        return np.array([self.data.oMi[j].translation for j in range(1, model.njoints)
+                         if model.parents[j] == 0 and j not in platform]).reshape(-1, 3)
 
     def _draw_base(self) -> None:
         points = self.base_points()
