@@ -33,17 +33,20 @@ def _pin_constraint_dynamics(robot, q, v, u):
     return ddq, forces
 
 
+def assert_matches_constraint_dynamics(robot, terms, u) -> None:
+    """ÿ of the reduced model and q̈ = T ÿ + ℓ equal Pinocchio's to 1e-8 relative."""
+    ydd = terms.acceleration(u)
+    ddq, _ = _pin_constraint_dynamics(robot, terms.q, terms.v, u)
+    assert np.linalg.norm(ddq[robot.y_idx] - ydd) <= 1e-8 * np.linalg.norm(ydd)
+    assert np.linalg.norm(ddq - (terms.T @ ydd + terms.ell)) <= 1e-8 * np.linalg.norm(ddq)
+
+
 def test_reduced_accelerations_equal_pinocchio_constraint_dynamics(robot):
     model = ReducedModel(robot)
     rng = np.random.default_rng(1)
     for X in random_states(rng, 10):
         u = rng.uniform(-20, 20, robot.n_u)
-        terms = model.terms(X)
-        ydd = terms.acceleration(u)
-        ddq, _ = _pin_constraint_dynamics(robot, terms.q, terms.v, u)
-        assert np.linalg.norm(ddq[robot.y_idx] - ydd) <= 1e-8 * np.linalg.norm(ydd)
-        # the full acceleration is q̈ = T ÿ + ℓ
-        assert np.linalg.norm(ddq - (terms.T @ ydd + terms.ell)) <= 1e-8 * np.linalg.norm(ddq)
+        assert_matches_constraint_dynamics(robot, model.terms(X), u)
 
 
 def test_null_space_of_redundant_drives_changes_only_internal_forces(robot4):

@@ -7,6 +7,7 @@ with a margin (measured values in the comments, from the tests' own settings).
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -21,29 +22,20 @@ from parallel_gpc.gpc.references import Helix, path_for, pose_error_norms
 from parallel_gpc.model.robot import urdf_dir
 from parallel_gpc.studies.tracking import TrackingSettings, run_tracking
 
-from test_dynamics import _pin_constraint_dynamics
+from test_dynamics import _pin_constraint_dynamics, assert_matches_constraint_dynamics
 
 SPATIAL = ["delta_3rus", "hexapod_6ups", "hexapod_8ups"]
 
 
-@pytest.fixture(scope="module", params=SPATIAL)
+@functools.lru_cache(maxsize=None)
+def load(name: str) -> ParallelRobot:
+    """The embedded robot ``name``, loaded once per test session."""
+    return ParallelRobot.load(name)
+
+
+@pytest.fixture(params=SPATIAL)
 def spatial(request) -> ParallelRobot:
-    return ParallelRobot.load(request.param)
-
-
-@pytest.fixture(scope="module")
-def delta() -> ParallelRobot:
-    return ParallelRobot.load("delta_3rus")
-
-
-@pytest.fixture(scope="module")
-def hexapod() -> ParallelRobot:
-    return ParallelRobot.load("hexapod_6ups")
-
-
-@pytest.fixture(scope="module")
-def hexapod8() -> ParallelRobot:
-    return ParallelRobot.load("hexapod_8ups")
+    return load(request.param)
 
 
 def _poses(robot: ParallelRobot, rng: np.random.Generator, n: int) -> np.ndarray:
@@ -97,11 +89,7 @@ def test_reduced_accelerations_equal_pinocchio_constraint_dynamics(spatial):
     for pose in _poses(spatial, rng, 8):
         X = np.concatenate([pose, rng.uniform(-1.0, 1.0, spatial.n_y) * scale])
         u = rng.uniform(-0.3, 0.3, spatial.n_u) * spatial.torque_limit
-        terms = model.terms(X)
-        ydd = terms.acceleration(u)
-        ddq, _ = _pin_constraint_dynamics(spatial, terms.q, terms.v, u)
-        assert np.linalg.norm(ddq[spatial.y_idx] - ydd) <= 1e-8 * np.linalg.norm(ydd)
-        assert np.linalg.norm(ddq - (terms.T @ ydd + terms.ell)) <= 1e-8 * np.linalg.norm(ddq)
+        assert_matches_constraint_dynamics(spatial, model.terms(X), u)
 
 
 def test_gravity_loads_the_drives_of_the_upright_robots(spatial):
@@ -137,7 +125,8 @@ def test_bad_helix_is_rejected(kwargs, match):
         Helix(**kwargs)
 
 
-def test_default_path_depends_on_the_outputs(robot4, delta, hexapod):
+def test_default_path_depends_on_the_outputs(robot4):
+    delta, hexapod = load("delta_3rus"), load("hexapod_6ups")
     assert type(path_for("auto", robot4.home_pose, robot4.output_angular, 2.0)).__name__ == "SCurve"
     for r in (delta, hexapod):
         ref = path_for("auto", r.home_pose, r.output_angular, 2.0)
@@ -165,6 +154,7 @@ def _track(robot, forms, **kw):
     return run_tracking(settings, forms, progress=False, robot=robot)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name, bounds", [
     # (max position error m, max orientation error rad) per form; measured (Ts 4 ms, N 15, Qu 0):
     # delta absolute 9.3e-8 m, nonlinear 4.7e-9 m; hexapod absolute 8.0e-8 m / 2.7e-7 rad,
@@ -172,8 +162,8 @@ def _track(robot, forms, **kw):
     ("delta_3rus", {"absolute": (5e-7, 1e-12), "nonlinear": (2e-8, 1e-12)}),
     ("hexapod_6ups", {"absolute": (5e-7, 1e-6), "nonlinear": (2e-8, 5e-8)}),
 ])
-def test_gpc_tracks_the_helix_on_the_constrained_plant(name, bounds, delta, hexapod):
-    robot = {"delta_3rus": delta, "hexapod_6ups": hexapod}[name]
+def test_gpc_tracks_the_helix_on_the_constrained_plant(name, bounds):
+    robot = load(name)
     results = _track(robot, tuple(bounds))
     for form, (pos_bound, ang_bound) in bounds.items():
         res = results[form]
@@ -188,7 +178,8 @@ def test_gpc_tracks_the_helix_on_the_constrained_plant(name, bounds, delta, hexa
 
 
 @pytest.mark.parametrize("form, Qu, bound", [("absolute", 1e-4, 1e-6), ("incremental", 1e-4, 1e-9)])
-def test_controllers_hold_position_under_gravity(delta, form, Qu, bound):
+def test_controllers_hold_position_under_gravity(form, Qu, bound):
+    delta = load("delta_3rus")
     res = _track(delta, (form,), Qu=Qu, reference="hold", duration=1.0)[form]
     target = delta.home_pose + 0.02
     np.testing.assert_allclose(res.reference[-1], target)
@@ -200,8 +191,8 @@ def test_controllers_hold_position_under_gravity(delta, form, Qu, bound):
 
 
 @pytest.mark.slow
-def test_redundant_hexapod_has_no_internal_force(hexapod8):
-    results = _track(hexapod8, ("absolute", "nonlinear"), torque_limit=None)
+def test_redundant_hexapod_has_no_internal_force():
+    results = _track(load("hexapod_8ups"), ("absolute", "nonlinear"), torque_limit=None)
     for form, res in results.items():
         m = res.metrics()
         assert m["max_internal_force_Nm"] <= 1e-6, form  # measured 1.2e-10 N
@@ -210,8 +201,8 @@ def test_redundant_hexapod_has_no_internal_force(hexapod8):
 
 # ------------------------------------------------------------------------------ planning
 @pytest.mark.parametrize("name", ["delta_3rus", "hexapod_6ups"])
-def test_plan_mode_b_stops_at_B(name, delta, hexapod):
-    robot = {"delta_3rus": delta, "hexapod_6ups": hexapod}[name]
+def test_plan_mode_b_stops_at_B(name):
+    robot = load(name)
     A, B = robot.description.pose_a, robot.description.pose_b
     res = plan_point_to_point(robot, A, B, PlanSettings(), mode="b")
     pos, ang = res.end_error
@@ -268,3 +259,45 @@ def test_view_draws_every_leg_and_closes_the_loops(spatial):
     for c in spatial.description.closures:
         np.testing.assert_allclose(T[f"robot/closures/{c.name}_a"][:3, 3], T[f"robot/closures/{c.name}_b"][:3, 3],
                                    atol=1e-9)
+
+
+class _RecordingVis:
+    """A stand-in meshcat visualizer that records the objects set at each path."""
+
+    def __init__(self, log: dict, name: str = ""):
+        from parallel_gpc import viz
+
+        self.log, self.name, self.path = log, name, viz.meshcat.path.Path(("meshcat",))
+
+    def __getitem__(self, key: str) -> "_RecordingVis":
+        return _RecordingVis(self.log, f"{self.name}/{key}")
+
+    def set_object(self, obj, material=None) -> None:
+        self.log[self.name] = obj
+
+    def set_transform(self, matrix=None) -> None:
+        pass
+
+    def set_property(self, key, value) -> None:
+        pass
+
+    def set_animation(self, animation, play=True, repetitions=1) -> None:
+        self.log["animation"] = animation
+
+
+def test_view_draws_the_reference_path_in_3d():
+    from parallel_gpc import viz
+
+    delta = load("delta_3rus")
+    ref = path_for("auto", delta.home_pose, delta.output_angular, 2.0)
+    t = np.linspace(0.0, 2.0, 5)
+    poses = ref.sample(t)
+    qs, q = [], None
+    for pose in poses:
+        q = delta.assemble(pose, q)
+        qs.append(q)
+    log = {}
+    viz.animate(_RecordingVis(log), delta, t, np.array(qs), reference=poses)
+    line = log["/paths/reference"]
+    np.testing.assert_allclose(np.asarray(line.geometry.position).T, poses, atol=1e-6)  # float32 x, y, z
+    assert "animation" in log

@@ -83,7 +83,8 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
 
 def cmd_track(args) -> int:
     forms = list(FORMS) if args.form == "all" else [args.form]
-    return run_and_report(settings_from_args(args), forms, Path(args.out), args, "S-curve tracking")
+    title = f"Tracking ({args.reference} reference)"
+    return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
 def register_track(sub) -> None:

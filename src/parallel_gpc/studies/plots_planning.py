@@ -25,6 +25,17 @@ MODE_COLORS = {"a": "tab:red", "b": "tab:blue"}
 _DRIVE_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
 
+def _columns(res: PlanResult) -> tuple[list[tuple[int, str]], list[tuple[int, str]], int | None]:
+    """(translational, angular, yaw) outputs of a plan: (index, TeX name) pairs, x, y[, z] and
+    ψ (planar) or φ, θ, ψ (roll, pitch, yaw); yaw is the index of the rotation about z or None."""
+    n = res.poses.shape[1]
+    angular = np.arange(n) >= 2 if res.angular is None else np.asarray(res.angular, dtype=bool)
+    lin = [(int(i), name) for i, name in zip(np.flatnonzero(~angular), ("x", "y", "z"))]
+    names = (r"\psi",) if angular.sum() == 1 else (r"\phi", r"\theta", r"\psi")
+    ang = [(int(i), name) for i, name in zip(np.flatnonzero(angular), names)]
+    return lin, ang, (ang[-1][0] if ang else None)
+
+
 def robot_outline(robot, q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
     """Planar sketch of a robot at configuration q: legs and platform in the x-y plane.
 
@@ -113,17 +124,20 @@ def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
                 ax.add_patch(Polygon(platform, closed=True, fill=False, ec=color, lw=1.5, ls="--",
                                      label=f"platform at t = {res.t[-1]:.2f} s"))
         ax.plot(res.poses[:, 0], res.poses[:, 1], "-", color=color, lw=2, label="platform path")
-        idx = np.unique(np.linspace(0, len(res.t) - 1, n_markers).round().astype(int))
+        lin, ang, yaw = _columns(res)
+        idx = np.unique(np.linspace(0, len(res.t) - 1, n_markers if yaw is not None else 0).round().astype(int))
         for j, i in enumerate(idx):
-            x, y, psi = res.poses[i, :3]
+            x, y, psi = res.poses[i, 0], res.poses[i, 1], res.poses[i, yaw]
             ax.add_patch(Polygon(_pose_marker(x, y, psi, marker_size), closed=True, fc=color, ec="k", lw=0.5,
                                  alpha=0.85, label=rf"orientation $\psi$ every {res.t[idx[1]] - res.t[idx[0]]:.2f} s"
                                  if j == 0 and len(idx) > 1 else None))
         for pose, name, mk in ((res.start, "A", "o"), (res.target, "B", "*")):
             ax.plot(pose[0], pose[1], mk, color="k", ms=11 if mk == "*" else 8, zorder=5)
-            ax.add_patch(Polygon(_pose_marker(pose[0], pose[1], pose[2], 2 * marker_size), closed=True, fill=False,
-                                 ec="k", lw=1.0, ls=":"))
-            ax.annotate(f"{name} [{pose[0]:.2f} m, {pose[1]:.2f} m, {math.degrees(pose[2]):.0f}°]", pose[:2],
+            if yaw is not None:
+                ax.add_patch(Polygon(_pose_marker(pose[0], pose[1], pose[yaw], 2 * marker_size), closed=True,
+                                     fill=False, ec="k", lw=1.0, ls=":"))
+            text = ", ".join([f"{pose[i]:.2f} m" for i, _ in lin] + [f"{math.degrees(pose[i]):.0f}°" for i, _ in ang])
+            ax.annotate(f"{name} [{text}]", pose[:2],
                         xytext=(10, -16) if name == "A" else (-10, 14), textcoords="offset points", fontsize=9,
                         ha="left" if name == "A" else "right")
         pos, ang = res.end_error
@@ -159,17 +173,19 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
         s = res.settings
         ax = axes[:, col]
         t, tu = res.t, res.t[:-1]
-        for i, lab in enumerate(("x", "y")):
-            ax[0].plot(t, res.poses[:, i], color=_DRIVE_COLORS[i], label=lab)
-            ax[0].axhline(res.target[i], color=_DRIVE_COLORS[i], ls=":", lw=1)
+        lin, ang = _columns(res)[:2]
+        for k, (i, lab) in enumerate(lin):
+            ax[0].plot(t, res.poses[:, i], color=_DRIVE_COLORS[k], label=f"${lab}$")
+            ax[0].axhline(res.target[i], color=_DRIVE_COLORS[k], ls=":", lw=1)
+            ax[2].plot(t, res.velocities[:, i], color=_DRIVE_COLORS[k], label=rf"$\dot {lab}$")
         ax[0].set_ylabel("position [m]")
-        ax[1].plot(t, np.degrees(res.poses[:, 2]), color="tab:green", label=r"$\psi$")
-        ax[1].axhline(math.degrees(res.target[2]), color="tab:green", ls=":", lw=1, label=r"$\psi$ of B")
+        for k, (i, lab) in enumerate(ang):
+            color = "tab:green" if len(ang) == 1 else _DRIVE_COLORS[3 + k]
+            ax[1].plot(t, np.degrees(res.poses[:, i]), color=color, label=f"${lab}$")
+            ax[1].axhline(math.degrees(res.target[i]), color=color, ls=":", lw=1, label=f"${lab}$ of B")
+            ax[3].plot(t, np.degrees(res.velocities[:, i]), color=color, label=rf"$\dot{lab}$")
         ax[1].set_ylabel("orientation [deg]")
-        for i, lab in enumerate((r"$\dot x$", r"$\dot y$")):
-            ax[2].plot(t, res.velocities[:, i], color=_DRIVE_COLORS[i], label=lab)
         ax[2].set_ylabel("velocity [m/s]")
-        ax[3].plot(t, np.degrees(res.velocities[:, 2]), color="tab:green", label=r"$\dot\psi$")
         ax[3].set_ylabel("angular velocity [deg/s]")
         for j in range(res.u.shape[1]):
             ax[4].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")

@@ -11,9 +11,21 @@ from matplotlib.figure import Figure
 
 from .simulation import SimulationResult
 
+_DOTTED = {"x": "ẋ", "y": "ẏ", "z": "ż", "ψ": "ψ̇"}
+
+
+def _channels(res: SimulationResult) -> list[tuple[str, bool]]:
+    """(name, is angle) of each output: x, y, ψ for planar robots; x, y, z and roll φ, pitch θ,
+    yaw ψ for spatial ones (``res.angular``; None is the planar convention)."""
+    n = res.pose.shape[1]
+    angular = np.arange(n) >= 2 if res.angular is None else np.asarray(res.angular, dtype=bool)
+    lin, ang = iter(("x", "y", "z")), iter(("ψ",) if angular.sum() == 1 else ("φ", "θ", "ψ"))
+    return [(next(ang if a else lin, f"y{i + 1}"), bool(a)) for i, a in enumerate(angular)]
+
 
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
-    """Reference and tracked platform paths in the x–y plane (m), one line per GPC form."""
+    """Reference and tracked platform paths in the x–y plane (m), one line per GPC form (with
+    orientation markers for planar robots; a top view for spatial ones)."""
     fig = Figure(figsize=(5.5, 5.5), layout="tight")
     ax = fig.subplots()
     first = next(iter(results.values()))
@@ -21,7 +33,8 @@ def plot_paths(results: dict[str, SimulationResult], title: str = "platform path
     for name, res in results.items():
         ax.plot(res.pose[:, 0], res.pose[:, 1], lw=1.2, label=name)
         step = max(1, len(res.t) // 12)
-        for k in range(0, len(res.t), step):  # platform orientation markers
+        planar = [c for c, _ in _channels(res)] == ["x", "y", "ψ"]
+        for k in range(0, len(res.t), step if planar else len(res.t) + 1):  # platform orientation markers
             x, y, psi = res.pose[k, :3]
             ax.plot([x, x + 0.03 * np.cos(psi)], [y, y + 0.03 * np.sin(psi)], color="0.4", lw=0.8)
     ax.set_aspect("equal")
@@ -43,14 +56,15 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
         res = results[name]
         ax_e, ax_v, ax_u = axes[:, col]
         err = res.error
-        ax_e.plot(res.t, 1e3 * err[:, 0], label="x")
-        ax_e.plot(res.t, 1e3 * err[:, 1], label="y")
-        ax_e.plot(res.t, 1e3 * err[:, 2], label="ψ [mrad]")
+        channels = _channels(res)
+        for i, (label, angle) in enumerate(channels):
+            ax_e.plot(res.t, 1e3 * err[:, i], label=f"{label} [mrad]" if angle else label)
         ax_e.set_ylabel("error [mm, mrad]")
         ax_e.set_title(f"{name}")
         ax_e.legend(fontsize=7)
-        for i, lab in enumerate(("ẋ [m/s]", "ẏ [m/s]", "ψ̇ [rad/s]")):
-            ax_v.plot(res.t, res.velocity[:, i], label=lab)
+        for i, (label, angle) in enumerate(channels):
+            dotted = _DOTTED.get(label, label + "\u0307")
+            ax_v.plot(res.t, res.velocity[:, i], label=f"{dotted} [rad/s]" if angle else f"{dotted} [m/s]")
         ax_v.set_ylabel("velocity")
         ax_v.legend(fontsize=7)
         for j in range(res.u.shape[1]):

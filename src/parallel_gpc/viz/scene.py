@@ -52,9 +52,12 @@ def _flags(robot: ParallelRobot, saturated, n: int) -> np.ndarray | None:
     return flags.astype(bool)
 
 
-def _path_points(name: str, points) -> np.ndarray:
-    """(K, 3) points of a planar path: columns x, y (m) of ``points``, at height :data:`PATH_Z`."""
+def _path_points(name: str, points, xyz_columns=None) -> np.ndarray:
+    """(K, 3) points of a path: the columns ``xyz_columns`` (x, y, z in m) of ``points`` for a
+    spatial robot, else the columns x, y (m) of a planar path at height :data:`PATH_Z`."""
     arr = np.asarray(points, dtype=float)
+    if xyz_columns is not None:
+        return finite_matrix(name, arr, (None, None))[:, list(xyz_columns)]
     if arr.ndim != 2 or arr.shape[1] < 2 or arr.shape[0] < 2:
         raise ShapeError(f"{name} has shape {arr.shape}; expected (K, 2) or (K, 3) with K >= 2 "
                          "(platform x, y in m; a third column, e.g. psi, is ignored)")
@@ -270,14 +273,16 @@ def draw_robot(vis: meshcat.Visualizer, robot: ParallelRobot, q: np.ndarray | No
     return scene
 
 
-def draw_path(vis: meshcat.Visualizer, name: str, points, color: int) -> None:
-    """Draw a planar path as a meshcat ``Line`` at ``paths/<name>``.
+def draw_path(vis: meshcat.Visualizer, name: str, points, color: int, xyz_columns=None) -> None:
+    """Draw a path as a meshcat ``Line`` at ``paths/<name>``.
 
     Args:
-        points: (K, 2) or (K, 3) platform poses; columns x, y in m (a third column is ignored).
+        points: (K, 2) or (K, 3) planar platform poses, columns x, y in m (a third column is
+            ignored); or (K, n_y) poses of a spatial robot with ``xyz_columns``.
         color: 0xRRGGBB.
+        xyz_columns: indices of x, y, z (m) in the poses of a spatial robot, or None (planar).
     """
-    xyz = _path_points(f"{name} path", points)
+    xyz = _path_points(f"{name} path", points, xyz_columns)
     line = mg.Line(mg.PointsGeometry(xyz.T.astype(np.float32)), mg.LineBasicMaterial(color=color, linewidth=2))
     vis[f"{PATHS}/{name}"].set_object(line)
 
@@ -315,8 +320,9 @@ def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=N
         t: (K,) strictly increasing times, s.
         qs: (K, nq) full assembled configurations (legs included).
         saturated: optional (K, n_u) flags; a drive at its torque limit is drawn red.
-        reference: optional (K_ref, 2 or 3) reference platform poses (x, y in m), drawn as a line.
-        planned: optional (K_p, 2 or 3) planned platform poses, drawn as a line.
+        reference: optional (K_ref, 2 or 3) reference platform poses (x, y in m), drawn as a line;
+            (K_ref, n_y) for a robot with three translational outputs (drawn in 3-D).
+        planned: optional planned platform poses, drawn as a line (shapes as ``reference``).
         fps: key-frame rate, 1/s. max_frames: at most this many key frames.
         play: start playing when a browser shows the scene.
 
@@ -329,10 +335,12 @@ def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=N
     scene = draw_robot(vis, robot, qs[0])
     if flags is not None:
         scene.show_saturation(flags[0])
+    lin = np.flatnonzero(~robot.output_angular)  # three translational outputs: a spatial path
+    cols = lin if lin.size == 3 else None
     if reference is not None:
-        draw_path(vis, "reference", reference, REFERENCE_COLOR)
+        draw_path(vis, "reference", reference, REFERENCE_COLOR, cols)
     if planned is not None:
-        draw_path(vis, "planned", planned, PLANNED_COLOR)
+        draw_path(vis, "planned", planned, PLANNED_COLOR, cols)
     if t.size > 1:
         vis.set_animation(scene.animation(t, qs, flags, fps, max_frames), play=play, repetitions=1)
     return scene
