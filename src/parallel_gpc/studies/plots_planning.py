@@ -199,7 +199,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
             if res.mode == "b" and s.Nmax > s.Nmin:
                 a.axvline((s.Nmax - s.Nmin) * s.Ts, color="0.6", ls="-.", lw=1)
             a.grid(True, alpha=0.3)
-            a.legend(loc="best", fontsize=8)
+            if a.get_legend_handles_labels()[0]:  # no orientation rows' legend for a translational robot
+                a.legend(loc="best", fontsize=8)
         pos, ang = res.end_error
         ax[0].set_title(f"{res.label}\nend error {pos:.2g} m, {_angle_text(ang)}, energy "
                         f"{res.energy:.3g} N²m²s, peak {res.peak_torque:.3g} N·m", fontsize=10)
