@@ -17,15 +17,15 @@ def python_blocks() -> list[str]:
     return re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), re.DOTALL)
 
 
-def test_the_readme_has_the_library_and_planning_examples():
+def test_the_readme_has_the_library_planning_and_robot_file_examples():
     blocks = python_blocks()
-    assert len(blocks) == 2
+    assert len(blocks) == 3
     assert all(old in "".join(blocks) for old, _ in SHORTER)
     imports = [line for block in blocks for line in block.splitlines() if "import" in line]
     assert all(line.startswith("from parallel_gpc import") for line in imports), imports
 
 
-@pytest.mark.parametrize("index", [0, 1])
+@pytest.mark.parametrize("index", [0, 1])  # block 3 (robot files) runs below
 def test_readme_example_runs(index, tmp_path, monkeypatch, capsys):
     code = python_blocks()[index]
     for old, new in SHORTER:
@@ -34,3 +34,19 @@ def test_readme_example_runs(index, tmp_path, monkeypatch, capsys):
     exec(compile(code, f"README.md python block {index + 1}", "exec"), {"__name__": "readme"})
     assert "peak_torque_Nm" in capsys.readouterr().out
     assert list(tmp_path.glob("*.npz"))
+
+
+def test_readme_robot_file_example_runs(tmp_path, monkeypatch):
+    """The robot-file block loads a user's URDF + sidecar and an MJCF file with an explicit sidecar."""
+    import mechanisms as mech
+
+    code = python_blocks()[2]
+    (tmp_path / "my_robots").mkdir()
+    (tmp_path / "config").mkdir()
+    mech.write(tmp_path / "my_robots", "fivebar", mech.fivebar_urdf(), mech.fivebar_sidecar())
+    (tmp_path / "model.xml").write_text(mech.fivebar_mjcf())
+    (tmp_path / "config" / "fivebar_drives.toml").write_text(mech.fivebar_mjcf_sidecar())
+    monkeypatch.chdir(tmp_path)
+    scope = {"__name__": "readme"}
+    exec(compile(code, "README.md python block 3", "exec"), scope)
+    assert scope["robot"].description.model_format == "mjcf" and scope["robot"].n_y == 2
