@@ -31,6 +31,8 @@ so every layer (``gpc.planning``, ``studies``, ``viz``, ``cli``) can use it.
 from __future__ import annotations
 
 import json
+import stat
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -44,6 +46,8 @@ from .validation import finite_matrix, finite_vector
 FORMAT = "parallel-gpc-result"
 #: Version written by :func:`save_result`; :func:`load_result` reads versions 0 … this one.
 FORMAT_VERSION = 1
+#: Largest result file read: total unpacked size of its arrays, bytes (checked before reading).
+MAX_RESULT_BYTES = 1 << 30
 #: Keys with a fixed meaning (everything else is an extra array of the writer).
 STANDARD_KEYS = ("format", "format_version", "kind", "robot", "t", "q", "reference", "planned", "saturated",
                  "meta")
@@ -199,13 +203,58 @@ def save_result(path, robot, t, q=None, *, reference=None, planned=None, saturat
 
 
 def _read(path: Path) -> dict:
-    if not path.is_file():
-        raise InvalidParameterError(f"result file {str(path)!r} does not exist")
+    """The arrays of a result file, read within :data:`MAX_RESULT_BYTES` (checked before reading)."""
     try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise ResultFormatError(f"result file {str(path)!r} does not exist") from None
+    except OSError as exc:
+        raise ResultFormatError(f"result file {str(path)!r} cannot be opened: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise ResultFormatError(f"result file {str(path)!r} is a folder; give the path of a .npz file")
+    if not stat.S_ISREG(info.st_mode):
+        raise ResultFormatError(f"result file {str(path)!r} is not a regular file (a device, FIFO or socket)")
+    if not zipfile.is_zipfile(path):
+        raise ResultFormatError(f"cannot read result file {str(path)!r}: not a NumPy .npz (zip) archive")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            size = sum(member.file_size for member in archive.infolist())
+        if size > MAX_RESULT_BYTES:
+            raise ResultFormatError(f"result file {str(path)!r} unpacks to {size} bytes; the limit is "
+                                    f"{MAX_RESULT_BYTES} bytes")
         with np.load(path, allow_pickle=False) as data:
             return {k: data[k] for k in data.files}
-    except (OSError, ValueError) as exc:
-        raise ResultFormatError(f"cannot read result file {str(path)!r}: {exc}") from exc
+    except ResultFormatError:
+        raise
+    except Exception as exc:  # zipfile/NumPy errors differ (BadZipFile, EOFError, ValueError …): report them as ours
+        raise ResultFormatError(f"cannot read result file {str(path)!r} (truncated or not written by "
+                                f"parallel-gpc): {type(exc).__name__}: {exc}") from None
+
+
+def _text(path: Path, arrays: dict, key: str, default: str) -> str:
+    """A 0-d string entry (``format``, ``kind``, ``robot``, ``meta``)."""
+    if key not in arrays:
+        return default
+    value = arrays[key]
+    if value.ndim != 0 or value.dtype.kind not in "U":
+        raise ResultFormatError(f"{str(path)!r}: key {key!r} has dtype {value.dtype} and shape {value.shape}; "
+                                "expected one string")
+    return str(value)
+
+
+def _float_array(path: Path, arrays: dict, key: str, ndim: int, columns: int | None = None):
+    """A finite float array entry of ``ndim`` dimensions (and ≥ ``columns`` columns), or None."""
+    if key not in arrays:
+        return None
+    value = arrays[key]
+    if value.dtype.kind not in "biuf" or value.ndim != ndim or (columns and value.shape[-1] < columns):
+        want = "(K,)" if ndim == 1 else f"(K, n) with n ≥ {columns or 1}"
+        raise ResultFormatError(f"{str(path)!r}: key {key!r} has dtype {value.dtype} and shape {value.shape}; "
+                                f"expected numbers of shape {want}")
+    value = value.astype(float)
+    if not np.all(np.isfinite(value)):
+        raise ResultFormatError(f"{str(path)!r}: key {key!r} contains NaN or inf")
+    return value
 
 
 def _version(path: Path, arrays: dict) -> int:
@@ -218,7 +267,9 @@ def _version(path: Path, arrays: dict) -> int:
                 f"(a {FORMAT!r} file has format and format_version; an older trajectory file "
                 "t (K,), q (K, nq) and robot)")
         return 0
-    name, version = str(arrays["format"]), int(arrays.get("format_version", -1))
+    name = _text(path, arrays, "format", "")
+    raw = arrays.get("format_version", np.array(-1))
+    version = int(raw) if raw.ndim == 0 and raw.dtype.kind in "iu" else -1
     if name != FORMAT or not 1 <= version <= FORMAT_VERSION:
         raise ResultFormatError(f"{str(path)!r} has format {name!r} version {version}; this parallel-gpc "
                                 f"reads {FORMAT!r} versions 0 to {FORMAT_VERSION}")
@@ -229,29 +280,44 @@ def load_result(path) -> ResultFile:
     """Read a result file written by :func:`save_result` (or a version-0 trajectory file).
 
     Raises:
-        InvalidParameterError: the file does not exist.
-        ResultFormatError: unreadable file, unknown format or version, or missing keys.
+        ResultFormatError: missing, not a regular file, larger than MAX_RESULT_BYTES unpacked,
+            unreadable, of an unknown format or version, or with missing or ill-typed keys.
     """
     path = Path(path)
     arrays = _read(path)
     version = _version(path, arrays)
-    t = check_times(arrays.pop("t"))
-    q = arrays.pop("q", None)
+    t = _float_array(path, arrays, "t", 1)
+    try:
+        t = check_times(t)
+    except InvalidParameterError as exc:
+        raise ResultFormatError(f"{str(path)!r}: {exc}") from None
     if version == 0 and "poses" in arrays and "planned" not in arrays:
         arrays["planned"] = arrays.pop("poses")  # a plan written before version 1
+    q = _float_array(path, arrays, "q", 2)
+    if q is not None and q.shape[0] != t.size:
+        raise ResultFormatError(f"{str(path)!r}: q has shape {q.shape}; expected ({t.size}, nq), one row per time")
+    saturated = arrays.get("saturated")
+    if saturated is not None and (saturated.dtype.kind != "b" or saturated.ndim != 2 or saturated.shape[0] != t.size):
+        raise ResultFormatError(f"{str(path)!r}: saturated has dtype {saturated.dtype} and shape {saturated.shape}; "
+                                f"expected bools of shape ({t.size}, n_u)")
+    meta_text = _text(path, arrays, "meta", "{}") if version >= 1 else "{}"
     try:
-        meta = json.loads(str(arrays.pop("meta"))) if version >= 1 and "meta" in arrays else {}
-    except json.JSONDecodeError as exc:
-        raise ResultFormatError(f"{str(path)!r}: the meta key is not valid JSON ({exc})") from exc
+        meta = json.loads(meta_text)
+    except (json.JSONDecodeError, RecursionError) as exc:
+        raise ResultFormatError(f"{str(path)!r}: the meta key is not valid JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise ResultFormatError(f"{str(path)!r}: the meta key holds {type(meta).__name__}; expected a JSON object")
+    standard = {"t", "q", "saturated", "reference", "planned", "robot", "kind", "format", "format_version"}
+    standard |= {"meta"} if version >= 1 else set()
     return ResultFile(
-        robot=str(arrays.pop("robot", "")),
+        robot=_text(path, arrays, "robot", ""),
         t=t,
-        q=None if q is None else finite_matrix("q", q, (t.size, None)),
-        reference=arrays.pop("reference", None),
-        planned=arrays.pop("planned", None),
-        saturated=arrays.pop("saturated", None),
-        kind=str(arrays.pop("kind", "trajectory")),
+        q=q,
+        reference=_float_array(path, arrays, "reference", 2, 2),
+        planned=_float_array(path, arrays, "planned", 2, 2),
+        saturated=saturated,
+        kind=_text(path, arrays, "kind", "trajectory"),
         meta=meta,
-        arrays={k: v for k, v in arrays.items() if k not in ("format", "format_version")},
+        arrays={k: v for k, v in arrays.items() if k not in standard},
         version=version,
     )

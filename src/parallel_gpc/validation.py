@@ -40,11 +40,51 @@ def finite_matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.
 
 
 def positive(name: str, value: float, unit: str = "") -> float:
-    """Return ``value`` as a float if it is finite and > 0."""
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        raise InvalidParameterError(f"{name} = {value!r} is not a number") from None
+    """Return ``value`` as a float if it is a real number (not a string or bool), finite and > 0."""
+    x = number(name, value)
     if not np.isfinite(x) or x <= 0.0:
         raise InvalidParameterError(f"{name} = {value!r}{unit} must be finite and > 0")
     return x
+
+
+def number(name: str, value) -> float:
+    """Return ``value`` as a float; a string, a bool or a non-real object is refused.
+
+    Raises:
+        InvalidParameterError: naming the value and its type.
+    """
+    if isinstance(value, (str, bytes, bool, np.bool_)) or np.ndim(value) != 0:
+        raise InvalidParameterError(f"{name} = {value!r} ({type(value).__name__}) must be a real number")
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"{name} = {value!r} ({type(value).__name__}) must be a real number") from None
+
+
+#: Largest estimated memory (bytes) of the dense arrays one problem or one run allocates.
+MAX_ALLOCATION_BYTES = 1 << 30
+
+
+def _size_text(n: float) -> str:
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB"):
+        if n < 1024 or unit == "TiB":
+            return f"{n:.3g} {unit}"
+        n /= 1024.0
+    return f"{n:.3g} TiB"  # pragma: no cover
+
+
+def check_allocation(what: str, n_floats: float, fix: str) -> None:
+    """Refuse, before allocating, arrays of ``n_floats`` float64 beyond :data:`MAX_ALLOCATION_BYTES`.
+
+    Args:
+        what: what would be allocated, with the sizes that set it (named in the message).
+        n_floats: estimated number of float64 values.
+        fix: which parameter to reduce.
+
+    Raises:
+        InvalidParameterError: naming the estimate and the limit.
+    """
+    need = 8.0 * float(n_floats)
+    if need > MAX_ALLOCATION_BYTES:
+        raise InvalidParameterError(f"{what} would need about {_size_text(need)}; the limit is "
+                                    f"{_size_text(MAX_ALLOCATION_BYTES)}: {fix}")

@@ -23,8 +23,12 @@ def cmd_bench(args) -> int:
         sys.stdout.flush()
         os.execve(sys.executable, argv, env)
     from ..studies.bench import run_benchmark
+    from .outputs import prepare_out_dir
 
-    run_benchmark(quick=args.quick, out_dir=args.out)
+    result = run_benchmark(quick=args.quick, out_dir=prepare_out_dir(args.out))
+    if result["interrupted"]:
+        print("interrupted: partial results saved")
+        return 130
     return 0
 
 

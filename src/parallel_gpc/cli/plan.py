@@ -6,10 +6,10 @@ Fig. 3/4). A thin layer over :func:`parallel_gpc.plan_point_to_point`; writes ``
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
+from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
 
 #: The paper's poses, in the units of the command line (m, m, deg).
@@ -88,6 +88,8 @@ def cmd_plan(args) -> int:
     from ..studies.plots_common import save_figure
     from ..studies.plots_planning import plot_fig3, plot_fig4
 
+    out = prepare_out_dir(args.out)
+    check_view_outputs(args)
     robot = ParallelRobot.load(args.robot)
     A, B = (_pose_rad(robot, values, default, name)
             for values, default, name in zip((args.A, args.B), default_poses(robot), "AB"))
@@ -98,20 +100,29 @@ def cmd_plan(args) -> int:
           f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
           f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
     results = []
-    for mode in ("a", "b"):
-        res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=not args.no_progress)
-        if res.stopped:
-            print(f"  mode ({mode}): {res.stopped}")
-        results.append(res)
+    try:
+        for mode in ("a", "b"):
+            res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=not args.no_progress)
+            if res.stopped:
+                print(f"  mode ({mode}): {res.stopped}")
+            results.append(res)
+            if res.interrupted:
+                break
+    except KeyboardInterrupt:  # before the mode's first sample: keep the finished modes
+        pass
+    if len(results) < 2 or results[-1].interrupted:
+        if not results:
+            raise KeyboardInterrupt
+        written = [res.save(out / f"plan_{res.mode}.npz") for res in results]
+        print("interrupted: partial results saved: " + ", ".join(str(p) for p in written))
+        return 130
     deadbeat = deadbeat_inputs(ReducedModel(robot), np.concatenate([A, np.zeros(robot.n_y)]), B, settings)
     print_comparison(results, metrics_rows(results))
     print(f"  for comparison, the dead-beat move (same criterion, minimal horizon N = k = {settings.k}) needs a "
           f"peak torque of {np.max(np.abs(deadbeat)):.4g} N·m")
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    written = [save_figure(plot_fig3(results, robot=robot), out / "plan_fig3.png", dpi=120, bbox_inches="tight"),
-               save_figure(plot_fig4(results), out / "plan_fig4.png")]
-    written += [res.save(out / f"plan_{res.mode}.npz") for res in results]
+    written = [res.save(out / f"plan_{res.mode}.npz") for res in results]
+    written += [save_figure(plot_fig3(results, robot=robot), out / "plan_fig3.png", dpi=120, bbox_inches="tight"),
+                save_figure(plot_fig4(results), out / "plan_fig4.png")]
     print("wrote " + ", ".join(str(p) for p in written))
     print(f"view a plan: parallel-gpc view {out / 'plan_b.npz'}; use it as reference: "
           f"parallel_gpc.SampledTrajectory.load('{out / 'plan_b.npz'}')")

@@ -8,7 +8,6 @@ study, saves the rows computed so far (marked interrupted) and exits with code 1
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
@@ -38,6 +37,7 @@ def cmd_robustness(args) -> int:
     from ..studies.plots_common import save_figure
     from ..studies.plots_robustness import plot_robustness
     from ..gpc.criterion import Weights
+    from .outputs import prepare_out_dir
 
     forms = tuple(f.strip() for f in args.forms.split(",") if f.strip())
     settings = dict(mass_scales=DEFAULT_MASS_SCALES, noise_levels=DEFAULT_NOISE_LEVELS,
@@ -54,8 +54,7 @@ def cmd_robustness(args) -> int:
         settings["duration"] = args.duration
     weights = Weights(DEFAULT_WEIGHTS.Qy if args.Qy is None else args.Qy,
                       DEFAULT_WEIGHTS.Qu if args.Qu is None else args.Qu)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    out = prepare_out_dir(args.out)
 
     def echo(row) -> None:
         print(f"  {row['form']:<11} {row['study']:<11} {row['value']:>8g} {row['unit']:<2} "

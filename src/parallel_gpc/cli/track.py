@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .defaults import DEFAULT_ROBOT, FORMS, TRACKING
+from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 
 
@@ -60,13 +61,14 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     from ..studies.tracking import metrics_table, run_tracking
     from .view import show_trajectory
 
+    out = prepare_out_dir(out)
+    check_view_outputs(args)
     robot = ParallelRobot.load(settings.robot)
     results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
           f"Nu = {settings.Nu or settings.N}, Qy = {settings.Qy:g}, Qu = {settings.Qu:g}, "
           f"mass scale {settings.mass_scale:g}")
     print(metrics_table(results))
-    out.mkdir(parents=True, exist_ok=True)
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
     paths = [save_figure(plot_paths(results, f"{title}: platform path"), out / "track_path.png"),

@@ -33,11 +33,14 @@ from .prediction import Horizons, Prediction, absolute_prediction, incremental_p
 from .protocol import ControlModel, conditioning_rule
 from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
-__all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN"]
+__all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN", "APPLIED_LIMIT_RTOL"]
 
 #: the QP is given limits tightened by this relative margin so that a solution within the
 #: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
 LIMIT_MARGIN = 1e-6
+#: every applied input is verified: a solution whose first move exceeds a limit by more than this
+#: relative tolerance (|u| > τ·(1 + 1e-9)) counts as a failed solve and the step falls back visibly.
+APPLIED_LIMIT_RTOL = 1e-9
 
 
 @dataclass
@@ -61,6 +64,14 @@ class StepInfo:
     @property
     def step_time(self) -> float:
         return self.model_time + self.predict_time + self.solve_time
+
+
+def _condition(gain: np.ndarray) -> float:
+    """Condition number σ_max/σ_min of an input gain (inf when singular or not finite)."""
+    if not np.all(np.isfinite(gain)):
+        return math.inf
+    s = np.linalg.svd(gain, compute_uv=False)
+    return float(s[0] / s[-1]) if s.size and s[-1] > 0 else math.inf
 
 
 class GPCController:
@@ -290,12 +301,18 @@ class GPCController:
         except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
             result = SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self._backend.name,
                                  message=f"{type(exc).__name__}: {exc}")
+        violation = self._limit_violation(pred, result.v) if result.ok else ""
+        if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
+            result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
         fallback = not result.ok
         if fallback:
             result = self._fallback(problem, pred, result)
         t3 = time.perf_counter()
         u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
         u = u_seq[0].copy()
+        if self._limits[0] is not None and np.any(np.abs(u) > self._limits[0] * (1.0 + APPLIED_LIMIT_RTOL)):
+            raise SolverError(f"the projected fallback input u = {u.tolist()} N·m exceeds the torque limit "
+                              f"{self._limits[0].tolist()} N·m; nothing applied")
         self.plan = np.vstack([u_seq, np.repeat(u_seq[-1:], self.horizons.N - len(u_seq), axis=0)])
         self._v_prev = result.v
         self.u_prev = u
@@ -310,14 +327,39 @@ class GPCController:
         number grows without bound at an actuation (direct) singularity and as a leg stretches
         or folds. Other models: :func:`~parallel_gpc.gpc.protocol.conditioning_rule`.
         """
-        s = np.linalg.svd(gain, compute_uv=False)
-        cond = s[0] / s[-1] if s.size and s[-1] > 0 else np.inf
+        cond = _condition(gain)
         if not cond <= self.max_condition:
+            n_y = self.n_y
+            if self.n_x == 2 * n_y and np.any(X[n_y:]):  # [y, ẏ]: is it the pose or the velocity?
+                rest = np.concatenate([X[:n_y], np.zeros(n_y)])
+                at_rest = _condition(self._gain(self.model.discrete(rest, self.Ts)[1]))
+                if at_rest <= self.max_condition:
+                    raise InvalidParameterError(
+                        f"measured velocity {np.asarray(X[n_y:]).tolist()} is too large for the one-sample model at "
+                        f"pose {np.round(X[:n_y], 6).tolist()}: cond(g) = {cond:.3g} at this velocity, {at_rest:.3g} "
+                        f"at rest (max_condition = {self.max_condition:.3g}); check the measurement and its units")
             raise SingularPoseError(
                 f"near-singular pose {np.round(X[:self.n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
                 f"> max_condition = {self.max_condition:.3g}; the drives cannot move the platform in some "
                 f"direction, so the controller stops instead of commanding unbounded torques"
             )
+
+    def _limit_violation(self, pred: Prediction, v: np.ndarray) -> str:
+        """Why the first move of solution ``v`` breaks the limits (|u(k)| ≤ τ, |Δu(k)| ≤ δ, relative
+        tolerance :data:`APPLIED_LIMIT_RTOL`), or "" when it keeps them."""
+        tau, delta = self._limits[:2]
+        if tau is None and delta is None:
+            return ""
+        m = self.n_u
+        u = pred.u_base[:m] + pred.u_map[:m] @ v
+        if tau is not None and np.any(np.abs(u) > tau * (1.0 + APPLIED_LIMIT_RTOL)):
+            i = int(np.argmax(np.abs(u) / tau))
+            return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque_limit {tau[i]:.9g} N·m"
+        du = u - self.u_prev
+        if delta is not None and self.form != "absolute" and np.any(np.abs(du) > delta * (1.0 + APPLIED_LIMIT_RTOL)):
+            i = int(np.argmax(np.abs(du) / delta))
+            return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du_limit {delta[i]:.9g} N·m"
+        return ""
 
     @staticmethod
     def _tightened(limit):

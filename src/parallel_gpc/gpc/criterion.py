@@ -7,13 +7,30 @@ from dataclasses import dataclass
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 from ..solvers import LeastSquaresProblem, MinNormOf
+from ..validation import check_allocation
 from .prediction import Horizons, Prediction, _cumulative_map
 
 
 # ---------------------------------------------------------------------------- weights
+def _weight_array(name: str, value) -> np.ndarray:
+    """``value`` as a float array; strings, bools and non-numeric objects are refused."""
+    arr = np.asarray(value, dtype=object) if not isinstance(value, np.ndarray) else value
+    if arr.dtype.kind in "USObV" or arr.dtype.kind == "b":
+        flat = arr.reshape(-1).tolist() if arr.dtype.kind == "O" else None
+        ok = flat is not None and all(isinstance(x, (int, float, np.integer, np.floating))
+                                      and not isinstance(x, (bool, np.bool_)) for x in flat)
+        if not ok:
+            raise InvalidParameterError(f"weight {name} = {value!r} must be a number, a vector or a matrix of numbers")
+    try:
+        return np.asarray(value, dtype=float)
+    except (TypeError, ValueError):  # ragged nesting
+        raise InvalidParameterError(f"weight {name} = {value!r} must be a number, a vector or a matrix of numbers") \
+            from None
+
+
 def _weight_block(name: str, value, size: int) -> np.ndarray:
     """Square-root weight as a (size, size) matrix from a scalar, a (size,) vector or a matrix."""
-    arr = np.asarray(value, dtype=float)
+    arr = _weight_array(name, value)
     if not np.all(np.isfinite(arr)):
         raise InvalidParameterError(f"weight {name} = {value!r} contains NaN or inf; it must be finite")
     if arr.ndim == 0:
@@ -47,12 +64,32 @@ class Weights:
     Qy: object = 1.0
     Qu: object = 0.0
 
+    def __post_init__(self):
+        _weight_array("Qy", self.Qy)
+        _weight_array("Qu", self.Qu)
+
     def blocks(self, p: int, m: int) -> tuple[np.ndarray, np.ndarray]:
         """(p, p) and (m, m) square-root weight matrices (validated)."""
         return _weight_block("Qy", self.Qy, p), _weight_block("Qu", self.Qu, m)
 
 
 # ---------------------------------------------------------------------------- problem
+def check_problem_size(horizons: Horizons, p: int, m: int) -> None:
+    """Refuse horizons whose dense problem would exceed the allocation limit, before allocating.
+
+    The estimate: A of (15)-(16), (n_rows·p + Nu·m) × Nu·m, plus two (Nu·m)² matrices (the
+    input map of the prediction and the QP Hessian).
+
+    Raises:
+        InvalidParameterError: naming N, Nu, the estimated size and the limit.
+    """
+    H = horizons
+    rows, cols = H.n_rows * p + H.Nu * m, H.Nu * m
+    check_allocation(f"the least-squares problem (15)-(16) with N = {H.N}, Nu = {H.Nu} ({rows} x {cols} plus "
+                     "two square matrices of its width)", rows * cols + 2.0 * cols * cols,
+                     "reduce the horizon N (or Nu)")
+
+
 
 def _limit_vector(name: str, value, m: int) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy() if np.ndim(value) == 0 else np.asarray(value, dtype=float)
@@ -90,6 +127,7 @@ class Criterion:
 
     def __post_init__(self):
         p, m, H = self.n_outputs, self.n_inputs, self.horizons
+        check_problem_size(H, p, m)
         Wy, Wu = self.weights.blocks(p, m)
         diag_y = not np.any(Wy - np.diag(np.diag(Wy)))
         diag_u = not np.any(Wu - np.diag(np.diag(Wu)))

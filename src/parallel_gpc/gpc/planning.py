@@ -51,13 +51,15 @@ from ..results import robot_reference, save_result
 from .prediction import Horizons, Prediction, absolute_prediction
 from .references import SampledTrajectory, pose_error_norms
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
-from .criterion import Weights, build_problem
+from .criterion import Weights, build_problem, check_problem_size
 from ..validation import finite_vector, positive
 
 MODES = ("a", "b")
 #: Back end used when torque limits are given and no solver is named: the paper's QR while the
 #: limits are inactive, the exact active-set QP (DAQP) when they bind.
 DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
+#: How :attr:`PlanResult.stopped` starts when Ctrl-C stopped the plan.
+INTERRUPTED = "interrupted (Ctrl-C)"
 #: What each mode is called in tables and plots.
 MODE_LABELS = {"a": "(a) without stopping information", "b": "(b) with stopping"}
 
@@ -246,7 +248,8 @@ class PlanResult:
         settings: the settings used.
         saturated: number of samples at which the plant saturated its drives.
         stopped: empty if the plan ran to its end; otherwise why the recording stopped early
-            (e.g. the open-loop plant of mode (a) left the workspace), the arrays then end there.
+            (e.g. the open-loop plant of mode (a) left the workspace, or :data:`INTERRUPTED`: Ctrl-C),
+            the arrays then end there.
         robot: how the result file names the robot (embedded name or absolute URDF path; "" for none).
         angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
             convention [x, y, ψ].
@@ -268,6 +271,11 @@ class PlanResult:
     stopped: str = ""
     robot: str = ""
     angular: np.ndarray | None = None
+
+    @property
+    def interrupted(self) -> bool:
+        """True if Ctrl-C stopped the plan (the arrays hold the samples applied before)."""
+        return self.stopped.startswith(INTERRUPTED)
 
     @property
     def label(self) -> str:
@@ -414,6 +422,7 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     A = finite_vector("start pose A", A, n_y)
     B = finite_vector("end pose B", B, n_y)
     settings.weights.blocks(n_y, n_u)  # validate the weights against the sizes, once
+    check_problem_size(Horizons(settings.Nmax, settings.Nmax - settings.k, settings.Nmax), n_y, n_u)
     if settings.torque_limit is not None and np.size(settings.torque_limit) not in (1, n_u):
         raise InvalidParameterError(f"torque_limit has {np.size(settings.torque_limit)} entries; expected a "
                                     f"scalar or ({n_u},) for the {n_u} drives")
@@ -429,10 +438,15 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     sat0 = getattr(plant, "saturated", 0)
     K = settings.Nmax if mode == "a" else settings.Nmax + settings.settle_steps
     rec = _Recorder(K, n_y, n_u, plant)
-    if mode == "a":
-        _run_open_loop(model, plant, B, settings, backend, rec)
-    else:
-        _run_shrinking(model, plant, B, settings, backend, rec, progress)
+    try:
+        if mode == "a":
+            _run_open_loop(model, plant, B, settings, backend, rec)
+        else:
+            _run_shrinking(model, plant, B, settings, backend, rec, progress)
+    except KeyboardInterrupt:  # Ctrl-C: keep the samples applied so far
+        if rec.steps == 0:
+            raise
+        rec.stopped = f"{INTERRUPTED} after {rec.steps} of {K} samples"
     n = rec.steps
     return PlanResult(mode, A, B, settings.Ts * np.arange(n + 1), rec.X[: n + 1, :n_y].copy(),
                       rec.X[: n + 1, n_y:].copy(), rec.u[:n].copy(), rec.horizon[:n].copy(),

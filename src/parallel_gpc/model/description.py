@@ -23,6 +23,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import RobotFormatError
+from .file_checks import (
+    SIDECAR_MAX_BYTES,
+    check_description,
+    check_robot_argument,
+    check_sidecar_types,
+    read_text_bounded,
+)
 
 #: Folder of the embedded robot files (installed with the package or at the repo top level).
 _PACKAGE_URDF = Path(__file__).resolve().parents[1] / "urdf"
@@ -140,6 +147,7 @@ class RobotDescription:
 
 def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = None) -> tuple[Path, Path]:
     """Return (model file, sidecar) for an embedded robot name or a path to a model file or sidecar."""
+    check_robot_argument(name_or_path)
     path = Path(name_or_path)
     if path.suffix == "" and not path.exists():
         found = [urdf_dir() / f"{name_or_path}{s}" for s in MODEL_FORMATS]
@@ -182,7 +190,7 @@ def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = N
 
 
 def _read_sidecar(path: Path) -> dict:
-    text = path.read_text()
+    text = read_text_bounded(path, SIDECAR_MAX_BYTES, "sidecar")
     try:
         if path.suffix == ".toml":
             return tomllib.loads(text)
@@ -351,6 +359,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     model_file, sidecar = _resolve_robot_path(name_or_path, sidecar)
     data = _read_sidecar(sidecar)
     where = repr(str(sidecar))
+    check_sidecar_types(data, where)
     fmt = MODEL_FORMATS[model_file.suffix]
     gepetto = "closed_loop" in data or "name_mot" in data
     _check_keys(data, SIDECAR_KEYS["gepetto" if gepetto else "toml"], "the top level", where)
@@ -377,7 +386,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     if len(labels) != n_y:
         raise RobotFormatError(f"sidecar {where}: output labels {list(labels)} must name the {n_y} outputs")
     pose, ends = home.get("pose"), {key: _pose(home.get(key), f"home.{key}", n_y, where) for key in ("A", "B")}
-    return RobotDescription(
+    description = RobotDescription(
         name=str(data.get("name", model_file.stem)),
         urdf_path=model_file,
         closures=closures,
@@ -399,3 +408,5 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         pose_a=ends["A"],
         pose_b=ends["B"],
     )
+    check_description(description)
+    return description

@@ -20,18 +20,18 @@ universal, free-flyer) nq ≠ nv: Newton steps and the warm-start predictor move
 from __future__ import annotations
 
 import dataclasses
-import math
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from ..errors import AssemblyError, InvalidParameterError, RobotFormatError, UnreachablePoseError
-from ..validation import finite_vector
+from ..errors import AssemblyError, RobotFormatError, UnreachablePoseError
+from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
 from .builder import build_model
 from .checks import check_actuation, check_parametrization
 from .closures import ClosureKinematics, ClosureMixin  # noqa: F401  (re-exported)
+from .file_checks import check_model_file, check_model_inertias, quiet_build
 from .description import (  # noqa: F401  (re-exported for the robot's users)
     CLOSURE_ROWS as _CLOSURE_ROWS,
     DEFAULT_ROBOT,
@@ -73,10 +73,14 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     """
 
     def __init__(self, description: RobotDescription, mass_scale: float = 1.0, gravity=None):
-        model, closures = build_model(description)
+        if not isinstance(description, RobotDescription):
+            raise RobotFormatError(f"ParallelRobot takes a RobotDescription, got {type(description).__name__}; "
+                                   "load a robot by name or path with ParallelRobot.load(...)")
+        mass_scale = positive("mass_scale", mass_scale)
+        check_model_file(description)
+        model, closures = quiet_build(build_model, description)
+        check_model_inertias(model, description.urdf_path)
         self.description = dataclasses.replace(description, closures=closures)
-        if not (mass_scale > 0 and math.isfinite(mass_scale)):
-            raise InvalidParameterError(f"mass_scale = {mass_scale!r} must be finite and > 0")
         for j in range(1, model.njoints):
             inertia = model.inertias[j]
             model.inertias[j] = pin.Inertia(inertia.mass * mass_scale, inertia.lever, inertia.inertia * mass_scale)

@@ -14,7 +14,9 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+from .problem import LeastSquaresProblem, quiet_stdout, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+
+
 
 class OSQPBackend:
     """Persistent OSQP: set up once per problem structure, then updated and warm-started."""
@@ -50,7 +52,8 @@ class OSQPBackend:
             self._solver.update(q=q, l=lo, u=hi, Px=P_up.data, Ax=C_csc.data if C.size else None)
         if warm_start is not None and np.all(np.isfinite(warm_start)):
             self._solver.warm_start(x=warm_start)
-        res = self._solver.solve(raise_error=False)
+        with quiet_stdout():  # OSQP prints "Polishing not needed ..." even when quiet
+            res = self._solver.solve(raise_error=False)
         dt = time.perf_counter() - t0
         status = str(res.info.status)
         if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
+
 import numpy as np
 from dataclasses import dataclass, field
 
@@ -195,3 +198,18 @@ def _stacked_constraints(problem: LeastSquaresProblem):
     return np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
 
 
+
+
+class _Discard(io.TextIOBase):
+    """A text stream that drops what is written."""
+
+    def write(self, text: str) -> int:
+        return len(text)
+
+
+_DISCARD = _Discard()
+
+
+def quiet_stdout():
+    """Context manager: Python-level stdout dropped (a back end's prints during a solve)."""
+    return contextlib.redirect_stdout(_DISCARD)

@@ -13,7 +13,7 @@ import numpy as np
 import qpsolvers
 
 from ..errors import SolverNotFoundError
-from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, _solved
+from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, _solved, quiet_stdout
 
 
 def installed_qp_solvers() -> list[str]:
@@ -59,7 +59,8 @@ class QpsolversBackend:
         if self.solver == "osqp" and not problem.constrained:  # nothing to polish (and OSQP 1.1 says so on stdout)
             settings = {**settings, "polishing": False}
         try:
-            sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **settings)
+            with quiet_stdout():  # OSQP prints "Polishing not needed ..." on stdout even when quiet
+                sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **settings)
         except Exception as exc:  # a solver's own exception becomes a reported failure
             return _failed(problem, self.name, "failed", None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
         dt = time.perf_counter() - t0

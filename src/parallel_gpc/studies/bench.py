@@ -472,7 +472,9 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         config: full control over what runs (overrides ``quick``).
 
     Returns:
-        {"machine", "config", "limits_Nm", "results" (one dict per entry), "targets"}.
+        {"machine", "config", "limits_Nm", "results" (one dict per entry), "targets", "wall_time_s",
+        "interrupted"}. Ctrl-C stops the run: the rows of the (robot, N) pairs measured to the
+        end are kept, written and returned, with ``interrupted`` True.
     """
     cfg = config or (BenchConfig.quick() if quick else BenchConfig())
     if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
@@ -486,6 +488,8 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
 
         bar = tqdm(total=total, desc="benchmark", unit="problem", leave=False)
     t_start = time.perf_counter()
+    finished: set[tuple] = set()  # entries of the (robot, N) pairs measured to the end
+    interrupted = False
     try:
         for rname in cfg.robots:
             robot = ParallelRobot.load(rname)
@@ -494,6 +498,10 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
                 if bar is not None:
                     bar.set_description(f"{rname} N={N}")
                 _bench_robot_N(run, robot, N, stretches, ref, bar)
+                finished = set(run.entries)
+    except KeyboardInterrupt:  # Ctrl-C: report and save the rows of the finished (robot, N) pairs
+        interrupted = True
+        run.entries = {k: e for k, e in run.entries.items() if k in finished}
     finally:
         if bar is not None:
             bar.close()
@@ -503,7 +511,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
                      key=lambda ie: (robots.get(ie[1].robot, 99), ie[1].N, order[ie[1].section], ie[0]))
     rows = [e.summary() for _, e in entries]
     ratios(rows)
-    targets = evaluate_targets(rows)
+    targets = evaluate_targets(rows) if rows else []
     result = {
         "machine": machine_info(),
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
@@ -511,6 +519,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         "results": rows,
         "targets": targets,
         "wall_time_s": time.perf_counter() - t_start,
+        "interrupted": interrupted,
     }
     print(format_table(rows))
     print()
@@ -521,10 +530,13 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
-        (out / "bench_gpc.json").write_text(json.dumps(result, indent=1, default=_json_default))
-        (out / "bench_gpc.md").write_text(markdown_report(result))
-        save_figure(plot_results(rows), out / "bench_gpc.png")
-        print(f"wrote {out / 'bench_gpc.json'}, {out / 'bench_gpc.md'} and {out / 'bench_gpc.png'}")
+        written = [out / "bench_gpc.json"]
+        written[0].write_text(json.dumps(result, indent=1, default=_json_default))
+        if rows:
+            (out / "bench_gpc.md").write_text(markdown_report(result))
+            written += [out / "bench_gpc.md", save_figure(plot_results(rows), out / "bench_gpc.png")]
+        print("wrote " + ", ".join(str(p) for p in written)
+              + (f" (interrupted: {len(rows)} finished rows)" if interrupted else ""))
     return result
 
 

@@ -18,9 +18,9 @@ from tqdm import tqdm
 
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
-from ..errors import InvalidParameterError, ShapeError
+from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
 from ..results import robot_reference, save_result, saturation_flags
-from ..validation import finite_vector, positive
+from ..validation import check_allocation, finite_vector, positive
 
 
 @dataclass
@@ -117,6 +117,19 @@ def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
     return float(np.linalg.norm(u - np.linalg.pinv(B_r) @ (B_r @ u)))
 
 
+def _step(controller: GPCController, X: np.ndarray, meas: np.ndarray, w: np.ndarray, noise_std):
+    """controller.step on the measurement; an error caused by the noise names ``noise_std``."""
+    try:
+        return controller.step(meas, w)
+    except (AssemblyError, SingularPoseError) as exc:
+        if noise_std is None or np.array_equal(X, meas):
+            raise
+        n_y = controller.n_y
+        raise type(exc)(f"measurement noise noise_std = {np.asarray(noise_std).tolist()} moved the measured pose "
+                        f"from {np.round(X[:n_y], 6).tolist()} to {np.round(meas[:n_y], 6).tolist()}, where the "
+                        f"controller's model fails: {exc}") from None
+
+
 def simulate(controller: GPCController, plant, reference: Reference, duration: float,
              noise_std=None, seed: int = 0, progress: bool = True, meta: dict | None = None) -> SimulationResult:
     """Run the closed loop for ``duration`` s at the controller's Ts.
@@ -132,10 +145,16 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         meta: extra settings stored in the result.
     """
     Ts = controller.Ts
-    K = int(round(positive("duration", duration, " s") / Ts))
+    duration = positive("duration", duration, " s")
+    K = int(round(duration / Ts))
+    if K < 1:
+        raise InvalidParameterError(f"duration = {duration:g} s is shorter than one sample Ts = {Ts:g} s; the run "
+                                    "needs duration ≥ Ts (reduce Ts or lengthen the run)")
     rng = np.random.default_rng(seed)
     robot = plant.robot
     n_y, n_u = robot.n_y, robot.n_u
+    check_allocation(f"the record of {K} samples (duration {duration:g} s / Ts {Ts:g} s)",
+                     K * (robot.model.nq + 3 * n_y + 2 * n_u + 16), "shorten the run or increase Ts")
     if (controller.n_y, controller.n_u) != (n_y, n_u):
         raise ShapeError(f"controller has {controller.n_y} outputs and {controller.n_u} drives, the plant "
                          f"{robot.name!r} has {n_y} and {n_u}; they must describe the same robot")
@@ -153,7 +172,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             t = k * Ts
             X = plant.X
             meas = X if noise_std is None else X + rng.normal(0.0, 1.0, X.shape) * noise_std
-            info = controller.step(meas, reference.window(t, Ts, controller.horizons.N))
+            info = _step(controller, X, meas, reference.window(t, Ts, controller.horizons.N), noise_std)
             q = np.array(plant.q)
             B_r = robot.velocity_map(q)[0].T @ robot.drive_selection
             sat_before = plant.saturated

@@ -85,6 +85,10 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     for form in forms:
         if form not in FORMS:
             raise InvalidParameterError(f"form {form!r} is not one of {FORMS}")
+    if settings.du_limit is not None and "absolute" in forms:
+        raise InvalidParameterError(
+            f"du_limit = {settings.du_limit!r} N·m per sample applies to the incremental forms only; the absolute "
+            f"form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
     reference = settings.make_reference(robot)
@@ -96,7 +100,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
         ctrl = GPCController(
             ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
             Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
-            torque_limit=settings.torque_limit, du_limit=settings.du_limit if form != "absolute" else None,
+            torque_limit=settings.torque_limit, du_limit=settings.du_limit,
         )
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
                                  torque_limit=settings.torque_limit,

@@ -9,6 +9,7 @@ import html
 import re
 import sys
 import threading
+import urllib.parse
 from functools import partial
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
@@ -24,10 +25,21 @@ def _page_title(path: Path) -> str:
     return html.unescape(match.group(1).strip()) if match else path.stem
 
 
+def servable(directory, url_path: str) -> bool:
+    """True if ``url_path`` (decoded, e.g. ``/motion.html``) names a regular file inside
+    ``directory`` after resolving symlinks, with no dot-file or dot-folder component."""
+    parts = [p for p in url_path.split("/") if p]
+    if not parts or any(p.startswith(".") or "\\" in p for p in parts):
+        return False
+    root = Path(directory).resolve()
+    target = root.joinpath(*parts).resolve()
+    return target.is_relative_to(root) and target.is_file()
+
+
 def gallery_index(directory) -> str:
     """HTML index page linking every ``*.html`` file of ``directory`` (except index.html)."""
     directory = Path(directory)
-    pages = sorted(p for p in directory.glob("*.html") if p.name != "index.html")
+    pages = sorted(p for p in directory.glob("*.html") if p.name != "index.html" and servable(directory, "/" + p.name))
     items = "\n".join(
         f'<li><a href="{html.escape(p.name, quote=True)}">{html.escape(_page_title(p))}</a> '
         f"<small>({html.escape(p.name)})</small></li>" for p in pages
@@ -40,18 +52,41 @@ def gallery_index(directory) -> str:
 
 
 class _GalleryHandler(SimpleHTTPRequestHandler):
-    """Static files of one folder, with a generated index at ``/``."""
+    """Files of one folder, with a generated index at ``/``.
+
+    Served: regular files whose real path (symlinks resolved) lies inside the folder and whose
+    URL has no component starting with a dot. Everything else (dotfiles, folder listings,
+    symlinks leading out of the folder) is answered 404 Not Found.
+    """
 
     def do_GET(self):  # noqa: N802 — http.server naming
-        if self.path.split("?", 1)[0] == "/":
+        if self._route():
+            super().do_GET()
+
+    def do_HEAD(self):  # noqa: N802 — http.server naming
+        if self._route():
+            super().do_HEAD()
+
+    def _route(self) -> bool:
+        """Answer ``/`` and refused paths here; True when the default file handler may serve."""
+        url_path = urllib.parse.unquote(self.path.split("?", 1)[0].split("#", 1)[0])
+        if url_path == "/":
             body = gallery_index(self.directory).encode("utf-8")
             self.send_response(200)
             self.send_header("Content-Type", "text/html; charset=utf-8")
             self.send_header("Content-Length", str(len(body)))
             self.end_headers()
-            self.wfile.write(body)
-            return
-        super().do_GET()
+            if self.command != "HEAD":
+                self.wfile.write(body)
+            return False
+        if not servable(self.directory, url_path):
+            self.send_error(404, "File not found")
+            return False
+        return True
+
+    def list_directory(self, path):  # never list a folder
+        self.send_error(404, "File not found")
+        return None
 
     def log_message(self, format, *args):  # noqa: A002 — http.server signature
         pass
@@ -76,7 +111,8 @@ class GalleryServer:
     def __init__(self, directory, host: str = LOOPBACK, port: int = 0):
         self.directory = Path(directory)
         if not self.directory.is_dir():
-            raise InvalidParameterError(f"gallery folder {str(directory)!r} does not exist or is not a folder")
+            what = "is not a folder" if self.directory.exists() else "does not exist"
+            raise InvalidParameterError(f"gallery folder {str(directory)!r} {what}")
         self.host = loopback_host(host)
         self.requested_port = check_port(port)
         self.server: ThreadingHTTPServer | None = None

@@ -18,6 +18,7 @@ import tornado.httpserver
 import tornado.ioloop
 import tornado.netutil
 import tornado.web
+import tornado.websocket
 import zmq
 
 from ..errors import ViewerError
@@ -47,6 +48,22 @@ class _QuietWebSocketHandler(WebSocketHandler):
 
     def on_close(self):
         self.bridge.websocket_pool.discard(self)
+
+    def write_message(self, message, binary=False):
+        """Send, or drop the client quietly if it has gone (a browser tab closed mid-send)."""
+        try:
+            future = super().write_message(message, binary=binary)
+        except tornado.websocket.WebSocketClosedError:
+            self.bridge.websocket_pool.discard(self)
+            return None
+        future.add_done_callback(_consume)
+        return future
+
+
+def _consume(future) -> None:
+    """Retrieve a send's outcome: a client that disconnected early is not an error to log."""
+    if not future.cancelled():
+        future.exception()
 
 
 class _LoopbackBridge(ZMQWebSocketBridge):
@@ -82,6 +99,12 @@ class _LoopbackBridge(ZMQWebSocketBridge):
             (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
             (r"/", _QuietWebSocketHandler, {"bridge": self}),
         ], log_function=lambda handler: None)
+
+    def forward_to_websockets(self, frames):
+        """Send one scene command to every client (a copy of the pool: clients may leave meanwhile)."""
+        _, _, data = frames
+        for websocket in list(self.websocket_pool):
+            websocket.write_message(data, binary=True)
 
     async def shutdown(self) -> None:
         """Stop listening, close browser connections and the ZeroMQ socket."""

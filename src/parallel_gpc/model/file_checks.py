@@ -1,0 +1,370 @@
+"""Validation of robot files at load: bounded reads, sidecar value types, URDF physics, and the
+consistency of a description (duplicates, identical closure frames).
+
+Policies (the README's "Input limits and validation" states them too):
+
+* A robot file (URDF or sidecar) must be a regular file (not a device, FIFO or folder) of at
+  most :data:`URDF_MAX_BYTES` / :data:`SIDECAR_MAX_BYTES`, UTF-8 encoded. The size is checked
+  before reading and the read itself is bounded.
+* Every ``<inertial>`` of the URDF: mass finite and > 0 (kg); inertia entries finite; the
+  rotational inertia matrix (kg·m², about the centre of mass) symmetric positive definite with
+  principal moments satisfying the triangle inequality I₁ + I₂ ≥ I₃ (relative tolerance
+  :data:`INERTIA_RTOL`). A link without ``<inertial>`` is a massless frame.
+* A mesh file named by the URDF must resolve (symlinks followed) inside the URDF's folder.
+* Drives, output joints and branch joints are distinct; a closure joins two different frames
+  and no two closures join the same pair.
+
+Nothing here imports Pinocchio (:func:`check_model_inertias` reads a built model).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import stat
+import sys
+import tempfile
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import RobotFormatError
+
+#: Largest closure sidecar read, bytes.
+SIDECAR_MAX_BYTES = 1 << 20
+#: Largest URDF read, bytes.
+URDF_MAX_BYTES = 16 << 20
+#: Relative tolerance of the inertia checks (positive definiteness, triangle inequality).
+INERTIA_RTOL = 1e-9
+
+
+# ---------------------------------------------------------------------------- bounded reads
+def read_bounded(path, limit: int, what: str) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes (size checked before reading).
+
+    Raises:
+        RobotFormatError: missing, not a regular file (folder, device, FIFO), or too large.
+    """
+    path = Path(path)
+    try:
+        info = path.stat()
+    except OSError as exc:
+        raise RobotFormatError(f"{what} {str(path)!r} cannot be opened: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise RobotFormatError(f"{what} {str(path)!r} is a folder; give the path of a file")
+    if not stat.S_ISREG(info.st_mode):
+        raise RobotFormatError(f"{what} {str(path)!r} is not a regular file (a device, FIFO or socket)")
+    if info.st_size > limit:
+        raise RobotFormatError(f"{what} {str(path)!r} has {info.st_size} bytes; the limit is {limit} bytes")
+    with open(path, "rb") as f:
+        data = f.read(limit + 1)
+    if len(data) > limit:  # grew while we looked
+        raise RobotFormatError(f"{what} {str(path)!r} has more than {limit} bytes; the limit is {limit} bytes")
+    return data
+
+
+def read_text_bounded(path, limit: int, what: str) -> str:
+    """:func:`read_bounded`, decoded as UTF-8 (an error names the first bad byte's offset)."""
+    data = read_bounded(path, limit, what)
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise RobotFormatError(f"{what} {str(path)!r} is not UTF-8 text: byte {data[exc.start]:#04x} at offset "
+                               f"{exc.start}") from None
+
+
+def check_robot_argument(name_or_path) -> None:
+    """A robot name or path is a non-empty str or os.PathLike naming no folder.
+
+    Raises:
+        RobotFormatError: wrong type, empty, or a folder.
+    """
+    if isinstance(name_or_path, bool) or not isinstance(name_or_path, (str, os.PathLike)):
+        raise RobotFormatError(f"robot = {name_or_path!r} ({type(name_or_path).__name__}) must be an embedded "
+                               "robot name or a path (str or os.PathLike) to a .urdf file or its sidecar")
+    if not str(name_or_path).strip():
+        raise RobotFormatError("robot name is empty; give an embedded robot name or a path to a .urdf file")
+    if Path(name_or_path).is_dir():
+        raise RobotFormatError(f"robot path {str(name_or_path)!r} is a folder; give the .urdf file or its sidecar")
+
+
+# ---------------------------------------------------------------------------- sidecar value types
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _fail(where: str, key: str, value, want: str):
+    text = repr(value)
+    text = text if len(text) <= 80 else text[:77] + "..."
+    raise RobotFormatError(f"sidecar {where}: {key} = {text} must be {want}")
+
+
+def _text(where, key, value):
+    if not isinstance(value, str):
+        _fail(where, key, value, "a string")
+
+
+def _names(where, key, value, length=None):
+    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
+        _fail(where, key, value, "a non-empty list of names (strings)")
+    if length is not None and len(value) != length:
+        _fail(where, key, value, f"a list of {length} names")
+
+
+def _numbers(where, key, value, allow_scalar=False):
+    if allow_scalar and _is_number(value):
+        return
+    if not isinstance(value, list) or not value or not all(_is_number(v) for v in value):
+        _fail(where, key, value, "a non-empty list of finite numbers" + (" (or one number)" if allow_scalar else ""))
+
+
+def _table(where, key, value):
+    if not isinstance(value, dict):
+        _fail(where, key, value, "a table (mapping)")
+
+
+def _number_table(where, key, value):
+    _table(where, key, value)
+    for k, v in value.items():
+        if not isinstance(k, str) or not (_is_number(v) or (isinstance(v, list) and v and all(map(_is_number, v)))):
+            _fail(where, f"{key}.{k}", v, "a finite number, or a list of numbers for a multi-DOF joint")
+
+
+#: Known keys of each table and the check of their values (unknown keys are left to the parser).
+_OUTPUT = {"frame": _text, "joints": _names, "labels": _names, "units": _names, "kind": _text, "axes": _names}
+_HOME = {"pose": _numbers, "branch_joints": _names, "q_guess": _number_table, "A": _numbers, "B": _numbers}
+_DRIVES = {"joints": _names, "torque_limit": lambda w, k, v: _numbers(w, k, v, allow_scalar=True)}
+_CLOSURE = {"name": _text, "kind": _text, "frames": lambda w, k, v: _names(w, k, v, 2)}
+
+
+def _check_table(where: str, prefix: str, table: dict, spec: dict) -> None:
+    for key, check in spec.items():
+        if key in table and not (key == "branch_joints" and table[key] == []):
+            check(where, f"{prefix}{key}", table[key])
+
+
+def _check_nested(where: str, data: dict, key: str, spec: dict) -> None:
+    if key in data and data[key] is not None:
+        _table(where, key, data[key])
+        _check_table(where, f"{key}.", data[key], spec)
+
+
+def check_sidecar_types(data: dict, where: str) -> None:
+    """Check the type of every known sidecar value (native and Gepetto-style), before parsing.
+
+    Raises:
+        RobotFormatError: naming the key, its value and the expected type.
+    """
+    for key in ("name", "description", "output_frame", "root"):
+        if key in data:
+            _text(where, key, data[key])
+    _check_nested(where, data, "output", _OUTPUT)
+    _check_nested(where, data, "home", _HOME)
+    _check_nested(where, data, "drives", _DRIVES)
+    if "closures" in data:
+        closures = data["closures"]
+        if not isinstance(closures, list) or not closures:
+            _fail(where, "closures", closures, "a non-empty list of tables [[closures]]")
+        for i, c in enumerate(closures):
+            _table(where, f"closures[{i}]", c)
+            _check_table(where, f"closures[{i}].", c, _CLOSURE)
+    if "closed_loop" in data:
+        pairs = data["closed_loop"]
+        if not isinstance(pairs, list) or not pairs:
+            _fail(where, "closed_loop", pairs, "a non-empty list of [frame_a, frame_b] pairs")
+        for i, pair in enumerate(pairs):
+            _names(where, f"closed_loop[{i}]", pair, 2)
+        if "type" in data:
+            _names(where, "type", data["type"], len(pairs))
+    for key, check in (("name_mot", _names), ("output_joints", _names), ("joint_name", _names),
+                       ("joint_type", _names),
+                       ("torque_limit", lambda w, k, v: _numbers(w, k, v, allow_scalar=True))):
+        if key in data and data[key] is not None:
+            check(where, key, data[key])
+
+
+# ---------------------------------------------------------------------------- description consistency
+def _duplicates(names) -> list[str]:
+    seen, dup = set(), []
+    for n in names:
+        if n in seen and n not in dup:
+            dup.append(n)
+        seen.add(n)
+    return dup
+
+
+def check_description(desc) -> None:
+    """Distinct drives, output joints and branch joints; closures between two different frames,
+    each pair once.
+
+    Raises:
+        RobotFormatError: naming the repeated joint or frame.
+    """
+    where = repr(desc.name)
+    for role, names in (("drive joints", desc.drive_joints), ("output joints", desc.output_joints),
+                        ("branch joints", desc.branch_joints)):
+        dup = _duplicates(names)
+        if dup:
+            raise RobotFormatError(f"robot {where}: {role} {list(names)} name {dup} more than once; each joint "
+                                   "may appear once")
+    pairs = {}
+    for c in desc.closures:
+        if c.frames[0] == c.frames[1]:
+            raise RobotFormatError(f"robot {where}: closure {c.name!r} joins frame {c.frames[0]!r} to itself "
+                                   "(identical closure frames); a closure joins two different frames")
+        key = frozenset(c.frames)
+        if key in pairs:
+            raise RobotFormatError(f"robot {where}: closures {pairs[key]!r} and {c.name!r} both join frames "
+                                   f"{sorted(key)}; each pair of frames may be closed once")
+        pairs[key] = c.name
+
+
+# ---------------------------------------------------------------------------- URDF physics
+def _attr_float(elem, name: str, link: str, path: Path) -> float:
+    raw = elem.get(name, "0")
+    try:
+        value = float(raw)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} {elem.tag} {name} = {raw!r} must be a finite "
+                               "number")
+    return value
+
+
+def _check_inertial(inertial, link: str, path: Path) -> None:
+    mass_el, inertia_el = inertial.find("mass"), inertial.find("inertia")
+    if mass_el is None or inertia_el is None:
+        raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} has an <inertial> without <mass> or <inertia>")
+    mass = _attr_float(mass_el, "value", link, path)
+    if not mass > 0:
+        raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} mass = {mass!r} kg must be > 0 (a massless "
+                               "link has no <inertial>)")
+    v = {k: _attr_float(inertia_el, k, link, path) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
+    inertia = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
+                        [v["ixz"], v["iyz"], v["izz"]]])
+    _check_rotational(inertia, f"link {link!r}", v, path)
+
+
+def _check_rotational(inertia: np.ndarray, who: str, shown, path: Path) -> None:
+    """A (3, 3) rotational inertia (kg·m²): symmetric positive definite, triangle inequality."""
+    moments = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
+    scale = max(float(np.abs(inertia).max()), 1e-300)
+    if moments[0] <= INERTIA_RTOL * scale or np.abs(inertia - inertia.T).max() > INERTIA_RTOL * scale:
+        raise RobotFormatError(f"{str(path)!r}: {who} inertia {shown} (kg·m²) is not symmetric positive definite "
+                               f"(principal moments {np.round(moments, 12).tolist()})")
+    if moments[0] + moments[1] < moments[2] * (1.0 - INERTIA_RTOL):
+        raise RobotFormatError(f"{str(path)!r}: {who} inertia {shown} (kg·m²) violates the triangle "
+                               f"inequality I1 + I2 >= I3 of a physical body (principal moments "
+                               f"{np.round(moments, 12).tolist()})")
+
+
+def _check_mesh(name: str, link: str, path: Path) -> None:
+    folder = path.resolve().parent
+    local = name[len("file://"):] if name.startswith("file://") else name
+    target = (folder / local).resolve() if "://" not in local else None
+    if target is None or not target.is_relative_to(folder):
+        raise RobotFormatError(f"{str(path)!r}: {link!r} mesh {name!r} is outside the robot's folder "
+                               f"{str(folder)!r}; meshes must be files inside it (relative paths)")
+
+
+def check_urdf_text(text: str, path) -> None:
+    """Check a URDF's XML, masses, inertias and mesh paths (policy in the module docstring).
+
+    Raises:
+        RobotFormatError: naming the link and the bad value.
+    """
+    path = Path(path)
+    root = _xml_root(text, path, "robot")
+    for link in root.iter("link"):
+        name = link.get("name", "?")
+        for inertial in link.findall("inertial"):
+            _check_inertial(inertial, name, path)
+        for mesh in link.iter("mesh"):
+            _check_mesh(mesh.get("filename", ""), name, path)
+
+
+def _xml_root(text: str, path: Path, tag: str):
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise RobotFormatError(f"{path.suffix[1:].upper()} {str(path)!r} is not well-formed XML: {exc}") from None
+    if root.tag != tag:
+        raise RobotFormatError(f"{str(path)!r}: the root element is <{root.tag}>, not <{tag}>")
+    return root
+
+
+def check_model_file(description) -> None:
+    """Bounded read and checks of a description's model file before Pinocchio parses it: URDF
+    masses, inertias and meshes (:func:`check_urdf_text`); MJCF mesh files inside the folder.
+
+    Raises:
+        RobotFormatError: not a regular file, larger than :data:`URDF_MAX_BYTES`, not UTF-8,
+            or failing a check.
+    """
+    path = Path(description.urdf_path)
+    text = read_text_bounded(path, URDF_MAX_BYTES, "model file")
+    if description.model_format == "urdf":
+        check_urdf_text(text, path)
+        return
+    for mesh in _xml_root(text, path, "mujoco").iter("mesh"):
+        if mesh.get("file"):
+            _check_mesh(mesh.get("file"), mesh.get("name", "?"), path)
+
+
+def check_model_inertias(model, path) -> None:
+    """Every body of a built model: mass finite and ≥ 0 (0: massless), and with mass > 0 a
+    rotational inertia that is a valid inertia (positive definite, triangle inequality).
+
+    Raises:
+        RobotFormatError: naming the body (joint) and its values.
+    """
+    for j in range(1, model.njoints):
+        inertia = model.inertias[j]
+        mass, rot = float(inertia.mass), np.array(inertia.inertia)
+        if not (math.isfinite(mass) and mass >= 0 and np.all(np.isfinite(rot))):
+            raise RobotFormatError(f"{str(path)!r}: body of joint {model.names[j]!r} has mass {mass!r} kg and "
+                                   f"inertia {rot.tolist()}; both must be finite, the mass >= 0")
+        if mass > 0:
+            _check_rotational(rot, f"body of joint {model.names[j]!r}", rot.tolist(), Path(path))
+
+
+@contextlib.contextmanager
+def captured_c_stderr():
+    """Capture what C code writes to file descriptor 2 (e.g. urdfdom's ``Error:`` lines).
+
+    Yields a list that holds the captured text (one string) after the block.
+    """
+    captured: list[str] = []
+    sys.stderr.flush()
+    saved = os.dup(2)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), 2)
+        try:
+            yield captured
+        finally:
+            try:
+                import ctypes
+
+                ctypes.CDLL(None).fflush(None)
+            except (OSError, AttributeError):  # pragma: no cover - no C library handle
+                pass
+            os.dup2(saved, 2)
+            os.close(saved)
+            tmp.seek(0)
+            captured.append(tmp.read(1 << 16).decode("utf-8", "replace"))
+
+
+def quiet_build(build, description):
+    """``build(description)`` with the parsers' console output (urdfdom's ``Error:`` lines)
+    captured; on a package error the captured text goes into its message instead.
+    """
+    with captured_c_stderr() as out:
+        try:
+            return build(description)
+        except RobotFormatError as exc:
+            error = exc
+    noise = " ".join(out[0].split())
+    raise RobotFormatError(f"{error}" + (f" (parser output: {noise[:300]})" if noise else "")) from error
