@@ -28,7 +28,7 @@ def add_tracking_arguments(p) -> None:
     p.add_argument("--solver", default=None, help="back end: qr, osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:daqp-direct with limits)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
-    p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample")
+    p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
     p.add_argument("--mass-scale", type=float, default=1.0, help="plant mass / model mass (default 1)")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise std on [y, ẏ] (SI)")
     p.add_argument("--force", type=float, nargs="+", default=(0.0, 0.0, 0.0), metavar="F",
