@@ -31,7 +31,6 @@ so every layer (``gpc.planning``, ``studies``, ``viz``, ``cli``) can use it.
 from __future__ import annotations
 
 import json
-import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,7 +39,7 @@ import numpy as np
 
 from .errors import InvalidParameterError, ResultFormatError, ShapeError
 from .model.description import embedded_robots, urdf_dir
-from .validation import finite_matrix, finite_vector
+from .validation import finite_matrix, finite_vector, regular_file
 
 #: Value of the ``format`` key.
 FORMAT = "parallel-gpc-result"
@@ -204,16 +203,7 @@ def save_result(path, robot, t, q=None, *, reference=None, planned=None, saturat
 
 def _read(path: Path) -> dict:
     """The arrays of a result file, read within :data:`MAX_RESULT_BYTES` (checked before reading)."""
-    try:
-        info = path.stat()
-    except FileNotFoundError:
-        raise ResultFormatError(f"result file {str(path)!r} does not exist") from None
-    except OSError as exc:
-        raise ResultFormatError(f"result file {str(path)!r} cannot be opened: {exc.strerror or exc}") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise ResultFormatError(f"result file {str(path)!r} is a folder; give the path of a .npz file")
-    if not stat.S_ISREG(info.st_mode):
-        raise ResultFormatError(f"result file {str(path)!r} is not a regular file (a device, FIFO or socket)")
+    regular_file(path, "result file", ResultFormatError)
     if not zipfile.is_zipfile(path):
         raise ResultFormatError(f"cannot read result file {str(path)!r}: not a NumPy .npz (zip) archive")
     try:

@@ -5,6 +5,9 @@ Each helper raises one error of :mod:`parallel_gpc.errors` naming the value and 
 
 from __future__ import annotations
 
+import os
+import stat
+
 import numpy as np
 
 from .errors import NonFiniteError, ShapeError, InvalidParameterError
@@ -88,3 +91,26 @@ def check_allocation(what: str, n_floats: float, fix: str) -> None:
     if need > MAX_ALLOCATION_BYTES:
         raise InvalidParameterError(f"{what} would need about {_size_text(need)}; the limit is "
                                     f"{_size_text(MAX_ALLOCATION_BYTES)}: {fix}")
+
+
+def regular_file(path, what: str, error=InvalidParameterError) -> int:
+    """The size in bytes of ``path`` if it is a regular file (symlinks followed), before any read.
+
+    Args:
+        path: the file. what: its role, for the message (``"sidecar"``, ``"result file"``).
+        error: the package error class to raise.
+
+    Raises:
+        error: missing, a folder, or not a regular file (a device such as /dev/zero, a FIFO, a socket).
+    """
+    try:
+        info = os.stat(path)
+    except FileNotFoundError:
+        raise error(f"{what} {str(path)!r} does not exist") from None
+    except OSError as exc:
+        raise error(f"{what} {str(path)!r} cannot be opened: {exc.strerror or exc}") from None
+    if stat.S_ISDIR(info.st_mode):
+        raise error(f"{what} {str(path)!r} is a folder; give the path of a file")
+    if not stat.S_ISREG(info.st_mode):
+        raise error(f"{what} {str(path)!r} is not a regular file (a device, FIFO or socket)")
+    return info.st_size

@@ -22,7 +22,6 @@ from __future__ import annotations
 import contextlib
 import math
 import os
-import stat
 import sys
 import tempfile
 import xml.etree.ElementTree as ET
@@ -31,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import RobotFormatError
+from ..validation import regular_file
 
 #: Largest closure sidecar read, bytes.
 SIDECAR_MAX_BYTES = 1 << 20
@@ -48,16 +48,9 @@ def read_bounded(path, limit: int, what: str) -> bytes:
         RobotFormatError: missing, not a regular file (folder, device, FIFO), or too large.
     """
     path = Path(path)
-    try:
-        info = path.stat()
-    except OSError as exc:
-        raise RobotFormatError(f"{what} {str(path)!r} cannot be opened: {exc.strerror or exc}") from None
-    if stat.S_ISDIR(info.st_mode):
-        raise RobotFormatError(f"{what} {str(path)!r} is a folder; give the path of a file")
-    if not stat.S_ISREG(info.st_mode):
-        raise RobotFormatError(f"{what} {str(path)!r} is not a regular file (a device, FIFO or socket)")
-    if info.st_size > limit:
-        raise RobotFormatError(f"{what} {str(path)!r} has {info.st_size} bytes; the limit is {limit} bytes")
+    size = regular_file(path, what, RobotFormatError)
+    if size > limit:
+        raise RobotFormatError(f"{what} {str(path)!r} has {size} bytes; the limit is {limit} bytes")
     with open(path, "rb") as f:
         data = f.read(limit + 1)
     if len(data) > limit:  # grew while we looked
