@@ -22,7 +22,7 @@ from parallel_gpc.errors import (
 from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.gpc.prediction import Horizons
-from parallel_gpc.model.checks import SIDECAR_MAX_BYTES
+from parallel_gpc.model.file_checks import SIDECAR_MAX_BYTES
 from parallel_gpc.model.description import urdf_dir
 
 URDF = (urdf_dir() / "planar_3rrr.urdf").read_text()
@@ -48,6 +48,15 @@ def robot(tmp, stem, urdf=URDF, toml: str | bytes | None = TOML, yaml: str | Non
     else:
         (tmp / f"{stem}.toml").write_text(toml)
     return str(tmp / f"{stem}.urdf")
+
+
+def mjcf(tmp, stem, replacement: str) -> str:
+    """The 5-bar MJCF of tests/mechanisms.py with its first mass or diaginertia attribute replaced."""
+    import mechanisms as mech
+
+    key = replacement.split("=")[0]
+    text = re.sub(rf'{key}="[^"]+"', replacement, mech.fivebar_mjcf(), count=1)
+    return str(mech.write(tmp, stem, text, mech.fivebar_mjcf_sidecar(), ".xml"))
 
 
 def sidecar(tmp, stem, old, new):
@@ -91,10 +100,14 @@ ROWS = [
     ("1 zero mass", lambda t: ["info", robot(t, "m", urdf=_edit(URDF, PLATFORM_MASS, '<mass value="0"/>'))],
      RobotFormatError, ["mass = 0.0"]),
     ("1 non-PD inertia", lambda t: ["info", robot(t, "i", urdf=_edit(URDF, PLATFORM_INERTIA, PLATFORM_INERTIA.replace(
-        'ixy="0"', 'ixy="0.5"')))], RobotFormatError, ["'ixy': 0.5", "not positive definite"]),
+        'ixy="0"', 'ixy="0.5"')))], RobotFormatError, ["'ixy': 0.5", "positive definite"]),
     ("1 inertia breaks the triangle inequality", lambda t: ["info", robot(t, "i", urdf=_edit(
         URDF, PLATFORM_INERTIA, PLATFORM_INERTIA.replace('0.028125', '0.01')))], RobotFormatError,
      ["'ixx': 0.01", "triangle inequality"]),
+    ("1 MJCF negative mass (the parser makes it 0)", lambda t: ["info", mjcf(t, "neg", 'mass="-1.0"')],
+     RobotFormatError, ["'prox1'", "'-1.0'", "> 0"]),
+    ("1 MJCF inertia breaks the triangle inequality", lambda t: ["info", mjcf(t, "tri", 'diaginertia="0.001 0.001 0.01"')],
+     RobotFormatError, ["'prox1'", "triangle inequality"]),
     ("1 duplicate drives", lambda t: ["info", sidecar(t, "d", DRIVES, 'joints = ["drive_1", "drive_1", "drive_3"]')],
      RobotFormatError, ["drive joints", "['drive_1']", "more than once"]),
     # 2. wrong types and files that ended in a traceback
@@ -113,6 +126,9 @@ ROWS = [
     ("2 non-UTF-8 sidecar", lambda t: ["info", robot(t, "u", toml=b'name = "\xff\xfe"\n')],
      RobotFormatError, ["u.toml", "UTF-8", "0xff"]),
     ("2 empty robot name", lambda t: ["info", ""], RobotFormatError, ["empty"]),
+    ("2 MJCF mesh outside the robot folder", lambda t: ["info", mjcf(
+        t, "mesh", 'model="fivebar"><asset><mesh name="m" file="/etc/passwd"/></asset')],
+     RobotFormatError, ["/etc/passwd", "outside"]),
     ("2 mesh outside the robot folder", lambda t: ["info", robot(t, "mesh", urdf=_edit(
         URDF, '<link name="attach_1"/>',
         '<link name="attach_1"><visual><geometry><mesh filename="file:///etc/passwd"/></geometry></visual></link>'))],

@@ -1,16 +1,17 @@
-"""Validation of robot files at load: bounded reads, sidecar value types, URDF physics, and the
-consistency of a description (duplicates, identical closure frames).
+"""Validation of robot files at load: bounded reads, sidecar value types, URDF/MJCF physics, and
+the consistency of a description (duplicates, identical closure frames).
 
 Policies (the README's "Input limits and validation" states them too):
 
-* A robot file (URDF or sidecar) must be a regular file (not a device, FIFO or folder) of at
+* A robot file (URDF, MJCF or sidecar) must be a regular file (not a device, FIFO or folder) of at
   most :data:`URDF_MAX_BYTES` / :data:`SIDECAR_MAX_BYTES`, UTF-8 encoded. The size is checked
   before reading and the read itself is bounded.
-* Every ``<inertial>`` of the URDF: mass finite and > 0 (kg); inertia entries finite; the
+* Every ``<inertial>`` of the URDF (and of the MJCF): mass finite and > 0 (kg); inertia entries finite; the
   rotational inertia matrix (kg·m², about the centre of mass) symmetric positive definite with
   principal moments satisfying the triangle inequality I₁ + I₂ ≥ I₃ (relative tolerance
-  :data:`INERTIA_RTOL`). A link without ``<inertial>`` is a massless frame.
-* A mesh file named by the URDF must resolve (symlinks followed) inside the URDF's folder.
+  :data:`INERTIA_RTOL`). A link without ``<inertial>`` is a massless frame. The built model's
+  bodies are checked again (the parsers silently drop or zero some bad values).
+* A mesh file named by the model file must resolve (symlinks followed) inside its folder.
 * Drives, output joints and branch joints are distinct; a closure joins two different frames
   and no two closures join the same pair.
 
@@ -19,11 +20,8 @@ Nothing here imports Pinocchio (:func:`check_model_inertias` reads a built model
 
 from __future__ import annotations
 
-import contextlib
 import math
 import os
-import sys
-import tempfile
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -34,7 +32,7 @@ from ..validation import regular_file
 
 #: Largest closure sidecar read, bytes.
 SIDECAR_MAX_BYTES = 1 << 20
-#: Largest URDF read, bytes.
+#: Largest model file (URDF, MJCF) read, bytes.
 URDF_MAX_BYTES = 16 << 20
 #: Relative tolerance of the inertia checks (positive definiteness, triangle inequality).
 INERTIA_RTOL = 1e-9
@@ -99,9 +97,9 @@ def _text(where, key, value):
         _fail(where, key, value, "a string")
 
 
-def _names(where, key, value, length=None):
-    if not isinstance(value, list) or not value or not all(isinstance(v, str) and v for v in value):
-        _fail(where, key, value, "a non-empty list of names (strings)")
+def _names(where, key, value, length=None, empty=False):
+    if not isinstance(value, list) or not (value or empty) or not all(isinstance(v, str) and v for v in value):
+        _fail(where, key, value, "a list of names (strings)" if empty else "a non-empty list of names (strings)")
     if length is not None and len(value) != length:
         _fail(where, key, value, f"a list of {length} names")
 
@@ -127,14 +125,14 @@ def _number_table(where, key, value):
 
 #: Known keys of each table and the check of their values (unknown keys are left to the parser).
 _OUTPUT = {"frame": _text, "joints": _names, "labels": _names, "units": _names, "kind": _text, "axes": _names}
-_HOME = {"pose": _numbers, "branch_joints": _names, "q_guess": _number_table, "A": _numbers, "B": _numbers}
+_HOME = {"pose": _numbers, "branch_joints": lambda w, k, v: _names(w, k, v, empty=True), "q_guess": _number_table, "A": _numbers, "B": _numbers}
 _DRIVES = {"joints": _names, "torque_limit": lambda w, k, v: _numbers(w, k, v, allow_scalar=True)}
 _CLOSURE = {"name": _text, "kind": _text, "frames": lambda w, k, v: _names(w, k, v, 2)}
 
 
 def _check_table(where: str, prefix: str, table: dict, spec: dict) -> None:
     for key, check in spec.items():
-        if key in table and not (key == "branch_joints" and table[key] == []):
+        if key in table:
             check(where, f"{prefix}{key}", table[key])
 
 
@@ -171,8 +169,9 @@ def check_sidecar_types(data: dict, where: str) -> None:
             _names(where, f"closed_loop[{i}]", pair, 2)
         if "type" in data:
             _names(where, "type", data["type"], len(pairs))
-    for key, check in (("name_mot", _names), ("output_joints", _names), ("joint_name", _names),
-                       ("joint_type", _names),
+    optional_names = lambda w, k, v: _names(w, k, v, empty=True)  # noqa: E731
+    for key, check in (("name_mot", _names), ("output_joints", _names), ("joint_name", optional_names),
+                       ("joint_type", optional_names),
                        ("torque_limit", lambda w, k, v: _numbers(w, k, v, allow_scalar=True))):
         if key in data and data[key] is not None:
             check(where, key, data[key])
@@ -302,9 +301,42 @@ def check_model_file(description) -> None:
     if description.model_format == "urdf":
         check_urdf_text(text, path)
         return
-    for mesh in _xml_root(text, path, "mujoco").iter("mesh"):
+    root = _xml_root(text, path, "mujoco")
+    for mesh in root.iter("mesh"):
         if mesh.get("file"):
             _check_mesh(mesh.get("file"), mesh.get("name", "?"), path)
+    for body in root.iter("body"):
+        for inertial in body.findall("inertial"):
+            _check_mjcf_inertial(inertial, body.get("name", "?"), path)
+
+
+def _check_mjcf_inertial(inertial, body: str, path: Path) -> None:
+    """An MJCF ``<inertial mass= diaginertia=|fullinertia=>``: the same policy as the URDF's."""
+    values = {}
+    for key in ("mass", "diaginertia", "fullinertia"):
+        raw = inertial.get(key)
+        if raw is None:
+            continue
+        try:
+            values[key] = [float(x) for x in raw.split()]
+        except ValueError:
+            values[key] = [math.nan]
+        want = {"mass": 1, "diaginertia": 3, "fullinertia": 6}[key]
+        if len(values[key]) != want or not all(map(math.isfinite, values[key])):
+            raise RobotFormatError(f"{str(path)!r}: body {body!r} inertial {key} = {raw!r} must be {want} finite "
+                                   "number(s)")
+    mass = values.get("mass", [math.nan])[0]
+    if not mass > 0:
+        raise RobotFormatError(f"{str(path)!r}: body {body!r} inertial mass = {inertial.get('mass')!r} kg must be "
+                               "> 0 (a massless body has no <inertial>)")
+    if "fullinertia" in values:
+        ixx, iyy, izz, ixy, ixz, iyz = values["fullinertia"]
+        rot = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    elif "diaginertia" in values:
+        rot = np.diag(values["diaginertia"])
+    else:
+        return
+    _check_rotational(rot, f"body {body!r}", rot.tolist(), path)
 
 
 def check_model_inertias(model, path) -> None:
@@ -322,42 +354,3 @@ def check_model_inertias(model, path) -> None:
                                    f"inertia {rot.tolist()}; both must be finite, the mass >= 0")
         if mass > 0:
             _check_rotational(rot, f"body of joint {model.names[j]!r}", rot.tolist(), Path(path))
-
-
-@contextlib.contextmanager
-def captured_c_stderr():
-    """Capture what C code writes to file descriptor 2 (e.g. urdfdom's ``Error:`` lines).
-
-    Yields a list that holds the captured text (one string) after the block.
-    """
-    captured: list[str] = []
-    sys.stderr.flush()
-    saved = os.dup(2)
-    with tempfile.TemporaryFile() as tmp:
-        os.dup2(tmp.fileno(), 2)
-        try:
-            yield captured
-        finally:
-            try:
-                import ctypes
-
-                ctypes.CDLL(None).fflush(None)
-            except (OSError, AttributeError):  # pragma: no cover - no C library handle
-                pass
-            os.dup2(saved, 2)
-            os.close(saved)
-            tmp.seek(0)
-            captured.append(tmp.read(1 << 16).decode("utf-8", "replace"))
-
-
-def quiet_build(build, description):
-    """``build(description)`` with the parsers' console output (urdfdom's ``Error:`` lines)
-    captured; on a package error the captured text goes into its message instead.
-    """
-    with captured_c_stderr() as out:
-        try:
-            return build(description)
-        except RobotFormatError as exc:
-            error = exc
-    noise = " ".join(out[0].split())
-    raise RobotFormatError(f"{error}" + (f" (parser output: {noise[:300]})" if noise else "")) from error

@@ -31,7 +31,8 @@ from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCO
 from .builder import build_model
 from .checks import check_actuation, check_parametrization
 from .closures import ClosureKinematics, ClosureMixin  # noqa: F401  (re-exported)
-from .file_checks import check_model_file, check_model_inertias, quiet_build
+from .console import quiet_build
+from .file_checks import check_model_file, check_model_inertias
 from .description import (  # noqa: F401  (re-exported for the robot's users)
     CLOSURE_ROWS as _CLOSURE_ROWS,
     DEFAULT_ROBOT,
