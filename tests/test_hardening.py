@@ -14,6 +14,7 @@ import pytest
 from parallel_gpc import ParallelRobot, ReducedModel, cli
 from parallel_gpc.errors import (
     InvalidParameterError,
+    NonFiniteError,
     ParallelGPCError,
     ResultFormatError,
     RobotFormatError,
@@ -182,6 +183,11 @@ ROWS = [
     ("10 a folder as result file", lambda t: (t / "d.npz").mkdir() or ["view", str(t / "d.npz")],
      ResultFormatError, ["d.npz", "is a folder"]),
     ("10 a folder as robot", lambda t: ["info", str(t)], RobotFormatError, ["robot path", "is a folder"]),
+    ("10 --force 1e300 (the plant diverges)", lambda t: ["track", "--form", "absolute", "--force", "1e300", "0", "0",
+                                                         *QUICK, "--out", str(t / "o")], NonFiniteError,
+     ["platform_force = [1e+300, 0.0, 0.0]", "diverged"]),
+    ("10 view with another robot", lambda t: ["view", result_file(t, "r.npz", track_result(t)), "--robot", "planar_3rrr"],
+     ResultFormatError, ["'planar_4rrr'", "'planar_3rrr' has nq = 9"]),
     ("10 --noise 1e6", lambda t: ["track", "--form", "absolute", "--noise", "1e6", *QUICK, "--out", str(t / "o")],
      UnreachablePoseError, ["noise_std", "1000000.0"]),
 ]

@@ -82,6 +82,9 @@ def cmd_view(args) -> int:
         raise ResultFormatError(f"{args.result!r} (kind {result.kind!r}) has no configurations q to animate; "
                                 "view shows the files of track, demo and plan")
     robot = ParallelRobot.load(name)
+    if result.q.shape[1] != robot.model.nq:
+        raise ResultFormatError(f"{args.result!r} holds configurations of {result.q.shape[1]} coordinates "
+                                f"(robot {result.robot or 'unnamed'!r}); robot {robot.name!r} has nq = {robot.model.nq}")
     if not args.html and not args.serve:
         args.html = str(Path(args.result).with_suffix(".html"))
     show_trajectory(args, robot, result.t, result.q, reference=result.reference, planned=result.planned,

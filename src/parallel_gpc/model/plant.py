@@ -17,6 +17,7 @@ import pinocchio as pin
 
 from .dynamics import ReducedModel, rk4_step
 from .robot import ParallelRobot
+from ..errors import NonFiniteError
 from ..validation import finite_vector, positive
 
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
@@ -42,6 +43,14 @@ class _PlantBase:
         if np.any(clipped != u):
             self.saturated += 1
         return clipped
+
+    def _check_finite(self, state, u: np.ndarray, Ts: float) -> None:
+        """Refuse a state that became NaN/inf within one sample, naming the inputs that drove it."""
+        if not all(np.all(np.isfinite(x)) for x in state):
+            raise NonFiniteError(
+                f"the plant diverged within one sample Ts = {Ts:g} s (its state is no longer finite) under drive "
+                f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; check the "
+                "forces and torques applied")
 
 
 class ConstrainedPlant(_PlantBase):
@@ -109,6 +118,7 @@ class ConstrainedPlant(_PlantBase):
         h = Ts / self.substeps
         for _ in range(self.substeps):
             q, v = self._rk4(q, v, u, h)
+        self._check_finite((q, v), u, Ts)
         self._project(q, v)
         return self.X
 
@@ -164,5 +174,7 @@ class ReducedPlant(_PlantBase):
     def step(self, u, Ts: float) -> np.ndarray:
         Ts = positive("Ts", Ts, " s")
         u = self._saturate(u)
-        self._X = rk4_step(self.derivative, self._X, u, Ts, self.substeps)
+        X = rk4_step(self.derivative, self._X, u, Ts, self.substeps)
+        self._check_finite((X,), u, Ts)
+        self._X = X
         return self.X
