@@ -14,25 +14,21 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from .problem import LeastSquaresProblem, quiet_stdout, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, _solved, quiet_stdout
 
 
-
-class OSQPBackend:
+class OSQPBackend(PersistentQPBackend):
     """Persistent OSQP: set up once per problem structure, then updated and warm-started."""
 
     name = "osqp-direct"
 
     def __init__(self, eps: float = 1e-10, max_iter: int = 20000):
-        self.eps, self.max_iter = eps, max_iter
+        super().__init__(eps, max_iter)
         self._solver = None
-        self._shape = None
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        P, q, _ = _scaled_qp(problem)
-        C, lo, hi = _stacked_constraints(problem)
-        shape = (P.shape, C.shape)
+        P, q, C, lo, hi, shape = self.dense_qp(problem)
         if self._shape != shape:  # dense patterns (upper triangle of P, all of C): updates keep them
             n = P.shape[0]
             self._P_pattern = sp.csc_matrix(np.triu(np.ones((n, n))))

@@ -213,3 +213,26 @@ _DISCARD = _Discard()
 def quiet_stdout():
     """Context manager: Python-level stdout dropped (a back end's prints during a solve)."""
     return contextlib.redirect_stdout(_DISCARD)
+
+
+class PersistentQPBackend:
+    """Shared part of the persistent QP back ends (OSQP, ProxQP): tolerance, iteration limit and
+    the dense scaled QP of a problem with the shapes that decide whether a fresh setup is needed.
+
+    Args:
+        eps: absolute tolerance of the solver (in the scaled QP's units).
+        max_iter: iteration limit of one solve.
+    """
+
+    def __init__(self, eps: float, max_iter: int):
+        self.eps, self.max_iter = eps, max_iter
+        self._shape = None
+
+    @staticmethod
+    def dense_qp(problem: LeastSquaresProblem):
+        """(P, q, C, lo, hi, shape): scaled Hessian and gradient, stacked limits ``lo ≤ C v ≤ hi``
+        and the (P, C) shapes that identify the problem structure."""
+        P, q, _ = _scaled_qp(problem)
+        C, lo, hi = _stacked_constraints(problem)
+        return P, q, C, lo, hi, (P.shape, C.shape)
+

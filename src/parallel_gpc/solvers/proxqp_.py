@@ -12,23 +12,21 @@ import time
 import numpy as np
 import proxsuite
 
-from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, _stacked_constraints
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, _solved
 
-class ProxQPBackend:
+
+class ProxQPBackend(PersistentQPBackend):
     """Persistent ProxQP dense solver, warm-started with the previous solution."""
 
     name = "proxqp-direct"
 
     def __init__(self, eps: float = 1e-10, max_iter: int = 10000):
-        self.eps, self.max_iter = eps, max_iter
+        super().__init__(eps, max_iter)
         self._qp = None
-        self._shape = None
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        P, q, _ = _scaled_qp(problem)
-        C, lo, hi = _stacked_constraints(problem)
-        shape = (P.shape, C.shape)
+        P, q, C, lo, hi, shape = self.dense_qp(problem)
         if self._qp is None or self._shape != shape:
             self._qp = proxsuite.proxqp.dense.QP(problem.n, 0, C.shape[0])
             s = self._qp.settings
