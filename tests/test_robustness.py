@@ -58,17 +58,17 @@ def test_outputs_are_written(hold_study, tmp_path):
 
 
 def test_a_diverging_run_is_recorded_not_raised(monkeypatch):
-    from parallel_gpc.studies import robustness as robustness
+    from parallel_gpc.studies import tracking
     from parallel_gpc.errors import UnreachablePoseError
 
-    real = robustness.simulate
+    real = tracking.simulate
 
     def simulate(controller, plant, *args, **kwargs):
         if plant.robot.mass_scale != 1.0:  # the lighter plant "leaves the workspace"
             raise UnreachablePoseError("platform pose [2.0, 0.5, 0.0] cannot be assembled")
         return real(controller, plant, *args, **kwargs)
 
-    monkeypatch.setattr(robustness, "simulate", simulate)
+    monkeypatch.setattr(tracking, "simulate", simulate)
     result = robustness_study(forms=("absolute",), mass_scales=(0.7,), noise_levels=(), disturbances=(),
                               duration=0.05, reference="hold")
     assert [r["status"] for r in result.rows] == ["ok", "diverged (UnreachablePoseError)"]

@@ -21,12 +21,13 @@ from .info import register_info
 from .plan import register_plan
 from .robots import register_robots
 from .robustness import register_robustness
+from .sweep import register_sweep
 from .track import register_track
 from .view import register_view
 
 #: Sub-command registrars, in help order.
 REGISTRARS = [register_robots, register_info, register_demo, register_track, register_plan, register_robustness,
-              register_bench, register_view, register_gallery]
+              register_sweep, register_bench, register_view, register_gallery]
 
 
 def build_parser(registrars=None) -> argparse.ArgumentParser:

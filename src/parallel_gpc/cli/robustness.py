@@ -62,7 +62,8 @@ def cmd_robustness(args) -> int:
               f"{row['status']}", file=sys.stderr)
 
     result = robustness_study(args.robot, forms=forms, Ts=args.Ts, N=args.N, weights=weights,
-                              reference=args.reference, progress=False, on_row=echo, **settings)
+                              reference=args.reference, progress=False, on_row=echo, workers=args.workers,
+                              scheduler=args.scheduler, **settings)
     print(result.format_table())
     paths = [result.save_csv(out / "robustness.csv"), result.save_json(out / "robustness.json")]
     if result.rows:
@@ -99,4 +100,7 @@ def register_robustness(sub) -> None:
                         "for spatial ones; or a hold of the home pose")
     p.add_argument("--out", default="out/robustness", help="output folder (default out/robustness)")
     p.add_argument("--quick", action="store_true", help="fewer cases: ±30 %% mass, noise 1e-4 m, 20 N (about half the time)")
+    p.add_argument("--workers", type=int, default=0,
+                   help="0 = serial in this process (default); n = a local Dask cluster of n processes")
+    p.add_argument("--scheduler", default=None, help="address tcp://HOST:PORT of a running Dask scheduler")
     p.set_defaults(func=cmd_robustness)

@@ -28,13 +28,13 @@ import numpy as np
 
 from ..gpc.controller import FORMS, GPCController
 from ..model.dynamics import ReducedModel
+from .. import errors
 from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
-from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
-from ..gpc.references import pose_error_norms
-from .simulation import simulate
+from .sweep import SETTLE_FRACTION, Cell
+from .sweep_runner import run_sweep
 from ..gpc.criterion import Weights
 from ..validation import finite_vector, positive
 
@@ -47,8 +47,6 @@ DEFAULT_DISTURBANCES = (10.0, 20.0)
 #: Square-root weights of the study, the same for every form: Qy = 1 /m, Qu = 1e-4 /(N·m).
 #: (Qu = 0, the paper's tracking setting, is dead-beat and diverges under noise or a lighter plant.)
 DEFAULT_WEIGHTS = Weights(1.0, 1e-4)
-#: Fraction of the run at its end over which the steady-state error is averaged.
-SETTLE_FRACTION = 0.1
 #: Errors that mean "this closed loop diverged", recorded as a row instead of ending the study.
 _DIVERGED = (AssemblyError, SingularPoseError, SolverError, NonFiniteError)
 
@@ -179,30 +177,50 @@ def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
     return path_for(kind, robot.home_pose, robot.output_angular, 0.8 * duration)
 
 
-def _row(form: str, case: RobustnessCase, res, status: str) -> dict:
+def _status(record: dict) -> str:
+    """Row status of a sweep record: ok, interrupted, diverged (Error) or failed (Error: message)."""
+    if record["status"] != "failed":
+        return record["status"]
+    name = record["error"].split(":", 1)[0]
+    cls = getattr(errors, name, None)
+    if isinstance(cls, type) and issubclass(cls, _DIVERGED):
+        return f"diverged ({name})"
+    return f"failed ({record['error']})"
+
+
+def _row(form: str, case: RobustnessCase, record: dict) -> dict:
+    """The table row of one run from its sweep record (SI metrics to mm, mrad)."""
     row = {"form": form, "study": case.study, "value": case.value, "unit": case.unit}
-    if res is None:
-        nan = float("nan")
-        row.update(rms_position_error_mm=nan, max_position_error_mm=nan, rms_orientation_error_mrad=nan,
-                   steady_state_error_mm=nan, peak_torque_Nm=nan, saturated_steps=0, fallbacks=0, steps=0)
-    else:
-        m = res.metrics()
-        tail = max(1, int(round(SETTLE_FRACTION * len(res.t))))
-        steady = float(np.mean(pose_error_norms(res.error[-tail:], res.angular)[0]))
-        row.update(rms_position_error_mm=1e3 * m["rms_position_error_m"],
-                   max_position_error_mm=1e3 * m["max_position_error_m"],
-                   rms_orientation_error_mrad=1e3 * m["rms_orientation_error_rad"],
-                   steady_state_error_mm=1e3 * steady, peak_torque_Nm=m["peak_torque_Nm"],
-                   saturated_steps=m["saturated_steps"], fallbacks=m["fallbacks"], steps=m["steps"])
-    row["status"] = status
+    row.update({f"{k}_{unit}": 1e3 * record[f"{k}_{si}"] for k, si, unit in (
+        ("rms_position_error", "m", "mm"), ("max_position_error", "m", "mm"),
+        ("rms_orientation_error", "rad", "mrad"), ("steady_state_error", "m", "mm"))})
+    row["peak_torque_Nm"] = record["peak_torque_Nm"]
+    ok = record["status"] != "failed"
+    row.update({k: int(record[k]) if ok else 0 for k in ("saturated_steps", "fallbacks", "steps")})
+    row["status"] = _status(record)
     return row
+
+
+def robustness_cells(robot_name: str, forms, cases, ref: Reference, duration: float, Ts: float, N: int,
+                     weights: Weights, seed: int) -> list[Cell]:
+    """The study as sweep cells, one per case and form (case-major): the nominal controller
+    (no torque limit) on the plant of the case, saturated at the robot's own drive limits."""
+    cells = []
+    for case in cases:
+        for form in forms:
+            cells.append(Cell(len(cells), {
+                "robot": robot_name, "form": form, "Ts": Ts, "N": N, "Qy": weights.Qy, "Qu": weights.Qu,
+                "reference": ref, "duration": duration, "mass_scale": case.mass_scale, "noise_std": case.noise,
+                "velocity_noise_std": case.noise * math.sqrt(2.0) / Ts, "platform_force[0]": case.force,
+                "plant_torque_limit": "robot", "seed": seed}))
+    return cells
 
 
 def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=DEFAULT_MASS_SCALES,
                      noise_levels=DEFAULT_NOISE_LEVELS, disturbances=DEFAULT_DISTURBANCES,
                      duration: float = 2.5, Ts: float = 0.005, N: int = 10, progress: bool = False,
                      weights: Weights = DEFAULT_WEIGHTS, reference="path", seed: int = 0,
-                     on_row=None) -> RobustnessResult:
+                     on_row=None, workers: int = 0, scheduler=None) -> RobustnessResult:
     """Tracking error of each form under plant mismatch, measurement noise and a constant load.
 
     Args:
@@ -222,6 +240,9 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=D
             ``"hold"`` (the home pose) or a :class:`~parallel_gpc.references.Reference`.
         seed: seed of the measurement noise (the same noise sequence for every form).
         on_row: optional callback receiving each row as soon as its run finishes.
+        workers, scheduler: where the runs go (a preset of :func:`~parallel_gpc.studies.sweep_runner.run_sweep`):
+            0 = serially in this process (default), n = a local Dask cluster of n processes,
+            scheduler = an existing Dask cluster.
 
     Returns:
         :class:`RobustnessResult`; ``interrupted`` is True if Ctrl-C stopped it early.
@@ -242,7 +263,6 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=D
     cases = robustness_cases(mass_scales, noise_levels, disturbances)
     robot = ParallelRobot.load(robot_name)
     ref = _reference(reference, robot, duration)
-    X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
     for form in forms:  # validate the controller settings once, before any run
         GPCController(ReducedModel(robot), Ts, horizons, weights, form=form)
     result = RobustnessResult(settings={
@@ -252,32 +272,16 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=D
         "noise": "pose σ (m, rad); velocity σ·√2/Ts", "disturbance": "constant force along x (N)",
         "steady_state": f"mean position error over the last {SETTLE_FRACTION:.0%} of the run",
     })
-    plants = {}
     runs = [(form, case) for case in cases for form in forms]
-    from tqdm import tqdm
+    rows = {}
 
-    try:
-        for form, case in tqdm(runs, disable=not progress, desc="robustness", unit="run"):
-            if case.mass_scale not in plants:
-                plants[case.mass_scale] = robot.with_mass_scale(case.mass_scale) if case.mass_scale != 1.0 else robot
-            ctl = GPCController(ReducedModel(robot), Ts, horizons, weights, form=form)
-            plant = ConstrainedPlant(plants[case.mass_scale], X0, torque_limit=robot.torque_limit,
-                                     platform_force=[case.force] + [0.0] * (robot.n_y - 1))
-            noise = None if case.noise == 0 else np.concatenate(
-                [np.full(robot.n_y, case.noise), np.full(robot.n_y, case.noise * math.sqrt(2.0) / Ts)])
-            try:
-                res = simulate(ctl, plant, ref, duration, noise_std=noise, seed=seed, progress=False,
-                               meta={"study": case.study, "value": case.value})
-                status = "interrupted" if res.interrupted else "ok"
-            except _DIVERGED as exc:
-                res, status = None, f"diverged ({type(exc).__name__})"
-            row = _row(form, case, res, status)
-            result.rows.append(row)
-            if on_row is not None:
-                on_row(row)
-            if status == "interrupted":
-                result.interrupted = True
-                break
-    except KeyboardInterrupt:  # between runs, or before the first step of a run
-        result.interrupted = True
+    def collect(record: dict) -> None:
+        rows[record["index"]] = row = _row(*runs[record["index"]], record)
+        if on_row is not None:
+            on_row(row)
+
+    cells = robustness_cells(robot_name, forms, cases, ref, duration, Ts, N, weights, seed)
+    sweep = run_sweep(cells, workers=workers, scheduler=scheduler, progress=progress, on_record=collect)
+    result.rows = [rows[i] for i in sorted(rows)]  # cluster runs finish out of order
+    result.interrupted = sweep.interrupted
     return result

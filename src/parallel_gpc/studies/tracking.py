@@ -33,16 +33,19 @@ class TrackingSettings:
         Qy, Qu: square-root weights (paper Fig. 2: Qy = 1, Qu = 0).
         solver: back-end name or None (QR without limits, QR-first + ProxQP with limits).
         torque_limit: drive torque limit in N·m for the controller and the plant, or None.
+        plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (= torque_limit),
+            ``"robot"`` (the limits in the robot file), a value in N·m, or None (no saturation).
         du_limit: increment limit in N·m per sample (incremental forms), or None.
         mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
             all zeros = none).
         reference: "auto" (the S-curve for planar [x, y, ψ] outputs, else the helix), "s-curve",
-            "helix" or "hold"; duration: run length in s (default: motion + 0.2 s).
+            "helix", "hold" or a Reference object; duration: run length in s (default: motion + 0.2 s).
         s_curve_duration: time of the path's motion (S-curve or helix) in s.
         hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
             (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
+        seed: seed of the measurement noise.
     """
 
     robot: str = DEFAULT_ROBOT
@@ -62,15 +65,28 @@ class TrackingSettings:
     duration: float | None = None
     s_curve_duration: float = 2.0
     hold_pose: tuple[float, ...] | None = None
+    seed: int = 0
+    plant_torque_limit: float | str | None = "controller"
     extra: dict = field(default_factory=dict)
 
     def make_reference(self, robot: ParallelRobot) -> Reference:
+        if isinstance(self.reference, Reference):
+            return self.reference
         if self.reference == "hold":
             pose = hold_pose_for(robot.home_pose, robot.output_angular) if self.hold_pose is None else self.hold_pose
             return Hold(tuple(pose))
         if self.reference not in PATH_KINDS:
             raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']}")
         return path_for(self.reference, robot.home_pose, robot.output_angular, self.s_curve_duration)
+
+    def plant_limit(self, robot: ParallelRobot):
+        """The plant's drive saturation: None, a value in N·m or the robot's (n_u,) limits."""
+        if isinstance(self.plant_torque_limit, str):
+            if self.plant_torque_limit not in ("controller", "robot"):
+                raise InvalidParameterError(f"plant_torque_limit {self.plant_torque_limit!r} is not 'controller', "
+                                            f"'robot', a value in N·m or None")
+            return self.torque_limit if self.plant_torque_limit == "controller" else robot.torque_limit
+        return self.plant_torque_limit
 
     @property
     def run_duration(self) -> float:
@@ -103,10 +119,10 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             torque_limit=settings.torque_limit, du_limit=settings.du_limit,
         )
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
-                                 torque_limit=settings.torque_limit,
+                                 torque_limit=settings.plant_limit(robot),
                                  platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
-            res = simulate(ctrl, plant, reference, settings.run_duration,
+            res = simulate(ctrl, plant, reference, settings.run_duration, seed=settings.seed,
                            noise_std=settings.noise_std or None, progress=progress,
                            meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std})
         except KeyboardInterrupt:  # interrupted before this form's first step: keep the earlier forms

@@ -1,0 +1,76 @@
+"""``parallel-gpc sweep SPEC.toml``: a grid / Monte-Carlo sweep of closed-loop runs on Dask.
+
+A thin layer over :func:`parallel_gpc.studies.sweep_runner.run_sweep`: expands the spec, runs
+the cells not yet in ``--out`` (a local cluster by default, ``--workers 0`` serial,
+``--scheduler tcp://HOST:PORT`` an existing cluster), writes ``results.parquet``/``results.csv``
+and the plots of the spec's ``[plots]`` table, and prints a summary. Ctrl-C keeps the finished
+cells (a rerun resumes) and exits with code 130.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import Counter
+from pathlib import Path
+
+#: Exit code of a sweep stopped by Ctrl-C (after saving what it computed).
+EXIT_INTERRUPTED = 130
+
+
+def cmd_sweep(args) -> int:
+    from ..studies.plots_sweep import plot_sweep
+    from ..studies.sweep import load_spec
+    from ..studies.sweep_runner import run_sweep
+    from ..studies.sweep_store import SweepStore
+
+    spec = load_spec(args.spec)
+    cells = spec.cells()
+    if args.trajectories:
+        cells = [type(c)(c.index, c.params, True) for c in cells]
+    print(f"sweep {spec.name!r}: {len(cells)} cells over {list(spec.axes) or 'no axes'}", file=sys.stderr)
+    if args.dry_run:
+        for cell in cells[: args.dry_run]:
+            print(f"  {cell.index:>5} {cell.key} {cell.params}")
+        return 0
+    out = Path(args.out or Path("out/sweep") / spec.name)
+    store = SweepStore(out)
+    store.save_spec(spec)
+    result = run_sweep(cells, workers=args.workers, scheduler=args.scheduler, store=store,
+                       progress=not args.no_progress, retry_failed=args.retry_failed)
+    frame = result.frame()
+    ok = int((frame["status"] == "ok").sum()) if len(frame) else 0
+    print(f"{len(frame)} of {result.total} cells finished ({result.ran} run now, {result.skipped} reused): "
+          f"{ok} ok, {result.failed} failed")
+    errors = [r["error"] for r in result.records if r["status"] == "failed"]
+    for kind, count in Counter(e.split(":", 1)[0] for e in errors).most_common():
+        example = next(e for e in errors if e.startswith(kind))
+        print(f"  failed x{count}: {kind}, e.g. {example[len(kind) + 2:][:150]}")
+    paths = [out / "results.parquet", out / "results.csv"]
+    if ok and spec.plots:
+        paths += plot_sweep(frame, spec.plots, out)
+    print("wrote " + ", ".join(str(p) for p in paths))
+    if result.interrupted:
+        print(f"parallel-gpc: interrupted; {len(frame)} finished cells are saved, rerun to resume", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+def register_sweep(sub) -> None:
+    """Add the ``sweep`` sub-command."""
+    p = sub.add_parser(
+        "sweep", help="grid / Monte-Carlo sweep of closed-loop runs on Dask (resumable, Parquet + CSV)",
+        description="Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) into cells, run them as "
+                    "independent tasks on a local or remote Dask cluster, and write a tidy table. A rerun "
+                    "skips the cells already in --out.",
+    )
+    p.add_argument("spec", help="sweep spec (TOML), e.g. examples/sweep_tuning.toml")
+    p.add_argument("--out", default=None, help="output folder (default out/sweep/<spec name>)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="local worker processes (default: CPU cores); 0 = serial in this process")
+    p.add_argument("--scheduler", default=None, help="address tcp://HOST:PORT of a running Dask scheduler")
+    p.add_argument("--retry-failed", action="store_true", help="run the cells recorded as failed again")
+    p.add_argument("--trajectories", action="store_true", help="also save each cell's time histories (.npz)")
+    p.add_argument("--dry-run", type=int, nargs="?", const=10, default=0, metavar="K",
+                   help="only expand the spec: print the cell count and the first K cells (default 10)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_sweep)
