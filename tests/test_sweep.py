@@ -122,6 +122,8 @@ def test_cell_settings_vector_elements_and_velocity_noise():
     assert cell_settings({"noise_std": 0.0, "velocity_noise_std": 0.0})[0].noise_std == 0.0
     with pytest.raises(InvalidParameterError, match="indices 0…2"):
         cell_settings({"platform_force[3]": 1.0})
+    with pytest.raises(InvalidParameterError, match="N is not a vector"):
+        cell_settings({"N[0]": 5})
     with pytest.raises(InvalidParameterError, match="set whole"):
         cell_settings({"platform_force": [1.0, 0.0, 0.0], "platform_force[0]": 2.0})
 

@@ -15,6 +15,10 @@ from pathlib import Path
 
 #: Exit code of a sweep stopped by Ctrl-C (after saving what it computed).
 EXIT_INTERRUPTED = 130
+HELP = "grid / Monte-Carlo sweep of closed-loop runs on Dask (resumable, Parquet + CSV)"
+DESCRIPTION = ("Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) into cells, run them as independent "
+               "tasks on a local or remote Dask cluster, and write a tidy table. A rerun skips the cells already "
+               "in --out.")
 
 
 def cmd_sweep(args) -> int:
@@ -49,20 +53,15 @@ def cmd_sweep(args) -> int:
     if ok and spec.plots:
         paths += plot_sweep(frame, spec.plots, out)
     print("wrote " + ", ".join(str(p) for p in paths))
-    if result.interrupted:
-        print(f"parallel-gpc: interrupted; {len(frame)} finished cells are saved, rerun to resume", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    return 0
+    if not result.interrupted:
+        return 0
+    print(f"parallel-gpc: interrupted; {len(frame)} finished cells are saved, rerun to resume", file=sys.stderr)
+    return EXIT_INTERRUPTED
 
 
 def register_sweep(sub) -> None:
     """Add the ``sweep`` sub-command."""
-    p = sub.add_parser(
-        "sweep", help="grid / Monte-Carlo sweep of closed-loop runs on Dask (resumable, Parquet + CSV)",
-        description="Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) into cells, run them as "
-                    "independent tasks on a local or remote Dask cluster, and write a tidy table. A rerun "
-                    "skips the cells already in --out.",
-    )
+    p = sub.add_parser("sweep", help=HELP, description=DESCRIPTION)
     p.add_argument("spec", help="sweep spec (TOML), e.g. examples/sweep_tuning.toml")
     p.add_argument("--out", default=None, help="output folder (default out/sweep/<spec name>)")
     p.add_argument("--workers", type=int, default=None,

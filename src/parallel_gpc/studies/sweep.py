@@ -4,7 +4,7 @@ A *cell* is one closed-loop tracking run (:func:`~parallel_gpc.studies.tracking.
 GPC form) with its settings given as a flat ``{name: value}`` dict. Names are the fields of
 :class:`~parallel_gpc.studies.tracking.TrackingSettings` (``robot``, ``Ts``, ``N``, ``Nu``, ``Qy``,
 ``Qu``, ``solver``, ``torque_limit``, ``mass_scale``, ``noise_std``, ``reference``, ``duration``,
-``seed`` …), plus ``form``, ``velocity_noise_std`` (m/s, rad/s; then ``noise_std`` is the pose
+``seed`` …), plus ``form`` (default ``"nonlinear"``), ``velocity_noise_std`` (m/s, rad/s; then ``noise_std`` is the pose
 noise only) and one element of a vector field as ``"platform_force[0]"``.
 
 A spec has four tables (TOML or a dict)::
@@ -244,7 +244,10 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
         base, i = match.group(1), int(match.group(2))
         if base in params:
             raise InvalidParameterError(f"{base!r} is set whole and as {name!r}; give one of them")
-        vector = list(kwargs.get(base, params.get(base, getattr(defaults, base, None))) or ())
+        current = kwargs.get(base, getattr(defaults, base))
+        if not isinstance(current, tuple):
+            raise InvalidParameterError(f"{name!r}: {base} is not a vector setting (it is {current!r})")
+        vector = list(current)
         if i >= len(vector):
             raise InvalidParameterError(f"{name!r}: {base} has {len(vector)} elements (indices 0…{len(vector) - 1})")
         vector[i] = value
