@@ -18,7 +18,7 @@ from parallel_gpc.cli import REGISTRARS, build_parser, main
 from parallel_gpc.cli import defaults
 
 ROOT = Path(__file__).resolve().parents[1]
-COMMANDS = ["robots", "info", "demo", "track", "plan", "robustness", "bench", "view", "gallery"]
+COMMANDS = ["robots", "info", "demo", "track", "plan", "robustness", "sweep", "bench", "view", "gallery"]
 
 
 def run(args: list[str], **kwargs) -> subprocess.CompletedProcess:

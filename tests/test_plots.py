@@ -15,7 +15,7 @@ from parallel_gpc.studies import save_figure
 from parallel_gpc.studies.plots_bench import plot_results
 
 ROOT = Path(__file__).resolve().parents[1]
-PLOT_MODULES = ["plots_common", "plots_tracking", "plots_planning", "plots_robustness", "plots_bench"]
+PLOT_MODULES = ["plots_common", "plots_tracking", "plots_planning", "plots_robustness", "plots_bench", "plots_sweep"]
 
 
 @pytest.mark.parametrize("module", PLOT_MODULES)

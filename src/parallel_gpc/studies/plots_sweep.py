@@ -10,6 +10,7 @@ cells are shown as such (grey "failed" cells in a heatmap, a count in the titles
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 
@@ -209,7 +210,7 @@ def plot_sweep(frame, plots: dict, directory) -> list:
     Raises:
         InvalidParameterError: an unknown kind or argument.
     """
-    from pathlib import Path
+    from .plots_common import save_figure
 
     paths = []
     for kind, requests in plots.items():
@@ -221,7 +222,5 @@ def plot_sweep(frame, plots: dict, directory) -> list:
             except TypeError as exc:
                 raise InvalidParameterError(f"[plots] {kind} {kwargs}: {exc}") from None
             suffix = "_".join(str(v) for k, v in sorted(kwargs.items()) if isinstance(v, str))
-            path = Path(directory) / f"{kind}{i}_{suffix}.png" if suffix else Path(directory) / f"{kind}{i}.png"
-            fig.savefig(path, dpi=110)
-            paths.append(path)
+            paths.append(save_figure(fig, Path(directory) / (f"{kind}{i}_{suffix}.png" if suffix else f"{kind}{i}.png")))
     return paths
