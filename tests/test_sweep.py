@@ -245,6 +245,18 @@ def test_table_round_trips_through_parquet_and_csv(tmp_path):
         load_results(tmp_path / "records.jsonl")
 
 
+def test_trajectories_on_request_are_result_files(tmp_path):
+    from parallel_gpc.results import load_result
+
+    cells = [Cell(i, c.params, trajectory=(i == 0)) for i, c in enumerate(tiny_spec().cells())]
+    result = run_sweep(cells, workers=0, store=tmp_path, progress=False)
+    table = load_results(tmp_path)
+    assert table.loc[0, "trajectory_file"] == f"trajectories/{cells[0].key}.npz"
+    assert table["trajectory_file"].isna()[1]  # only the cell that asked for it
+    loaded = load_result(tmp_path / table.loc[0, "trajectory_file"])
+    assert len(loaded.t) == result.records[0]["steps"] == 20
+
+
 # ---------------------------------------------------------------- plots
 def test_pareto_mask_against_a_sort_oracle():
     rng = np.random.default_rng(0)
