@@ -88,6 +88,8 @@ def main() -> int:
         ("serial (workers=0)", f"{t_serial:.2f} s"),
         (f"LocalCluster({args.workers}), incl. start-up and shutdown", f"{t_cold:.2f} s  (speed-up {t_serial / t_cold:.2f}×)"),
         (f"LocalCluster({args.workers}), running cluster", f"{t_warm:.2f} s  (speed-up {t_serial / t_warm:.2f}×)"),
+        ("cells running at once in the running cluster (Σ cell wall time / elapsed)",
+         f"{warm.frame()['wall_time_s'].sum() / t_warm:.2f}"),
         ("cluster start-up", f"{t_start:.2f} s"),
         (f"{n} no-op cells through run_sweep (median of {REPEATS})", f"{t_noop:.3f} s = {1e3 * t_noop / n:.2f} ms per task"),
         (f"{n} no-op client.submit + as_completed (median of {REPEATS})",

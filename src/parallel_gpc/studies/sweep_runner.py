@@ -98,7 +98,7 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
     Raises:
         InvalidParameterError: workers < 0 or not an integer.
     """
-    if workers is not None and (not isinstance(workers, int) or workers < 0):
+    if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 0):
         raise InvalidParameterError(f"workers = {workers!r} must be 0 (serial), a number of processes ≥ 1, or None")
     cells = spec.cells() if isinstance(spec, SweepSpec) else list(spec)
     if store is not None and not isinstance(store, SweepStore):
