@@ -16,6 +16,7 @@ from parallel_gpc.studies.sweep import (
     TIMING_COLUMNS,
     Cell,
     cell_settings,
+    drive_q_indices,
     drive_work,
     load_spec,
     run_cell,
@@ -154,7 +155,7 @@ def test_drive_work_balances_the_kinetic_energy(robot3):
               "Ts": 0.002, "N": 10, "Qu": 1e-4, "form": "nonlinear"}
     record = run_cell(Cell(0, params, trajectory=True))
     res = record["trajectory"]
-    work = drive_work(res, robot3.drive_idx)
+    work = drive_work(res, drive_q_indices(robot3))
     model = ReducedModel(robot3)
     kinetic = np.array([0.5 * v @ model.terms_at_q(q, v).M_r @ v for q, v in zip(res.q, res.velocity)])
     assert kinetic.max() > 50.0  # the run does move: ~120 J at the S-curve's middle

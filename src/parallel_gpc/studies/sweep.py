@@ -244,7 +244,7 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
         base, i = match.group(1), int(match.group(2))
         if base in params:
             raise InvalidParameterError(f"{base!r} is set whole and as {name!r}; give one of them")
-        current = kwargs.get(base, getattr(defaults, base))
+        current = kwargs.get(base, (0.0,) * n_y if base == "platform_force" else getattr(defaults, base))
         if not isinstance(current, tuple):
             raise InvalidParameterError(f"{name!r}: {base} is not a vector setting (it is {current!r})")
         vector = list(current)
@@ -259,19 +259,30 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
     return TrackingSettings(**kwargs), form
 
 
-def drive_work(res, drive_idx) -> np.ndarray:
+def drive_q_indices(robot) -> np.ndarray:
+    """(n_u,) indices of the drive joints in the configuration q (one-DOF joints)."""
+    model = robot.model
+    return np.array([model.joints[model.getJointId(name)].idx_q for name in robot.description.drive_joints])
+
+
+def drive_work(res, drive_q) -> np.ndarray:
     """(K−1, n_u) mechanical work of each drive over each recorded sample interval (J):
-    u_k,i (θ_k+1,i − θ_k,i) — exact, since the torque u_k is constant over the interval."""
-    theta = res.q[:, drive_idx]
+    u_k,i (θ_k+1,i − θ_k,i) — exact, since the drive force u_k is constant over the interval.
+
+    Args:
+        res: a SimulationResult (``q`` (K, nq), ``u`` (K, n_u) in N·m or N).
+        drive_q: (n_u,) drive indices in q (:func:`drive_q_indices`), joint angles in rad or m.
+    """
+    theta = res.q[:, drive_q]
     return res.u[:-1] * np.diff(theta, axis=0)
 
 
-def result_metrics(res, drive_idx, Ts: float) -> dict:
+def result_metrics(res, drive_q, Ts: float) -> dict:
     """The :data:`METRIC_COLUMNS` of one :class:`~parallel_gpc.studies.simulation.SimulationResult`."""
     m = res.metrics()
     tail = max(1, int(round(SETTLE_FRACTION * len(res.t))))
     m["steady_state_error_m"] = float(np.mean(pose_error_norms(res.error[-tail:], res.angular)[0]))
-    m["drive_energy_J"] = float(np.sum(np.abs(drive_work(res, drive_idx))))  # no regeneration
+    m["drive_energy_J"] = float(np.sum(np.abs(drive_work(res, drive_q))))  # no regeneration
     m["effort_N2m2s"] = float(Ts * np.sum(res.u**2))
     return {k: m[k] for k in METRIC_COLUMNS}
 
@@ -318,7 +329,7 @@ def run_cell(cell: Cell) -> dict:
         robot = ParallelRobot.load(params["robot"])
         settings, form = cell_settings(params, robot.n_y)
         res = run_tracking(settings, forms=(form,), progress=False, robot=robot)[form]
-        record.update(result_metrics(res, robot.drive_idx, settings.Ts))
+        record.update(result_metrics(res, drive_q_indices(robot), settings.Ts))
         record["status"] = "interrupted" if res.interrupted else "ok"
         if cell.trajectory:
             record["trajectory"] = res
