@@ -164,6 +164,19 @@ def test_drive_work_balances_the_kinetic_energy(robot3):
     assert record["drive_energy_J"] >= 2 * kinetic.max()  # accelerate, then brake
 
 
+def test_the_robot_is_an_axis_like_any_other():
+    """A planar and a spatial robot in one sweep; a force element beyond the planar robot's 3 outputs
+    fails that cell only, with the index range in the message."""
+    result = run_sweep(tiny_spec(robot=["planar_3rrr", "delta_3rus", "hexapod_6ups"]), workers=0, progress=False)
+    assert [r["status"] for r in result.records] == ["ok"] * 3
+    assert all(math.isfinite(r["drive_energy_J"]) and r["drive_energy_J"] > 0 for r in result.records)
+    base = {k: v for k, v in TINY.items() if k != "robot"}
+    wide = run_sweep(load_spec({"base": {**base, "platform_force[5]": 1.0},
+                                "grid": {"robot": ["planar_3rrr", "hexapod_6ups"]}}), workers=0, progress=False)
+    assert [r["status"] for r in wide.records] == ["failed", "ok"]
+    assert "indices 0…2" in wide.records[0]["error"]
+
+
 def test_a_failing_cell_is_recorded_and_the_sweep_goes_on():
     result = run_sweep(tiny_spec(mass_scale=[1.0, -1.0]), workers=0, progress=False)
     assert result.ran == 2 and result.failed == 1 and not result.interrupted
