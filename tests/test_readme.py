@@ -17,12 +17,14 @@ def python_blocks() -> list[str]:
     return re.findall(r"```python\n(.*?)```", README.read_text(encoding="utf-8"), re.DOTALL)
 
 
-def test_the_readme_has_the_library_planning_and_robot_file_examples():
+def test_the_readme_has_the_library_planning_sweep_and_robot_file_examples():
     blocks = python_blocks()
-    assert len(blocks) == 3
+    assert len(blocks) == 4
     assert all(old in "".join(blocks) for old, _ in SHORTER)
     imports = [line for block in blocks for line in block.splitlines() if "import" in line]
-    assert all(line.startswith("from parallel_gpc import") for line in imports), imports
+    plots = [line for line in imports if line.startswith("from parallel_gpc.studies.plots_")]  # one module per figure family
+    assert all(line.startswith("from parallel_gpc import") for line in imports if line not in plots), imports
+    assert len(plots) == 1
 
 
 @pytest.mark.parametrize("index", [0, 1])  # block 3 (robot files) runs below
@@ -36,11 +38,35 @@ def test_readme_example_runs(index, tmp_path, monkeypatch, capsys):
     assert list(tmp_path.glob("*.npz"))
 
 
+TINY_SWEEP = """
+[sweep]
+name = "tiny"
+[base]
+robot = "planar_3rrr"
+duration = 0.05
+Ts = 0.01
+[grid]
+form = ["nonlinear"]
+N = [3, 4]
+Qu = [1e-4, 1e-3]
+"""
+
+
+def test_readme_sweep_example_runs(tmp_path, monkeypatch):
+    """The sweep block, on a 4-cell spec and in this process (the LocalCluster path is tested in test_sweep)."""
+    code = python_blocks()[2].replace("examples/sweep_tuning.toml", "tiny.toml").replace("workers=2", "workers=0")
+    (tmp_path / "tiny.toml").write_text(TINY_SWEEP)
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README.md python block 3", "exec"), {"__name__": "readme"})
+    assert (tmp_path / "rms.png").stat().st_size > 0
+    assert (tmp_path / "out" / "sweep" / "tuning" / "results.csv").exists()
+
+
 def test_readme_robot_file_example_runs(tmp_path, monkeypatch):
     """The robot-file block loads a user's URDF + sidecar and an MJCF file with an explicit sidecar."""
     import mechanisms as mech
 
-    code = python_blocks()[2]
+    code = python_blocks()[3]
     (tmp_path / "my_robots").mkdir()
     (tmp_path / "config").mkdir()
     mech.write(tmp_path / "my_robots", "fivebar", mech.fivebar_urdf(), mech.fivebar_sidecar())
@@ -48,5 +74,5 @@ def test_readme_robot_file_example_runs(tmp_path, monkeypatch):
     (tmp_path / "config" / "fivebar_drives.toml").write_text(mech.fivebar_mjcf_sidecar())
     monkeypatch.chdir(tmp_path)
     scope = {"__name__": "readme"}
-    exec(compile(code, "README.md python block 3", "exec"), scope)
+    exec(compile(code, "README.md python block 4", "exec"), scope)
     assert scope["robot"].description.model_format == "mjcf" and scope["robot"].n_y == 2
