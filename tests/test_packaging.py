@@ -44,3 +44,12 @@ def test_the_team_s_required_dependencies_are_installed_by_default():
     deps = " ".join(PROJECT["project"]["dependencies"])
     for name in ("pin", "qpsolvers", "osqp", "proxsuite", "daqp", "numpy", "scipy", "meshcat", "matplotlib"):
         assert name in deps, name
+
+
+def test_reading_descriptions_and_result_files_does_not_import_pinocchio():
+    import subprocess
+
+    code = ("import sys, parallel_gpc.results, parallel_gpc.model as m; m.load_description('planar_4rrr'); "
+            "print('pinocchio' in sys.modules, 'matplotlib' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "False"]

@@ -15,8 +15,7 @@ format) and ``errors`` sit beside them and import only NumPy and the robot descr
 
 from __future__ import annotations
 
-import importlib
-
+from ._lazy import lazy_exports
 from .errors import ParallelGPCError
 
 __version__ = "0.1.0"
@@ -47,14 +46,4 @@ _PUBLIC = {
 __all__ = ["ParallelGPCError", "__version__", *_PUBLIC]
 
 
-def __getattr__(name: str):
-    module = _PUBLIC.get(name)
-    if module is None:
-        raise AttributeError(f"module 'parallel_gpc' has no attribute {name!r}")
-    value = getattr(importlib.import_module(f".{module}", __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_PUBLIC))
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _PUBLIC)

@@ -6,11 +6,15 @@ Fig. 3/4). A thin layer over :func:`parallel_gpc.plan_point_to_point`; writes ``
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
 from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
+
+if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
+    import numpy as np
 
 #: The paper's poses, in the units of the command line (m, m, deg).
 DEFAULT_A = (0.2, 0.2, -20.0)

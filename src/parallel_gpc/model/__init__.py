@@ -1,14 +1,20 @@
-"""Model layer: robot description, closed-chain robot, reduced dynamics (eq. (1)–(4)), plants."""
+"""Model layer: robot description, closed-chain robot, reduced dynamics (eq. (1)–(4)), plants.
 
+The description names (sidecar parsing, no Pinocchio) import at once; the rest lazily (PEP 562),
+so reading a robot file's description or a result file does not import Pinocchio.
+"""
+
+from .._lazy import lazy_exports
 from .description import (DEFAULT_ROBOT, SIDECAR_KEYS, Closure, RobotDescription, embedded_robots,
                           load_description, urdf_dir)
-from .outputs import TaskOutput
-from .robot import ClosureKinematics, ParallelRobot
-from .dynamics import ReducedModel, ReducedTerms, discretize_zoh, kinetic_energy, rk4_step
-from .plant import ConstrainedPlant, ReducedPlant
 
-__all__ = [
-    "DEFAULT_ROBOT", "SIDECAR_KEYS", "Closure", "RobotDescription", "embedded_robots", "load_description",
-    "urdf_dir", "TaskOutput", "ClosureKinematics", "ParallelRobot", "ReducedModel", "ReducedTerms",
-    "discretize_zoh", "kinetic_energy", "rk4_step", "ConstrainedPlant", "ReducedPlant",
-]
+_PUBLIC = {
+    "TaskOutput": "outputs", "ClosureKinematics": "robot", "ParallelRobot": "robot",
+    "ReducedModel": "dynamics", "ReducedTerms": "dynamics", "discretize_zoh": "dynamics",
+    "kinetic_energy": "dynamics", "rk4_step": "dynamics", "ConstrainedPlant": "plant", "ReducedPlant": "plant",
+}
+
+__all__ = ["DEFAULT_ROBOT", "SIDECAR_KEYS", "Closure", "RobotDescription", "embedded_robots", "load_description",
+           "urdf_dir", *_PUBLIC]
+
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _PUBLIC)
