@@ -36,6 +36,9 @@ class TrackingSettings:
         plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (= torque_limit),
             ``"robot"`` (the limits in the robot file), a value in N·m, or None (no saturation).
         du_limit: increment limit in N·m per sample (incremental forms), or None.
+        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate, the same for every form
+            (so that form and estimator effects are never confounded); 0 = no estimator;
+            default 0.5 (on).
         mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
@@ -58,6 +61,7 @@ class TrackingSettings:
     solver: str | None = None
     torque_limit: float | None = None
     du_limit: float | None = None
+    disturbance_gain: float = 0.5
     mass_scale: float = 1.0
     noise_std: float = 0.0
     platform_force: tuple[float, ...] = (0.0, 0.0, 0.0)
@@ -117,6 +121,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
             Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
             torque_limit=settings.torque_limit, du_limit=settings.du_limit,
+            disturbance_gain=settings.disturbance_gain,
         )
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
                                  torque_limit=settings.plant_limit(robot),
@@ -124,7 +129,9 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
         try:
             res = simulate(ctrl, plant, reference, settings.run_duration, seed=settings.seed,
                            noise_std=settings.noise_std or None, progress=progress,
-                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std})
+                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
+                                 "disturbance_gain": settings.disturbance_gain,
+                                 "platform_force": list(settings.platform_force)})
         except KeyboardInterrupt:  # interrupted before this form's first step: keep the earlier forms
             if not results:
                 raise
