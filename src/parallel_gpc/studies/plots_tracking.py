@@ -75,16 +75,7 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
         for ax in (ax_e, ax_v, ax_u):
             ax.grid(True, alpha=0.3)
     fig.suptitle(title)
-    return _save(fig, path)
-
-
-def _save(fig, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return fig
 
 
 def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compared"):
@@ -101,8 +92,6 @@ def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compa
     Returns:
         A :class:`matplotlib.figure.Figure`.
     """
-    from matplotlib.figure import Figure
-
     forms = list(dict.fromkeys(form for form, _ in runs))
     gains = sorted({gain for _, gain in runs})
     fig = Figure(figsize=(4.2 * len(forms), 8.5), layout="constrained")
