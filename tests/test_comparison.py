@@ -120,3 +120,9 @@ def test_cli_demo_writes_the_comparison(tmp_path, capsys):
     assert "dead-beat" in out and "est. α" in out
     for name in ("demo_compare.png", "demo_path.png", "demo_absolute_a0.npz", "demo_incremental_a0.5.npz"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_demo_help_defaults_are_the_comparison_defaults():
+    from parallel_gpc.cli import defaults
+
+    assert defaults.DEMO == {k: getattr(DEMO_SETTINGS, k) for k in defaults.DEMO}

@@ -239,10 +239,11 @@ class GPCController:
         Also keeps the one-step model (A_d, B_d, c_d) at X for the disturbance estimate.
 
         No drive fighting (a redundantly actuated robot): the incremental forms add the
-        increments to u(k−1) (delayed: u(k); nonlinear: the pre-simulated inputs) without its
-        null(B_d) component, which moves nothing in the model; Qu, which penalizes Δu, then
-        keeps the inputs out of null(B_d) at any Qu (not with a Δu limit: removing it would
-        change u(k) − u(k−1) by more than the increment).
+        increments to u(k−1) (delayed: u(k)) without its null(B_d) component, which moves
+        nothing in the model; Qu, which penalizes Δu, then keeps the inputs out of null(B_d) at
+        any Qu (not with a Δu limit: removing it would change u(k) − u(k−1) by more than the
+        increment). The nonlinear form applies u(k) without its null(B_d(X)) component (see
+        :meth:`step`).
         """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
@@ -281,7 +282,6 @@ class GPCController:
         u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
-        u_sim = self._base(u_sim, B_seq)  # the same motion, without null(B_d(X_sim(i))) parts
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         y_sim = X_sim[1:] @ C.T
         return simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, H)

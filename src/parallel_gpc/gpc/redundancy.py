@@ -24,18 +24,12 @@ def null_basis(B: np.ndarray) -> np.ndarray | None:
 
 
 def without_internal(u: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """u with its null(B) component removed, (m,) or (K, m) (N·m); with (K, n, m) B row i uses B[i].
+    """u with its null(B) component removed: (m,) or (K, m) inputs (N·m), (n, m) B.
 
     The removed part moves nothing in the model (B·removed = 0), so the predicted motion is the
     same; the incremental forms take the result as the base the increments Δu add to, and Qu
     (which penalizes Δu) then keeps the inputs out of null(B).
     """
-    u = np.array(u, dtype=float)
-    if B.ndim == 2:
-        basis = null_basis(B)
-        return u if basis is None else u - (u @ basis.T) @ basis
-    for i in range(len(u)):
-        basis = null_basis(B[i])
-        if basis is not None:
-            u[i] -= basis.T @ (basis @ u[i])
-    return u
+    basis = null_basis(np.asarray(B, dtype=float))
+    u = np.asarray(u, dtype=float)
+    return u if basis is None else u - (u @ basis.T) @ basis

@@ -144,15 +144,15 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
 
 def metrics_table(results: dict[str, SimulationResult]) -> str:
     """A text table of the tracking metrics (mm, mrad, N·m, ms) by form."""
-    head = (f"{'form':<12} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
+    head = (f"{'form':<20} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
             f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
-    units = (f"{'':<12} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
+    units = (f"{'':<20} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
              f"{'[N·m]':>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
     lines = [head, units]
     for form, res in results.items():
         m = res.metrics()
         lines.append(
-            f"{form:<12} {1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
+            f"{form:<20} {1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
             f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
             f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
             f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
