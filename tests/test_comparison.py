@@ -83,7 +83,7 @@ def comparison(robot4):
 @pytest.mark.slow
 @pytest.mark.parametrize("gain", [0.0, 0.5])
 def test_qu_positive_ranking_nonlinear_incremental_absolute(comparison, gain):
-    """RMS position error, measured [mm] off / on: nonlinear 1.60 / 0.332, incremental 2.11 /
+    """RMS position error, measured [mm] off / on: nonlinear 1.60 / 0.333, incremental 2.11 /
     0.436, incremental-delayed 2.72 / 0.591, absolute 5.26 / 3.79."""
     rms = {f: comparison[(f, gain)].metrics()["rms_position_error_m"] for f in FORMS}
     assert rms["nonlinear"] < 0.9 * rms["incremental"]  # measured ratio 0.76 (both)
