@@ -242,8 +242,8 @@ class GPCController:
         increments to u(k−1) (delayed: u(k)) without its null(B_d) component, which moves
         nothing in the model; Qu, which penalizes Δu, then keeps the inputs out of null(B_d) at
         any Qu (not with a Δu limit: removing it would change u(k) − u(k−1) by more than the
-        increment). The nonlinear form applies u(k) without its null(B_d(X)) component (see
-        :meth:`step`).
+        increment), and u(k) is applied without its null(B_d(X)) component unless the torque
+        limit needs it (see :meth:`step`).
         """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
@@ -339,8 +339,9 @@ class GPCController:
         u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
         if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
             u_seq = np.vstack([u_now, u_seq])[:self.horizons.N]
-        if self.form == "nonlinear":  # Δu(k)'s null(B_d(X)) part only feeds the horizon's later,
-            # re-planned steps (B_d varies along it): u(k) is applied without it, same X̂(k+1)
+        if self.form in ("incremental", "nonlinear"):  # a null(B_d(X)) part of Δu(k) only serves
+            # later, re-planned steps (B_d varying along the horizon, a limit ahead): u(k) is applied
+            # without it when that respects the torque limit — the same X̂(k+1)
             u_seq[0] = self._applicable(self._base(u_seq[0], self._one_step[1]), u_seq[0])
         u = u_seq[0].copy()
         if self._limits[0] is not None and np.any(np.abs(u) > self._limits[0] * (1.0 + APPLIED_LIMIT_RTOL)):
