@@ -24,6 +24,7 @@ from ..errors import InvalidParameterError
 from ..gpc.controller import FORMS, GPCController
 from ..gpc.criterion import Weights
 from ..gpc.prediction import Horizons
+from ..gpc.references import pose_error_norms
 from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..model.robot import ParallelRobot
@@ -65,9 +66,9 @@ class DeadbeatCheck:
 
 
 def steady_state_error(result: SimulationResult, window: float = STEADY_WINDOW) -> float:
-    """Mean position error ‖(x, y) − w‖ (m) over the last ``window`` s of a run."""
+    """Mean position error (norm of the translational error, m) over the last ``window`` s of a run."""
     sel = result.t >= result.t[-1] - window
-    return float(np.mean(np.linalg.norm(result.error[sel, :2], axis=1)))
+    return float(np.mean(pose_error_norms(result.error[sel], result.angular)[0]))
 
 
 def deadbeat_inputs(model: ReducedModel, X: np.ndarray, w_next: np.ndarray, Ts: float) -> np.ndarray:

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..gpc.references import pose_error_norms
 from .simulation import SimulationResult
 
 _DOTTED = {"x": "ẋ", "y": "ẏ", "z": "ż", "ψ": "ψ̇"}
@@ -79,8 +80,8 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
 
 
 def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compared"):
-    """The forms side by side on shared axes: position error ‖(x, y) − w‖ (mm, log scale) and
-    |ψ − ψ_w| (mrad) with the disturbance estimate off (dashed) and on (solid), drive torques
+    """The forms side by side on shared axes: position and orientation error norms (mm and
+    mrad, log scale) with the disturbance estimate off (dashed) and on (solid), drive torques
     (N·m) with the estimate on, and the torque limit lines if one is set.
 
     Args:
@@ -104,8 +105,9 @@ def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compa
                 continue
             style = "-" if gain == gains[-1] else "--"
             label = f"estimator α = {gain:g}"
-            ax_p.semilogy(res.t, np.maximum(1e3 * np.linalg.norm(res.error[:, :2], axis=1), 1e-9), style, label=label)
-            ax_a.semilogy(res.t, np.maximum(1e3 * np.abs(res.error[:, 2]), 1e-9), style, label=label)
+            pos, ang = pose_error_norms(res.error, res.angular)
+            ax_p.semilogy(res.t, np.maximum(1e3 * pos, 1e-9), style, label=label)
+            ax_a.semilogy(res.t, np.maximum(1e3 * ang, 1e-9), style, label=label)
             if gain == gains[-1]:
                 for j in range(res.u.shape[1]):
                     ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
