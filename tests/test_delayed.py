@@ -86,3 +86,20 @@ def test_delayed_form_needs_two_samples_of_horizon():
     A, B, C, c = _system()
     with pytest.raises(InvalidParameterError, match="N ≥ 2"):
         GPCController(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(1), form="incremental-delayed")
+
+
+def test_delayed_controller_respects_increment_and_torque_limits():
+    """|u(k+1) − u(k)| ≤ δ and |u| ≤ τ on the applied sequence, with no fallback (measured: the
+    increment limit binds at 0.05 N·m per sample)."""
+    A, B, C, c = _system()
+    ctrl = GPCController(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(10), Weights(1.0, 0.01),
+                         form="incremental-delayed", du_limit=0.05, torque_limit=1.0)
+    x, us = np.zeros(4), []
+    for _ in range(30):
+        info = ctrl.step(x, np.tile([1.0, -0.5], (10, 1)))
+        assert not info.fallback
+        us.append(info.u)
+        x = A @ x + B @ info.u + c
+    steps = np.abs(np.diff(us, axis=0))
+    assert steps.max() <= 0.05 * (1 + 1e-6) and steps.max() >= 0.05 * (1 - 1e-3)
+    assert np.abs(us).max() <= 1.0

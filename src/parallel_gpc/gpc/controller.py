@@ -389,7 +389,8 @@ class GPCController:
         if tau is not None and np.any(np.abs(u) > tau * (1.0 + APPLIED_LIMIT_RTOL)):
             i = int(np.argmax(np.abs(u) / tau))
             return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque_limit {tau[i]:.9g} N·m"
-        du = u - self.u_prev
+        # the increment of the first constrained input: delayed, u(k+1) − u(k) (u(k) is the base)
+        du = u - (pred.u_base[:m] if self.form == "incremental-delayed" else self.u_prev)
         if delta is not None and self.form != "absolute" and np.any(np.abs(du) > delta * (1.0 + APPLIED_LIMIT_RTOL)):
             i = int(np.argmax(np.abs(du) / delta))
             return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du_limit {delta[i]:.9g} N·m"
