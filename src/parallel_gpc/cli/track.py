@@ -31,7 +31,8 @@ def add_tracking_arguments(p, d: dict | None = None) -> None:
     p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
                    help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
-                        f"(default {d['disturbance_gain']:g})")
+                        + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
+                           else f"(default {d['disturbance_gain']:g})"))
     p.add_argument("--mass-scale", type=float, default=d["mass_scale"],
                    help=f"plant mass / model mass (default {d['mass_scale']:g})")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise std on [y, ẏ] (SI)")
@@ -75,7 +76,8 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
           f"Nu = {settings.Nu or settings.N}, Qy = {settings.Qy:g}, Qu = {settings.Qu:g}, "
           f"mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
-          f"disturbance estimate α = {settings.disturbance_gain:g} (every form)")
+          "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
+                                         else f"{settings.disturbance_gain:g} (every form)"))
     print(metrics_table(results))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")

@@ -35,7 +35,7 @@ from .tracking import TrackingSettings, run_tracking
 #: that the horizon and the form matter, a plant 20 % heavier than the model with a steady
 #: load of (5 N, −5 N, 0.5 N·m) on the platform; 2 s S-curve, then 1 s holding its end pose.
 DEMO_SETTINGS = TrackingSettings(Ts=0.01, N=30, Qy=1.0, Qu=1e-3, mass_scale=1.2, platform_force=(5.0, -5.0, 0.5),
-                                 duration=3.0)
+                                 duration=3.0, disturbance_gain=0.5)
 #: Gains α of the state-disturbance estimate compared: off and on.
 ESTIMATOR_GAINS = (0.0, 0.5)
 #: Length (s) of the window at the end of a run over which the steady-state error is averaged.
