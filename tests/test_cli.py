@@ -113,9 +113,10 @@ def test_without_meshcat_demo_hints_and_an_explicit_view_fails(tmp_path, monkeyp
     from parallel_gpc.cli import view
 
     monkeypatch.setattr(view, "_viz", lambda: None)
-    quick = ["--duration", "0.03", "--Ts", "0.01", "--N", "4", "--no-progress"]
+    quick = ["--duration", "0.03", "--Ts", "0.01", "--N", "4", "--no-progress", "--forms", "absolute", "nonlinear",
+             "--deadbeat-duration", "0.03"]
     assert main(["demo", "--out", str(tmp_path), *quick]) == 0
     assert view.INSTALL_HINT in capsys.readouterr().out
-    assert not (tmp_path / "demo.html").exists() and len(list(tmp_path.glob("track_*.npz"))) == 2
-    assert main(["view", str(tmp_path / "track_absolute.npz"), "--html", str(tmp_path / "x.html")]) == 2
+    assert not list(tmp_path.glob("*.html")) and len(list(tmp_path.glob("demo_*.npz"))) == 4
+    assert main(["view", str(tmp_path / "demo_absolute_a0.npz"), "--html", str(tmp_path / "x.html")]) == 2
     assert view.INSTALL_HINT in capsys.readouterr().err

@@ -107,7 +107,7 @@ def _closed_loop(ctrl, robot, ref, steps):
     return plant
 
 
-@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed", "nonlinear"])
 def test_state_snapshot_restores_bit_identical_steps(robot4, form):
     """restore(state) puts plan, u(k−1), disturbance estimate, one-step prediction and warm start
     back: the replayed step gives the same u, on a fresh controller too (to rounding: the robot

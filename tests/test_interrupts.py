@@ -44,10 +44,10 @@ def ctrl_c_after(monkeypatch):
 
 
 def test_plan_ctrl_c_in_mode_b_keeps_mode_a_and_the_partial_b(tmp_path, ctrl_c_after, capsys):
-    ctrl_c_after(20 + 6)  # mode (a): 20 samples; mode (b): stopped after 6
+    ctrl_c_after(24 + 6)  # mode (a): Nmax + settle = 24 samples; mode (b): stopped after 6
     assert cli.main([*PLAN, "--out", str(tmp_path)]) == 130
     a, b = load_result(tmp_path / "plan_a.npz"), load_result(tmp_path / "plan_b.npz")
-    assert a.t.shape == (21,) and a.meta["stopped"] == ""
+    assert a.t.shape == (25,) and a.meta["stopped"] == ""
     assert b.t.shape == (7,) and b.meta["stopped"].startswith("interrupted (Ctrl-C) after 6 of 24 samples")
     assert np.all(np.isfinite(b.q)) and b.arrays["u"].shape == (6, 4)
     assert "interrupted: partial results saved" in capsys.readouterr().out

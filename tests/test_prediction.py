@@ -96,3 +96,24 @@ def test_condense_matches_eq7_block_toeplitz_for_lti():
 def test_invalid_horizons_raise(kwargs):
     with pytest.raises(InvalidParameterError):
         Horizons(**kwargs)
+
+
+@pytest.mark.parametrize("ltv", [False, True])
+@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (9, 2, 4), (6, 4, 1)])
+def test_delayed_incremental_prediction_equals_simulation_with_the_increment_one_sample_later(N, No, Nu, ltv):
+    """Eq. (8)–(9) as printed: state [X(k); u(k)], B̄ = [0; I]: u(k) is given, u(k+1+i) =
+    u(k) + Σ_{j≤i} Δu(k+j); both condenser paths (time-invariant and per-step matrices)."""
+    rng = np.random.default_rng(41 + N + 3 * Nu + 7 * ltv)
+    A, B, c, C = _random_system(rng, N=N if ltv else None)
+    x0, u_now = rng.normal(size=4), rng.normal(size=3)
+    dv = rng.normal(size=(Nu, 3))
+    pred = incremental_prediction(A, B, c, C, x0, u_now, Horizons(N, No, Nu), delayed=True)
+    du = np.vstack([dv, np.zeros((N - Nu, 3))])
+    inputs = np.vstack([u_now, u_now + np.cumsum(du, axis=0)[:N - 1]])  # realized one sample later
+    expected = _simulate(A, B, c, C, x0, inputs)[No:]
+    np.testing.assert_allclose(pred.outputs(dv.reshape(-1)), expected.reshape(-1), rtol=0, atol=1e-10)
+    # the constrained inputs are u(k+1) … u(k+Nu)
+    np.testing.assert_allclose((pred.u_base + pred.u_map @ dv.reshape(-1)).reshape(-1, 3),
+                               u_now + np.cumsum(dv, axis=0), atol=1e-12)
+    if No == 0:  # ŷ(k+1) does not depend on v
+        assert not np.any(pred.G[:2])

@@ -47,7 +47,7 @@ def test_view_opens_track_files_with_a_robot_given_by_a_relative_path(tmp_path, 
     monkeypatch.chdir(tmp_path / "work")
     assert cli_main(["track", "--form", "all", "--robot", "myrobot/planar_4rrr.urdf", "--torque-limit", "50",
                      "--out", "run", *QUICK_TRACK]) == 0
-    results = view_every_result(tmp_path / "work" / "run", tmp_path / "elsewhere", monkeypatch, expected=3)
+    results = view_every_result(tmp_path / "work" / "run", tmp_path / "elsewhere", monkeypatch, expected=4)
     for result in results:
         assert result.robot == str((own / "planar_4rrr.urdf").resolve())
         assert result.kind == "tracking" and result.meta["Ts"] == 0.01
@@ -57,10 +57,14 @@ def test_view_opens_track_files_with_a_robot_given_by_a_relative_path(tmp_path, 
 
 def test_view_opens_demo_files(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    assert cli_main(["demo", "--out", "demo", *QUICK_TRACK]) == 0
-    assert (tmp_path / "demo" / "demo.html").stat().st_size > 500_000
-    results = view_every_result(tmp_path / "demo", tmp_path / "elsewhere", monkeypatch, expected=2)
-    assert {r.meta["form"] for r in results} == {"absolute", "nonlinear"}
+    assert cli_main(["demo", "--out", "demo", "--forms", "absolute", "nonlinear", "--deadbeat-duration", "0.03",
+                     *QUICK_TRACK]) == 0
+    for form in ("absolute", "nonlinear"):  # one labelled animation per form
+        assert (tmp_path / "demo" / f"demo_{form}.html").stat().st_size > 500_000
+    # each form with the disturbance estimate off and on
+    results = view_every_result(tmp_path / "demo", tmp_path / "elsewhere", monkeypatch, expected=4)
+    assert sorted((r.meta["form"], r.meta["disturbance_gain"]) for r in results) == [
+        ("absolute", 0.0), ("absolute", 0.5), ("nonlinear", 0.0), ("nonlinear", 0.5)]
     assert all(r.robot == "planar_4rrr" for r in results)
 
 
@@ -68,7 +72,7 @@ def test_view_opens_plan_files(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert cli_main(["plan", "--Nmax", "12", "--Nmin", "6", "--Ts", "0.05", "--settle", "2", "--no-progress",
                      "--out", "plan"]) == 0
-    results = view_every_result(tmp_path / "plan", tmp_path / "elsewhere", monkeypatch, expected=2)
+    results = view_every_result(tmp_path / "plan", tmp_path / "elsewhere", monkeypatch, expected=3)  # a, b, once
     for result in results:
         assert result.kind == "plan" and result.robot == "planar_4rrr"
         assert result.planned.shape == (result.t.size, 3) and result.meta["settings"]["Nmax"] == 12

@@ -1,6 +1,7 @@
-"""``parallel-gpc plan``: quadratically-optimal A → B planning, modes (a) and (b) (the paper's
-Fig. 3/4). A thin layer over :func:`parallel_gpc.plan_point_to_point`; writes ``plan_a.npz`` and
-``plan_b.npz`` (result files that ``parallel-gpc view`` opens) and the two figures.
+"""``parallel-gpc plan``: quadratically-optimal A → B planning, modes (a), (b) and the single
+open-loop solve "once" (the paper's Fig. 3/4). A thin layer over
+:func:`parallel_gpc.plan_point_to_point`; writes ``plan_a.npz``, ``plan_b.npz`` and ``plan_once.npz``
+(result files that ``parallel-gpc view`` opens) and the two figures.
 """
 
 from __future__ import annotations
@@ -63,6 +64,9 @@ def metrics_rows(results) -> list[tuple[str, list[str]]]:
          lambda r: f"{r.arrival_error[0]:.2e}, {math.degrees(r.arrival_error[1]):.2e}"),
         ("end speed [m/s, deg/s]", lambda r: f"{r.end_speed[0]:.2e}, {math.degrees(r.end_speed[1]):.2e}"),
         (f"time to reach B ±{tol_p:g} m, ±{math.degrees(tol_a):.2g}° [s]", lambda r: _fmt(r.time_to_reach, ".3f")),
+        ("time to within 1 mm of B [s]", lambda r: _fmt(r.time_within(1e-3), ".3f")),
+        ("overshoot past B along A→B [m]", lambda r: f"{r.overshoot:.2e}"),
+        ("ψ outside [ψ_A, ψ_B] (spin) [deg]", lambda r: f"{math.degrees(r.orientation_excursion):.3g}"),
         ("drive energy Σ‖u‖²·Ts [N²·m²·s]", lambda r: _fmt(r.energy, ".4g")),
         ("peak torque [N·m]", lambda r: _fmt(r.peak_torque, ".4g")),
         ("recorded duration [s]", lambda r: f"{r.t[-1]:.2f}"),
@@ -87,7 +91,7 @@ def cmd_plan(args) -> int:
     import numpy as np
 
     from ..model.dynamics import ReducedModel
-    from ..gpc.planning import PlanSettings, deadbeat_inputs, plan_point_to_point
+    from ..gpc.planning import MODES, PlanSettings, deadbeat_inputs, plan_point_to_point
     from ..model.robot import ParallelRobot
     from ..studies.plots_common import save_figure
     from ..studies.plots_planning import plot_fig3, plot_fig4
@@ -105,7 +109,7 @@ def cmd_plan(args) -> int:
           f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
     results = []
     try:
-        for mode in ("a", "b"):
+        for mode in MODES:
             res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=not args.no_progress)
             if res.stopped:
                 print(f"  mode ({mode}): {res.stopped}")
@@ -114,7 +118,7 @@ def cmd_plan(args) -> int:
                 break
     except KeyboardInterrupt:  # before the mode's first sample: keep the finished modes
         pass
-    if len(results) < 2 or results[-1].interrupted:
+    if len(results) < len(MODES) or results[-1].interrupted:
         if not results:
             raise KeyboardInterrupt
         written = [res.save(out / f"plan_{res.mode}.npz") for res in results]
@@ -130,7 +134,7 @@ def cmd_plan(args) -> int:
     print("wrote " + ", ".join(str(p) for p in written))
     print(f"view a plan: parallel-gpc view {out / 'plan_b.npz'}; use it as reference: "
           f"parallel_gpc.SampledTrajectory.load('{out / 'plan_b.npz'}')")
-    plan_b = results[-1]
+    plan_b = results[MODES.index("b")]
     show_trajectory(args, robot, plan_b.t, plan_b.q, planned=results[0].poses, reference=plan_b.poses,
                     title="A→B plan, mode (b) with stopping (path of mode (a) drawn too)")
     return 0
@@ -141,8 +145,10 @@ def register_plan(sub) -> None:
     p = sub.add_parser(
         "plan", help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
         description="Plan a point-to-point move with the end-point criterion (20): N = Nmax, No = N − k, "
-                    "Qu over the whole horizon. Mode (a) solves once and applies the sequence open loop; "
-                    "mode (b) re-solves every step with N := Nmax, …, Nmin (21) on the nonlinear plant.")
+                    "Qu over the whole horizon, re-solved every step on the nonlinear plant. Mode (a) keeps "
+                    "N = Nmax (no stopping information: B is approached asymptotically); mode (b) shrinks "
+                    "N := Nmax, …, Nmin (21) and stops at B at Nmax·Ts; 'once' applies the first solve open "
+                    "loop (valid for linear systems only).")
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
     p.add_argument("--A", nargs="+", type=float, default=None, metavar="Y",
                    help="start pose, one value per output: m, angles in deg (default: the sidecar's [home] A; "
@@ -162,7 +168,8 @@ def register_plan(sub) -> None:
     p.add_argument("--solver", default=None,
                    help="back end: qr (default without limits), qr-first:daqp-direct (default with limits), "
                         "osqp-direct, proxqp-direct, qpsolvers:<name>, …")
-    p.add_argument("--settle", type=int, default=30, help="samples recorded after Nmax in mode (b) (default 30)")
+    p.add_argument("--settle", type=int, default=400,
+                   help="samples recorded after Nmax in modes (a) and (b) (default 400)")
     p.add_argument("--out", default="out/plan", help="output folder for figures and trajectories (default ./out/plan)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_view_arguments(p)

@@ -1,8 +1,8 @@
 """``parallel-gpc track``: S-curve (or hold) tracking with each GPC form on the nonlinear plant.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
-and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) is the same run with the
-paper's Fig. 2 settings.
+and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
+comparison's defaults.
 """
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 
 
-def add_tracking_arguments(p) -> None:
-    """Options shared by ``track`` and ``demo``."""
-    d = TRACKING
+def add_tracking_arguments(p, d: dict | None = None) -> None:
+    """Options shared by ``track`` and ``demo``; defaults from ``d`` (default :data:`defaults.TRACKING`)."""
+    d = TRACKING if d is None else d
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
     p.add_argument("--Ts", type=float, default=d["Ts"], help=f"sample time in s (default {d['Ts']})")
     p.add_argument("--N", type=int, default=d["N"], help=f"prediction horizon (default {d['N']})")
@@ -29,13 +29,20 @@ def add_tracking_arguments(p) -> None:
                    "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:daqp-direct with limits)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
     p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
-    p.add_argument("--mass-scale", type=float, default=1.0, help="plant mass / model mass (default 1)")
+    p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
+                   help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
+                        + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
+                           else f"(default {d['disturbance_gain']:g})"))
+    p.add_argument("--mass-scale", type=float, default=d["mass_scale"],
+                   help=f"plant mass / model mass (default {d['mass_scale']:g})")
     p.add_argument("--noise", type=float, default=0.0, help="measurement noise std on [y, ẏ] (SI)")
-    p.add_argument("--force", type=float, nargs="+", default=(0.0, 0.0, 0.0), metavar="F",
-                   help="constant disturbance on the platform, one value per coordinate (N, N·m), e.g. FX FY MZ")
+    p.add_argument("--force", type=float, nargs="+", default=d["platform_force"], metavar="F",
+                   help="constant disturbance on the platform, one value per coordinate (N, N·m), e.g. FX FY MZ "
+                        f"(default {' '.join(f'{v:g}' for v in d['platform_force'])})")
     p.add_argument("--reference", choices=["auto", "s-curve", "helix", "hold"], default="auto",
                    help="auto: the S-curve for planar robots, the 3-D helix for spatial ones")
-    p.add_argument("--duration", type=float, default=None, help="run length in s (default: motion + 0.2 s)")
+    p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
+                   + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_view_arguments(p)
 
@@ -47,6 +54,7 @@ def settings_from_args(args):
     return TrackingSettings(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
+        disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
         reference=args.reference, duration=args.duration,
     )
@@ -67,7 +75,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
           f"Nu = {settings.Nu or settings.N}, Qy = {settings.Qy:g}, Qu = {settings.Qu:g}, "
-          f"mass scale {settings.mass_scale:g}")
+          f"mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
+          "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
+                                         else f"{settings.disturbance_gain:g} (every form)"))
     print(metrics_table(results))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")

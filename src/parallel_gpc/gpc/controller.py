@@ -4,6 +4,9 @@ Three forms (``form=``):
 
 * ``"absolute"`` — eq. (7), v = u, Qu penalizes u;
 * ``"incremental"`` — eq. (8)–(9), v = Δu, u(k) = u(k−1) + Δu(k): integral action;
+* ``"incremental-delayed"`` — eq. (8)–(9) as printed: state [X(k); u(k)], B̄ = [0; I]; u(k)
+  was decided at k−1 and is applied now, the increment computed at k is realized at k+1
+  (a one-sample computation delay);
 * ``"nonlinear"`` — incremental with nonlinear simulative prediction, eq. (10)–(12): the
   previous optimal sequence, shifted, is pre-simulated with the state-dependent model
   X(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) and the deviation
@@ -31,6 +34,7 @@ from ..validation import finite_vector
 from .criterion import Criterion, Weights, _limit_vector
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, conditioning_rule
+from .redundancy import without_internal
 from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
 __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN", "APPLIED_LIMIT_RTOL"]
@@ -83,7 +87,7 @@ class GPCController:
         Ts: sample time in s.
         horizons: N, No, Nu.
         weights: square-root weights Qy, Qu.
-        form: ``"absolute"``, ``"incremental"`` or ``"nonlinear"``.
+        form: ``"absolute"``, ``"incremental"``, ``"incremental-delayed"`` or ``"nonlinear"``.
         solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`); default ``"qr"``
             without limits, ``"qr-first:daqp-direct"`` with limits.
         torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
@@ -233,6 +237,13 @@ class GPCController:
         """Build ŷ = f + G v for the current state with this controller's form.
 
         Also keeps the one-step model (A_d, B_d, c_d) at X for the disturbance estimate.
+
+        No drive fighting (a redundantly actuated robot): the incremental forms add the
+        increments to u(k−1) (delayed: u(k)) without its null(B_d) component, which moves
+        nothing in the model; Qu, which penalizes Δu, then keeps the inputs out of null(B_d) at
+        any Qu (not with a Δu limit: removing it would change u(k) − u(k−1) by more than the
+        increment), and u(k) is applied without its null(B_d(X)) component unless the torque
+        limit needs it (see :meth:`step`).
         """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
@@ -242,7 +253,23 @@ class GPCController:
         self._one_step = (Ad, Bd, cd)
         if self.form == "absolute":
             return absolute_prediction(Ad, Bd, cd, C, X, H)
-        return incremental_prediction(Ad, Bd, cd, C, X, self.u_prev, H)
+        if self.form == "incremental-delayed":  # u(k), decided at k−1, is the state's last block
+            self._u_now = self._applicable(self._base(self.plan[1], Bd), self.plan[1].copy())
+            return incremental_prediction(Ad, Bd, cd, C, X, self._u_now, H, delayed=True)
+        return incremental_prediction(Ad, Bd, cd, C, X, self._base(self.u_prev, Bd), H)
+
+    def _base(self, u: np.ndarray, B: np.ndarray) -> np.ndarray:
+        """The input the increments add to: u without its null(B_d) component (no drive fighting
+        at any Qu: the removed part moves nothing in the model), or u itself with a Δu limit
+        (removing it would change u(k) − u(k−1) by more than Δu)."""
+        return u if self.du_limit is not None else without_internal(u, B)
+
+    def _applicable(self, projected: np.ndarray, decided: np.ndarray) -> np.ndarray:
+        """The input without its null(B_d) part if it respects the torque limit, else as decided."""
+        tau = self._limits[2]
+        if tau is None or np.all(np.abs(projected) <= tau):
+            return projected
+        return decided
 
     def _update_disturbance(self, X: np.ndarray) -> None:
         """d ← (1 − α) d + α (X(k) − X̂(k|k−1)): the model's one-step prediction error."""
@@ -294,6 +321,7 @@ class GPCController:
         if gain is not None:
             self._check_conditioning(X, gain)
         t1 = time.perf_counter()
+        u_now = self._u_now if self.form == "incremental-delayed" else None
         problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
         t2 = time.perf_counter()
         try:
@@ -309,6 +337,12 @@ class GPCController:
             result = self._fallback(problem, pred, result)
         t3 = time.perf_counter()
         u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
+        if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
+            u_seq = np.vstack([u_now, u_seq])[:self.horizons.N]
+        if self.form in ("incremental", "nonlinear"):  # a null(B_d(X)) part of Δu(k) only serves
+            # later, re-planned steps (B_d varying along the horizon, a limit ahead): u(k) is applied
+            # without it when that respects the torque limit — the same X̂(k+1)
+            u_seq[0] = self._applicable(self._base(u_seq[0], self._one_step[1]), u_seq[0])
         u = u_seq[0].copy()
         if self._limits[0] is not None and np.any(np.abs(u) > self._limits[0] * (1.0 + APPLIED_LIMIT_RTOL)):
             raise SolverError(f"the projected fallback input u = {u.tolist()} N·m exceeds the torque limit "
@@ -355,7 +389,8 @@ class GPCController:
         if tau is not None and np.any(np.abs(u) > tau * (1.0 + APPLIED_LIMIT_RTOL)):
             i = int(np.argmax(np.abs(u) / tau))
             return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque_limit {tau[i]:.9g} N·m"
-        du = u - self.u_prev
+        # the increment of the first constrained input: delayed, u(k+1) − u(k) (u(k) is the base)
+        du = u - (pred.u_base[:m] if self.form == "incremental-delayed" else self.u_prev)
         if delta is not None and self.form != "absolute" and np.any(np.abs(du) > delta * (1.0 + APPLIED_LIMIT_RTOL)):
             i = int(np.argmax(np.abs(du) / delta))
             return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du_limit {delta[i]:.9g} N·m"

@@ -12,14 +12,18 @@ square-root system is the paper's eq. (20),
     \\begin{bmatrix} Q_y (w - f)_{N-k+1..N} \\\\ 0 \\end{bmatrix},
 
 whose solution spreads the drive energy quadratically over the horizon ("dead-beat spread in
-time"). Two modes, the paper's Fig. 3:
+time"). The paper's two modes (Fig. 3) are both receding-horizon: re-solved every step from the
+current state of the nonlinear plant with the model at that state, only the first input applied:
 
-* ``"a"`` — *without stopping information*: the sequence is computed once, at N = Nmax from the
-  model at A, and the whole of it is applied open loop to the nonlinear plant. Exact for a
-  linear system; on the robot the frozen model misses B by the effect of the nonlinearity.
-* ``"b"`` — *with stopping*: re-solved every step from the current state of the nonlinear plant,
-  with the model at that state and the horizon shrinking, eq. (21),
-  N := Nmax, Nmax − 1, …, Nmin, then held at Nmin; only the first input is applied.
+* ``"a"`` — *without stopping information*: N = Nmax and No = N − k held fixed ("difference of
+  horizons N and No is still the same"): the end point moves with the window, so the platform
+  approaches B asymptotically, with no definite stopping instant.
+* ``"b"`` — *with stopping*: the horizon shrinks, eq. (21), N := Nmax, Nmax − 1, …, Nmin, then
+  is held at Nmin: the platform stops at B at t ≈ Nmax·Ts.
+
+A third variant, ``"once"``, is the paper's remark that for a linear system the sequence can be
+computed once (at N = Nmax from the model at A) and applied open loop; on the robot the frozen
+model misses B by the effect of the nonlinearity.
 
 The recorded plant outputs are the planned trajectory: :meth:`PlanResult.trajectory` gives a
 :class:`~parallel_gpc.references.SampledTrajectory` that the tracking controller takes as its
@@ -54,14 +58,15 @@ from ..solvers import LeastSquaresProblem, SolveResult, make_solver
 from .criterion import Weights, build_problem, check_problem_size
 from ..validation import finite_vector, positive
 
-MODES = ("a", "b")
+MODES = ("a", "b", "once")
 #: Back end used when torque limits are given and no solver is named: the paper's QR while the
 #: limits are inactive, the exact active-set QP (DAQP) when they bind.
 DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
 #: How :attr:`PlanResult.stopped` starts when Ctrl-C stopped the plan.
 INTERRUPTED = "interrupted (Ctrl-C)"
 #: What each mode is called in tables and plots.
-MODE_LABELS = {"a": "(a) without stopping information", "b": "(b) with stopping"}
+MODE_LABELS = {"a": "(a) receding, no stopping information", "b": "(b) shrinking horizon, stops",
+               "once": "once: open loop (linear systems only)"}
 
 
 def _integer(name: str, value, low: int) -> int:
@@ -85,7 +90,8 @@ class PlanSettings:
         torque_limit: symmetric drive torque limit |u| ≤ τ in N·m (scalar or (n_u,)), or None.
         solver: back-end name (:func:`parallel_gpc.solvers.make_solver`); default ``"qr"``
             without limits and ``"qr-first:daqp-direct"`` with limits.
-        settle_steps: samples recorded after Nmax in mode (b) (horizon held at Nmin).
+        settle_steps: samples recorded after Nmax in modes (a) and (b) (default 400: mode (a)
+            comes within 1 mm of B about 3.4·Nmax·Ts after the start on the default robot).
         reach_tolerance: (position m, orientation rad) band around B for the time to reach.
         plant_substeps: RK4 steps per sample of the default plant.
     """
@@ -98,7 +104,7 @@ class PlanSettings:
     Qu: object = 1e-6
     torque_limit: object = None
     solver: str | None = None
-    settle_steps: int = 30
+    settle_steps: int = 400
     reach_tolerance: tuple[float, float] = (1e-4, 1e-3)
     plant_substeps: int = 5
 
@@ -235,20 +241,20 @@ class PlanResult:
     """A planned move, as recorded on the plant (row i is sample time t_i = i·Ts).
 
     Attributes:
-        mode: ``"a"`` or ``"b"``.
+        mode: ``"a"``, ``"b"`` or ``"once"``.
         start, target: (n_y,) poses A and B (m, rad).
         t: (K+1,) s. poses, velocities: (K+1, n_y) m, rad and m/s, rad/s.
         u: (K, n_u) drive torques applied over [t_i, t_i+1) in N·m.
-        horizon: (K,) horizon N of the plan the input came from (mode a: the one plan, so
-            Nmax − i samples remain; mode b: the horizon of that step's solve).
-        status: (K,) solve status of each step (``"open-loop"`` for the steps of mode a after
-            the single solve, ``"fallback"`` when mode b applied the previous plan).
+        horizon: (K,) horizon N of the plan the input came from (modes a and b: the horizon of
+            that step's solve; once: the one plan, so Nmax − i samples remain).
+        status: (K,) solve status of each step (``"open-loop"`` for the steps of mode once after
+            the single solve, ``"fallback"`` when a receding mode applied the previous plan).
         solve_time: (K,) wall time of each step's model + prediction + solve in s.
         q: (K+1, nq) full configurations for the views, or None (plant without ``q``).
         settings: the settings used.
         saturated: number of samples at which the plant saturated its drives.
         stopped: empty if the plan ran to its end; otherwise why the recording stopped early
-            (e.g. the open-loop plant of mode (a) left the workspace, or :data:`INTERRUPTED`: Ctrl-C),
+            (e.g. the open-loop plant of mode once left the workspace, or :data:`INTERRUPTED`: Ctrl-C),
             the arrays then end there.
         robot: how the result file names the robot (embedded name or absolute URDF path; "" for none).
         angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
@@ -316,13 +322,36 @@ class PlanResult:
     def time_to_reach(self) -> float:
         """First time (s) after which the pose stays within ``reach_tolerance`` of B; NaN if
         it is not within the band at the last sample."""
-        tol_p, tol_a = self.settings.reach_tolerance
+        return self.time_within(*self.settings.reach_tolerance)
+
+    def time_within(self, position_tol: float, orientation_tol: float = math.inf) -> float:
+        """First time (s) after which the position error stays ≤ ``position_tol`` (m) and the
+        orientation error ≤ ``orientation_tol`` (rad); NaN if not within at the last sample."""
         pos, ang = self.error_norms()
-        inside = (pos <= tol_p) & (ang <= tol_a)
+        inside = (pos <= position_tol) & (ang <= orientation_tol)
         if not inside[-1]:
             return math.nan
         outside = np.flatnonzero(~inside)
         return float(self.t[0 if outside.size == 0 else outside[-1] + 1])
+
+    @property
+    def overshoot(self) -> float:
+        """Largest distance (m) the platform went past B along the direction A → B (0 if never)."""
+        d = (self.target - self.start)[:2]
+        norm = float(np.linalg.norm(d))
+        if norm == 0.0:
+            return 0.0
+        return float(max(0.0, np.max((self.poses[:, :2] - self.target[:2]) @ (d / norm))))
+
+    @property
+    def orientation_excursion(self) -> float:
+        """Largest orientation (rad) outside the interval between ψ_A and ψ_B: 0 for a move that
+        turns the platform only as far as it must; about 2π for a full spin."""
+        if self.poses.shape[1] < 3:
+            return 0.0
+        lo, hi = sorted((float(self.start[2]), float(self.target[2])))
+        psi = self.poses[:, 2]
+        return float(max(0.0, np.max(psi - hi), np.max(lo - psi)))
 
     # ------------------------------------------------------------ effort
     @property
@@ -350,6 +379,8 @@ class PlanResult:
             "end_speed_m_s": vlin,
             "end_angular_speed_rad_s": vang,
             "time_to_reach_s": self.time_to_reach,
+            "overshoot_m": self.overshoot,
+            "orientation_excursion_rad": self.orientation_excursion,
             "energy_N2m2s": self.energy,
             "peak_torque_Nm": self.peak_torque,
             "solves": int(np.sum(solved)),
@@ -392,18 +423,19 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
             and ``model`` are given, e.g. a linear test system).
         A, B: (n_y,) start and end poses (m, rad); the move starts at rest.
         settings: :class:`PlanSettings` (default ``PlanSettings()``).
-        mode: ``"a"`` (one solve at Nmax, applied open loop) or ``"b"`` (re-solved every step,
-            N := Nmax, …, Nmin, then held at Nmin).
+        mode: ``"a"`` (re-solved every step with N = Nmax fixed: asymptotic approach),
+            ``"b"`` (re-solved every step, N := Nmax, …, Nmin, then held at Nmin: stops at B) or
+            ``"once"`` (one solve at Nmax applied open loop: linear systems only).
         plant: the system the plan is recorded on (``step(u, Ts)``, ``X``, optionally ``q``
             and ``saturated``); default a fresh
             :class:`~parallel_gpc.plant.ConstrainedPlant` at A, at rest, with the robot's own
             drive limits. If given, its pose must be A.
         model: the planner's model (default ``ReducedModel(robot)``).
-        progress: show a progress bar over the steps of mode (b).
+        progress: show a progress bar over the steps of modes (a) and (b).
 
     Returns:
-        The :class:`PlanResult`: Nmax steps for mode (a), Nmax + settle_steps for mode (b)
-        (fewer, with ``stopped`` set, if the plant leaves the workspace).
+        The :class:`PlanResult`: Nmax + settle_steps steps for modes (a) and (b), Nmax for
+        once (fewer, with ``stopped`` set, if the plant leaves the workspace).
 
     Raises:
         InvalidParameterError: unknown mode, bad poses or settings, or a plant not at A.
@@ -414,7 +446,8 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     if not isinstance(settings, PlanSettings):
         raise InvalidParameterError(f"settings must be a PlanSettings, got {type(settings).__name__}")
     if mode not in MODES:
-        raise InvalidParameterError(f"planning mode {mode!r} is not one of {MODES} (a: without, b: with stopping)")
+        raise InvalidParameterError(f"planning mode {mode!r} is not one of {MODES} (a: receding without stopping "
+                                    f"information, b: shrinking horizon with stopping, once: one open-loop solve)")
     if robot is None and (plant is None or model is None):
         raise InvalidParameterError("plan_point_to_point needs a robot, or both a plant and a model")
     model = ReducedModel(robot) if model is None else model
@@ -436,13 +469,13 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
                                     f"not at the start pose A = {np.round(A, 6).tolist()}")
     backend = make_solver(settings.solver_name)
     sat0 = getattr(plant, "saturated", 0)
-    K = settings.Nmax if mode == "a" else settings.Nmax + settings.settle_steps
+    K = settings.Nmax if mode == "once" else settings.Nmax + settings.settle_steps
     rec = _Recorder(K, n_y, n_u, plant)
     try:
-        if mode == "a":
+        if mode == "once":
             _run_open_loop(model, plant, B, settings, backend, rec)
         else:
-            _run_shrinking(model, plant, B, settings, backend, rec, progress)
+            _run_receding(model, plant, B, settings, backend, rec, mode, progress)
     except KeyboardInterrupt:  # Ctrl-C: keep the samples applied so far
         if rec.steps == 0:
             raise
@@ -491,29 +524,36 @@ class _Recorder:
 
 
 def _run_open_loop(model, plant, B, settings: PlanSettings, backend, rec: _Recorder) -> None:
-    """Mode (a): one solve at N = Nmax from the model at A, the whole sequence applied."""
+    """Mode once: one solve at N = Nmax from the model at A, the whole sequence applied."""
     Nmax, Ts = settings.Nmax, settings.Ts
     t0 = time.perf_counter()
     u_seq, result = solve_end_point(model, np.asarray(plant.X, dtype=float), B, Nmax, settings, backend,
                                     u_hold=hold_torque(model, B))
     rec.solve_time[0] = time.perf_counter() - t0
     if not result.ok:
-        raise SolverError(f"planning solve (mode a, N = {Nmax}) failed with {result.solver}: {result.status} "
+        raise SolverError(f"planning solve (mode once, N = {Nmax}) failed with {result.solver}: {result.status} "
                           f"{result.message}")
     for i in range(Nmax):
         if not rec.apply(i, u_seq[i], Nmax - i, result.status if i == 0 else "open-loop", Ts):
             break
 
 
-def _run_shrinking(model, plant, B, settings: PlanSettings, backend, rec: _Recorder, progress: bool) -> None:
-    """Mode (b): re-solve every step, N := Nmax, …, Nmin, then held at Nmin, eq. (21)."""
-    Nmax, Nmin, Ts, m = settings.Nmax, settings.Nmin, settings.Ts, model.n_u
+def horizon_at(mode: str, i: int, settings: PlanSettings) -> int:
+    """Horizon N of step i: mode (a) Nmax always; mode (b) max(Nmax − i, Nmin), eq. (21)."""
+    return settings.Nmax if mode == "a" else max(settings.Nmax - i, settings.Nmin)
+
+
+def _run_receding(model, plant, B, settings: PlanSettings, backend, rec: _Recorder, mode: str,
+                  progress: bool) -> None:
+    """Modes (a) and (b): re-solve every step from the plant's state, only the first input applied;
+    the horizon of step i is :func:`horizon_at`."""
+    Ts, m = settings.Ts, model.n_u
     remaining = None  # the last successful plan's inputs not yet applied, (n, m)
     v_prev = None
     u_hold = hold_torque(model, B)
-    steps = tqdm(range(len(rec.u)), disable=not progress, desc="plan (b) with stopping", unit="step", leave=False)
+    steps = tqdm(range(len(rec.u)), disable=not progress, desc=f"plan {MODE_LABELS[mode]}", unit="step", leave=False)
     for i in steps:
-        N = max(Nmax - i, Nmin)
+        N = horizon_at(mode, i, settings)
         warm = None
         if v_prev is not None:  # the previous solution shifted by one sample (last input repeated)
             warm = v_prev[m:]
@@ -529,7 +569,7 @@ def _run_shrinking(model, plant, B, settings: PlanSettings, backend, rec: _Recor
         elif remaining is not None and len(remaining):  # visible fallback: follow the last plan
             plan, v_prev, status = remaining, None, "fallback"
         else:
-            raise SolverError(f"planning solve (mode b, step {i}, N = {N}) failed with {result.solver}: "
+            raise SolverError(f"planning solve (mode {mode}, step {i}, N = {N}) failed with {result.solver}: "
                               f"{result.status} {result.message}")
         remaining = plan[1:]
         if not rec.apply(i, plan[0], N, status, Ts):

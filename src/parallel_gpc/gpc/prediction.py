@@ -4,7 +4,9 @@ One LTV condenser, :func:`condense`, serves all three forms; they differ only in
 matrices they feed it:
 
 * :func:`absolute_prediction`, eq. (7): the discretized model at X(k), v = u;
-* :func:`incremental_prediction`, eq. (8)–(9): state augmented with u(k−1), v = Δu;
+* :func:`incremental_prediction`, eq. (8)–(9): state augmented with u(k−1), v = Δu; with
+  ``delayed=True`` the paper's variant as printed: state [X(k); u(k)], B̄ = [0; I], the
+  increment Δu(k) realized at k+1 (a one-sample computation delay);
 * :func:`simulative_prediction`, eq. (10)–(12): deviation model along a pre-simulated nonlinear
   trajectory, augmented like the incremental form, v = Δu and u = u_sim + cumsum(Δu).
 
@@ -206,8 +208,12 @@ def _condense_lti(A, B, c, C, x, horizons: Horizons, hold_inputs: bool):
     return f[horizons.No:].reshape(-1), _toeplitz(H, horizons, hold_inputs)
 
 
-def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None):
-    """Augmented model (8)–(9): state [x; u(k−1)], input Δu. Works on (…, n, n) stacks."""
+def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None, delayed: bool = False):
+    """Augmented model (8)–(9), input Δu. Works on (…, n, n) stacks.
+
+    Undelayed: state [x; u(k−1)], B̄ = [B; I] (the increment acts at once). Delayed (the paper's
+    (8) as printed): state [x; u(k)], B̄ = [0; I] (the increment is realized one sample later).
+    """
     n, m = B.shape[-2], B.shape[-1]
     lead = A.shape[:-2]
     Aa = np.zeros((*lead, n + m, n + m))
@@ -215,7 +221,8 @@ def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None):
     Aa[..., :n, n:] = B
     Aa[..., n:, n:] = np.eye(m)
     Ba = np.zeros((*lead, n + m, m))
-    Ba[..., :n, :] = B
+    if not delayed:
+        Ba[..., :n, :] = B
     Ba[..., n:, :] = np.eye(m)
     ca = None
     if c is not None:
@@ -243,12 +250,23 @@ def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
     return Prediction(f, G, np.zeros(size), _identity(size), horizons, "absolute")  # u = v
 
 
-def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons) -> Prediction:
-    """Incremental prediction, eq. (8)–(9): v = [Δu(k) … Δu(k+Nu−1)], u(k) = u(k−1) + Δu(k).
+def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed: bool = False) -> Prediction:
+    """Incremental prediction, eq. (8)–(9): v = [Δu(k) … Δu(k+Nu−1)].
 
-    A time-invariant model is condensed through its step response S_k = Σ_{j≤k} C A^j B (the
-    augmented model (8) has exactly these Markov parameters): G[i, j] = S_{i−j} and
-    f = f_abs + S_i u(k−1); a time-varying one through the augmented state [x; u(k−1)].
+    Undelayed (default): u(k) = u(k−1) + Δu(k), ``u_prev`` = u(k−1), and the constrained inputs
+    are u(k) … u(k+Nu−1). Delayed (``delayed=True``, the paper's (8) as printed): ``u_prev`` is
+    u(k), already decided at k−1 and applied now; u(k+1) = u(k) + Δu(k), so ŷ(k+1) does not
+    depend on v and the constrained inputs are u(k+1) … u(k+Nu).
+
+    A time-invariant model is condensed through its step response S_j = Σ_{l≤j} C A^l B (the
+    augmented model has exactly these Markov parameters, shifted by one sample when delayed):
+    G[i, j] = S_{i−j} (delayed: S_{i−j−1}, S_{−1} = 0) and f = f_abs + S_i u_prev in both;
+    a time-varying one through the augmented state of :func:`_augment`.
+
+    Args:
+        Ad: (n, n) or (N, n, n); Bd: (n, m) or (N, n, m); cd: (n,), (N, n) or None.
+        C: (p, n); X: (n,) state; u_prev: (m,) u(k−1), or u(k) when delayed (N·m).
+        horizons: N, No, Nu. delayed: the one-sample-delay variant.
     """
     Ad, Bd = np.asarray(Ad, dtype=float), np.asarray(Bd, dtype=float)
     C = np.asarray(C, dtype=float)
@@ -258,18 +276,20 @@ def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons) -> Pred
     Nu = horizons.Nu
     n = C.shape[1]
     cd = None if cd is None else np.asarray(cd, dtype=float)
+    u_base, u_map = np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m)
     if Ad.shape == (n, n) and Bd.shape == (n, m) and (cd is None or cd.shape == (n,)) and X.shape == (n,):
         f, H = _lti_responses(Ad, Bd, cd, C, X, horizons.N)
         S = np.cumsum(H, axis=0)  # step response
         f += S @ u_prev
+        if delayed:  # B̄ = [0; I]: every Markov parameter of Δu one sample later
+            S = np.concatenate([np.zeros_like(S[:1]), S[:-1]])
         G = _toeplitz(S, horizons, hold=False)
-        return Prediction(f[horizons.No:].reshape(-1), G, np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m),
-                          horizons, "incremental")
-    Aa, Ba, ca = _augment(Ad, Bd, cd)
+        return Prediction(f[horizons.No:].reshape(-1), G, u_base, u_map, horizons, "incremental")
+    Aa, Ba, ca = _augment(Ad, Bd, cd, delayed)
     Ca = np.hstack([C, np.zeros((C.shape[0], m))])
     x0 = np.concatenate([X, u_prev])
     f, G = condense(Aa, Ba, ca, Ca, x0, horizons, hold_inputs=False)
-    return Prediction(f, G, np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m), horizons, "incremental")
+    return Prediction(f, G, u_base, u_map, horizons, "incremental")
 
 
 def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:

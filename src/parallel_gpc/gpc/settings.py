@@ -12,7 +12,11 @@ from ..validation import positive
 from .criterion import Weights
 from .prediction import Horizons
 
-FORMS = ("absolute", "incremental", "nonlinear")
+FORMS = ("absolute", "incremental", "incremental-delayed", "nonlinear")
+#: the paper's three algorithms (the delayed variant of the incremental form left out).
+PAPER_FORMS = ("absolute", "incremental", "nonlinear")
+#: forms whose decision variable is the increment Δu (the incremental forms).
+INCREMENTAL_FORMS = ("incremental", "incremental-delayed", "nonlinear")
 #: QP back end used when torque limits are given and no solver is named.
 DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
 
@@ -41,7 +45,9 @@ class GPCSettings:
         Ts: sample time in s (> 0).
         horizons: N, No, Nu.
         weights: square-root weights Qy, Qu.
-        form: ``"absolute"``, ``"incremental"`` or ``"nonlinear"``.
+        form: ``"absolute"`` (7), ``"incremental"`` (8)–(9) with state [X; u(k−1)],
+            ``"incremental-delayed"`` (8)–(9) as printed: state [X; u(k)], B̄ = [0; I], the
+            increment realized one sample later (needs N ≥ 2), or ``"nonlinear"`` (10)–(12).
         solver: back-end name (:func:`parallel_gpc.solvers.make_solver`); None resolves to
             ``"qr"`` without limits and ``"qr-first:daqp-direct"`` with limits.
         torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
@@ -78,6 +84,9 @@ class GPCSettings:
             raise InvalidParameterError(f"weights must be a Weights(Qy, Qu), got {self.weights!r}")
         put("torque_limit", _limit("torque_limit", self.torque_limit))
         put("du_limit", _limit("du_limit", self.du_limit))
+        if self.form == "incremental-delayed" and self.horizons.N < 2:
+            raise InvalidParameterError(
+                f"form 'incremental-delayed' needs N ≥ 2 (its increment acts from k+2 on); got N = {self.horizons.N}")
         if self.du_limit is not None and self.form == "absolute":
             raise InvalidParameterError("du_limit applies to the incremental forms; form is 'absolute'")
         limited = self.torque_limit is not None or self.du_limit is not None

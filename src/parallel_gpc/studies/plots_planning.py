@@ -20,8 +20,8 @@ from matplotlib.patches import Polygon
 
 from ..gpc.planning import PlanResult
 
-#: Colors of the two modes (and of anything else the figures draw per mode).
-MODE_COLORS = {"a": "tab:red", "b": "tab:blue"}
+#: Colors of the modes (and of anything else the figures draw per mode).
+MODE_COLORS = {"a": "tab:red", "b": "tab:blue", "once": "tab:gray"}
 _DRIVE_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
 
@@ -105,7 +105,7 @@ def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
     """Fig. 3: the planned platform paths in the x-y plane, one panel per mode.
 
     Args:
-        results: plans to draw (usually modes a and b, same A and B).
+        results: plans to draw (usually modes a, b and once, same A and B).
         robot: draw the robot at A and the platform at the last pose (needs the results' ``q``).
         n_markers: number of orientation markers along each path.
         marker_size: marker length in m.
@@ -168,7 +168,7 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
         The figure.
     """
     fig = Figure(figsize=(6.0 * len(results), 12.0), layout="constrained")
-    axes = fig.subplots(5, len(results), squeeze=False, sharex="col")
+    axes = fig.subplots(5, len(results), squeeze=False, sharex="all", sharey="row")  # comparable columns
     for col, res in enumerate(results):
         s = res.settings
         ax = axes[:, col]

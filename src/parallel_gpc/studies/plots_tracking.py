@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..gpc.references import pose_error_norms
 from .simulation import SimulationResult
 
 _DOTTED = {"x": "ẋ", "y": "ẏ", "z": "ż", "ψ": "ψ̇"}
@@ -74,5 +75,53 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
         ax_u.legend(fontsize=7, ncol=2)
         for ax in (ax_e, ax_v, ax_u):
             ax.grid(True, alpha=0.3)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compared"):
+    """The forms side by side on shared axes: position and orientation error norms (mm and
+    mrad, log scale) with the disturbance estimate off (dashed) and on (solid), drive torques
+    (N·m) with the estimate on, and the torque limit lines if one is set.
+
+    Args:
+        runs: results keyed by (form, estimator gain α), as from
+            :func:`~parallel_gpc.studies.comparison.run_comparison`.
+        torque_limit: N·m (scalar or per drive) or None.
+        title: figure title.
+
+    Returns:
+        A :class:`matplotlib.figure.Figure`.
+    """
+    forms = list(dict.fromkeys(form for form, _ in runs))
+    gains = sorted({gain for _, gain in runs})
+    fig = Figure(figsize=(4.2 * len(forms), 8.5), layout="constrained")
+    axes = fig.subplots(3, len(forms), sharex="all", sharey="row", squeeze=False)
+    for col, form in enumerate(forms):
+        ax_p, ax_a, ax_u = axes[:, col]
+        for gain in gains:
+            res = runs.get((form, gain))
+            if res is None:
+                continue
+            style = "-" if gain == gains[-1] else "--"
+            label = f"estimator α = {gain:g}"
+            pos, ang = pose_error_norms(res.error, res.angular)
+            ax_p.semilogy(res.t, np.maximum(1e3 * pos, 1e-9), style, label=label)
+            ax_a.semilogy(res.t, np.maximum(1e3 * ang, 1e-9), style, label=label)
+            if gain == gains[-1]:
+                for j in range(res.u.shape[1]):
+                    ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
+        if torque_limit is not None:
+            lim = float(np.max(np.asarray(torque_limit, dtype=float)))
+            for sign in (1, -1):
+                ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="torque limit" if sign > 0 else None)
+        ax_p.set_title(form)
+        ax_u.set_xlabel("t [s]")
+        for ax in (ax_p, ax_a, ax_u):
+            ax.grid(True, alpha=0.3)
+            ax.legend(fontsize=7, loc="best")
+    axes[0, 0].set_ylabel("position error [mm]")
+    axes[1, 0].set_ylabel("orientation error [mrad]")
+    axes[2, 0].set_ylabel(f"drive torque [N·m] (α = {gains[-1]:g})")
     fig.suptitle(title)
     return fig

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ..gpc.controller import FORMS, GPCController
+from ..gpc.settings import PAPER_FORMS
 from ..model.dynamics import ReducedModel
 from .. import errors
 from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
@@ -216,7 +217,7 @@ def robustness_cells(robot_name: str, forms, cases, ref: Reference, duration: fl
     return cells
 
 
-def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=FORMS, mass_scales=DEFAULT_MASS_SCALES,
+def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_scales=DEFAULT_MASS_SCALES,
                      noise_levels=DEFAULT_NOISE_LEVELS, disturbances=DEFAULT_DISTURBANCES,
                      duration: float = 2.5, Ts: float = 0.005, N: int = 10, progress: bool = False,
                      weights: Weights = DEFAULT_WEIGHTS, reference="path", seed: int = 0,

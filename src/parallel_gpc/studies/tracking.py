@@ -36,6 +36,10 @@ class TrackingSettings:
         plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (= torque_limit),
             ``"robot"`` (the limits in the robot file), a value in N·m, or None (no saturation).
         du_limit: increment limit in N·m per sample (incremental forms), or None.
+        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate, the same for every form
+            (so that form and estimator effects are never confounded); 0 = no estimator;
+            None (default): each controller's own default (0 absolute, 0.5 incremental forms),
+            shown in the table's ``est. α`` column.
         mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
@@ -58,6 +62,7 @@ class TrackingSettings:
     solver: str | None = None
     torque_limit: float | None = None
     du_limit: float | None = None
+    disturbance_gain: float | None = None
     mass_scale: float = 1.0
     noise_std: float = 0.0
     platform_force: tuple[float, ...] = (0.0, 0.0, 0.0)
@@ -117,6 +122,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
             Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
             torque_limit=settings.torque_limit, du_limit=settings.du_limit,
+            disturbance_gain=settings.disturbance_gain,
         )
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
                                  torque_limit=settings.plant_limit(robot),
@@ -124,7 +130,9 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
         try:
             res = simulate(ctrl, plant, reference, settings.run_duration, seed=settings.seed,
                            noise_std=settings.noise_std or None, progress=progress,
-                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std})
+                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
+                                 "disturbance_gain": ctrl.disturbance_gain,
+                                 "platform_force": list(settings.platform_force)})
         except KeyboardInterrupt:  # interrupted before this form's first step: keep the earlier forms
             if not results:
                 raise
@@ -136,16 +144,18 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
 
 
 def metrics_table(results: dict[str, SimulationResult]) -> str:
-    """A text table of the tracking metrics (mm, mrad, N·m, ms) by form."""
-    head = (f"{'form':<12} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
+    """A text table of the tracking metrics (mm, mrad, N·m, ms) by form, with the gain α of the
+    disturbance estimate each form ran with."""
+    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
             f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
-    units = (f"{'':<12} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
+    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
              f"{'[N·m]':>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
     lines = [head, units]
     for form, res in results.items():
         m = res.metrics()
         lines.append(
-            f"{form:<12} {1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
+            f"{form:<20} {res.meta.get('disturbance_gain', float('nan')):6.2f} "
+            f"{1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
             f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
             f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
             f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"

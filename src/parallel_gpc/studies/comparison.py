@@ -1,0 +1,151 @@
+"""The paper's Fig. 2 comparison, measured: what each GPC form does where forms differ.
+
+Two parts, one library call each (``parallel-gpc demo`` runs both):
+
+* :func:`deadbeat_check` — the paper's tracking setting Qu = 0: the stacked G has full row
+  rank, so every form reduces to the one-step dead-beat law u(k) = (C B_d)⁺ (w(k+1) − C(A_d X +
+  c_d)) (the minimum-norm input that puts the next output on the reference). All forms run in
+  lockstep on the same measured states of one closed loop and their u(k) are compared with
+  that law: the forms are indistinguishable at Qu = 0. The delayed incremental form is left
+  out: its u(k) was decided at k−1 by construction.
+* :func:`run_comparison` — Qu > 0 (the horizon matters) on a plant that differs from the model
+  (heavier, with a steady load on the platform): every form, each with the state-disturbance
+  estimate off and on, so that the effect of the form (absolute, incremental, nonlinear
+  prediction) and the effect of the estimator are never confounded.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..gpc.controller import FORMS, GPCController
+from ..gpc.criterion import Weights
+from ..gpc.prediction import Horizons
+from ..gpc.references import pose_error_norms
+from ..model.dynamics import ReducedModel
+from ..model.plant import ConstrainedPlant
+from ..model.robot import ParallelRobot
+from .simulation import SimulationResult
+from .tracking import TrackingSettings, run_tracking
+
+#: The comparison's default setting: Ts = 10 ms and N = 30 (a 0.3 s horizon), Qu = 1e-3 so
+#: that the horizon and the form matter, a plant 20 % heavier than the model with a steady
+#: load of (5 N, −5 N, 0.5 N·m) on the platform; 2 s S-curve, then 1 s holding its end pose.
+DEMO_SETTINGS = TrackingSettings(Ts=0.01, N=30, Qy=1.0, Qu=1e-3, mass_scale=1.2, platform_force=(5.0, -5.0, 0.5),
+                                 duration=3.0, disturbance_gain=0.5)
+#: Gains α of the state-disturbance estimate compared: off and on.
+ESTIMATOR_GAINS = (0.0, 0.5)
+#: Length (s) of the window at the end of a run over which the steady-state error is averaged.
+STEADY_WINDOW = 0.3
+
+
+@dataclass
+class DeadbeatCheck:
+    """Lockstep comparison of the forms at Qu = 0 (see :func:`deadbeat_check`).
+
+    Attributes:
+        forms: the forms compared.
+        u: (K, n_forms, n_u) each form's u(k) at the same measured states (N·m).
+        u_deadbeat: (K, n_u) the one-step dead-beat minimum-norm u(k) (N·m).
+        t: (K,) s. error: (K, n_y) pose − reference of the closed loop driven by the first
+            form's inputs (m, rad).
+    """
+
+    forms: tuple[str, ...]
+    u: np.ndarray
+    u_deadbeat: np.ndarray
+    t: np.ndarray
+    error: np.ndarray
+
+    def max_difference(self) -> dict[str, float]:
+        """Largest |u_form(k) − u_dead-beat(k)| over samples and drives (N·m), by form."""
+        return {f: float(np.max(np.abs(self.u[:, i] - self.u_deadbeat))) for i, f in enumerate(self.forms)}
+
+
+def steady_state_error(result: SimulationResult, window: float = STEADY_WINDOW) -> float:
+    """Mean position error (norm of the translational error, m) over the last ``window`` s of a run."""
+    sel = result.t >= result.t[-1] - window
+    return float(np.mean(pose_error_norms(result.error[sel], result.angular)[0]))
+
+
+def deadbeat_inputs(model: ReducedModel, X: np.ndarray, w_next: np.ndarray, Ts: float) -> np.ndarray:
+    """The one-step dead-beat minimum-norm input: argmin ‖u‖ s.t. C(A_d X + B_d u + c_d) = w(k+1) (N·m)."""
+    Ad, Bd, cd = model.discrete(X, Ts)
+    C = model.C
+    return np.linalg.pinv(C @ Bd) @ (w_next - C @ (Ad @ X + cd))
+
+
+def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float = 1.0,
+                   forms=("absolute", "incremental", "nonlinear"), robot: ParallelRobot | None = None) -> DeadbeatCheck:
+    """Run the forms in lockstep at Qu = 0 on the exact plant (no mismatch, no load, no estimator).
+
+    The plant is driven by the first form's u(k); every form computes its u(k) from the same
+    measured state, and the one-step dead-beat law is evaluated there too.
+
+    Args:
+        settings: robot, Ts, horizons, Qy (Qu, mismatch, load and estimator are overridden).
+        duration: s of the S-curve run.
+        forms: forms to compare (not ``"incremental-delayed"``: its u(k) is decided at k−1).
+        robot: the loaded robot (default: load ``settings.robot``).
+    """
+    bad = [f for f in forms if f not in FORMS or f == "incremental-delayed"]
+    if bad or not forms:
+        raise InvalidParameterError(f"forms {list(forms)} must be a non-empty subset of "
+                                    f"{[f for f in FORMS if f != 'incremental-delayed']}")
+    robot = robot or ParallelRobot.load(settings.robot)
+    s = replace(settings, Qu=0.0, mass_scale=1.0, platform_force=(0.0, 0.0, 0.0), disturbance_gain=0.0,
+                duration=duration)
+    reference = s.make_reference(robot)
+    model = ReducedModel(robot)
+    ctrls = [GPCController(model, s.Ts, Horizons(s.N, s.No, s.Nu), Weights(s.Qy, 0.0), form=f, solver=s.solver,
+                           disturbance_gain=0.0) for f in forms]
+    plant = ConstrainedPlant(robot, np.concatenate([reference.pose(0.0), np.zeros(robot.n_y)]))
+    K = int(round(duration / s.Ts))
+    u = np.empty((K, len(forms), robot.n_u))
+    u_db = np.empty((K, robot.n_u))
+    error = np.empty((K, robot.n_y))
+    for k in range(K):
+        X = plant.X
+        window = reference.window(k * s.Ts, s.Ts, s.N)
+        for i, ctrl in enumerate(ctrls):
+            u[k, i] = ctrl.step(X, window).u
+        u_db[k] = deadbeat_inputs(model, X, window[0], s.Ts)
+        error[k] = X[:robot.n_y] - reference.pose(k * s.Ts)
+        plant.step(u[k, 0], s.Ts)
+    return DeadbeatCheck(tuple(forms), u, u_db, s.Ts * np.arange(K), error)
+
+
+def run_comparison(settings: TrackingSettings = DEMO_SETTINGS, forms=FORMS, gains=ESTIMATOR_GAINS,
+                   progress: bool = False, robot: ParallelRobot | None = None) -> dict[tuple[str, float], SimulationResult]:
+    """Every form with every estimator gain on the plant of ``settings``.
+
+    Returns:
+        Results keyed by (form, α), in the order of ``gains`` then ``forms``.
+    """
+    robot = robot or ParallelRobot.load(settings.robot)
+    runs = {}
+    for gain in gains:
+        results = run_tracking(replace(settings, disturbance_gain=float(gain)), forms, progress=progress, robot=robot)
+        runs.update({(form, float(gain)): res for form, res in results.items()})
+    return runs
+
+
+def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
+    """Text table: form, estimator gain α, RMS / max / steady-state position error (mm), RMS
+    orientation error (mrad), peak torque and internal-force measure (N·m), mean step time (ms)."""
+    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'steady':>9} {'rms ψ':>9} {'peak u':>7} "
+            f"{'int. f':>8} {'step':>7}")
+    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[N·m]':>7} {'[N·m]':>8} "
+             f"{'[ms]':>7}")
+    lines = [head, units]
+    for (form, gain), res in runs.items():
+        m = res.metrics()
+        lines.append(f"{form:<20} {gain:6.2f} {1e3 * m['rms_position_error_m']:9.3g} "
+                     f"{1e3 * m['max_position_error_m']:9.3g} {1e3 * steady_state_error(res):9.2e} "
+                     f"{1e3 * m['rms_orientation_error_rad']:9.3g} {m['peak_torque_Nm']:7.2f} "
+                     f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}"
+                     + ("  (interrupted)" if res.interrupted else ""))
+    return "\n".join(lines)
