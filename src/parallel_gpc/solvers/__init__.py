@@ -10,6 +10,8 @@ with named structure hints that its builder fills in).
 * :class:`QpsolversBackend` — ``qpsolvers.solve_problem`` for any installed solver, scaled.
 * :class:`OSQPBackend`, :class:`ProxQPBackend`, :class:`DAQPBackend` — persistent direct APIs
   (set up once, updated and warm-started every step).
+* :class:`BVLSSolver` — bounded-variable least squares (Lawson & Hanson ch. 23): an active set
+  on the QR form for box limits, no QP Hessian.
 * :class:`QRFirst` — solves by QR and calls the QP only when the QR solution violates a limit.
 
 Back ends register themselves (qpsolvers' style): each module is imported inside
@@ -30,19 +32,20 @@ from .problem import (
     MinNormOf,
     SolveResult,
 )
+from .bvls import BVLSSolver
 from .qr import QRSolver, qr_least_squares
 from .qr_first import QRFirst
 
 __all__ = [
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
-    "FAST_QR_RCOND", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
+    "FAST_QR_RCOND", "BVLSSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
     "available_solvers", "installed_qp_solvers", "make_solver",
 ]
 
 #: every direct back-end name this package knows, installed or not (for error messages).
-KNOWN_DIRECT_BACKENDS = ("qr", "osqp-direct", "proxqp-direct", "daqp-direct")
+KNOWN_DIRECT_BACKENDS = ("qr", "bvls", "osqp-direct", "proxqp-direct", "daqp-direct")
 #: Back ends whose Python package imported on this machine, by :func:`make_solver` name.
-DIRECT_BACKENDS: dict[str, type] = {"qr": QRSolver}
+DIRECT_BACKENDS: dict[str, type] = {"qr": QRSolver, "bvls": BVLSSolver}
 
 try:
     from .osqp_ import OSQPBackend
@@ -88,7 +91,7 @@ def available_solvers() -> list[str]:
 
 
 def make_solver(name: str):
-    """Back end by name: ``qr``, ``osqp-direct``, ``proxqp-direct``, ``daqp-direct``,
+    """Back end by name: ``qr``, ``bvls``, ``osqp-direct``, ``proxqp-direct``, ``daqp-direct``,
     ``qpsolvers:<solver>`` (or a bare installed qpsolvers name such as ``osqp``), each
     optionally prefixed ``qr-first:``.
 
