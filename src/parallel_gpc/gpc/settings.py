@@ -94,9 +94,9 @@ class GPCSettings:
             put("solver", DEFAULT_LIMITED_SOLVER if limited else "qr")
         if not isinstance(self.solver, str):
             raise InvalidParameterError(f"solver {self.solver!r} must be a back-end name such as 'qr'")
-        if self.solver == "qr" and limited:
+        if self.solver in ("qr", "cholesky") and limited:
             raise InvalidParameterError(
-                "solver 'qr' cannot enforce torque/Δu limits; use a QP back end such as "
+                f"solver {self.solver!r} cannot enforce torque/Δu limits; use a QP back end such as "
                 f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
             )
         if self.solver.endswith("bvls") and self.form != "absolute" and self.torque_limit is not None:
