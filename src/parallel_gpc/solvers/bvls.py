@@ -5,7 +5,10 @@ Parker (1995): ``min ‖A v − b‖²`` subject to ``lb ≤ v ≤ ub``. Every v
 one of its bounds; each iteration solves the least-squares problem of the free variables by QR
 (the bound ones move to the right-hand side), steps towards it as far as the bounds allow, and
 frees the bound variable whose gradient points most into the box, until the Karush–Kuhn–Tucker
-conditions hold. No Hessian AᵀA is formed (the condition number is not squared).
+conditions hold. The subproblems are solved by Cholesky of principal submatrices of AᵀA when
+its condition estimate guarantees the accuracy (``rcond(AᵀA) ≥ 1e-8``, the test of the
+``cholesky`` back end; interlacing carries it to every subproblem), else by QR of the free
+columns (the square-root form, the condition number not squared).
 
 Warm start: yes — the bound set is the set of variables the (clipped) warm start holds at a
 bound; the controller passes the previous solution shifted by one sample, whose active limits
@@ -19,6 +22,10 @@ import time
 
 import numpy as np
 
+from scipy.linalg import lapack
+
+from ..errors import SolverError
+from .normal import normal_equations_factor
 from .problem import LeastSquaresProblem, SolveResult, _failed
 from .qr import _qr_diag_tail, qr_least_squares
 
@@ -45,7 +52,6 @@ class BVLSSolver:
             return _failed(problem, self.name, "failed", 0, time.perf_counter() - t0,
                            "bvls handles box limits lb ≤ v ≤ ub only; this problem has linear limits "
                            "lo ≤ L v ≤ hi (use daqp-direct or proxqp-direct)")
-        _, sub = _subproblem_solver(problem)
         n = problem.n
         lb = np.full(n, -np.inf) if problem.lb is None else problem.lb
         ub = np.full(n, np.inf) if problem.ub is None else problem.ub
@@ -53,7 +59,7 @@ class BVLSSolver:
             return _failed(problem, self.name, "infeasible", 0, time.perf_counter() - t0,
                            "lower bound above upper bound")
         x0 = None if warm_start is None or warm_start.shape != (n,) or not np.all(np.isfinite(warm_start)) else warm_start
-        x, iterations, ok = bvls(problem, lb, ub, sub, x0, self.max_iter or 3 * n + 10)
+        x, iterations, ok = bvls(_subproblem_form(problem), lb, ub, x0, self.max_iter or 3 * n + 10)
         dt = time.perf_counter() - t0
         if not ok:
             return _failed(problem, self.name, "failed", iterations, dt,
@@ -61,69 +67,113 @@ class BVLSSolver:
         return SolveResult(x, problem.cost(x), "optimal", self.name, iterations, dt, problem.active(x))
 
 
-def _subproblem_solver(problem: LeastSquaresProblem):
-    """(A, solve) where solve(free, rhs) returns argmin over the free columns of
-    ‖A[:, free] z − rhs‖² (the diagonal regularization block kept structured when present)."""
-    A, b = problem.leading_rows()
-    if problem.tail_positive and problem.tail_diag is not None and A.shape[0] == problem.A.shape[0]:
-        top = A.shape[0] - A.shape[1]
-        G, d = A[:top], problem.tail_diag
+class _QRForm:
+    """Subproblems by QR of the free columns (the diagonal regularization block kept structured
+    by ``tpqrt`` when present): the square-root form, any conditioning."""
 
-        def solve(free, rhs):  # the tail rows of the free columns are diag(d[free]), their rhs 0
-            out = _qr_diag_tail(G[:, free], rhs[:top], d[free])
-            return out[0] if out is not None else qr_least_squares(A[:, free], rhs)[0]
-        return A, solve
+    def __init__(self, problem: LeastSquaresProblem):
+        self.A, self.b = problem.leading_rows()
+        self.top = None
+        if problem.tail_positive and problem.tail_diag is not None and self.A.shape[0] == problem.A.shape[0]:
+            self.top = self.A.shape[0] - self.A.shape[1]
+        self.d = problem.tail_diag
+        self.scale = float(np.max(np.abs(self.A.T @ self.b), initial=0.0))
 
-    def solve(free, rhs):
-        return qr_least_squares(A[:, free], rhs)[0]
-    return A, solve
+    def solve(self, idx: np.ndarray, x: np.ndarray) -> np.ndarray:
+        """argmin over x[idx] of ‖A x − b‖² with the other entries of x held."""
+        if idx.size == 0:
+            return np.zeros(0)
+        A, b = self.A, self.b
+        if idx.size < x.size:
+            bound = np.ones(x.size, dtype=bool)
+            bound[idx] = False
+            b = b - A[:, bound] @ x[bound]
+        if self.top is not None:  # the tail rows of the free columns are diag(d[idx]), their rhs 0
+            out = _qr_diag_tail(A[:self.top, idx], b[:self.top], self.d[idx])
+            if out is not None:
+                return out[0]
+        return qr_least_squares(A[:, idx], b)[0]
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        """w = Aᵀ(b − A x): minus half the gradient of the cost."""
+        return self.A.T @ (self.b - self.A @ x)
 
 
-def bvls(problem: LeastSquaresProblem, lb: np.ndarray, ub: np.ndarray, sub, x0: np.ndarray | None,
-         max_iter: int) -> tuple[np.ndarray, int, bool]:
+class _GramForm:
+    """Subproblems by Cholesky of principal submatrices of P = AᵀA, formed once per problem.
+
+    Used only when rcond(P) ≥ :data:`~parallel_gpc.solvers.normal.NORMAL_RCOND`: by Cauchy's
+    interlacing theorem every principal submatrix P_FF is then at least as well conditioned,
+    so every subproblem keeps the accuracy bound of the normal-equations back end.
+    """
+
+    def __init__(self, P: np.ndarray, q: np.ndarray):
+        self.P, self.q = P, q  # P full symmetric
+        self.scale = float(np.max(np.abs(q), initial=0.0))
+
+    def solve(self, idx: np.ndarray, x: np.ndarray) -> np.ndarray:
+        if idx.size == 0:
+            return np.zeros(0)
+        rows = self.P[idx]  # (k, n) copy
+        held = x.copy()
+        held[idx] = 0.0
+        rhs = self.q[idx] - rows @ held  # q_F − P_FB x_B
+        sub = rows[:, idx].T  # P_FF (symmetric) as a Fortran-ordered array: LAPACK takes it without a copy
+        c, info = lapack.dpotrf(sub, lower=1, clean=0, overwrite_a=1)
+        z, info2 = lapack.dpotrs(c, rhs, lower=1) if info == 0 else (None, -1)
+        if info2 != 0:
+            raise SolverError(f"Cholesky of a principal submatrix failed (info {info}, {info2}) although "
+                              f"rcond(AᵀA) passed the guard")
+        return z
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        return self.q - self.P @ x
+
+
+def _subproblem_form(problem: LeastSquaresProblem):
+    """The Gram form when the normal equations are well conditioned, else the QR form."""
+    out = normal_equations_factor(problem, factor=False)
+    if out is None:
+        return _QRForm(problem)
+    P, q, _ = out
+    full = P + P.T  # P holds the upper triangle (zero below): the symmetric matrix, diagonal doubled
+    np.fill_diagonal(full, np.diagonal(P))
+    return _GramForm(full, q)
+
+
+def bvls(form, lb: np.ndarray, ub: np.ndarray, x0: np.ndarray | None, max_iter: int) -> tuple[np.ndarray, int, bool]:
     """The BVLS iteration.
 
     Args:
-        problem: the least-squares problem (its leading rows are used).
+        form: the subproblem form (:class:`_GramForm` or :class:`_QRForm`).
         lb, ub: (n,) bounds (±inf where unbounded).
-        sub: subproblem solver from :func:`_subproblem_solver`.
-        x0: (n,) warm start or None (start at the projection of 0 on the box, all free).
+        x0: (n,) warm start or None (start from the unconstrained solution projected on the
+            box: the variables it clips are held at their bounds).
         max_iter: largest number of subproblem solves.
 
     Returns:
         (v, number of subproblem solves, converged).
     """
-    A, b = problem.leading_rows()
-    n = A.shape[1]
-    x = np.clip(np.zeros(n) if x0 is None else x0, lb, ub)
+    n = lb.size
+    solves = 0
+    if x0 is None:  # a cold start: the unconstrained solution projected on the box
+        x0, solves = form.solve(np.arange(n), np.zeros(n)), 1
+    x = np.clip(x0, lb, ub)
     at_lb, at_ub = x <= lb, x >= ub
-    if x0 is None:  # a cold start: everything free
-        at_lb[:], at_ub[:] = False, False
-    tol = DUAL_RTOL * max(float(np.max(np.abs(A.T @ b), initial=0.0)), 1e-300)
-    solves, z = 0, None
+    tol = DUAL_RTOL * max(form.scale, 1e-300)
+    z = None
     while solves < max_iter:
         idx = np.flatnonzero(~(at_lb | at_ub))
         if z is None:
-            z, solves = _free_solution(A, b, x, idx, sub), solves + 1
+            z, solves = form.solve(idx, x), solves + 1
         if _step_to_bounds(x, z, idx, lb, ub, at_lb, at_ub):
             z = None  # a variable hit its bound: solve again with it held
             continue
         x[idx] = z
-        z, solves, done = _free_one(A, b, x, lb, ub, at_lb, at_ub, sub, tol, solves, max_iter)
+        z, solves, done = _free_one(form, x, lb, ub, at_lb, at_ub, tol, solves, max_iter)
         if done:
             return x, solves, True
     return x, solves, False
-
-
-def _free_solution(A, b, x, idx, sub) -> np.ndarray:
-    """Least-squares values of the free variables ``idx`` with the others held at x."""
-    if idx.size == 0:
-        return np.zeros(0)
-    if idx.size == x.size:
-        return sub(idx, b)
-    bound = np.ones(x.size, dtype=bool)
-    bound[idx] = False
-    return sub(idx, b - A[:, bound] @ x[bound])
 
 
 def _step_to_bounds(x, z, idx, lb, ub, at_lb, at_ub) -> bool:
@@ -148,7 +198,7 @@ def _step_to_bounds(x, z, idx, lb, ub, at_lb, at_ub) -> bool:
     return True
 
 
-def _free_one(A, b, x, lb, ub, at_lb, at_ub, sub, tol, solves, max_iter):
+def _free_one(form, x, lb, ub, at_lb, at_ub, tol, solves, max_iter):
     """KKT check at x; when a bound variable's gradient w = Aᵀ(b − A x) points into the box,
     free the one with the largest such component and return the new free set's solution.
 
@@ -158,7 +208,7 @@ def _free_one(A, b, x, lb, ub, at_lb, at_ub, sub, tol, solves, max_iter):
     Returns:
         (z or None, solves, optimal).
     """
-    w = A.T @ (b - A @ x)
+    w = form.gradient(x)
     viol = np.where(at_lb, w, 0.0) - np.where(at_ub, w, 0.0)
     while solves < max_iter:
         j = int(np.argmax(viol))
@@ -167,7 +217,7 @@ def _free_one(A, b, x, lb, ub, at_lb, at_ub, sub, tol, solves, max_iter):
         was_lb = bool(at_lb[j])
         at_lb[j] = at_ub[j] = False
         idx = np.flatnonzero(~(at_lb | at_ub))
-        z, solves = _free_solution(A, b, x, idx, sub), solves + 1
+        z, solves = form.solve(idx, x), solves + 1
         zj = z[np.searchsorted(idx, j)]
         if not ((was_lb and zj < lb[j]) or (not was_lb and zj > ub[j])):
             return z, solves, False

@@ -3,7 +3,8 @@
 ``min ‖A v − b‖²`` by ``AᵀA v = Aᵀb``: one symmetric rank-k update (``syrk``), one Cholesky
 factorization (``potrf``) and two triangular solves — about half the flops of the QR of the
 stacked matrix and fewer LAPACK calls. Forming AᵀA squares the condition number, so the
-reciprocal condition estimate of the factor (``pocon``) decides: when ``rcond(AᵀA)`` is below
+reciprocal condition of AᵀA decides — bounded by ``min(d)²/(‖A‖_F² + max(d)²)`` when a
+positive diagonal regularization block is present, else estimated by ``pocon``: when it is below
 :data:`NORMAL_RCOND` (a relative error bound ε/rcond above ~1e-8) the problem goes to the QR
 back end instead. Rank-deficient problems (Qu = 0 with redundant drives) always take QR.
 
@@ -48,7 +49,19 @@ class NormalEquationsSolver:
 
 
 def normal_equations(problem: LeastSquaresProblem) -> np.ndarray | None:
-    """(n,) solution of AᵀA v = Aᵀb by Cholesky, or None when rcond(AᵀA) < :data:`NORMAL_RCOND`.
+    """(n,) solution of AᵀA v = Aᵀb by Cholesky, or None when rcond(AᵀA) < :data:`NORMAL_RCOND`."""
+    out = normal_equations_factor(problem)
+    if out is None:
+        return None
+    _, q, c = out
+    v, info = lapack.dpotrs(c, q, lower=0)
+    return v if info == 0 else None
+
+
+def normal_equations_factor(problem: LeastSquaresProblem, factor: bool = True):
+    """(P, q, c): P = AᵀA (upper triangle, Fortran-ordered), q = Aᵀb and the upper Cholesky
+    factor c of P; None when P is singular or rcond(P) < :data:`NORMAL_RCOND`. With
+    ``factor=False`` c may be None (when the condition bound alone accepted P).
 
     A diagonal regularization block (``problem.tail_diag``) enters as diag(d²) without being
     multiplied out; zero rows (``problem.nonzero_rows``) are skipped.
@@ -62,13 +75,19 @@ def normal_equations(problem: LeastSquaresProblem) -> np.ndarray | None:
     P = blas.dsyrk(1.0, At, trans=0, lower=0)  # upper triangle of Aᵀ A
     if tail is not None:
         P.T.reshape(-1)[::P.shape[0] + 1] += tail * tail  # P is Fortran-ordered: Pᵀ is a C view
+    if tail is not None and tail.min() > 0.0:  # λ_min(P) ≥ min d², λ_max(P) ≤ ‖A_top‖_F² + max d²
+        flat = A.reshape(-1) if A.flags.c_contiguous else A.ravel()
+        if (float(flat @ flat) + float(tail.max()) ** 2) * NORMAL_RCOND < float(tail.min()) ** 2:
+            if not factor:
+                return P, At @ b, None
+            c, info = lapack.dpotrf(P, lower=0, clean=0, overwrite_a=0)
+            return (P, At @ b, c) if info == 0 else None
+    c, info = lapack.dpotrf(P, lower=0, clean=0, overwrite_a=0)
+    if info != 0:
+        return None
     absP = np.abs(P)  # upper triangle only (syrk leaves the strict lower triangle zero)
     anorm = float(np.max(absP.sum(axis=0) + absP.sum(axis=1) - absP.T.reshape(-1)[::P.shape[0] + 1], initial=0.0))
-    c, info = lapack.dpotrf(P, lower=0, clean=0, overwrite_a=1)
-    if info != 0 or anorm == 0.0:
-        return None
     rcond, info = lapack.dpocon(c, anorm, uplo="U")
-    if info != 0 or not rcond >= NORMAL_RCOND:
+    if info != 0 or anorm == 0.0 or not rcond >= NORMAL_RCOND:
         return None
-    v, info = lapack.dpotrs(c, At @ b, lower=0)
-    return v if info == 0 else None
+    return P, At @ b, c
