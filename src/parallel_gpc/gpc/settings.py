@@ -94,10 +94,15 @@ class GPCSettings:
             put("solver", DEFAULT_LIMITED_SOLVER if limited else "qr")
         if not isinstance(self.solver, str):
             raise InvalidParameterError(f"solver {self.solver!r} must be a back-end name such as 'qr'")
-        if self.solver == "qr" and limited:
+        if self.solver in ("qr", "cholesky") and limited:
             raise InvalidParameterError(
-                "solver 'qr' cannot enforce torque/Δu limits; use a QP back end such as "
+                f"solver {self.solver!r} cannot enforce torque/Δu limits; use a QP back end such as "
                 f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
+            )
+        if self.solver.endswith("bvls") and self.form != "absolute" and self.torque_limit is not None:
+            raise InvalidParameterError(
+                f"solver {self.solver!r} handles box limits only; the {self.form} form's torque limit acts on "
+                f"cumulative sums of Δu (linear limits): use {DEFAULT_LIMITED_SOLVER!r} or 'proxqp-direct'"
             )
         if self.disturbance_gain is None:
             put("disturbance_gain", 0.0 if self.form == "absolute" else 0.5)

@@ -10,6 +10,10 @@ with named structure hints that its builder fills in).
 * :class:`QpsolversBackend` — ``qpsolvers.solve_problem`` for any installed solver, scaled.
 * :class:`OSQPBackend`, :class:`ProxQPBackend`, :class:`DAQPBackend` — persistent direct APIs
   (set up once, updated and warm-started every step).
+* :class:`NormalEquationsSolver` — Cholesky of the normal equations when their condition
+  estimate allows it (else QR): the cheaper unconstrained solve.
+* :class:`BVLSSolver` — bounded-variable least squares (Lawson & Hanson ch. 23): an active set
+  on the QR form for box limits, no QP Hessian.
 * :class:`QRFirst` — solves by QR and calls the QP only when the QR solution violates a limit.
 
 Back ends register themselves (qpsolvers' style): each module is imported inside
@@ -30,19 +34,21 @@ from .problem import (
     MinNormOf,
     SolveResult,
 )
+from .bvls import BVLSSolver
+from .normal import NormalEquationsSolver
 from .qr import QRSolver, qr_least_squares
 from .qr_first import QRFirst
 
 __all__ = [
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
-    "FAST_QR_RCOND", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
+    "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
     "available_solvers", "installed_qp_solvers", "make_solver",
 ]
 
 #: every direct back-end name this package knows, installed or not (for error messages).
-KNOWN_DIRECT_BACKENDS = ("qr", "osqp-direct", "proxqp-direct", "daqp-direct")
+KNOWN_DIRECT_BACKENDS = ("qr", "cholesky", "bvls", "osqp-direct", "proxqp-direct", "daqp-direct")
 #: Back ends whose Python package imported on this machine, by :func:`make_solver` name.
-DIRECT_BACKENDS: dict[str, type] = {"qr": QRSolver}
+DIRECT_BACKENDS: dict[str, type] = {"qr": QRSolver, "cholesky": NormalEquationsSolver, "bvls": BVLSSolver}
 
 try:
     from .osqp_ import OSQPBackend
@@ -83,12 +89,12 @@ except ImportError:
 def available_solvers() -> list[str]:
     """Every name :func:`make_solver` accepts on this machine (only back ends that imported)."""
     names = list(DIRECT_BACKENDS) + [f"qpsolvers:{s}" for s in installed_qp_solvers()]
-    names += [f"qr-first:{n}" for n in names if n != "qr"]
+    names += [f"qr-first:{n}" for n in names if n not in ("qr", "cholesky")]
     return names
 
 
 def make_solver(name: str):
-    """Back end by name: ``qr``, ``osqp-direct``, ``proxqp-direct``, ``daqp-direct``,
+    """Back end by name: ``qr``, ``cholesky``, ``bvls``, ``osqp-direct``, ``proxqp-direct``, ``daqp-direct``,
     ``qpsolvers:<solver>`` (or a bare installed qpsolvers name such as ``osqp``), each
     optionally prefixed ``qr-first:``.
 
@@ -99,8 +105,8 @@ def make_solver(name: str):
         raise SolverNotFoundError(f"solver name {name!r} must be a string; available: {available_solvers()}")
     if name.startswith("qr-first:"):
         inner = make_solver(name[len("qr-first:"):])
-        if isinstance(inner, QRSolver):
-            raise SolverNotFoundError("qr-first needs a QP back end, not 'qr'")
+        if isinstance(inner, (QRSolver, NormalEquationsSolver)):
+            raise SolverNotFoundError(f"qr-first needs a back end that enforces limits, not {inner.name!r}")
         return QRFirst(inner)
     if name in DIRECT_BACKENDS:
         return DIRECT_BACKENDS[name]()

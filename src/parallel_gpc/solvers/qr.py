@@ -6,6 +6,7 @@ Enforces no limits: use a QP back end, or :class:`~parallel_gpc.solvers.QRFirst`
 
 from __future__ import annotations
 
+import math
 import time
 
 import numpy as np
@@ -101,17 +102,31 @@ def _qr_lapack(A: np.ndarray, b: np.ndarray):
     return v[:, 0], 0.0, r
 
 
+#: block size of the triangular-pentagonal QR (``tpqrt``): for the controller's problems
+#: (n = 40…160 columns) 8 is ~20 % faster than 32 (interleaved medians, N = 10, 20, 40).
+TPQRT_BLOCK = 8
+
+
 def _qr_diag_tail(G: np.ndarray, b: np.ndarray, d: np.ndarray):
-    """min ‖G v − b‖² + ‖diag(d) v‖² by Householder QR of [diag(d); G] that keeps the diagonal
-    block's structure (LAPACK ``tpqrt``/``tpmqrt``: about half the work of a dense QR of the
-    stacked matrix); None when the triangular factor is not well conditioned."""
+    """min ‖G v − b‖² + ‖diag(d) v‖², d > 0, by Householder QR of [diag(d); G] that keeps the
+    diagonal block's structure (LAPACK ``tpqrt``/``tpmqrt``: about half the work of a dense QR
+    of the stacked matrix); None when the triangular factor is not well conditioned.
+
+    cond₂(R) = cond₂([G; diag(d)]) ≤ ‖[G; diag(d)]‖_F / min(d), and the 1-norm condition that
+    ``trcon`` estimates is at most n times cond₂: when n·‖·‖_F / min(d) is below
+    1/:data:`FAST_QR_RCOND` the factor is well conditioned without a ``trcon`` call.
+    """
     n = G.shape[1]
-    R, V, T, info = lapack.dtpqrt(0, min(n, 32), np.diag(d), G)
+    R, V, T, info = lapack.dtpqrt(0, min(n, TPQRT_BLOCK), np.diag(d), G)
     if info != 0:
         return None
-    rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
-    if info != 0 or not rcond > FAST_QR_RCOND:
-        return None
+    flat = G.reshape(-1) if G.flags.c_contiguous else G.ravel()
+    with np.errstate(over="ignore"):  # an overflowing norm (a blown-up model) takes the trcon path
+        bound = n * math.sqrt(float(flat @ flat) + float(d @ d)) / float(d.min())
+    if not bound * FAST_QR_RCOND < 1.0:
+        rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
+        if info != 0 or not rcond > FAST_QR_RCOND:
+            return None
     c1, cz, info = lapack.dtpmqrt(0, V, T, np.zeros((n, 1)), b[:, None], trans="T")
     if info != 0:
         return None

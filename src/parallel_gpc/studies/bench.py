@@ -4,19 +4,24 @@
 controller solves while tracking the paper's S-curve (Fig. 2):
 
 * ``unconstrained`` — the square-root solve by QR (LAPACK path, numpy path, the pivoted
-  rank-revealing path), Cholesky of the normal equations, and every QP back end without limits;
+  rank-revealing path), Cholesky of the normal equations (guarded), every QP back end without
+  limits, and one bare LAPACK QR (``dgeqrf``) of the stacked matrix: the machine-independent unit;
 * ``limited`` — the same problems with drive torque limits that bind at about half of the
   inputs: ``qpsolvers`` + OSQP / ProxQP / DAQP (rebuilt every call), the persistent direct back
-  ends (warm-started along the curve) and QR-first;
+  ends (warm-started along the curve), bounded-variable least squares and the controller's
+  default ``qr-first:daqp-direct``;
 * ``step`` — the full control step (model update + prediction + solve, ``GPCController.step``)
-  of the absolute, incremental and incremental-nonlinear forms, unconstrained and limited;
+  of the absolute, incremental and incremental-nonlinear forms, unconstrained and limited, each
+  controller replaying its own stretch of samples consecutively (as in a control loop);
 * ``qpmpc`` — the linear time-varying MPC problem along the nonlinear pre-simulation (absolute
   inputs, torque limits) solved by our condenser + QP back end and by the ``qpmpc`` package.
 
 Each entry reports the median and 99th percentile of the wall time, its ratio to the QR (LAPACK)
 solve measured in the same run, and the solution's error against a tight reference (QR without
 limits; a fresh DAQP active-set solve with limits). Repetitions are interleaved in one process:
-every repetition walks the problems in order and runs every method on each problem. Set
+every repetition walks the problems in order and runs every solver on each problem, then every
+controller over each stretch. A closed loop of ``closed_loop_s`` at 1 kHz (absolute form, N = 20,
+full constrained plant) gives the wall time per simulated second. Set
 ``OPENBLAS_NUM_THREADS=1`` before numpy is imported (the script does).
 """
 
@@ -37,19 +42,16 @@ from ..gpc.controller import GPCController
 from ..model.dynamics import ReducedModel, _identity
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons, Prediction, condense
-from ..gpc.references import SCurve
+from ..gpc.references import SCurve, path_for
 from ..model.robot import ParallelRobot
 from .bench_report import evaluate_targets, format_table, machine_info, markdown_report, ratios
 from .plots_bench import plot_results
 from .plots_common import save_figure
+from .bench_qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
 from .simulation import simulate
 from ..solvers import DAQPBackend, LeastSquaresProblem, QRSolver, make_solver
-from ..solvers.problem import _scaled_qp
 from ..gpc.criterion import Weights, build_problem
 
-#: velocity coordinates are scaled by this in the qpmpc problem: qpmpc weighs the whole state
-#: with one scalar, our criterion only the pose; the scaled velocities weigh ε² = 1e-12.
-QPMPC_VELOCITY_SCALE = 1e-6
 
 
 @dataclass
@@ -58,6 +60,8 @@ class BenchConfig:
 
     Attributes:
         robots: embedded robot names. Ns: horizons. Ts: sample time (s).
+        spatial, spatial_Ns: further robots (tracking the helix about their home pose) and their
+            horizons. closed_loop_s: simulated seconds of the 1 kHz closed loop (0: skipped).
         qu: square-root input weight of the benchmark problems: small (the S-curve is tracked
             to < 0.1 mm at Ts = 2 ms, N = 20) and positive (strictly convex QPs with unique
             solutions to compare, and qpmpc needs a positive input weight).
@@ -70,6 +74,9 @@ class BenchConfig:
 
     robots: tuple[str, ...] = ("planar_4rrr", "planar_3rrr")
     Ns: tuple[int, ...] = (10, 20, 40)
+    spatial: tuple[str, ...] = ("delta_3rus", "hexapod_6ups", "hexapod_8ups")
+    spatial_Ns: tuple[int, ...] = (20,)
+    closed_loop_s: float = 10.0
     Ts: float = 0.002
     qu: float = 1e-5
     segments: tuple[float, ...] = (0.35, 0.75, 1.15, 1.55)
@@ -85,13 +92,13 @@ class BenchConfig:
     @classmethod
     def quick(cls) -> "BenchConfig":
         """A short run (< 3 min on 2 cores): fewer stretches, samples and repetitions."""
-        return cls(segments=(0.5, 1.2), segment_length=9, warmup=3, reps=3)
+        return cls(segments=(0.5, 1.2), segment_length=9, warmup=3, reps=3, closed_loop_s=2.0)
 
     @classmethod
     def tiny(cls) -> "BenchConfig":
         """The smallest meaningful run (tests): one robot, one horizon, two repetitions."""
-        return cls(robots=("planar_4rrr",), Ns=(10,), segments=(0.8,), segment_length=5, warmup=2, reps=2,
-                   progress=False)
+        return cls(robots=("planar_4rrr",), Ns=(10,), spatial=(), segments=(0.8,), segment_length=5, warmup=2,
+                   reps=2, progress=False, closed_loop_s=0.02)
 
 
 # ------------------------------------------------------------------------------- problems
@@ -181,65 +188,10 @@ def _rel(v, ref) -> float:
 
 
 # ------------------------------------------------------------------------------- methods
-def cholesky_least_squares(problem: LeastSquaresProblem) -> np.ndarray:
-    """The normal equations AᵀA v = Aᵀb by Cholesky (LAPACK ``posv``), with the same structure
-    shortcuts as the QP back ends. Squares the condition number; fails (NaN) when AᵀA is singular
-    (Qu = 0 with redundant drives)."""
-    P, q, _ = _scaled_qp(problem)  # scaled AᵀA (+ a 1e-10 ridge) and −Aᵀb
-    _, v, info = lapack.dposv(P, -q)
-    return v if info == 0 else np.full(problem.n, np.nan)
-
-
-class _QpmpcPeer:
-    """The LTV MPC problem in the ``qpmpc`` package's terms (see :func:`qpmpc_problem`)."""
-
-    def __init__(self, solver: str):
-        import qpmpc  # noqa: F401
-
-        self.solver = solver
-        self.name = f"qpmpc:{solver}"
-
-    def solve(self, problem) -> np.ndarray | None:
-        from qpmpc import solve_mpc
-
-        plan = solve_mpc(problem, solver=self.solver, **({"eps_abs": 1e-10, "eps_rel": 0.0}
-                                                           if self.solver == "proxqp" else {}))
-        return None if plan.is_empty else plan.inputs.reshape(-1)
-
-
-def qpmpc_problem(A_seq, B_seq, c_seq, X0, w, wdot, w0, tau, qu, scale=1.0):
-    """Our absolute LTV problem as a ``qpmpc.MPCProblem``.
-
-    qpmpc's model has no affine term and one scalar weight per cost: the state becomes
-    x' = S [X; 1] with S = diag(I, ε I, 1) (the constant 1 carries c_i; velocities scaled by
-    ε = :data:`QPMPC_VELOCITY_SCALE` so that their error weighs ε²), stage + terminal weight κ on
-    x'(1..N) against [w; ε ẇ; 1], input weight κ·Qu², and the box ±τ as D u ≤ e. κ = ``scale``
-    multiplies the whole cost (same minimizer): qpmpc does not scale its QP, so the caller picks
-    κ ≈ 1/max diag(GᵀG) as a user tuning it once would (our back ends scale every QP).
-    """
-    from qpmpc import MPCProblem
-
-    N, n, m = B_seq.shape
-    ny = n // 2
-    s = np.concatenate([np.ones(ny), np.full(ny, QPMPC_VELOCITY_SCALE), [1.0]])
-    A_list, B_list = [], []
-    for i in range(N):
-        At = np.zeros((n + 1, n + 1))
-        At[:n, :n] = A_seq[i]
-        At[:n, n] = c_seq[i]
-        At[n, n] = 1.0
-        A_list.append(s[:, None] * At / s[None, :])
-        B_list.append(s[:, None] * np.vstack([B_seq[i], np.zeros((1, m))]))
-    targets = np.hstack([np.vstack([w0, w[:-1]]), np.vstack([np.zeros(ny), wdot[:-1]]), np.ones((N, 1))]) * s
-    goal = np.concatenate([w[-1], wdot[-1], [1.0]]) * s
-    D = np.vstack([np.eye(m), -np.eye(m)])
-    e = np.concatenate([tau, tau])
-    return MPCProblem(
-        transition_state_matrix=A_list, transition_input_matrix=B_list, ineq_state_matrix=None,
-        ineq_input_matrix=D, ineq_vector=e, nb_timesteps=N, terminal_cost_weight=scale,
-        stage_state_cost_weight=scale, stage_input_cost_weight=scale * qu * qu,
-        initial_state=np.append(X0, 1.0) * s, goal_state=goal, target_states=targets.reshape(-1),
-    )
+def lapack_qr_unit(A: np.ndarray) -> None:
+    """One bare LAPACK Householder QR (``dgeqrf``) of a matrix the size of the stacked problem:
+    the unit the benchmark's ratios are measured in (machine-independent, unlike µs)."""
+    lapack.dgeqrf(A)
 
 
 # ------------------------------------------------------------------------------- the run
@@ -269,6 +221,8 @@ def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
     for form in ("absolute", "incremental"):  # limits through DAQP alone (no QR first)
         out.append((f"{form} +limits daqp-direct", GPCController(model_factory(), cfg.Ts, H, W, form=form,
                                                                  torque_limit=tau, solver="daqp-direct")))
+    out.append(("absolute +limits bvls", GPCController(model_factory(), cfg.Ts, H, W, torque_limit=tau, solver="bvls")))
+    out.append(("absolute cholesky", GPCController(model_factory(), cfg.Ts, H, W, solver="cholesky")))
     return out
 
 
@@ -321,13 +275,14 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
     ref_free = [[qr.solve(p).v for _, p in rows] for rows in problems]
     ref_lim = [[DAQPBackend().solve(p).v for p in rows] for rows in limited]
 
-    free_methods = [("qr (LAPACK)", QRSolver()), ("qr (numpy)", QRSolver("numpy")),
-                    ("qr (pivoted, scipy)", QRSolver("pivoted")), ("cholesky (normal eq.)", None)]
+    free_methods = [("qr (LAPACK)", QRSolver()), ("one LAPACK QR (dgeqrf, same size)", None),
+                    ("qr (numpy)", QRSolver("numpy")), ("qr (pivoted, scipy)", QRSolver("pivoted")),
+                    ("cholesky (normal eq.)", make_solver("cholesky"))]
     free_methods += [(f"qpsolvers:{s}", make_solver(f"qpsolvers:{s}")) for s in cfg.qp_solvers]
     free_methods += [(d, make_solver(d)) for d in cfg.direct]
     lim_methods = [(f"qpsolvers:{s}", make_solver(f"qpsolvers:{s}")) for s in cfg.qp_solvers]
     lim_methods += [(d, make_solver(d)) for d in cfg.direct]
-    lim_methods += [("qr-first:proxqp-direct", make_solver("qr-first:proxqp-direct"))]
+    lim_methods += [(name, make_solver(name)) for name in ("bvls", "qr-first:bvls", "qr-first:daqp-direct")]
 
     # ---- full steps: each controller's own closed loop (untimed recording pass)
     steps = _controllers(lambda: ReducedModel(robot), cfg, N, tau)
@@ -352,13 +307,12 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
             if not ltv and not out[1:]:  # the cost scale a qpmpc user would pick, once
                 kappa = 1.0 / float(np.max(np.einsum("ij,ij->j", G, G)))
         ltv.append(out)
-    ours_ltv = [("ours: condense + qr-first:proxqp-direct", make_solver("qr-first:proxqp-direct")),
-                ("ours: condense + proxqp-direct", make_solver("proxqp-direct")),
-                ("ours: condense + daqp-direct", make_solver("daqp-direct"))]
+    ours_ltv = [(f"ours: condense + {name}", make_solver(name))
+                for name in ("qr-first:daqp-direct", "proxqp-direct", "daqp-direct", "bvls")]
     peers = []
     for s in cfg.qpmpc_solvers:
         try:
-            peers.append(_QpmpcPeer(s))
+            peers.append(QpmpcPeer(s))
         except ImportError:  # qpmpc not installed: the section reports nothing
             break
 
@@ -372,11 +326,15 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                 v_ref, v_ref_l = ref_free[si][k], ref_lim[si][k]
                 # unconstrained solves
                 for mname, solver in free_methods:
+                    if solver is None:  # the unit: a bare dgeqrf of the stacked matrix
+                        t0 = time.perf_counter()
+                        lapack_qr_unit(prob.A)
+                        dt = time.perf_counter() - t0
+                        if timed:
+                            run.entry("unconstrained", name, N, mname).times.append(dt)
+                        continue
                     t0 = time.perf_counter()
-                    if solver is None:
-                        v = cholesky_least_squares(prob)
-                    else:
-                        v = solver.solve(prob, warm.get(("free", mname))).v
+                    v = solver.solve(prob, warm.get(("free", mname))).v
                     dt = time.perf_counter() - t0
                     warm[("free", mname)] = _shift(v, m)
                     if timed:
@@ -398,17 +356,6 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                         e.errors.append(_rel(res.v, v_ref_l))
                         e.cost_gaps.append(_cost_gap(prob_l, res.v, v_ref_l))
                         e.violations.append(prob_l.violation(res.v) if res.ok else math.inf)
-                # full control steps, each on its own closed-loop sample and state
-                for cname, ctl in steps:
-                    X, w, snap = seqs[cname][si][k]
-                    ctl.restore(snap)
-                    t0 = time.perf_counter()
-                    info = ctl.step(X, w)
-                    dt = time.perf_counter() - t0
-                    if timed:
-                        e = run.entry("step", name, N, cname)
-                        e.times.append(dt)
-                        e.failures += int(info.fallback)
                 # the LTV problem: our condenser + QP vs qpmpc
                 A_seq, B_seq, c_seq, X, w, wdot, v_ref_ltv = ltv[si][k]
                 for mname, solver in ours_ltv:
@@ -441,6 +388,26 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                         e.errors.append(_rel(v, v_ref_ltv))
                 if bar is not None:
                     bar.update(1)
+        _time_steps(run, name, N, steps, seqs, len(stretches), cfg.warmup)
+
+
+def _time_steps(run: _Run, robot: str, N: int, steps, seqs, n_stretches: int, warmup: int) -> None:
+    """Full control steps: each controller replays its own closed-loop samples of a stretch one
+    after the other (state restored before every step), as a control loop would call it —
+    interleaving the steps with the other solvers, as the benchmark did before, inflated the step
+    (absolute, planar_4rrr, N = 20: 862 µs with five QP solves between steps vs 630 µs
+    consecutive, the same with the garbage collector off: cold caches, not allocation)."""
+    for si in range(n_stretches):
+        for cname, ctl in steps:
+            for k, (X, w, snap) in enumerate(seqs[cname][si]):
+                ctl.restore(snap)
+                t0 = time.perf_counter()
+                info = ctl.step(X, w)
+                dt = time.perf_counter() - t0
+                if k >= warmup:
+                    e = run.entry("step", robot, N, cname)
+                    e.times.append(dt)
+                    e.failures += int(info.fallback)
 
 
 def robot_C(robot: ParallelRobot) -> np.ndarray:
@@ -459,6 +426,25 @@ def _cost_gap(problem: LeastSquaresProblem, v, v_ref) -> float:
         return math.inf
     j, j_ref = problem.cost(v), problem.cost(v_ref)
     return float((j - j_ref) / max(abs(j_ref), 1e-300))
+
+
+def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: float = 1e-3) -> dict:
+    """Wall time of a closed-loop simulation: the absolute controller (N, Qu = 1e-5, QR) at
+    1/Ts on the full constrained plant tracking the robot's default path for ``seconds``.
+
+    Returns:
+        {"robot", "N", "Ts_s", "simulated_s", "wall_s", "wall_per_simulated_s", "controller_s"}
+        (controller_s: the sum of the controller's step times).
+    """
+    robot = ParallelRobot.load(robot_name)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    ctl = GPCController(ReducedModel(robot), Ts, Horizons(N), Weights(1.0, 1e-5))
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    t0 = time.perf_counter()
+    res = simulate(ctl, plant, ref, seconds, progress=False)
+    wall = time.perf_counter() - t0
+    return {"robot": robot_name, "N": N, "Ts_s": Ts, "simulated_s": seconds, "wall_s": wall,
+            "wall_per_simulated_s": wall / seconds, "controller_s": float(np.sum(res.step_time))}
 
 
 # ------------------------------------------------------------------------------- entry points
@@ -480,8 +466,8 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
     if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
         warnings.warn("OPENBLAS_NUM_THREADS is not 1: BLAS threads distort small-matrix timings", stacklevel=2)
     run = _Run(cfg)
-    ref = SCurve()
-    total = len(cfg.robots) * len(cfg.Ns) * cfg.reps * len(cfg.segments) * cfg.segment_length
+    plan = [(r, cfg.Ns) for r in cfg.robots] + [(r, cfg.spatial_Ns) for r in cfg.spatial]
+    total = sum(len(Ns) for _, Ns in plan) * cfg.reps * len(cfg.segments) * cfg.segment_length
     bar = None
     if cfg.progress:
         from tqdm import tqdm
@@ -491,10 +477,11 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
     finished: set[tuple] = set()  # entries of the (robot, N) pairs measured to the end
     interrupted = False
     try:
-        for rname in cfg.robots:
+        for rname, Ns in plan:
             robot = ParallelRobot.load(rname)
+            ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
             stretches = _closed_loop_states(robot, cfg, ref)
-            for N in cfg.Ns:
+            for N in Ns:
                 if bar is not None:
                     bar.set_description(f"{rname} N={N}")
                 _bench_robot_N(run, robot, N, stretches, ref, bar)
@@ -506,18 +493,25 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         if bar is not None:
             bar.close()
     order = {k: i for i, k in enumerate(("unconstrained", "limited", "step", "loop", "qpmpc"))}
-    robots = {r: i for i, r in enumerate(cfg.robots)}
+    closed_loop = None
+    if cfg.closed_loop_s > 0 and not interrupted:
+        try:
+            closed_loop = closed_loop_wall_time(cfg.robots[0], cfg.closed_loop_s)
+        except KeyboardInterrupt:  # Ctrl-C during the closed loop: the table rows are kept
+            interrupted = True
+    robots = {r: i for i, (r, _) in enumerate(plan)}
     entries = sorted(enumerate(run.entries.values()),
                      key=lambda ie: (robots.get(ie[1].robot, 99), ie[1].N, order[ie[1].section], ie[0]))
     rows = [e.summary() for _, e in entries]
     ratios(rows)
-    targets = evaluate_targets(rows) if rows else []
+    targets = evaluate_targets(rows, closed_loop) if rows else []
     result = {
         "machine": machine_info(),
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
         "limits_Nm": {f"{r}/N={n}": tau for (r, n), tau in run.limits.items()},
         "results": rows,
         "targets": targets,
+        "closed_loop": closed_loop,
         "wall_time_s": time.perf_counter() - t_start,
         "interrupted": interrupted,
     }
