@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights, build_problem
+from parallel_gpc import GPCController, Horizons, ReducedModel, SCurve, Weights, build_problem
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.solvers import LeastSquaresProblem, NormalEquationsSolver, QRSolver, make_solver
 
