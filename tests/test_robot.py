@@ -168,3 +168,12 @@ def test_output_units_are_checked_not_ignored(tmp_path):
     (tmp_path / "r3.toml").write_text(text.replace('units = ["m", "m", "rad"]', 'units = ["m", "m", "deg"]'))
     with pytest.raises(RobotFormatError, match=r"units = \['m', 'm', 'deg'\] do not match .* \['m', 'm', 'rad'\]"):
         ParallelRobot.load(tmp_path / "r3.urdf")
+
+
+def test_drive_unit_follows_the_drive_joint_type():
+    from parallel_gpc.studies import metrics_table
+
+    assert ParallelRobot.load("planar_4rrr").drive_unit == "N·m"   # revolute drives: torques
+    hexapod = ParallelRobot.load("hexapod_6ups")
+    assert hexapod.drive_unit == "N"                                # prismatic drives: forces
+    assert "[N]" in metrics_table({}, hexapod.drive_unit).splitlines()[1]

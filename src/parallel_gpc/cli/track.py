@@ -78,7 +78,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
           f"mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
-    print(metrics_table(results))
+    print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
     paths = [save_figure(plot_paths(results, f"{title}: platform path"), out / "track_path.png"),

@@ -249,6 +249,14 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         return self._is_angle.copy()
 
     @property
+    def drive_unit(self) -> str:
+        """Unit of the drive efforts u: ``"N·m"`` (revolute drives), ``"N"`` (prismatic drives) or
+        ``"N·m | N"`` when the robot has both kinds."""
+        kinds = {"Prismatic" in (short := self.model.joints[self.model.getJointId(n)].shortname())
+                 or short.startswith("JointModelP") for n in self.description.drive_joints}
+        return {frozenset({False}): "N·m", frozenset({True}): "N"}.get(frozenset(kinds), "N·m | N")
+
+    @property
     def drive_selection(self) -> np.ndarray:
         """(nv, n_u) Sᵀ: maps drive torques (N·m) to generalized forces."""
         S = np.zeros((self.model.nv, self.n_u))

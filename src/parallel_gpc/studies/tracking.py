@@ -143,13 +143,21 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     return results
 
 
-def metrics_table(results: dict[str, SimulationResult]) -> str:
-    """A text table of the tracking metrics (mm, mrad, N·m, ms) by form, with the gain α of the
-    disturbance estimate each form ran with."""
-    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'rms ψ':>9} {'max ψ':>9} {'peak u':>8} "
+def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m") -> str:
+    """A text table of the tracking metrics by form (position error in mm, orientation error in
+    mrad — the norm of the angular output errors, ψ on a planar robot —, drive effort in
+    ``drive_unit``, step times in ms), with the gain α of the disturbance estimate each form ran with.
+
+    Args:
+        results: simulation results by form name.
+        drive_unit: unit of the drive efforts u (``ParallelRobot.drive_unit``: "N·m" for revolute
+            drives, "N" for prismatic ones).
+    """
+    unit = f"[{drive_unit}]"
+    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'rms ang':>9} {'max ang':>9} {'peak u':>8} "
             f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
-    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {'[N·m]':>8} "
-             f"{'[N·m]':>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
+    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {unit:>8} "
+             f"{unit:>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
     lines = [head, units]
     for form, res in results.items():
         m = res.metrics()
