@@ -85,5 +85,5 @@ def register_demo(sub) -> None:
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.add_argument("--forms", nargs="+", choices=[*FORMS, "all"], default=["all"], help="forms to compare (default all)")
     p.add_argument("--deadbeat-duration", type=float, default=1.0, help="s of the Qu = 0 lockstep check (default 1)")
-    add_tracking_arguments(p, DEMO)
+    add_tracking_arguments(p, DEMO, html=False)  # it writes demo_<form>.html itself
     p.set_defaults(func=cmd_demo)

@@ -14,7 +14,7 @@ from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 
 
-def add_tracking_arguments(p, d: dict | None = None) -> None:
+def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     """Options shared by ``track`` and ``demo``; defaults from ``d`` (default :data:`defaults.TRACKING`)."""
     d = TRACKING if d is None else d
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
@@ -44,7 +44,7 @@ def add_tracking_arguments(p, d: dict | None = None) -> None:
     p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
                    + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    add_view_arguments(p)
+    add_view_arguments(p, html=html)
 
 
 def settings_from_args(args):

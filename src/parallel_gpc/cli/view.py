@@ -14,11 +14,13 @@ from pathlib import Path
 INSTALL_HINT = 'the meshcat view needs the meshcat package (a dependency of parallel-gpc): pip install "meshcat>=0.3.2"'
 
 
-def add_view_arguments(parser) -> None:
-    """Add ``--html PATH`` and ``--serve`` to an argparse (sub-)parser."""
+def add_view_arguments(parser, html: bool = True) -> None:
+    """Add ``--html PATH`` (unless ``html`` is False: a command that names its own HTML files)
+    and ``--serve`` to an argparse (sub-)parser."""
     group = parser.add_argument_group("view")
-    group.add_argument("--html", metavar="PATH",
-                       help="write a self-contained HTML animation (opens offline in any browser)")
+    if html:
+        group.add_argument("--html", metavar="PATH",
+                           help="write a self-contained HTML animation (opens offline in any browser)")
     group.add_argument("--serve", action="store_true",
                        help="show the animation in a live meshcat viewer on 127.0.0.1 until Ctrl-C")
 
