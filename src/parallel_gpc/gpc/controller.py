@@ -28,10 +28,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError
-from ..solvers import SolveResult, make_solver, qr_least_squares
+from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError
+from ..solvers import SolveResult, make_solver
 from ..validation import finite_vector
 from .criterion import Criterion, Weights, _limit_vector
+from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, conditioning_rule
 from .redundancy import without_internal
@@ -39,12 +40,7 @@ from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSetting
 
 __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN", "APPLIED_LIMIT_RTOL"]
 
-#: the QP is given limits tightened by this relative margin so that a solution within the
-#: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
-LIMIT_MARGIN = 1e-6
-#: every applied input is verified: a solution whose first move exceeds a limit by more than this
-#: relative tolerance (|u| > τ·(1 + 1e-9)) counts as a failed solve and the step falls back visibly.
-APPLIED_LIMIT_RTOL = 1e-9
+# LIMIT_MARGIN and APPLIED_LIMIT_RTOL live in .fallback; re-exported here (tests import them from this module).
 
 
 @dataclass
@@ -154,7 +150,7 @@ class GPCController:
         self._criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
         tau = None if settings.torque_limit is None else _limit_vector("torque_limit", settings.torque_limit, self.n_u)
         delta = None if settings.du_limit is None else _limit_vector("du_limit", settings.du_limit, self.n_u)
-        self._limits = (tau, delta, self._tightened(tau), self._tightened(delta))
+        self._limits = (tau, delta, tightened(tau), tightened(delta))
         self._settings = settings
 
     # ------------------------------------------------------------------ settings (read-only views)
@@ -329,12 +325,12 @@ class GPCController:
         except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
             result = SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self._backend.name,
                                  message=f"{type(exc).__name__}: {exc}")
-        violation = self._limit_violation(pred, result.v) if result.ok else ""
+        violation = limit_violation(pred, result.v, self.form, self.u_prev, *self._limits[:2]) if result.ok else ""
         if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
             result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
         fallback = not result.ok
         if fallback:
-            result = self._fallback(problem, pred, result)
+            result = project_on_limits(problem, pred, result, self._limits[0], self.n_u)
         t3 = time.perf_counter()
         u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
         if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
@@ -344,9 +340,7 @@ class GPCController:
             # without it when that respects the torque limit — the same X̂(k+1)
             u_seq[0] = self._applicable(self._base(u_seq[0], self._one_step[1]), u_seq[0])
         u = u_seq[0].copy()
-        if self._limits[0] is not None and np.any(np.abs(u) > self._limits[0] * (1.0 + APPLIED_LIMIT_RTOL)):
-            raise SolverError(f"the projected fallback input u = {u.tolist()} N·m exceeds the torque limit "
-                              f"{self._limits[0].tolist()} N·m; nothing applied")
+        check_applied(u, self._limits[0])
         self.plan = np.vstack([u_seq, np.repeat(u_seq[-1:], self.horizons.N - len(u_seq), axis=0)])
         self._v_prev = result.v
         self.u_prev = u
@@ -378,63 +372,9 @@ class GPCController:
                 f"direction, so the controller stops instead of commanding unbounded torques"
             )
 
-    def _limit_violation(self, pred: Prediction, v: np.ndarray) -> str:
-        """Why the first move of solution ``v`` breaks the limits (|u(k)| ≤ τ, |Δu(k)| ≤ δ, relative
-        tolerance :data:`APPLIED_LIMIT_RTOL`), or "" when it keeps them."""
-        tau, delta = self._limits[:2]
-        if tau is None and delta is None:
-            return ""
-        m = self.n_u
-        u = pred.u_base[:m] + pred.u_map[:m] @ v
-        if tau is not None and np.any(np.abs(u) > tau * (1.0 + APPLIED_LIMIT_RTOL)):
-            i = int(np.argmax(np.abs(u) / tau))
-            return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque_limit {tau[i]:.9g} N·m"
-        # the increment of the first constrained input: delayed, u(k+1) − u(k) (u(k) is the base)
-        du = u - (pred.u_base[:m] if self.form == "incremental-delayed" else self.u_prev)
-        if delta is not None and self.form != "absolute" and np.any(np.abs(du) > delta * (1.0 + APPLIED_LIMIT_RTOL)):
-            i = int(np.argmax(np.abs(du) / delta))
-            return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du_limit {delta[i]:.9g} N·m"
-        return ""
-
-    @staticmethod
-    def _tightened(limit):
-        return None if limit is None else np.asarray(limit, dtype=float) * (1.0 - LIMIT_MARGIN)
-
     def _warm_start(self, n: int) -> np.ndarray | None:
         if self._v_prev is None or self._v_prev.shape != (n,):
             return None
         m = self.n_u
         tail = self._v_prev[-m:] if self.form == "absolute" else np.zeros(m)
         return np.concatenate([self._v_prev[m:], tail])
-
-    def _fallback(self, problem, pred: Prediction, failed: SolveResult) -> SolveResult:
-        """A failed or infeasible QP: take the unconstrained QR solution and project it on the limits.
-
-        Absolute form: u clipped to ±τ. Incremental forms: step by step along the control
-        horizon, Δu(i) clipped to ±δ, then u(i) clipped to ±τ — when both cannot hold (an
-        infeasible limit set, e.g. a torque limit lowered below the held u(k−1) − δ) the torque
-        limit wins. The result has status ``fallback`` (the back end's status and message are
-        kept in ``message``) and the step reports ``StepInfo.fallback``; never silent.
-        """
-        v, _, _ = qr_least_squares(problem.A, problem.b)
-        m = self.n_u
-        tau = self._limits[0]
-        if pred.kind == "absolute":
-            if tau is not None:
-                v = np.clip(v, -np.tile(tau, len(v) // m), np.tile(tau, len(v) // m))
-        else:  # walk the horizon: Δu(i) into its box, then u(i) = u_base(i) + Σ Δu into ±τ
-            dv = v.reshape(-1, m).copy()
-            base = pred.u_base.reshape(-1, m)
-            box = None if problem.lb is None else (problem.lb.reshape(-1, m), problem.ub.reshape(-1, m))
-            total = np.zeros(m)
-            for i in range(len(dv)):
-                if box is not None:
-                    dv[i] = np.clip(dv[i], box[0][i], box[1][i])
-                if tau is not None:  # the torque limit wins when both cannot hold (infeasible set)
-                    dv[i] = np.clip(base[i] + total + dv[i], -tau, tau) - base[i] - total
-                total += dv[i]
-            v = dv.reshape(-1)
-        if not np.all(np.isfinite(v)):
-            raise SolverError(f"solver {failed.solver} failed ({failed.message}) and the QR fallback is not finite")
-        return SolveResult(v, problem.cost(v), "fallback", failed.solver, failed.iterations, failed.solve_time,
-                           problem.active(v), f"{failed.status}: {failed.message}; applied the QR solution projected on the limits")

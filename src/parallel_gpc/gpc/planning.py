@@ -46,7 +46,8 @@ from dataclasses import replace
 import numpy as np
 from tqdm import tqdm
 
-from ..model.dynamics import ReducedModel, discretize_zoh
+from ..model.discretization import discretize_zoh
+from ..model.dynamics import ReducedModel
 from ..errors import InvalidParameterError, SolverError
 from ..results import robot_reference
 from .prediction import Horizons, Prediction, absolute_prediction

@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model.dynamics import _identity
+from ..model.discretization import _identity
 from ..errors import InvalidParameterError, ShapeError
 
 

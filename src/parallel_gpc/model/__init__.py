@@ -10,8 +10,8 @@ from .description import (DEFAULT_ROBOT, SIDECAR_KEYS, Closure, RobotDescription
 
 _PUBLIC = {
     "TaskOutput": "outputs", "ClosureKinematics": "robot", "ParallelRobot": "robot",
-    "ReducedModel": "dynamics", "ReducedTerms": "dynamics", "discretize_zoh": "dynamics",
-    "kinetic_energy": "dynamics", "rk4_step": "dynamics", "ConstrainedPlant": "plant", "ReducedPlant": "plant",
+    "ReducedModel": "dynamics", "ReducedTerms": "dynamics", "discretize_zoh": "discretization",
+    "kinetic_energy": "dynamics", "rk4_step": "discretization", "ConstrainedPlant": "plant", "ReducedPlant": "plant",
 }
 
 __all__ = ["DEFAULT_ROBOT", "SIDECAR_KEYS", "Closure", "RobotDescription", "embedded_robots", "load_description",

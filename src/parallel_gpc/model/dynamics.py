@@ -21,17 +21,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import bisect
-import math
-from functools import lru_cache
-
 import numpy as np
 import pinocchio as pin
 from scipy.linalg import lapack
 
-from ..errors import NonFiniteError
+from .discretization import _zoh_split, discretize_zoh, expm, rk4_step
 from .robot import ParallelRobot
 from ..validation import finite_vector, positive
+
+# discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
+__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step"]
+
 
 @dataclass
 class ReducedTerms:
@@ -343,141 +343,6 @@ def _spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
         _, _, X, info = lapack.dgesv(A, B)
         if info != 0:
             raise np.linalg.LinAlgError(f"singular reduced mass matrix (LAPACK info {info})")
-    return X
-
-
-# ------------------------------------------------------------------ matrix exponential
-#: unit roundoff of float64: the Taylor remainder is driven below it.
-_UNIT_ROUNDOFF = 2.0 ** -53
-#: largest norm handled without scaling (larger matrices are scaled by 2^-s and squared).
-_EXPM_THETA = 0.5
-_EXPM_MAX_DEGREE = 30
-
-
-def _taylor_degree(norm: float) -> int:
-    """Smallest K whose Taylor remainder bound Σ_{k>K} ‖M‖^k/k! ≤ ‖M‖^(K+1)/(K+1)! / (1 − ‖M‖/(K+2))
-    is below u·e^-‖M‖ (u = 2⁻⁵³; e^-‖M‖ ≤ ‖e^M‖, so the bound is relative)."""
-    term, k = 1.0, 0
-    target = _UNIT_ROUNDOFF * math.exp(-norm)
-    while k < _EXPM_MAX_DEGREE:
-        k += 1
-        term *= norm / k  # ‖M‖^k / k!
-        if term * norm / (k + 1) / (1.0 - norm / (k + 2)) <= target:
-            return k
-    return _EXPM_MAX_DEGREE
-
-
-def expm(M: np.ndarray) -> np.ndarray:
-    """Matrix exponential by scaling and squaring of a Taylor polynomial with error control.
-
-    The degree K is the smallest whose remainder bound ``‖M‖^(K+1)/(K+1)! / (1 − ‖M‖/(K+2))``
-    (Frobenius norm, after scaling by 2^-s so that ‖M‖ ≤ 0.5) is below the unit roundoff; for
-    the ZOH matrices of a 1–2 ms sample (‖A·Ts‖ ≈ 0.005) that is K ≈ 6 and no squaring. The
-    powers M^k are summed with the factorial weights in one product. Agrees with
-    ``scipy.linalg.expm`` to ~1e-15 relative (tested).
-
-    Args:
-        M: (n, n) or a stack (..., n, n); a stack shares one degree and scaling (its largest norm).
-
-    Returns:
-        e^M with the shape of M.
-    """
-    M = np.asarray(M, dtype=float)
-    shape = M.shape
-    n = shape[-1]
-    if M.ndim == 2:
-        flat = M.reshape(-1)
-        norm = math.sqrt(flat @ flat)
-    else:
-        norm = math.sqrt(float(np.einsum("...ij,...ij->...", M, M).max())) if M.size else 0.0
-    if not math.isfinite(norm):
-        raise NonFiniteError("matrix exponential of a matrix with NaN or inf entries")
-    s = 0
-    if norm > _EXPM_THETA:
-        s = int(math.ceil(math.log2(norm / _EXPM_THETA)))
-        M = M * 2.0 ** -s
-        norm *= 2.0 ** -s
-    K = bisect.bisect_left(_DEGREE_NORMS, norm) + 1
-    powers = np.empty((K + 1, *shape))  # I, M, M², …, M^K
-    powers[0] = _identity(n)
-    powers[1] = M
-    for k in range(2, K + 1):
-        np.matmul(powers[k - 1], M, out=powers[k])
-    E = (_inverse_factorials(K) @ powers.reshape(K + 1, -1)).reshape(shape)
-    for _ in range(s):
-        E = E @ E
-    return E
-
-
-@lru_cache(maxsize=32)
-def _identity(n: int) -> np.ndarray:
-    """Cached read-only n × n identity (shared by the expm and the absolute form's u = v map)."""
-    eye = np.eye(n)
-    eye.setflags(write=False)
-    return eye
-
-
-@lru_cache(maxsize=64)
-def _inverse_factorials(K: int) -> np.ndarray:
-    c = np.array([1.0 / math.factorial(k) for k in range(K + 1)])
-    c.setflags(write=False)
-    return c
-
-
-def _degree_table() -> list[float]:
-    """Largest norm for which :func:`_taylor_degree` returns K, K = 1, 2, …"""
-    table, lo = [], 0.0
-    for K in range(1, _EXPM_MAX_DEGREE):
-        a, b = lo, 1.0
-        for _ in range(60):
-            mid = 0.5 * (a + b)
-            a, b = (mid, b) if _taylor_degree(mid) <= K else (a, mid)
-        table.append(a)
-        lo = a
-    return table
-
-
-#: ``_DEGREE_NORMS[K - 1]`` = largest norm handled by the degree-K Taylor polynomial.
-_DEGREE_NORMS = _degree_table()
-
-
-def _zoh_split(E: np.ndarray, n: int, m: int):
-    """(A_d, B_d, c_d) blocks of exp([[A, B, c], [0, 0, 0]]·Ts) (or of a stack of them)."""
-    return E[..., :n, :n], E[..., :n, n:n + m], E[..., :n, n + m]
-
-
-def discretize_zoh(A: np.ndarray, B: np.ndarray, c: np.ndarray | None, Ts: float):
-    """Zero-order-hold discretization of ``Ẋ = A X + B u + c``, eq. (4).
-
-    Uses the matrix exponential (:func:`expm`) of the augmented matrix [[A, B, c], [0, 0, 0]] · Ts.
-
-    Args:
-        A: (n, n), B: (n, m), c: (n,) or None; Ts: sample time in s (> 0).
-
-    Returns:
-        (A_d, B_d, c_d): X(k+1) = A_d X(k) + B_d u(k) + c_d.
-    """
-    Ts = positive("Ts", Ts, " s")
-    n, m = B.shape
-    aug = np.zeros((n + m + 1, n + m + 1))
-    aug[:n, :n] = A
-    aug[:n, n:n + m] = B
-    if c is not None:
-        aug[:n, n + m] = c
-    aug *= Ts
-    return _zoh_split(expm(aug), n, m)
-
-
-def rk4_step(deriv, X: np.ndarray, u: np.ndarray, Ts: float, substeps: int = 1) -> np.ndarray:
-    """Integrate Ẋ = deriv(X, u) over Ts with u held, by ``substeps`` classical RK4 steps."""
-    h = Ts / substeps
-    X = np.asarray(X, dtype=float)
-    for _ in range(substeps):
-        k1 = deriv(X, u)
-        k2 = deriv(X + 0.5 * h * k1, u)
-        k3 = deriv(X + 0.5 * h * k2, u)
-        k4 = deriv(X + h * k3, u)
-        X = X + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
     return X
 
 

@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from .dynamics import ReducedModel, rk4_step
+from .discretization import rk4_step
+from .dynamics import ReducedModel
 from .robot import ParallelRobot
 from ..errors import NonFiniteError
 from ..validation import finite_vector, positive
