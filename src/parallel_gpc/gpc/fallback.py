@@ -104,5 +104,6 @@ def project_on_limits(problem, pred: Prediction, failed: SolveResult, tau: np.nd
         v = dv.reshape(-1)
     if not np.all(np.isfinite(v)):
         raise SolverError(f"solver {failed.solver} failed ({failed.message}) and the QR fallback is not finite")
+    message = f"{failed.status}: {failed.message}; applied the QR solution projected on the limits"
     return SolveResult(v, problem.cost(v), "fallback", failed.solver, failed.iterations, failed.solve_time,
-                       problem.active(v), f"{failed.status}: {failed.message}; applied the QR solution projected on the limits")
+                       problem.active(v), message)

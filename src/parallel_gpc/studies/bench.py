@@ -90,6 +90,17 @@ class _Entry:
         }
 
 
+def _log_solve(e: _Entry, dt: float, ok, v, v_ref, problem: LeastSquaresProblem | None = None) -> _Entry:
+    """Record one timed solve in ``e``: wall time ``dt`` (s), a failure unless ``ok``, the relative
+    error of ``v`` against ``v_ref`` and, given the problem, the relative cost gap."""
+    e.times.append(dt)
+    e.failures += int(not ok)
+    e.errors.append(_rel(v, v_ref))
+    if problem is not None:
+        e.cost_gaps.append(_cost_gap(problem, v, v_ref))
+    return e
+
+
 def _rel(v, ref) -> float:
     if v is None or not np.all(np.isfinite(v)):
         return math.inf
@@ -203,10 +214,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     warm[("free", mname)] = _shift(v, m)
                     if timed:
                         e = run.entry("unconstrained", name, N, mname)
-                        e.times.append(dt)
-                        e.failures += int(not np.all(np.isfinite(v)))
-                        e.errors.append(_rel(v, v_ref))
-                        e.cost_gaps.append(_cost_gap(prob, v, v_ref))
+                        _log_solve(e, dt, np.all(np.isfinite(v)), v, v_ref, prob)
                 # limited solves
                 for mname, solver in lim_methods:
                     t0 = time.perf_counter()
@@ -214,11 +222,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     dt = time.perf_counter() - t0
                     warm[("lim", mname)] = _shift(res.v, m) if res.ok else None
                     if timed:
-                        e = run.entry("limited", name, N, mname)
-                        e.times.append(dt)
-                        e.failures += int(not res.ok)
-                        e.errors.append(_rel(res.v, v_ref_l))
-                        e.cost_gaps.append(_cost_gap(prob_l, res.v, v_ref_l))
+                        e = _log_solve(run.entry("limited", name, N, mname), dt, res.ok, res.v, v_ref_l, prob_l)
                         e.violations.append(prob_l.violation(res.v) if res.ok else math.inf)
                 # the LTV problem: our condenser + QP vs qpmpc
                 A_seq, B_seq, c_seq, X, w, wdot, v_ref_ltv = ltv[si][k]
@@ -231,10 +235,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     dt = time.perf_counter() - t0
                     warm[("ltv", mname)] = _shift(res.v, m) if res.ok else None
                     if timed:
-                        e = run.entry("qpmpc", name, N, mname)
-                        e.times.append(dt)
-                        e.failures += int(not res.ok)
-                        e.errors.append(_rel(res.v, v_ref_ltv))
+                        _log_solve(run.entry("qpmpc", name, N, mname), dt, res.ok, res.v, v_ref_ltv)
                 for peer in peers:
                     t0 = time.perf_counter()
                     with warnings.catch_warnings():
