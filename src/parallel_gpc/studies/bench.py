@@ -32,7 +32,7 @@ import math
 import os
 import time
 import warnings
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -50,61 +50,12 @@ from .plots_bench import plot_results
 from .plots_common import save_figure
 from .bench_qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
 from .simulation import simulate
-from ..solvers import DAQPBackend, LeastSquaresProblem, QRSolver, make_solver
+from ..solvers import DAQPBackend, QRSolver, make_solver
 from ..gpc.criterion import Weights, build_problem
 from .bench_problems import BenchConfig, _closed_loop_states, _controllers, _record, robot_C
+from .bench_store import _log_solve, _rel, _Run
 
 __all__ = ["BenchConfig", "run_benchmark", "closed_loop_wall_time", "lapack_qr_unit", "robot_C"]
-
-
-# ------------------------------------------------------------------------------- timing store
-@dataclass
-class _Entry:
-    section: str
-    robot: str
-    N: int
-    method: str
-    times: list = field(default_factory=list)
-    errors: list = field(default_factory=list)
-    cost_gaps: list = field(default_factory=list)
-    violations: list = field(default_factory=list)
-    failures: int = 0
-    note: str = ""
-
-    def summary(self) -> dict:
-        t = np.asarray(self.times)
-        err = np.asarray([e for e in self.errors if e is not None and np.isfinite(e)])
-        gap = np.asarray([g for g in self.cost_gaps if g is not None and np.isfinite(g)])
-        return {
-            "section": self.section, "robot": self.robot, "N": self.N, "method": self.method,
-            "samples": int(t.size),
-            "median_us": float(np.median(t) * 1e6) if t.size else None,
-            "p99_us": float(np.percentile(t, 99) * 1e6) if t.size else None,
-            "mean_us": float(np.mean(t) * 1e6) if t.size else None,
-            "max_rel_error": float(err.max()) if err.size else None,
-            "median_rel_error": float(np.median(err)) if err.size else None,
-            "max_rel_cost_gap": float(gap.max()) if gap.size else None,
-            "max_violation_Nm": float(max(self.violations)) if self.violations else None,
-            "failures": self.failures,
-            "note": self.note,
-        }
-
-
-def _log_solve(e: _Entry, dt: float, ok, v, v_ref, problem: LeastSquaresProblem | None = None) -> _Entry:
-    """Record one timed solve in ``e``: wall time ``dt`` (s), a failure unless ``ok``, the relative
-    error of ``v`` against ``v_ref`` and, given the problem, the relative cost gap."""
-    e.times.append(dt)
-    e.failures += int(not ok)
-    e.errors.append(_rel(v, v_ref))
-    if problem is not None:
-        e.cost_gaps.append(_cost_gap(problem, v, v_ref))
-    return e
-
-
-def _rel(v, ref) -> float:
-    if v is None or not np.all(np.isfinite(v)):
-        return math.inf
-    return float(np.linalg.norm(v - ref) / max(np.linalg.norm(ref), 1e-300))
 
 
 # ------------------------------------------------------------------------------- methods
@@ -115,19 +66,6 @@ def lapack_qr_unit(A: np.ndarray) -> None:
 
 
 # ------------------------------------------------------------------------------- the run
-class _Run:
-    def __init__(self, cfg: BenchConfig):
-        self.cfg = cfg
-        self.entries: dict[tuple, _Entry] = {}
-        self.limits: dict[tuple, float] = {}
-
-    def entry(self, section, robot, N, method, note="") -> _Entry:
-        key = (section, robot, N, method)
-        if key not in self.entries:
-            self.entries[key] = _Entry(section, robot, N, method, note=note)
-        return self.entries[key]
-
-
 def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCurve, bar) -> None:
     cfg = run.cfg
     Ts, name = cfg.Ts, robot.name
@@ -280,13 +218,6 @@ def _shift(v, m: int):
     if v is None or not np.all(np.isfinite(v)):
         return None
     return np.concatenate([v[m:], v[-m:]])
-
-
-def _cost_gap(problem: LeastSquaresProblem, v, v_ref) -> float:
-    if v is None or not np.all(np.isfinite(v)):
-        return math.inf
-    j, j_ref = problem.cost(v), problem.cost(v_ref)
-    return float((j - j_ref) / max(abs(j_ref), 1e-300))
 
 
 def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: float = 1e-3) -> dict:

@@ -25,7 +25,7 @@ from ..model.robot import ParallelRobot
 from .simulation import simulate
 
 if TYPE_CHECKING:
-    from .bench import _Entry
+    from .bench_store import _Entry
 
 __all__ = ["BenchConfig", "robot_C"]
 
