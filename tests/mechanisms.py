@@ -28,10 +28,14 @@ def _two_link_ik(base_x: float, target, elbow: float) -> tuple[float, float]:
     return a, e
 
 
-def fivebar_q_guess(target=FIVEBAR_HOME) -> dict:
+def fivebar_q_guess(target=FIVEBAR_HOME, split: bool = False) -> dict:
+    """Joint angles (rad) at ``target``; ``split`` adds the hinge ``c`` of :func:`fivebar_urdf`."""
     a1, e1 = _two_link_ik(FIVEBAR_BASE[0], target, -1.0)
     a2, e2 = _two_link_ik(FIVEBAR_BASE[1], target, 1.0)
-    return {"a1": a1, "e1": e1, "a2": a2, "e2": e2}
+    q = {"a1": a1, "e1": e1, "a2": a2, "e2": e2}
+    if split:  # the outer half of distal link 2 points from the end-effector back to elbow 2
+        q["c"] = math.remainder(a2 + e2 + math.pi - a1 - e1, 2 * math.pi)
+    return q
 
 
 def _rod_inertia(mass: float, length: float) -> str:
@@ -39,9 +43,26 @@ def _rod_inertia(mass: float, length: float) -> str:
     return f'ixx="{i:.9g}" ixy="0" ixz="0" iyy="{i:.9g}" iyz="0" izz="{1e-4 * mass:.9g}"'
 
 
-def fivebar_urdf() -> str:
+def _half_distal(mjcf: bool) -> str:
+    """Inertial element of half a distal link (URDF or MJCF): mass, centre and inertia of the half rod."""
+    m, h = M_DIST / 2, L_DIST / 2
+    if mjcf:
+        i = m * h ** 2 / 12.0
+        return f'<inertial pos="0 0 {h / 2}" mass="{m}" diaginertia="{i:.9g} {i:.9g} {1e-4 * m:.9g}"/>'
+    return f'<inertial><origin xyz="0 0 {h / 2}"/><mass value="{m}"/><inertia {_rod_inertia(m, h)}/></inertial>'
+
+
+def fivebar_urdf(split: bool = False) -> str:
+    """Planar 5-bar, legs ``a<k>``-``e<k>``, closed by a point closure ``ee``-``tip2``. ``split``:
+    distal link 2 is cut at its middle, its outer half ``dist2b`` hangs on a hinge ``c`` at the
+    end-effector and the loop closes by welding the halves (frames ``mid_a``, ``mid_b``, equal
+    poses at assembly): the same mechanism, masses and inertias (two half rods make the rod)."""
     legs = []
     for k, bx in zip((1, 2), FIVEBAR_BASE):
+        half = split and k == 2
+        dist = _half_distal(False) if half else (f'<inertial><origin xyz="0 0 {L_DIST / 2}"/><mass value="{M_DIST}"/>'
+                                                 f'\n    <inertia {_rod_inertia(M_DIST, L_DIST)}/></inertial>')
+        tip, tip_z = ("mid_a", L_DIST / 2) if half else ("ee" if k == 1 else "tip2", L_DIST)
         legs.append(f"""
   <joint name="a{k}" type="revolute"><parent link="base"/><child link="prox{k}"/>
     <origin xyz="{bx} 0 0"/><axis xyz="0 1 0"/><limit lower="-6" upper="6" effort="10" velocity="10"/></joint>
@@ -49,23 +70,33 @@ def fivebar_urdf() -> str:
     <inertia {_rod_inertia(M_PROX, L_PROX)}/></inertial></link>
   <joint name="e{k}" type="revolute"><parent link="prox{k}"/><child link="dist{k}"/>
     <origin xyz="0 0 {L_PROX}"/><axis xyz="0 1 0"/><limit lower="-6" upper="6" effort="10" velocity="10"/></joint>
-  <link name="dist{k}"><inertial><origin xyz="0 0 {L_DIST / 2}"/><mass value="{M_DIST}"/>
-    <inertia {_rod_inertia(M_DIST, L_DIST)}/></inertial></link>
-  <joint name="tip{k}_joint" type="fixed"><parent link="dist{k}"/><child link="{'ee' if k == 1 else 'tip2'}"/>
-    <origin xyz="0 0 {L_DIST}"/></joint>
-  <link name="{'ee' if k == 1 else 'tip2'}"/>""")
+  <link name="dist{k}">{dist}</link>
+  <joint name="tip{k}_joint" type="fixed"><parent link="dist{k}"/><child link="{tip}"/>
+    <origin xyz="0 0 {tip_z}"/></joint>
+  <link name="{tip}"/>""")
+    if split:
+        legs.append(f"""
+  <joint name="c" type="revolute"><parent link="ee"/><child link="dist2b"/>
+    <axis xyz="0 1 0"/><limit lower="-6" upper="6" effort="10" velocity="10"/></joint>
+  <link name="dist2b">{_half_distal(False)}</link>
+  <joint name="mid_b_joint" type="fixed"><parent link="dist2b"/><child link="mid_b"/>
+    <origin xyz="0 0 {L_DIST / 2}" rpy="0 {math.pi!r} 0"/></joint>
+  <link name="mid_b"/>""")
     return f'<?xml version="1.0"?>\n<robot name="fivebar">\n  <link name="base"/>{"".join(legs)}\n</robot>\n'
 
 
-def fivebar_sidecar(drives=("a1", "a2"), axes=("x", "z"), extra: str = "", closures: bool = True) -> str:
-    q = fivebar_q_guess()
+def fivebar_sidecar(drives=("a1", "a2"), axes=("x", "z"), extra: str = "", closures: bool = True,
+                    split: bool = False) -> str:
+    """TOML sidecar of :func:`fivebar_urdf` (``split``: the weld closure of the split variant)."""
+    q = fivebar_q_guess(split=split)
     text = (f'name = "fivebar"\n{extra}'
             f'[output]\nframe = "ee"\nkind = "position"\naxes = {list(axes)!r}\n'
             f'[home]\nbranch_joints = ["e1", "e2"]\n[home.q_guess]\n'
             + "".join(f"{k} = {v!r}\n" for k, v in q.items())
             + f"[drives]\njoints = {list(drives)!r}\ntorque_limit = 20.0\n")
     if closures:
-        text += '[[closures]]\nname = "close"\nkind = "point"\nframes = ["ee", "tip2"]\n'
+        kind, frames = ("weld", '["mid_a", "mid_b"]') if split else ("point", '["ee", "tip2"]')
+        text += f'[[closures]]\nname = "close"\nkind = "{kind}"\nframes = {frames}\n'
     return text.replace("'", '"')
 
 
@@ -74,28 +105,39 @@ def _quat_y(angle: float) -> str:
     return f"{math.cos(angle / 2):.15g} 0 {math.sin(angle / 2):.15g} 0"
 
 
-def fivebar_mjcf() -> str:
+def fivebar_mjcf(split: bool = False) -> str:
     """The same 5-bar as MJCF, drawn assembled at the home pose (MuJoCo's loops hold at qpos0, so
     the joint angles are measured from home), both legs under one root body, the loop as an
-    equality connect."""
-    q = fivebar_q_guess()
+    equality connect; ``split``: as :func:`fivebar_urdf`, the halves of distal link 2 held by an
+    equality weld (relative pose of qpos0)."""
+    q = fivebar_q_guess(split=split)
     ip, idd = M_PROX * L_PROX ** 2 / 12.0, M_DIST * L_DIST ** 2 / 12.0
     legs = []
     for k, bx in zip((1, 2), FIVEBAR_BASE):
         site = f'<site name="ee" pos="0 0 {L_DIST}"/>' if k == 1 else ""
+        dist = f'<inertial pos="0 0 {L_DIST / 2}" mass="{M_DIST}" diaginertia="{idd:.9g} {idd:.9g} {1e-4 * M_DIST:.9g}"/>'
+        if split and k == 1:
+            site += f"""
+          <body name="dist2b" pos="0 0 {L_DIST}" quat="{_quat_y(q["c"])}">
+            <joint name="c" type="hinge" axis="0 1 0"/>
+            {_half_distal(True)}
+          </body>"""
+        elif split:
+            dist = _half_distal(True)
         legs.append(f"""
       <body name="prox{k}" pos="{bx} 0 0" quat="{_quat_y(q[f"a{k}"])}">
         <joint name="a{k}" type="hinge" axis="0 1 0"/>
         <inertial pos="0 0 {L_PROX / 2}" mass="{M_PROX}" diaginertia="{ip:.9g} {ip:.9g} {1e-4 * M_PROX:.9g}"/>
         <body name="dist{k}" pos="0 0 {L_PROX}" quat="{_quat_y(q[f"e{k}"])}">
           <joint name="e{k}" type="hinge" axis="0 1 0"/>
-          <inertial pos="0 0 {L_DIST / 2}" mass="{M_DIST}" diaginertia="{idd:.9g} {idd:.9g} {1e-4 * M_DIST:.9g}"/>
+          {dist}
           {site}
         </body>
       </body>""")
+    loop = ('<weld name="close" body1="dist2" body2="dist2b"/>' if split
+            else f'<connect name="close" body1="dist1" body2="dist2" anchor="0 0 {L_DIST}"/>')
     return (f'<mujoco model="fivebar">\n  <worldbody>\n    <body name="base">{"".join(legs)}\n    </body>\n'
-            f'  </worldbody>\n  <equality>\n    <connect name="close" body1="dist1" body2="dist2" '
-            f'anchor="0 0 {L_DIST}"/>\n  </equality>\n</mujoco>\n')
+            f'  </worldbody>\n  <equality>\n    {loop}\n  </equality>\n</mujoco>\n')
 
 
 def fivebar_mjcf_sidecar() -> str:
@@ -151,17 +193,25 @@ def rps_urdf(spherical: bool, universal_base: bool = False) -> str:
   <joint name="s1z" type="revolute"><parent link="g2"/><child link="plat"/><axis xyz="0 0 1"/>
     <limit lower="-3" upper="3" effort="0" velocity="9"/></joint>""")
     centre = s1_world.inverse() * pin.SE3(np.eye(3), np.array([0, 0, H]))  # platform centre in s1's frame
-    parts.append(f"""
-  <link name="plat"><inertial><origin {_xyz_rpy(centre)}/><mass value="{M_PLAT}"/>
-    <inertia ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.04"/></inertial></link>
-  <joint name="platform_joint" type="fixed"><parent link="plat"/><child link="platform"/><origin {_xyz_rpy(centre)}/></joint>
-  <link name="platform"/>""")
-    for k in (1, 2):
-        alpha = 2 * math.pi * k / 3
+    parts.append(platform_links("plat", centre, M_PLAT, 'ixx="0.02" ixy="0" ixz="0" iyy="0.02" iyz="0" izz="0.04"',
+                                RP, [(k + 1, 2 * math.pi * k / 3) for k in (1, 2)]))
+    return "".join(parts)
+
+
+def platform_links(body: str, centre: pin.SE3, mass: float, inertia: str, radius: float, attach) -> str:
+    """End of a URDF: link ``body`` (its centre of mass and the frame ``platform`` at ``centre``
+    in the body's frame), frames ``attach<k>`` at (radius cos a, radius sin a, 0) in ``platform``
+    for (k, a) in ``attach`` (m, rad), and ``</robot>``."""
+    parts = [f"""
+  <link name="{body}"><inertial><origin {_xyz_rpy(centre)}/><mass value="{mass}"/>
+    <inertia {inertia}/></inertial></link>
+  <joint name="platform_joint" type="fixed"><parent link="{body}"/><child link="platform"/><origin {_xyz_rpy(centre)}/></joint>
+  <link name="platform"/>"""]
+    for k, a in attach:
         parts.append(f"""
-  <joint name="attach{k + 1}_joint" type="fixed"><parent link="platform"/><child link="attach{k + 1}"/>
-    <origin xyz="{RP * math.cos(alpha):.12g} {RP * math.sin(alpha):.12g} 0"/></joint>
-  <link name="attach{k + 1}"/>""")
+  <joint name="attach{k}_joint" type="fixed"><parent link="platform"/><child link="attach{k}"/>
+    <origin xyz="{radius * math.cos(a):.12g} {radius * math.sin(a):.12g} 0"/></joint>
+  <link name="attach{k}"/>""")
     parts.append("\n</robot>\n")
     return "".join(parts)
 
@@ -187,31 +237,39 @@ def _mj_quat(R: np.ndarray) -> str:
     return f"{w:.15g} {x:.15g} {y:.15g} {z:.15g}"
 
 
-def rps_mjcf() -> str:
+def rps_mjcf(geoms: bool = False) -> str:
     """The 3-RPS of :func:`rps_urdf` as MJCF, drawn assembled at home (joint values measured
     from home): hinge-slide legs, a ``ball`` joint carrying the platform on leg 1, the other
-    legs closed on the platform by equality connects."""
+    legs closed on the platform by equality connects. ``geoms``: with ``<geom>`` shapes (leg
+    cylinders ``cyl<k>``, ``rod<k>``, a ball ``ball1`` at s1, a box ``plate`` at the platform
+    centre) besides the explicit inertias."""
     tilt = -math.atan2(RB - RP, H)
     length = math.hypot(RB - RP, H)
     legs = []
     for k in range(3):
         alpha = 2 * math.pi * k / 3
         R = pin.rpy.rpyToMatrix(0, 0, alpha) @ pin.rpy.rpyToMatrix(0, tilt, 0)
+        shapes = dict.fromkeys(("plate", "cyl", "rod"), "")
+        if geoms:
+            shapes = {"cyl": f'\n        <geom name="cyl{k + 1}" type="cylinder" size="0.025 0.1" pos="0 0 0.1"/>',
+                      "rod": f'\n          <geom name="rod{k + 1}" type="cylinder" size="0.015 0.1" pos="0 0 -0.1"/>',
+                      "plate": f'\n            <geom name="plate" type="box" size="0.12 0.1 0.01" pos="{-RP} 0 0"/>'
+                               '\n            <geom name="ball1" type="sphere" size="0.03"/>'}
         platform = ""
         if k == 0:
             platform = f"""
           <body name="platform_body" quat="{_mj_quat(R.T)}">
             <joint name="s1" type="ball"/>
             <inertial pos="{-RP} 0 0" mass="{M_PLAT}" diaginertia="0.02 0.02 0.04"/>
-            <site name="platform" pos="{-RP} 0 0"/>
+            <site name="platform" pos="{-RP} 0 0"/>{shapes['plate']}
           </body>"""
         legs.append(f"""
       <body name="lower{k + 1}" pos="{RB * math.cos(alpha):.15g} {RB * math.sin(alpha):.15g} 0" quat="{_mj_quat(R)}">
         <joint name="r{k + 1}" type="hinge" axis="0 1 0"/>
-        <inertial pos="0 0 0.1" mass="{M_LOWER}" diaginertia="0.003 0.003 0.0002"/>
+        <inertial pos="0 0 0.1" mass="{M_LOWER}" diaginertia="0.003 0.003 0.0002"/>{shapes['cyl']}
         <body name="upper{k + 1}" pos="0 0 {length:.15g}">
           <joint name="p{k + 1}" type="slide" axis="0 0 1"/>
-          <inertial pos="0 0 -0.1" mass="{M_UPPER}" diaginertia="0.002 0.002 0.0001"/>{platform}
+          <inertial pos="0 0 -0.1" mass="{M_UPPER}" diaginertia="0.002 0.002 0.0001"/>{shapes['rod']}{platform}
         </body>
       </body>""")
     return ('<mujoco model="rps">\n  <worldbody>\n    <body name="base">' + "".join(legs)
@@ -307,3 +365,24 @@ def assert_reduced_matches_constraint_dynamics(robot, cms=None, n: int = 8, seed
         assert np.linalg.norm(ddq - (terms.T @ ydd + terms.ell)) <= 1e-8 * np.linalg.norm(ddq)
         y_oracle = output_acceleration_of(robot, terms.q, terms.v, ddq)
         assert np.linalg.norm(y_oracle - ydd) <= 1e-8 * np.linalg.norm(ydd)
+
+
+def assert_same_reduced_dynamics(robot_a, robot_b, n: int = 6, seed: int = 0) -> None:
+    """Two models of one mechanism (same outputs and drives) give the same reduced terms M_r, h_r,
+    B_r, the same ÿ and the same factorization (3), which reproduces Ẋ, at n random reachable
+    states and inputs near home."""
+    from parallel_gpc import ReducedModel
+
+    ma, mb = ReducedModel(robot_a), ReducedModel(robot_b)
+    rng = np.random.default_rng(seed)
+    for X in random_output_states(robot_a, rng, n):
+        ta, tb = ma.terms(X), mb.terms(X)
+        np.testing.assert_allclose(ta.M_r, tb.M_r, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(ta.h_r, tb.h_r, rtol=1e-10, atol=1e-10)
+        np.testing.assert_allclose(ta.B_r, tb.B_r, rtol=1e-10, atol=1e-12)
+        u = rng.uniform(-5, 5, robot_a.n_u)
+        np.testing.assert_allclose(ta.acceleration(u), tb.acceleration(u), rtol=1e-9, atol=1e-10)
+        Aa, Ba, ca = ma.factorize(X)
+        Ab, Bb, cb = mb.factorize(X)
+        np.testing.assert_allclose(Aa @ X + Ba @ u + ca, Ab @ X + Bb @ u + cb, rtol=1e-9, atol=1e-10)
+        np.testing.assert_allclose(Aa @ X + Ba @ u + ca, ma.state_derivative(X, u), rtol=1e-9, atol=1e-10)

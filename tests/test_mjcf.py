@@ -110,3 +110,79 @@ def test_the_view_reads_the_visual_geometry_of_an_mjcf_model(fivebars):
     _, mjcf = fivebars
     geometry = visual_model(mjcf)  # a URDF parser would refuse the MJCF file
     assert isinstance(geometry, pin.GeometryModel)
+
+
+# ---------------------------------------------------------------- a loop closed by an equality weld
+@pytest.fixture(scope="module")
+def welded(tmp_path_factory):
+    """The 5-bar with distal link 2 cut at its middle and the halves welded: MJCF (the weld from
+    the file, with its own constraint models) and URDF + sidecar ``kind = "weld"``."""
+    folder = tmp_path_factory.mktemp("weld")
+    path = mech.write(folder, "fbw", mech.fivebar_mjcf(split=True), mech.fivebar_mjcf_sidecar(), ".xml")
+    mjcf = ParallelRobot.load(path)
+    urdf = ParallelRobot.load(mech.write(folder, "fbwu", mech.fivebar_urdf(split=True), mech.fivebar_sidecar(split=True)))
+    _, cms = pin.buildModelAndLegacyConstraintsFromMJCF(str(path))
+    return mjcf, urdf, list(cms)
+
+
+def test_mjcf_equality_weld_becomes_a_weld_closure(welded):
+    mjcf, urdf, cms = welded
+    assert [c.kind for c in mjcf.description.closures] == ["weld"] == [c.kind for c in urdf.description.closures]
+    assert len(cms) == 1 and cms[0].type == pin.ContactType.CONTACT_6D
+    assert (mjcf.model.nv, mjcf.n_constraints, mjcf.n_y, mjcf.n_u) == (5, 6, 2, 2)
+    np.testing.assert_allclose(mjcf.home_pose, mech.FIVEBAR_HOME, atol=1e-12)
+    assert np.max(np.abs(mjcf.closure_residual(mjcf.q_home))) <= 1e-10
+    # away from home the weld still holds the halves at their drawn relative pose: the two
+    # frames at the cut coincide in position and orientation
+    data = mjcf.model.createData()
+    q = mjcf.assemble(mjcf.home_pose + [0.03, -0.02])
+    pin.framesForwardKinematics(mjcf.model, data, q)
+    a, b = (data.oMf[mjcf.model.getFrameId(f)] for f in mjcf.description.closures[0].frames)
+    np.testing.assert_allclose(a.homogeneous, b.homogeneous, atol=1e-10)
+
+
+def test_mjcf_weld_reduced_accelerations_equal_constraint_dynamics_with_the_files_constraints(welded):
+    mjcf, _, cms = welded
+    mech.assert_reduced_matches_constraint_dynamics(mjcf, cms=cms)
+
+
+def test_mjcf_weld_equals_urdf_weld_and_the_uncut_fivebar(welded, fivebars):
+    mjcf, urdf, _ = welded
+    point = fivebars[0]  # the same mechanism closed at the end-effector by a point closure
+    mm, mu, mp = ReducedModel(mjcf), ReducedModel(urdf), ReducedModel(point)
+    rng = np.random.default_rng(13)
+    for X in mech.random_output_states(point, rng, 6):
+        tm, tu, tp = mm.terms(X), mu.terms(X), mp.terms(X)
+        u = rng.uniform(-5, 5, 2)
+        # relative to the norm; the files write inertias to 9 digits: 1e-9 against the uncut one
+        for other, rtol in ((tu, 1e-12), (tp, 1e-9)):
+            for a, b in ((tm.M_r, other.M_r), (tm.h_r, other.h_r), (tm.B_r, other.B_r),
+                         (tm.acceleration(u), other.acceleration(u))):
+                assert np.linalg.norm(a - b) <= rtol * np.linalg.norm(b)
+
+
+# ---------------------------------------------------------------- view geometry of an MJCF file
+def test_the_view_draws_the_geoms_of_an_mjcf_ball_joint_mechanism(tmp_path):
+    from types import SimpleNamespace
+
+    from parallel_gpc import viz
+
+    robot = ParallelRobot.load(mech.write(tmp_path, "rpsg", mech.rps_mjcf(geoms=True), mech.rps_mjcf_sidecar(), ".xml"))
+    plain = ParallelRobot.load(mech.write(tmp_path, "rps", mech.rps_mjcf(), mech.rps_mjcf_sidecar(), ".xml"))
+    for a, b in zip(robot.model.inertias, plain.model.inertias):  # explicit <inertial>: geoms add no mass
+        np.testing.assert_array_equal(a.toDynamicParameters(), b.toDynamicParameters())
+    scene = viz.RobotScene(SimpleNamespace(path=viz.meshcat.path.Path(("meshcat",))), robot)
+    geoms = {g.name: g for g in scene.geom_model.geometryObjects}
+    assert sorted(geoms) == sorted(["plate", "ball1"] + [f"{p}{k}" for p in ("cyl", "rod") for k in (1, 2, 3)])
+    model = robot.model
+    assert model.names[geoms["plate"].parentJoint] == model.names[geoms["ball1"].parentJoint] == "s1"
+    assert [model.names[geoms[f"cyl{k}"].parentJoint] for k in (1, 2, 3)] == ["r1", "r2", "r3"]
+    assert (geoms["cyl1"].geometry.radius, geoms["cyl1"].geometry.halfLength) == (0.025, 0.1)
+    np.testing.assert_allclose(2 * geoms["plate"].geometry.halfSide, [0.24, 0.2, 0.02])
+    # placed with the bodies: the plate at the platform frame, the ball at leg 1's end
+    q = robot.assemble(robot.home_pose + [0.02, 0.05, -0.04])
+    T = dict(zip(scene.paths, scene.placements(q)))
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    np.testing.assert_allclose(T["robot/plate"], data.oMf[model.getFrameId("platform")].homogeneous, atol=1e-12)
+    np.testing.assert_allclose(T["robot/ball1"][:3, 3], data.oMi[model.getJointId("s1")].translation, atol=1e-12)

@@ -32,19 +32,7 @@ def test_spherical_override_gives_a_ball_joint(rps_pair):
 
 
 def test_spherical_and_three_revolutes_give_the_same_reduced_dynamics(rps_pair):
-    sph, rrr = rps_pair
-    ms, mr = ReducedModel(sph), ReducedModel(rrr)
-    rng = np.random.default_rng(7)
-    for X in mech.random_output_states(sph, rng, 6):
-        ts, tr = ms.terms(X), mr.terms(X)
-        np.testing.assert_allclose(ts.M_r, tr.M_r, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(ts.h_r, tr.h_r, rtol=1e-10, atol=1e-10)
-        np.testing.assert_allclose(ts.B_r, tr.B_r, rtol=1e-10, atol=1e-12)
-        u = rng.uniform(-5, 5, 3)
-        np.testing.assert_allclose(ts.acceleration(u), tr.acceleration(u), rtol=1e-9, atol=1e-10)
-        As, Bs, cs = ms.factorize(X)
-        Ar, Br, cr = mr.factorize(X)
-        np.testing.assert_allclose(As @ X + Bs @ u + cs, Ar @ X + Br @ u + cr, rtol=1e-9, atol=1e-10)
+    mech.assert_same_reduced_dynamics(*rps_pair, n=6, seed=7)
 
 
 @pytest.mark.parametrize("which", [0, 1])

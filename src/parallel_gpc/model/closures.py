@@ -121,9 +121,15 @@ class ClosureMixin:
         """
         model, data = self.model, self.data
         pin.computeJointJacobiansTimeVariation(model, data, q, v)
+        universal = self.universal_joints
+        if universal:  # Pinocchio's J̇ has a spurious term for universal joints (see model.universal)
+            pin.updateFramePlacements(model, data)
         if not self._frames_flat:
             return np.zeros((0, model.nv))
-        dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA) for f in self._frames_flat])
+        if universal:
+            dJ = np.array([universal.frame_jacobian_rate(model, data, f, v) for f in self._frames_flat])
+        else:
+            dJ = np.array([pin.getFrameJacobianTimeVariation(model, data, f, _LWA) for f in self._frames_flat])
         if self._point_only:
             return (dJ[0::2, :3] - dJ[1::2, :3]).reshape(-1, model.nv)
         return (dJ[0::2] - dJ[1::2]).reshape(-1, model.nv)[self._jac_rows]
@@ -138,7 +144,7 @@ class ClosureMixin:
         dPhi = self.closure_jacobian_derivative(q, v)
         if self.task_output is None:
             return dPhi
-        return np.vstack([dPhi, self.task_output.jacobian_derivative(self.model, self.data, v)])
+        return np.vstack([dPhi, self.task_output.jacobian_derivative(self.model, self.data, v, self.universal_joints)])
 
     def closure_residual(self, q: np.ndarray) -> np.ndarray:
         """(m,) Φ(q): closure mismatch in m (and rad for welds)."""

@@ -211,7 +211,8 @@ class ReducedModel:
         rhs = self._rhs  # [M T | −K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
         # −C_r = −½ Tᵀ ∂(h + M ℓ)/∂v T = Tᵀ (M_z W − ½ D T);  −g_r = −Tᵀ g
         np.matmul(M, T, out=rhs[:, :ny])
-        rhs[:, ny:2 * ny] = M[:, r.dependent_v] @ W - 0.5 * (D @ T)
+        DT = r.universal_joints.bias_derivative(model, q, v, T) if r.universal_joints else D @ T
+        rhs[:, ny:2 * ny] = M[:, r.dependent_v] @ W - 0.5 * DT
         rhs[:, -1] = -g  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
         red = T.T @ rhs
         return _spd_solve(red[:, :ny], red[:, ny:])

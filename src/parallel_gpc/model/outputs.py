@@ -20,6 +20,7 @@ import numpy as np
 import pinocchio as pin
 
 from .description import POSE_AXES
+from .universal import UniversalJoints
 
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 #: below this rotation angle (rad) :func:`hlog3` uses its series (``pin.Hlog3`` is NaN at 0 and
@@ -86,9 +87,14 @@ class TaskOutput:
         Jl = pin.Jlog3(self.R_ref.T @ R)
         return np.vstack([J[self._lin], (Jl @ (R.T @ J[3:]))[self._ang]])
 
-    def jacobian_derivative(self, model: pin.Model, data: pin.Data, v: np.ndarray) -> np.ndarray:
-        """(n_y, nv) Ḣ at (q, v) (``computeJointJacobiansTimeVariation(q, v)`` done)."""
-        dJ = pin.getFrameJacobianTimeVariation(model, data, self.frame_id, _LWA)
+    def jacobian_derivative(self, model: pin.Model, data: pin.Data, v: np.ndarray,
+                            universal: UniversalJoints | None = None) -> np.ndarray:
+        """(n_y, nv) Ḣ at (q, v) (``computeJointJacobiansTimeVariation(q, v)`` and the frame
+        placements done); ``universal`` corrects the frame's J̇ for the model's universal joints."""
+        if universal:
+            dJ = universal.frame_jacobian_rate(model, data, self.frame_id, v)
+        else:
+            dJ = pin.getFrameJacobianTimeVariation(model, data, self.frame_id, _LWA)
         if not self.has_rotation:
             return dJ[self._lin]
         J = pin.getFrameJacobian(model, data, self.frame_id, _LWA)

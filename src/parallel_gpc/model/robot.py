@@ -44,6 +44,7 @@ from .description import (  # noqa: F401  (re-exported for the robot's users)
 )
 from .linalg import fast_index
 from .outputs import TaskOutput
+from .universal import UniversalJoints
 
 
 class ParallelRobot(ClosureMixin, AssemblyMixin):
@@ -70,6 +71,8 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             position outputs, nq == nv: the rows are gradients of positions).
         redundancy: number of drives beyond the rank of the actuation map B_r at home (0: not
             redundant).
+        universal_joints: :class:`~parallel_gpc.model.universal.UniversalJoints`, the corrected
+            J̇ and ∂h/∂v of the model's universal joints (falsy without them).
         q_home: assembled home configuration.
     """
 
@@ -143,6 +146,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def _setup_fast_paths(self) -> None:
         """Index tables and caches of the hot paths (closure evaluation, velocity map)."""
         self._frames_flat = [f for fa, fb, _ in self.closure_frames for f in (fa, fb)]
+        self.universal_joints = UniversalJoints(self.model)  # Pinocchio's J̇, ∂h/∂v corrected for them
         self._point_only = all(c.kind == "point" for _, _, c in self.closure_frames)
         rotation_out = self.task_output is not None and self.task_output.has_rotation
         self.bias_symmetric = self._point_only and self._flat and not rotation_out
