@@ -130,18 +130,24 @@ def check_times(t) -> np.ndarray:
     return t
 
 
+def json_default(value):
+    """``default=`` of ``json.dumps`` for the package's records: numpy arrays become lists, numpy
+    scalars Python numbers, anything else its ``str``."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
 def _jsonable(value):
     if isinstance(value, dict):
         return {str(k): _jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
         return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
-    return str(value)
+    return json_default(value)
 
 
 def _standard_arrays(robot, t, q, reference, planned, saturated) -> dict:

@@ -50,6 +50,7 @@ from .plots_bench import plot_results
 from .plots_common import save_figure
 from .bench_qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
 from .simulation import simulate
+from ..results import json_default
 from ..solvers import DAQPBackend, QRSolver, make_solver
 from ..gpc.criterion import Weights, build_problem
 from .bench_problems import BenchConfig, _closed_loop_states, _controllers, _record, robot_C
@@ -317,7 +318,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
         written = [out / "bench_gpc.json"]
-        written[0].write_text(json.dumps(result, indent=1, default=_json_default))
+        written[0].write_text(json.dumps(result, indent=1, default=json_default))
         if rows:
             (out / "bench_gpc.md").write_text(markdown_report(result))
             written += [out / "bench_gpc.md", save_figure(plot_results(rows), out / "bench_gpc.png")]
@@ -325,10 +326,3 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
               + (f" (interrupted: {len(rows)} finished rows)" if interrupted else ""))
     return result
 
-
-def _json_default(x):
-    if isinstance(x, (np.floating, np.integer)):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    return str(x)

@@ -24,7 +24,6 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 
 from ..gpc.controller import FORMS, GPCController
 from ..gpc.settings import PAPER_FORMS
@@ -34,6 +33,7 @@ from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, Singu
 from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..results import json_default
 from .sweep import SETTLE_FRACTION, Cell
 from .sweep_runner import run_sweep
 from ..gpc.criterion import Weights
@@ -149,20 +149,13 @@ class RobustnessResult:
     def save_json(self, path) -> Path:
         path = Path(path)
         path.write_text(json.dumps({"settings": self.settings, "interrupted": self.interrupted,
-                                    "rows": self.rows}, indent=1, default=_json_default))
+                                    "rows": self.rows}, indent=1, default=json_default))
         return path
 
 
 def _fmt(x, digits: int) -> str:
     return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
 
-
-def _json_default(obj):
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, (np.floating, np.integer)):
-        return obj.item()
-    return str(obj)
 
 
 def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
