@@ -144,7 +144,6 @@ def deadbeat_inputs(model, X, target, settings: PlanSettings) -> np.ndarray:
     return u
 
 
-# ---------------------------------------------------------------------------- result
 # ---------------------------------------------------------------------------- planner
 def _default_plant(robot, X0, settings: PlanSettings):
     from ..model.plant import ConstrainedPlant

@@ -71,7 +71,7 @@ def steady_state_error(result: SimulationResult, window: float = STEADY_WINDOW) 
     return float(np.mean(pose_error_norms(result.error[sel], result.angular)[0]))
 
 
-def deadbeat_inputs(model: ReducedModel, X: np.ndarray, w_next: np.ndarray, Ts: float) -> np.ndarray:
+def one_step_deadbeat_input(model: ReducedModel, X: np.ndarray, w_next: np.ndarray, Ts: float) -> np.ndarray:
     """The one-step dead-beat minimum-norm input: argmin ‖u‖ s.t. C(A_d X + B_d u + c_d) = w(k+1) (N·m)."""
     Ad, Bd, cd = model.discrete(X, Ts)
     C = model.C
@@ -112,7 +112,7 @@ def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float =
         window = reference.window(k * s.Ts, s.Ts, s.N)
         for i, ctrl in enumerate(ctrls):
             u[k, i] = ctrl.step(X, window).u
-        u_db[k] = deadbeat_inputs(model, X, window[0], s.Ts)
+        u_db[k] = one_step_deadbeat_input(model, X, window[0], s.Ts)
         error[k] = X[:robot.n_y] - reference.pose(k * s.Ts)
         plant.step(u[k, 0], s.Ts)
     return DeadbeatCheck(tuple(forms), u, u_db, s.Ts * np.arange(K), error)
