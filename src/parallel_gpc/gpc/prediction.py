@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model.discretization import _identity
+from ..model.discretization import cached_identity
 from ..errors import InvalidParameterError, ShapeError
 
 
@@ -247,7 +247,7 @@ def absolute_prediction(Ad, Bd, cd, C, X, horizons: Horizons) -> Prediction:
     f, G = condense(Ad, Bd, cd, C, X, horizons, hold_inputs=True)
     m = np.asarray(Bd).shape[-1]
     size = horizons.Nu * m
-    return Prediction(f, G, np.zeros(size), _identity(size), horizons, "absolute")  # u = v
+    return Prediction(f, G, np.zeros(size), cached_identity(size), horizons, "absolute")  # u = v
 
 
 def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed: bool = False) -> Prediction:

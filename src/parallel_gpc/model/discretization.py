@@ -73,7 +73,7 @@ def expm(M: np.ndarray) -> np.ndarray:
         norm *= 2.0 ** -s
     K = bisect.bisect_left(_DEGREE_NORMS, norm) + 1
     powers = np.empty((K + 1, *shape))  # I, M, M², …, M^K
-    powers[0] = _identity(n)
+    powers[0] = cached_identity(n)
     powers[1] = M
     for k in range(2, K + 1):
         np.matmul(powers[k - 1], M, out=powers[k])
@@ -84,7 +84,7 @@ def expm(M: np.ndarray) -> np.ndarray:
 
 
 @lru_cache(maxsize=32)
-def _identity(n: int) -> np.ndarray:
+def cached_identity(n: int) -> np.ndarray:
     """Cached read-only n × n identity (shared by the expm and the absolute form's u = v map)."""
     eye = np.eye(n)
     eye.setflags(write=False)

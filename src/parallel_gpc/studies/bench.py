@@ -39,7 +39,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ..gpc.controller import GPCController
-from ..model.discretization import _identity
+from ..model.discretization import cached_identity
 from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons, Prediction, condense
@@ -168,7 +168,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                 for mname, solver in ours_ltv:
                     t0 = time.perf_counter()
                     f, G = condense(A_seq, B_seq, c_seq, robot_C(robot), X, H, hold_inputs=True)
-                    pred = Prediction(f, G, np.zeros(N * m), _identity(N * m), H, "absolute")
+                    pred = Prediction(f, G, np.zeros(N * m), cached_identity(N * m), H, "absolute")
                     p = build_problem(pred, w, W, robot.n_y, m, torque_limit=tau)
                     res = solver.solve(p, warm.get(("ltv", mname)))
                     dt = time.perf_counter() - t0
