@@ -232,7 +232,7 @@ def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: floa
     robot = ParallelRobot.load(robot_name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     ctl = GPCController(ReducedModel(robot), Ts, Horizons(N), Weights(1.0, 1e-5))
-    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    plant = ConstrainedPlant(robot, ref.initial_state())
     t0 = time.perf_counter()
     res = simulate(ctl, plant, ref, seconds, progress=False)
     wall = time.perf_counter() - t0

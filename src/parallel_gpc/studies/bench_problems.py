@@ -95,7 +95,7 @@ def _closed_loop_states(robot: ParallelRobot, cfg: BenchConfig, ref: SCurve) -> 
     cut into the configured stretches of consecutive samples."""
     Ts = cfg.Ts
     ctl = GPCController(ReducedModel(robot), Ts, Horizons(20), Weights(1.0, cfg.qu), form="absolute")
-    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    plant = ConstrainedPlant(robot, ref.initial_state())
     plans = [ctl.plan.copy()]
     step = ctl.step
 

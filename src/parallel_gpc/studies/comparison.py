@@ -102,7 +102,7 @@ def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float =
     model = ReducedModel(robot)
     ctrls = [GPCController(model, s.Ts, Horizons(s.N, s.No, s.Nu), Weights(s.Qy, 0.0), form=f, solver=s.solver,
                            disturbance_gain=0.0) for f in forms]
-    plant = ConstrainedPlant(robot, np.concatenate([reference.pose(0.0), np.zeros(robot.n_y)]))
+    plant = ConstrainedPlant(robot, reference.initial_state())
     K = int(round(duration / s.Ts))
     u = np.empty((K, len(forms), robot.n_u))
     u_db = np.empty((K, robot.n_u))
