@@ -92,9 +92,9 @@ def _require(data: dict, key: str, where: str):
 
 
 def _names(value, key: str, where: str) -> tuple[str, ...]:
-    """A list of names from the sidecar, checked (a bare string is a typo, not a list)."""
-    if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
-        raise RobotFormatError(f"sidecar {where}: {key} = {value!r} must be a list of names")
+    """A list of names from the sidecar as a tuple. Its type (a list of strings; a bare string
+    is a typo, not a list) was checked for every key by
+    :func:`~parallel_gpc.model.file_checks.check_sidecar_types` before parsing."""
     return tuple(value)
 
 
