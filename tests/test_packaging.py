@@ -12,10 +12,15 @@ PACKAGE = ROOT / "src" / "parallel_gpc"
 PROJECT = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
 
 
-def test_every_subpackage_is_listed():
-    found = {"parallel_gpc." + ".".join(p.parent.relative_to(PACKAGE).parts) for p in PACKAGE.rglob("__init__.py")}
-    found = {name.rstrip(".") for name in found} | {"parallel_gpc.urdf"}
-    assert set(PROJECT["tool"]["setuptools"]["packages"]) == found
+def test_the_wheel_ships_the_whole_package_folder_and_the_robots():
+    """scikit-build-core copies src/parallel_gpc (every subpackage, py.typed); CMake installs the
+    embedded robots as parallel_gpc/urdf and the compiled core as parallel_gpc/_native."""
+    assert PROJECT["build-system"]["build-backend"] == "scikit_build_core.build"
+    assert PROJECT["tool"]["scikit-build"]["wheel"]["packages"] == ["src/parallel_gpc"]
+    cmake = (ROOT / "CMakeLists.txt").read_text(encoding="utf-8")
+    assert "install(DIRECTORY urdf/ DESTINATION parallel_gpc/urdf" in cmake
+    assert "install(TARGETS _native LIBRARY DESTINATION parallel_gpc)" in cmake
+    assert (ROOT / "urdf" / "__init__.py").is_file()
 
 
 def test_license_file_matches_the_metadata():
@@ -26,7 +31,6 @@ def test_license_file_matches_the_metadata():
 
 def test_typed_marker_is_shipped():
     assert (PACKAGE / "py.typed").is_file()
-    assert "py.typed" in PROJECT["tool"]["setuptools"]["package-data"]["parallel_gpc"]
 
 
 def test_requires_python_is_true():

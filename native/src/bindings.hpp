@@ -1,0 +1,8 @@
+// Registration functions of the parts of parallel_gpc._native (one per source file).
+#pragma once
+#include <nanobind/nanobind.h>
+
+namespace pgpc {
+namespace nb = nanobind;
+void bind_model_update(nb::module_ &m);  // model_update.cpp
+}  // namespace pgpc

@@ -1,0 +1,9 @@
+// parallel_gpc._native: the compiled hot paths. Each source file of native/src registers its part
+// through one bind_* function declared in bindings.hpp.
+#include "bindings.hpp"
+
+NB_MODULE(_native, m) {
+  m.doc() = "parallel-gpc compiled core (Pinocchio C++ API); the Python modules are the reference";
+  m.attr("pinocchio_version") = PGPC_PINOCCHIO_VERSION;
+  pgpc::bind_model_update(m);
+}

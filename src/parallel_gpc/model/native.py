@@ -1,0 +1,59 @@
+"""Access to the compiled core ``parallel_gpc._native`` (C++ against Pinocchio's C++ API).
+
+The compiled functions are the fast path of the model update and the plant; the Python modules
+stay the reference, and tests compare the two. The compiled core is used when
+
+* the extension module imports (``pip install .`` builds it; a source checkout on ``PYTHONPATH``
+  has it only after ``python native/build_inplace.py``),
+* it was built against the Pinocchio version that is imported now (the model is handed over in
+  Pinocchio's serialization format, and the libraries must match), and
+* the environment variable ``PARALLEL_GPC_NATIVE`` is not ``0`` (``0`` forces the Python path,
+  e.g. to time the reference or to rule the compiled core out while debugging).
+
+:func:`native_module` returns the module or None; :func:`native_status` says which and why.
+"""
+
+from __future__ import annotations
+
+import os
+from functools import lru_cache
+
+__all__ = ["native_module", "native_status", "native_enabled"]
+
+#: environment variable that switches the compiled core off when set to "0"
+ENV_SWITCH = "PARALLEL_GPC_NATIVE"
+
+
+@lru_cache(maxsize=1)
+def _load():
+    """(module or None, reason) — the import is tried once per process."""
+    try:
+        from .. import _native  # type: ignore[attr-defined]
+    except ImportError as exc:
+        return None, f"not built ({exc}); pip install . builds it"
+    import pinocchio as pin
+
+    if _native.pinocchio_version != pin.__version__:
+        return None, (f"built against Pinocchio {_native.pinocchio_version}, but Pinocchio {pin.__version__} is "
+                      "imported: reinstall parallel-gpc (pip install .) to rebuild it")
+    return _native, f"compiled core in use (Pinocchio {pin.__version__})"
+
+
+def native_enabled() -> bool:
+    """False when ``PARALLEL_GPC_NATIVE=0`` asks for the pure-Python reference path."""
+    return os.environ.get(ENV_SWITCH, "1").strip() != "0"
+
+
+def native_module():
+    """The extension module ``parallel_gpc._native``, or None (not built, Pinocchio version
+    mismatch, or switched off by ``PARALLEL_GPC_NATIVE=0``)."""
+    if not native_enabled():
+        return None
+    return _load()[0]
+
+
+def native_status() -> str:
+    """One line: whether the compiled core is used, and if not, why."""
+    if not native_enabled():
+        return f"pure-Python reference path ({ENV_SWITCH}=0)"
+    return _load()[1]
