@@ -27,15 +27,16 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import lapack
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError
 from ..solvers import SolveResult, make_solver
-from ..validation import finite_vector
+from ..validation import all_finite, finite_vector
 from .criterion import Criterion, Weights, _limit_vector
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, conditioning_rule
-from .redundancy import without_internal
+from .redundancy import null_basis, remove_null
 from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
 __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN", "APPLIED_LIMIT_RTOL"]
@@ -67,11 +68,17 @@ class StepInfo:
 
 
 def _condition(gain: np.ndarray) -> float:
-    """Condition number σ_max/σ_min of an input gain (inf when singular or not finite)."""
-    if not np.all(np.isfinite(gain)):
+    """Condition number σ_max/σ_min of an input gain (inf when singular or not finite).
+
+    The singular values come from LAPACK ``gesdd`` without vectors, called directly (half the
+    time of ``numpy.linalg.svd`` on the 3×4 … 6×8 gains of the robots). A gain with NaN or inf
+    entries gives a failed call or a non-finite σ_max (σ_max ≥ every |entry|): inf.
+    """
+    if gain.size == 0:
         return math.inf
-    s = np.linalg.svd(gain, compute_uv=False)
-    return float(s[0] / s[-1]) if s.size and s[-1] > 0 else math.inf
+    s, info = lapack.dgesdd(gain, compute_uv=0)[1::2]
+    cond = float(s[0] / s[-1]) if info == 0 and s[-1] > 0 else math.inf
+    return cond if math.isfinite(cond) else math.inf
 
 
 class GPCController:
@@ -200,6 +207,7 @@ class GPCController:
         self._v_prev = None
         self.disturbance = np.zeros(self.n_x)
         self._x_next = None  # X̂(k+1|k) of the last step, for the disturbance estimate
+        self._null = False  # null(B_d) of the current step (see _base), not yet computed
 
     @property
     def state(self) -> ControllerState:
@@ -247,18 +255,24 @@ class GPCController:
         Ad, Bd, cd = self.discrete_model(X)
         cd = cd + self.disturbance
         self._one_step = (Ad, Bd, cd)
+        self._null = False  # null(B_d) of this step, computed on first use
         if self.form == "absolute":
             return absolute_prediction(Ad, Bd, cd, C, X, H)
         if self.form == "incremental-delayed":  # u(k), decided at k−1, is the state's last block
-            self._u_now = self._applicable(self._base(self.plan[1], Bd), self.plan[1].copy())
+            self._u_now = self._applicable(self._base(self.plan[1]), self.plan[1].copy())
             return incremental_prediction(Ad, Bd, cd, C, X, self._u_now, H, delayed=True)
-        return incremental_prediction(Ad, Bd, cd, C, X, self._base(self.u_prev, Bd), H)
+        return incremental_prediction(Ad, Bd, cd, C, X, self._base(self.u_prev), H)
 
-    def _base(self, u: np.ndarray, B: np.ndarray) -> np.ndarray:
+    def _base(self, u: np.ndarray) -> np.ndarray:
         """The input the increments add to: u without its null(B_d) component (no drive fighting
         at any Qu: the removed part moves nothing in the model), or u itself with a Δu limit
-        (removing it would change u(k) − u(k−1) by more than Δu)."""
-        return u if self.du_limit is not None else without_internal(u, B)
+        (removing it would change u(k) − u(k−1) by more than Δu). B_d is this step's one-step
+        model (:meth:`predict`); its null basis is computed once per step."""
+        if self.du_limit is not None:
+            return u
+        if self._null is False:
+            self._null = null_basis(np.asarray(self._one_step[1], dtype=float))
+        return remove_null(u, self._null)
 
     def _applicable(self, projected: np.ndarray, decided: np.ndarray) -> np.ndarray:
         """The input without its null(B_d) part if it respects the torque limit, else as decided."""
@@ -279,6 +293,7 @@ class GPCController:
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
+        self._null = False
         y_sim = X_sim[1:] @ C.T
         return simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, H)
 
@@ -293,7 +308,7 @@ class GPCController:
                 f"reference window has shape {w.shape}; expected ({H.N}, {self.n_y}) for steps k+1..k+N "
                 f"(or ({H.n_rows}, {self.n_y}) for the penalized steps k+No+1..k+N)"
             )
-        if not np.all(np.isfinite(w)):
+        if not all_finite(w):
             bad = w[np.argwhere(~np.isfinite(w))[0][0]]
             raise NonFiniteError(f"reference window contains the pose {bad.tolist()}; poses must be finite")
         return w
@@ -332,16 +347,20 @@ class GPCController:
         if fallback:
             result = project_on_limits(problem, pred, result, self._limits[0], self.n_u)
         t3 = time.perf_counter()
-        u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
+        if pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
+            u_seq = result.v.reshape(-1, self.n_u).copy()
+        else:
+            u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
         if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
             u_seq = np.vstack([u_now, u_seq])[:self.horizons.N]
         if self.form in ("incremental", "nonlinear"):  # a null(B_d(X)) part of Δu(k) only serves
             # later, re-planned steps (B_d varying along the horizon, a limit ahead): u(k) is applied
             # without it when that respects the torque limit — the same X̂(k+1)
-            u_seq[0] = self._applicable(self._base(u_seq[0], self._one_step[1]), u_seq[0])
+            u_seq[0] = self._applicable(self._base(u_seq[0]), u_seq[0])
         u = u_seq[0].copy()
         check_applied(u, self._limits[0])
-        self.plan = np.vstack([u_seq, np.repeat(u_seq[-1:], self.horizons.N - len(u_seq), axis=0)])
+        N = self.horizons.N
+        self.plan = u_seq if len(u_seq) == N else np.vstack([u_seq, np.repeat(u_seq[-1:], N - len(u_seq), axis=0)])
         self._v_prev = result.v
         self.u_prev = u
         Ad, Bd, cd = self._one_step[:3]

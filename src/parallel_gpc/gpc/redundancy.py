@@ -30,6 +30,10 @@ def without_internal(u: np.ndarray, B: np.ndarray) -> np.ndarray:
     same; the incremental forms take the result as the base the increments Δu add to, and Qu
     (which penalizes Δu) then keeps the inputs out of null(B).
     """
-    basis = null_basis(np.asarray(B, dtype=float))
-    u = np.asarray(u, dtype=float)
+    return remove_null(np.asarray(u, dtype=float), null_basis(np.asarray(B, dtype=float)))
+
+
+def remove_null(u: np.ndarray, basis: np.ndarray | None) -> np.ndarray:
+    """u (N·m) without its component along the orthonormal rows ``basis`` of :func:`null_basis`
+    (u itself when the basis is None); the controller computes the basis once per step."""
     return u if basis is None else u - (u @ basis.T) @ basis
