@@ -69,6 +69,28 @@ def test_qp_backends_agree_and_respect_binding_limits(gpc_problems, form):
         assert np.linalg.norm(v - ref) <= 1e-4 * np.linalg.norm(ref), backend
 
 
+
+def test_daqp_solves_the_cumulative_torque_limit_as_bounds(gpc_problems):
+    """The incremental torque limit lo ≤ M v ≤ hi (M = kron(tri, I)) goes to DAQP as simple
+    bounds on s = M v: the same solution as DAQP with the general constraint rows, within limits."""
+    from dataclasses import replace
+
+    from parallel_gpc.solvers.problem import cumulative_block
+
+    unconstrained = QRSolver().solve(_problem(gpc_problems, "incremental")).v
+    pred = gpc_problems["incremental"][0]
+    tau = 0.5 * np.max(np.abs(pred.u_base + pred.u_map @ unconstrained))
+    problem = _problem(gpc_problems, "incremental", torque_limit=tau)
+    assert cumulative_block(problem) == 4
+    rows = replace(problem, min_norm_of=None)  # not recognised: the general constraint rows
+    assert cumulative_block(rows) is None
+    warm = np.zeros(problem.n)
+    for start in (None, warm):
+        box, general = make_solver("daqp-direct").solve(problem, start), make_solver("daqp-direct").solve(rows, start)
+        assert box.ok and general.ok and box.active_limits
+        assert np.linalg.norm(box.v - general.v) <= 1e-7 * np.linalg.norm(general.v)
+        assert problem.violation(box.v) <= 1e-9 * tau
+
 def test_qr_cost_is_norm_of_lost_vector():
     rng = np.random.default_rng(0)
     A, b = rng.normal(size=(40, 12)), rng.normal(size=40)

@@ -3,6 +3,13 @@
 Warm start: yes — the working set: the limits active at the given primal warm start, else
 the previous solve's active set. Importing this module raises ImportError when ``daqp`` is
 not installed.
+
+Cumulative limits as bounds: the incremental forms' torque limit is ``lo ≤ M v ≤ hi`` with M
+the cumulative-sum map kron(tri, I_m) (square when the limits cover the control horizon). In
+s = M v it is a box, and DAQP's simple bounds cost far less than general constraint rows (no
+constraint matrix to factor against the Hessian): the QP is passed in s, with
+P_s = M⁻ᵀ P M⁻¹ and q_s = M⁻ᵀ q (M⁻¹ is a block difference, M⁻ᵀ likewise on the rows) — the same
+QP, ridge included, in other coordinates — and v = M⁻¹ s is returned.
 """
 
 from __future__ import annotations
@@ -12,7 +19,8 @@ import time
 import daqp
 import numpy as np
 
-from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved
+from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, cumulative_block, from_cumulative
+
 
 class DAQPBackend:
     """DAQP dual active-set solver through its direct API.
@@ -30,16 +38,23 @@ class DAQPBackend:
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
         P, q, _ = _scaled_qp(problem)
+        block = cumulative_block(problem)
         parts_lo, parts_hi = [], []
         if problem.lb is not None:  # simple bounds come first
             parts_lo.append(problem.lb)
             parts_hi.append(problem.ub)
-        if problem.L is not None:
+        A_in = np.zeros((0, problem.n))
+        if block:  # lo ≤ M v ≤ hi: simple bounds on s = M v, P ← M⁻ᵀ P M⁻¹, q ← M⁻ᵀ q
+            P[:, :-block] -= P[:, block:]
+            P[:-block] -= P[block:]
+            q[:-block] -= q[block:]
+            if warm_start is not None and warm_start.shape == (problem.n,):
+                warm_start = np.cumsum(warm_start.reshape(-1, block), axis=0).reshape(-1)
+        elif problem.L is not None:
             A_in = problem.L if problem.L.flags.writeable else problem.L.copy()  # DAQP wants a writable buffer
+        if problem.L is not None:
             parts_lo.append(problem.lo)
             parts_hi.append(problem.hi)
-        else:
-            A_in = np.zeros((0, problem.n))
         lo = np.concatenate(parts_lo) if parts_lo else np.zeros(0)
         hi = np.concatenate(parts_hi) if parts_hi else np.zeros(0)
         kwargs = {}
@@ -56,5 +71,7 @@ class DAQPBackend:
             kind = "infeasible" if flag == -1 else "failed"
             return _failed(problem, self.name, kind, int(info.get("iterations", 0)), dt, f"DAQP exit flag {flag}")
         self._sense = (np.abs(np.asarray(info["lam"])) > 0).astype(np.int32) if "lam" in info else None
+        if block:
+            x = from_cumulative(x, block)
         return _solved(problem, self.name, x, int(info.get("iterations", 0)), dt)
 

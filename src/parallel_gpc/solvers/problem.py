@@ -109,6 +109,23 @@ class LeastSquaresProblem:
         return False
 
 
+def cumulative_block(problem: LeastSquaresProblem) -> int | None:
+    """m when the problem's only limits are ``lo ≤ M v ≤ hi`` with M = kron(tri, I_m) square
+    (the incremental forms' torque limit over the control horizon: a box on s = M v), else None."""
+    mn, L = problem.min_norm_of, problem.L
+    if L is None or problem.lb is not None or mn is None or not mn.block or L.shape != (problem.n, problem.n):
+        return None
+    same = L is mn.M or (L.base is not None and L.base is mn.M.base) or np.array_equal(L, mn.M)
+    return mn.block if same else None
+
+
+def from_cumulative(s: np.ndarray, m: int) -> np.ndarray:
+    """v = M⁻¹ s for M = kron(tri, I_m): block differences (a new array)."""
+    v = np.array(s, dtype=float)
+    v[m:] -= v[:-m].copy()
+    return v
+
+
 # ---------------------------------------------------------------------------- results
 @dataclass
 class SolveResult:
