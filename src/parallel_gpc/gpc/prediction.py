@@ -132,24 +132,29 @@ def condense(A, B, c, C, x0, horizons: Horizons, hold_inputs: bool) -> tuple[np.
 
 
 def _condense_ltv(A, B, c, C, x, horizons: Horizons, hold_inputs: bool):
-    """Recursion S(i+1) = A_i S(i) + [B_i in column block i], with x carried as a last column."""
+    """Recursion S(i+1) = A_i S(i) + [B_i in column block i], with x carried as a first column.
+
+    Causality: S(i) depends on the first min(i, Nu) input blocks only, so step i multiplies those
+    columns (and x) alone — about half the work of the full recursion over N steps — and the new
+    block is B_i itself (A_i times a zero block).
+    """
     N, No, Nu = horizons.N, horizons.No, horizons.Nu
     n, m, p = A.shape[-1], B.shape[-1], C.shape[0]
     K = Nu * m
-    S = np.empty((N + 1, n, K + 1))  # S[i] = [∂x(i)/∂v | x(i) at v = 0]
-    S[0, :, :K] = 0.0
-    S[0, :, K] = x
+    S = np.zeros((N + 1, n, K + 1))  # S[i] = [x(i) at v = 0 | ∂x(i)/∂v]
+    S[0, :, 0] = x
     for i in range(N):
-        np.matmul(A[i], S[i], out=S[i + 1])
+        cols = 1 + min(i, Nu) * m  # the columns of S[i] that can be nonzero
+        np.matmul(A[i], S[i, :, :cols], out=S[i + 1, :, :cols])
         if i < Nu:
-            S[i + 1, :, i * m:(i + 1) * m] += B[i]
+            S[i + 1, :, cols:cols + m] = B[i]
         elif hold_inputs:
-            S[i + 1, :, K - m:K] += B[i]
+            S[i + 1, :, K + 1 - m:] += B[i]
         if c is not None:
-            S[i + 1, :, K] += c[i]
+            S[i + 1, :, 0] += c[i]
     Y = C @ S[No + 1:]  # (n_rows, p, K + 1)
     rows = horizons.n_rows * p
-    return Y[:, :, K].reshape(rows), Y[:, :, :K].reshape(rows, K)
+    return Y[:, :, 0].reshape(rows), Y[:, :, 1:].reshape(rows, K)
 
 
 @lru_cache(maxsize=64)
