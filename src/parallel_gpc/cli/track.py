@@ -26,7 +26,8 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--Qu", type=float, default=d["Qu"],
                    help=f"square-root input / increment weight (default {d['Qu']:g})")
     p.add_argument("--solver", default=None, help="back end: qr, osqp-direct, proxqp-direct, daqp-direct, "
-                   "qpsolvers:NAME, qr-first:... (default: qr, or qr-first:daqp-direct with limits)")
+                   "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
+                   "for the incremental forms)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
     p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",

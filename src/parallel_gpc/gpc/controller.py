@@ -37,9 +37,10 @@ from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_vio
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, conditioning_rule
 from .redundancy import null_basis, remove_null
-from .settings import DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
+from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
-__all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "LIMIT_MARGIN", "APPLIED_LIMIT_RTOL"]
+__all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "DEFAULT_BOX_SOLVER", "LIMIT_MARGIN",
+           "APPLIED_LIMIT_RTOL"]
 
 # LIMIT_MARGIN and APPLIED_LIMIT_RTOL live in .fallback; re-exported here (tests import them from this module).
 
@@ -92,7 +93,8 @@ class GPCController:
         weights: square-root weights Qy, Qu.
         form: ``"absolute"``, ``"incremental"``, ``"incremental-delayed"`` or ``"nonlinear"``.
         solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`); default ``"qr"``
-            without limits, ``"qr-first:daqp-direct"`` with limits.
+            without limits; with limits ``"qr-first:bvls"`` (absolute form) or
+            ``"qr-first:daqp-direct"`` (incremental forms).
         torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
         du_limit: symmetric increment limit (N·m per sample), incremental forms only.
         u0: (m,) input applied before the first step, u(−1) (N·m); default zero.

@@ -9,7 +9,7 @@ controller solves while tracking the paper's S-curve (Fig. 2):
 * ``limited`` — the same problems with drive torque limits that bind at about half of the
   inputs: ``qpsolvers`` + OSQP / ProxQP / DAQP (rebuilt every call), the persistent direct back
   ends (warm-started along the curve), bounded-variable least squares and the controller's
-  default ``qr-first:daqp-direct``;
+  defaults ``qr-first:bvls`` (absolute form) and ``qr-first:daqp-direct`` (incremental forms);
 * ``step`` — the full control step (model update + prediction + solve, ``GPCController.step``)
   of the absolute, incremental and incremental-nonlinear forms, unconstrained and limited, each
   controller replaying its own stretch of samples consecutively (as in a control loop);

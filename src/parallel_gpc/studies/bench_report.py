@@ -100,7 +100,8 @@ def evaluate_targets(rows: list[dict], closed_loop: dict | None = None, robot: s
             for suffix in (" +limits", " +limits daqp-direct", " +limits bvls"):
                 lim = get.get((sec, robot, N, f"{form}{suffix}"))
                 if lim and lim.get("ratio_to_unconstrained_step"):
-                    solver = "qr-first:daqp-direct, the default" if suffix == " +limits" else suffix[9:]
+                    default = "qr-first:bvls" if form == "absolute" else "qr-first:daqp-direct"
+                    solver = f"{default}, the default" if suffix == " +limits" else suffix[9:]
                     add(f"{form} limited ({solver}) / unconstrained step ({label})",
                         lim["ratio_to_unconstrained_step"], TARGETS["limited_over_unconstrained"], "x")
         r = get.get((sec, robot, N, "nonlinear"))
