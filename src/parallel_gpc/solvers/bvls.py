@@ -25,6 +25,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ..errors import SolverError
+from ..validation import all_finite
 from .normal import normal_equations_factor
 from .problem import LeastSquaresProblem, SolveResult, _failed
 from .qr import _qr_diag_tail, qr_least_squares
@@ -58,7 +59,7 @@ class BVLSSolver:
         if np.any(lb > ub):
             return _failed(problem, self.name, "infeasible", 0, time.perf_counter() - t0,
                            "lower bound above upper bound")
-        x0 = None if warm_start is None or warm_start.shape != (n,) or not np.all(np.isfinite(warm_start)) else warm_start
+        x0 = None if warm_start is None or warm_start.shape != (n,) or not all_finite(warm_start) else warm_start
         x, iterations, ok = bvls(_subproblem_form(problem), lb, ub, x0, self.max_iter or 3 * n + 10)
         dt = time.perf_counter() - t0
         if not ok:
