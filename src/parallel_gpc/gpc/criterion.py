@@ -216,5 +216,7 @@ def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:
     if u_map.shape[1] != Nu * m or u_map.shape[0] < Nu * m:
         return False
     ref = _cumulative_map(Nu, Nu, m)
+    if u_map is ref:  # the cached map itself (the incremental form; the nonlinear one with Nu = N)
+        return True
     top = u_map[:Nu * m]
-    return top is ref or (u_map.base is not None and u_map.base is ref.base) or bool(np.array_equal(top, ref))
+    return (u_map.base is not None and u_map.base is ref.base) or bool(np.array_equal(top, ref))

@@ -283,7 +283,7 @@ def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed
     Nu = horizons.Nu
     n = C.shape[1]
     cd = None if cd is None else np.asarray(cd, dtype=float)
-    u_base, u_map = np.tile(u_prev, Nu), _cumulative_map(Nu, Nu, m)
+    u_base, u_map = np.broadcast_to(u_prev, (Nu, m)).reshape(-1), _cumulative_map(Nu, Nu, m)  # tile, faster
     if Ad.shape == (n, n) and Bd.shape == (n, m) and (cd is None or cd.shape == (n,)) and X.shape == (n,):
         f, H = _lti_responses(Ad, Bd, cd, C, X, horizons.N)
         S = np.cumsum(H, axis=0)  # step response

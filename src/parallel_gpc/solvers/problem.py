@@ -115,7 +115,8 @@ def cumulative_block(problem: LeastSquaresProblem) -> int | None:
     mn, L = problem.min_norm_of, problem.L
     if L is None or problem.lb is not None or mn is None or not mn.block or L.shape != (problem.n, problem.n):
         return None
-    same = L is mn.M or (L.base is not None and L.base is mn.M.base) or np.array_equal(L, mn.M)
+    M = mn.M
+    same = L is M or M.base is L or (L.base is not None and L.base is M.base) or np.array_equal(L, M)
     return mn.block if same else None
 
 
