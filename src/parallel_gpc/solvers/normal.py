@@ -77,7 +77,8 @@ def normal_equations_factor(problem: LeastSquaresProblem, factor: bool = True):
         P.T.reshape(-1)[::P.shape[0] + 1] += tail * tail  # P is Fortran-ordered: Pᵀ is a C view
     if tail is not None and tail.min() > 0.0:  # λ_min(P) ≥ min d², λ_max(P) ≤ ‖A_top‖_F² + max d²
         flat = A.reshape(-1) if A.flags.c_contiguous else A.ravel()
-        top = float(np.dot(flat, flat)) + float(tail.max()) ** 2  # no overflow warning: inf fails the bound
+        with np.errstate(over="ignore"):  # an overflowing norm fails the bound: pocon decides
+            top = float(flat @ flat) + float(tail.max()) ** 2
         if top * NORMAL_RCOND < float(tail.min()) ** 2:
             if not factor:
                 return P, At @ b, None

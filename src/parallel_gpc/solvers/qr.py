@@ -121,8 +121,8 @@ def _qr_diag_tail(G: np.ndarray, b: np.ndarray, d: np.ndarray):
     if info != 0:
         return None
     flat = G.reshape(-1) if G.flags.c_contiguous else G.ravel()
-    # np.dot raises no overflow warning: an overflowing norm (a blown-up model) gives inf, the trcon path
-    bound = n * math.sqrt(float(np.dot(flat, flat)) + float(np.dot(d, d))) / float(d.min())
+    with np.errstate(over="ignore"):  # an overflowing norm (a blown-up model) takes the trcon path
+        bound = n * math.sqrt(float(flat @ flat) + float(d @ d)) / float(d.min())
     if not bound * FAST_QR_RCOND < 1.0:
         rcond, info = lapack.dtrcon(R, norm="1", uplo="U", diag="N")
         if info != 0 or not rcond > FAST_QR_RCOND:
