@@ -338,7 +338,7 @@ class GPCController:
         problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
         t2 = time.perf_counter()
         try:
-            result = self._backend.solve(problem, self._warm_start(problem.n))
+            result = self._backend.solve(problem, self._warm_start(pred, problem.n))
         except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
             result = SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self._backend.name,
                                  message=f"{type(exc).__name__}: {exc}")
@@ -393,9 +393,22 @@ class GPCController:
                 f"direction, so the controller stops instead of commanding unbounded torques"
             )
 
-    def _warm_start(self, n: int) -> np.ndarray | None:
+    def _warm_start(self, pred: Prediction, n: int) -> np.ndarray | None:
+        """The previous plan shifted by one sample, as this step's v.
+
+        Absolute form: the previous v shifted. Incremental and nonlinear forms: the v whose inputs
+        u = u_base + M v are the previous plan shifted (M the cumulative map: v = M⁻¹(u − u_base),
+        block differences) — its limits active exactly where the plan's were, whereas the shifted
+        Δu would add them to a base without its null(B_d) part (off the limits by that part). The
+        delayed form: the previous Δu shifted.
+        """
         if self._v_prev is None or self._v_prev.shape != (n,):
             return None
         m = self.n_u
+        if self.form in ("incremental", "nonlinear"):
+            target = np.vstack([self.plan[1:], self.plan[-1:]])[:n // m].reshape(-1)
+            v = target - pred.u_base[:n]
+            v[m:] -= v[:-m].copy()
+            return v
         tail = self._v_prev[-m:] if self.form == "absolute" else np.zeros(m)
         return np.concatenate([self._v_prev[m:], tail])
