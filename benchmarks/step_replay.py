@@ -1,14 +1,16 @@
 #!/usr/bin/env python3
 """Time the control step without the model update, and record u(k) to compare two source trees.
 
-``python benchmarks/step_replay.py time [--robot planar_4rrr] [--reps 5] [--configs a,b]``
+``python benchmarks/step_replay.py time [--robot planar_4rrr] [--reps 5] [--configs a,b] [--cpu]``
     Each configuration (form, limits, back end) runs 60 closed-loop samples on the full plant from a
     state 0.5 s along the robot's default path (N = 20, Ts = 2 ms, Qy = 1, Qu = 1e-5, torque limit
     τ = half the peak |u| of the unconstrained run before it); the samples are then replayed
     ``--reps`` times with the model update served from a cache of the recorded
     ``discrete`` / ``simulate_factorized`` results. Prints the median step time without the model
     update, and the median of the model update alone (measured apart), so that the two can be
-    combined with another model update (a compiled one).
+    combined with another model update (a compiled one). ``--cpu`` times with the thread's CPU
+    clock instead of the wall clock: on a shared machine it leaves out the time the process waits
+    for a core (not the cache misses the other processes cause).
 
 ``python benchmarks/step_replay.py record OUT.npz [--limits-from REF.npz] [--solver NAME]``
     u(k) of 60 closed-loop steps from rest for every form × {no limit, torque limit, Δu limit
@@ -81,7 +83,7 @@ def _robot_and_path(name: str):
     return robot, path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
 
 
-def time_steps(robot_name: str, reps: int, names) -> None:
+def time_steps(robot_name: str, reps: int, names, clock=time.perf_counter) -> None:
     """Print, per configuration, the median step time without the model update (µs)."""
     robot, ref = _robot_and_path(robot_name)
     start = round(0.5 / TS)
@@ -109,17 +111,17 @@ def time_steps(robot_name: str, reps: int, names) -> None:
         for _ in range(reps):
             for X, w, snap in rows:
                 ctl.restore(snap)
-                t0 = time.perf_counter()
+                t0 = clock()
                 ctl.step(X, w)
-                times.append(time.perf_counter() - t0)
+                times.append(clock() - t0)
         update = []
         for X, _, _ in rows[:20]:
-            t0 = time.perf_counter()
+            t0 = clock()
             if form == "nonlinear":
                 model.model.simulate_factorized(X, np.tile(us[-1], (N, 1)), TS)
             else:
                 model.model.discrete(X, TS)
-            update.append(time.perf_counter() - t0)
+            update.append(clock() - t0)
         print(f"{robot_name:12s} {name:28s} step without model update {np.median(times) * 1e6:7.1f} µs   "
               f"model update alone {np.median(update) * 1e6:7.1f} µs", flush=True)
 
@@ -179,6 +181,7 @@ def main() -> None:
     t.add_argument("--robot", default="planar_4rrr")
     t.add_argument("--reps", type=int, default=5)
     t.add_argument("--configs", default=",".join(CONFIGS), help=f"comma-separated, of {list(CONFIGS)}")
+    t.add_argument("--cpu", action="store_true", help="the thread's CPU clock instead of the wall clock")
     r = sub.add_parser("record")
     r.add_argument("out")
     r.add_argument("--limits-from", default=None)
@@ -188,7 +191,8 @@ def main() -> None:
     c.add_argument("b")
     args = p.parse_args()
     if args.command == "time":
-        time_steps(args.robot, args.reps, [s.strip() for s in args.configs.split(",")])
+        time_steps(args.robot, args.reps, [s.strip() for s in args.configs.split(",")],
+                   time.thread_time if args.cpu else time.perf_counter)
     elif args.command == "record":
         record_inputs(args.out, args.limits_from, args.solver)
     else:
