@@ -27,7 +27,6 @@ import time
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.linalg import lapack
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError
 from ..solvers import SolveResult, make_solver
@@ -35,7 +34,7 @@ from ..validation import all_finite, finite_vector
 from .criterion import Criterion, Weights, _limit_vector
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
-from .protocol import ControlModel, conditioning_rule
+from .protocol import ControlModel, condition_number, conditioning_rule
 from .redundancy import null_basis, remove_null
 from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
@@ -66,20 +65,6 @@ class StepInfo:
     @property
     def step_time(self) -> float:
         return self.model_time + self.predict_time + self.solve_time
-
-
-def _condition(gain: np.ndarray) -> float:
-    """Condition number σ_max/σ_min of an input gain (inf when singular or not finite).
-
-    The singular values come from LAPACK ``gesdd`` without vectors, called directly (half the
-    time of ``numpy.linalg.svd`` on the 3×4 … 6×8 gains of the robots). A gain with NaN or inf
-    entries gives a failed call or a non-finite σ_max (σ_max ≥ every |entry|): inf.
-    """
-    if gain.size == 0:
-        return math.inf
-    s, info = lapack.dgesdd(gain, compute_uv=0)[1::2]
-    cond = float(s[0] / s[-1]) if info == 0 and s[-1] > 0 else math.inf
-    return cond if math.isfinite(cond) else math.inf
 
 
 class GPCController:
@@ -376,12 +361,12 @@ class GPCController:
         number grows without bound at an actuation (direct) singularity and as a leg stretches
         or folds. Other models: :func:`~parallel_gpc.gpc.protocol.conditioning_rule`.
         """
-        cond = _condition(gain)
+        cond = condition_number(gain)
         if not cond <= self.max_condition:
             n_y = self.n_y
             if self.n_x == 2 * n_y and np.any(X[n_y:]):  # [y, ẏ]: is it the pose or the velocity?
                 rest = np.concatenate([X[:n_y], np.zeros(n_y)])
-                at_rest = _condition(self._gain(self.model.discrete(rest, self.Ts)[1]))
+                at_rest = condition_number(self._gain(self.model.discrete(rest, self.Ts)[1]))
                 if at_rest <= self.max_condition:
                     raise InvalidParameterError(
                         f"measured velocity {np.asarray(X[n_y:]).tolist()} is too large for the one-sample model at "
@@ -394,14 +379,10 @@ class GPCController:
             )
 
     def _warm_start(self, pred: Prediction, n: int) -> np.ndarray | None:
-        """The previous plan shifted by one sample, as this step's v.
-
-        Absolute form: the previous v shifted. Incremental and nonlinear forms: the v whose inputs
-        u = u_base + M v are the previous plan shifted (M the cumulative map: v = M⁻¹(u − u_base),
-        block differences) — its limits active exactly where the plan's were, whereas the shifted
-        Δu would add them to a base without its null(B_d) part (off the limits by that part). The
-        delayed form: the previous Δu shifted.
-        """
+        """The previous plan shifted by one sample, as v: absolute, v shifted; incremental and
+        nonlinear, v = M⁻¹(plan shifted − u_base) (M cumulative: block differences), limits active
+        exactly where the plan's were (shifted Δu on a base without its null(B_d) part are off
+        them); delayed, the previous Δu shifted."""
         if self._v_prev is None or self._v_prev.shape != (n,):
             return None
         m = self.n_u
