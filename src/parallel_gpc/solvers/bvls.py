@@ -56,7 +56,7 @@ class BVLSSolver:
         n = problem.n
         lb = np.full(n, -np.inf) if problem.lb is None else problem.lb
         ub = np.full(n, np.inf) if problem.ub is None else problem.ub
-        if np.any(lb > ub):
+        if (lb > ub).any():
             return _failed(problem, self.name, "infeasible", 0, time.perf_counter() - t0,
                            "lower bound above upper bound")
         x0 = None if warm_start is None or warm_start.shape != (n,) or not all_finite(warm_start) else warm_start
@@ -110,7 +110,7 @@ class _GramForm:
 
     def __init__(self, P: np.ndarray, q: np.ndarray):
         self.P, self.q = P, q  # P full symmetric
-        self.scale = float(np.max(np.abs(q), initial=0.0))
+        self.scale = float(np.abs(q).max()) if q.size else 0.0
 
     def solve(self, idx: np.ndarray, x: np.ndarray) -> np.ndarray:
         if idx.size == 0:
@@ -159,12 +159,12 @@ def bvls(form, lb: np.ndarray, ub: np.ndarray, x0: np.ndarray | None, max_iter: 
     solves = 0
     if x0 is None:  # a cold start: the unconstrained solution projected on the box
         x0, solves = form.solve(np.arange(n), np.zeros(n)), 1
-    x = np.clip(x0, lb, ub)
+    x = np.minimum(np.maximum(x0, lb), ub)  # np.clip, without its dispatch overhead
     at_lb, at_ub = x <= lb, x >= ub
     tol = DUAL_RTOL * max(form.scale, 1e-300)
     z = None
     while solves < max_iter:
-        idx = np.flatnonzero(~(at_lb | at_ub))
+        idx = (~(at_lb | at_ub)).nonzero()[0]
         if z is None:
             z, solves = form.solve(idx, x), solves + 1
         if _step_to_bounds(x, z, idx, lb, ub, at_lb, at_ub):
@@ -183,12 +183,11 @@ def _step_to_bounds(x, z, idx, lb, ub, at_lb, at_ub) -> bool:
     xf, lf, uf = x[idx], lb[idx], ub[idx]
     below, above = z < lf, z > uf
     out = below | above
-    if not np.any(out):
+    if not out.any():
         return False
-    step = z - xf
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = np.where(below, (lf - xf) / step, (uf - xf) / step)
-    ratio = np.where(out, np.maximum(ratio, 0.0), np.inf)
+    step = z - xf  # nonzero where z is out of the box (x is in it)
+    ratio = np.full(idx.size, np.inf)
+    ratio[out] = np.maximum((np.where(below, lf, uf)[out] - xf[out]) / step[out], 0.0)
     alpha = float(min(np.min(ratio), 1.0))
     hit = out & (ratio <= alpha * (1 + 1e-12))
     x[idx] = np.clip(xf + alpha * step, lf, uf)
@@ -212,7 +211,7 @@ def _free_one(form, x, lb, ub, at_lb, at_ub, tol, solves, max_iter):
     w = form.gradient(x)
     viol = np.where(at_lb, w, 0.0) - np.where(at_ub, w, 0.0)
     while solves < max_iter:
-        j = int(np.argmax(viol))
+        j = int(viol.argmax())
         if viol[j] <= tol:
             return None, solves, True
         was_lb = bool(at_lb[j])
