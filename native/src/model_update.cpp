@@ -1,6 +1,221 @@
-// Placeholder of the compiled model update (filled in by the model-update work).
+// The compiled model update: ReducedModel._factor_rows, discrete and simulate_factorized of
+// model/dynamics.py in C++ (eq. (3), (4), (10)), and its nanobind binding.
+#include "model_update.hpp"
+
+#include <Eigen/Cholesky>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/array.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/vector.h>
+#include <stdexcept>
+
 #include "bindings.hpp"
+#include "pinocchio/serialization.hpp"
 
 namespace pgpc {
-void bind_model_update(nb::module_ &m) { m.attr("has_model_update") = false; }
+namespace {
+pinocchio::Model load_model(const std::string &text) {
+  pinocchio::Model model;
+  model.loadFromString(text);
+  return model;
+}
+}  // namespace
+
+ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::object handler)
+    : cfg(std::move(cfg_)), kin(load_model(model_str), cfg), handler_(std::move(handler)) {
+  n_y = cfg.n_y;
+  n_u = cfg.n_u;
+  n_x = 2 * n_y;
+  n_aug = n_x + n_u + 1;
+  nv = kin.model.nv;
+  n_z = static_cast<long>(cfg.z_idx.size());
+  if (cfg.q_home.size() != kin.model.nq || cfg.branch.size() != static_cast<Index>(cfg.branch_q.size()))
+    throw std::invalid_argument("ModelUpdate: q_home or branch signature of the wrong size");
+  q_last = cfg.q_home;
+  zero_v_ = Vec::Zero(nv);
+  rhs_.setZero(nv, 2 * n_y + n_u + 1);
+  for (Index j = 0; j < n_u; ++j) rhs_(cfg.drive_idx[j], 2 * n_y + j) = 1.0;  // Sᵀ, never changes
+  aug_.setZero(n_x, n_aug);
+  aug_.block(0, n_y, n_y, n_y).setIdentity();
+  expm_.set_table(cfg.degree_norms);
+}
+
+void ModelUpdate::reset() {
+  q_last = cfg.q_home;
+  warm_.reset();
+  sim_warm_.clear();
+}
+
+const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
+  const Vec y = X.head(n_y), yd = X.tail(n_y);
+  kinematics(y, base);
+  const Vec v = T_ * yd;
+  kin.jacobian_rate(q_, v, dPhi_);
+  // ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ), γ bilinear in v: ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i)
+  W_.noalias() = pinv_ * (dPhi_ * T_);
+  warm_->W = W_;
+  warm_->yd = yd;
+  warm_->has_w = true;
+  if (!cfg.bias_symmetric) {
+    W2_.resize(kin.rows, n_y);
+    for (Index i = 0; i < n_y; ++i) {
+      kin.jacobian_rate(q_, T_.col(i), col_);
+      W2_.col(i) = col_ * v;
+    }
+    W_ = 0.5 * (W_ + pinv_ * W2_);
+  }
+  auto &model = kin.model;
+  auto &data = kin.data;
+  pinocchio::computeRNEADerivatives(model, data, q_, v, zero_v_);  // data.dtau_dv = ∂h/∂v, data.M
+  M_ = data.M;
+  M_.triangularView<Eigen::StrictlyLower>() = M_.transpose().triangularView<Eigen::StrictlyLower>();
+  if (!cfg.universal.empty())
+    kin.universal_bias_derivative(q_, v, T_, DT_);
+  else
+    DT_.noalias() = data.dtau_dv * T_;
+  pinocchio::computeGeneralizedGravity(model, data, q_);
+  // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
+  rhs_.leftCols(n_y).noalias() = M_ * T_;
+  Mat Mz(nv, n_z);
+  for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
+  rhs_.middleCols(n_y, n_y).noalias() = Mz * W_;
+  rhs_.middleCols(n_y, n_y) -= 0.5 * DT_;
+  rhs_.col(rhs_.cols() - 1) = -data.g;
+  red_.noalias() = T_.transpose() * rhs_;
+  Eigen::LLT<Mat> llt(red_.leftCols(n_y));
+  if (llt.info() == Eigen::Success) {
+    Z_ = llt.solve(red_.rightCols(red_.cols() - n_y));
+  } else {  // not numerically SPD: the Python solve (LU, or LinAlgError)
+    const Mat A = red_.leftCols(n_y), B = red_.rightCols(red_.cols() - n_y);
+    Z_ = nb::cast<Mat>(handler_.attr("spd_solve")(A, B));
+  }
+  return Z_;
+}
+
+void ModelUpdate::zoh(const Mat &Z, double Ts) {
+  aug_.block(0, n_y, n_y, n_y).diagonal().setConstant(Ts);
+  aug_.bottomRightCorner(n_y, n_aug - n_y) = Z * Ts;
+  if (!expm_.run(aug_, E_)) handler_.attr("nonfinite")();
+}
+
+void ModelUpdate::discrete(const Vec &X, double Ts, double *out) {
+  zoh(factor_rows(X, nullptr), Ts);
+  Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(out, n_x, n_aug) = E_;
+}
+
+void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es,
+                           double *Xs) {
+  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  Eigen::Map<RowMat> X(Xs, K + 1, n_x);
+  X.row(0) = X0.transpose();
+  std::vector<Warm> next;
+  next.reserve(K);
+  Vec x(n_x), xu(n_aug);
+  xu[n_aug - 1] = 1.0;
+  for (long i = 0; i < K; ++i) {
+    x = X.row(i).transpose();
+    // the previous pre-simulation visited nearly the same states one index later
+    const Warm *base = nullptr;
+    if (i + 1 < static_cast<long>(sim_warm_.size())) {
+      const Vec dy = x.head(n_y) - sim_warm_[i + 1].y;
+      if (dy.dot(dy) < 1e-8) base = &sim_warm_[i + 1];
+    }
+    zoh(factor_rows(x, base), Ts);
+    next.push_back(*warm_);
+    Eigen::Map<RowMat>(Es + i * n_x * n_aug, n_x, n_aug) = E_;
+    xu.head(n_x) = x;
+    xu.segment(n_x, n_u) = Eigen::Map<const Vec>(u + i * n_u, n_u);
+    X.row(i + 1) = (E_ * xu).transpose();
+    if (offset != nullptr) X.row(i + 1) += offset->transpose();
+  }
+  sim_warm_ = std::move(next);
+}
+
+namespace {
+void check_state(const ModelUpdate &self, const Vec &X) {
+  if (X.size() != self.n_x) throw std::invalid_argument("the state X must have n_x = 2 n_y entries");
+}
+
+using Array = nb::ndarray<nb::numpy, double>;
+using Input2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+
+Array new_array(std::initializer_list<size_t> shape, double **data) {
+  size_t n = 1;
+  for (size_t d : shape) n *= d;
+  double *buf = new double[n > 0 ? n : 1];
+  nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
+  *data = buf;
+  return Array(buf, shape.size(), shape.begin(), owner);
+}
+
+ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>> closure_frames,
+                  std::vector<long> jac_rows, long n_y, long n_u, std::vector<long> y_q, std::vector<long> y_idx,
+                  std::vector<long> z_idx, std::vector<long> drive_idx, long task_frame,
+                  std::vector<long> task_rows, Eigen::Matrix3d R_ref, std::vector<long> branch_q, Vec branch,
+                  Vec q_home, bool bias_symmetric, std::vector<std::array<long, 2>> universal,
+                  std::vector<double> degree_norms, nb::object handler) {
+  RobotConfig c;
+  c.closure_frames = std::move(closure_frames);
+  c.jac_rows = std::move(jac_rows);
+  c.n_y = n_y;
+  c.n_u = n_u;
+  c.y_q = std::move(y_q);
+  c.y_idx = std::move(y_idx);
+  c.z_idx = std::move(z_idx);
+  c.drive_idx = std::move(drive_idx);
+  c.task_frame = task_frame;
+  c.task_rows = std::move(task_rows);
+  c.R_ref = R_ref;
+  c.branch_q = std::move(branch_q);
+  c.branch = std::move(branch);
+  c.q_home = std::move(q_home);
+  c.bias_symmetric = bias_symmetric;
+  c.universal = std::move(universal);
+  c.degree_norms = std::move(degree_norms);
+  return new ModelUpdate(model_str, std::move(c), std::move(handler));
+}
+}  // namespace
+
+void bind_model_update(nb::module_ &m) {
+  m.attr("has_model_update") = true;
+  nb::class_<ModelUpdate>(m, "ModelUpdate",
+                          "Compiled model update of one robot (see parallel_gpc.model.native_update)")
+      .def(nb::new_(&make), nb::arg("model"), nb::arg("closure_frames"), nb::arg("jac_rows"), nb::arg("n_y"),
+           nb::arg("n_u"), nb::arg("y_q"), nb::arg("y_idx"), nb::arg("z_idx"), nb::arg("drive_idx"),
+           nb::arg("task_frame"), nb::arg("task_rows"), nb::arg("R_ref"), nb::arg("branch_q"),
+           nb::arg("branch"), nb::arg("q_home"), nb::arg("bias_symmetric"), nb::arg("universal"),
+           nb::arg("degree_norms"), nb::arg("handler"))
+      .def("factor_rows", [](ModelUpdate &self, const Vec &X) {
+             check_state(self, X);
+             return Mat(self.factor_rows(X, nullptr));
+           },
+           nb::arg("X"), "(n_y, n_y + n_u + 1) Z = M_r⁻¹ [−C_r | B_r | −g_r] at X = [y, ẏ]")
+      .def("discrete",
+           [](ModelUpdate &self, const Vec &X, double Ts) {
+             check_state(self, X);
+             double *buf;
+             Array out = new_array({size_t(self.n_x), size_t(self.n_aug)}, &buf);
+             self.discrete(X, Ts, buf);
+             return out;
+           },
+           nb::arg("X"), nb::arg("Ts"), "(n_x, n_x + n_u + 1) top rows of the ZOH exponential at X")
+      .def("simulate",
+           [](ModelUpdate &self, const Vec &X0, Input2 u, double Ts, std::optional<Vec> offset) {
+             const long K = static_cast<long>(u.shape(0));
+             if (u.shape(1) != size_t(self.n_u) || X0.size() != self.n_x)
+               throw std::invalid_argument("simulate: X0 must be (n_x,) and u_seq (K, n_u)");
+             if (offset && offset->size() != self.n_x) throw std::invalid_argument("simulate: offset must be (n_x,)");
+             double *Es, *Xs;
+             Array E = new_array({size_t(K), size_t(self.n_x), size_t(self.n_aug)}, &Es);
+             Array X = new_array({size_t(K + 1), size_t(self.n_x)}, &Xs);
+             self.simulate(X0, u.data(), K, Ts, offset ? &*offset : nullptr, Es, Xs);
+             return nb::make_tuple(E, X);
+           },
+           nb::arg("X0"), nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(),
+           "(E (K, n_x, n_aug), X (K + 1, n_x)) of the pre-simulation (10)")
+      .def("reset", &ModelUpdate::reset, "forget the warm starts (back to the home configuration)")
+      .def_prop_ro("q_last", [](ModelUpdate &self) { return Vec(self.q_last); });
+}
 }  // namespace pgpc

@@ -26,6 +26,7 @@ import pinocchio as pin
 from scipy.linalg import lapack
 
 from .discretization import _zoh_split, discretize_zoh, expm, rk4_step
+from .native_update import compiled_model_update, model_update_status
 from .robot import ParallelRobot
 from ..validation import finite_vector, positive
 
@@ -82,12 +83,27 @@ class ReducedModel:
     pass, or two with one Newton step. Results do not depend on them (Newton always converges to
     ‖Φ‖ ≤ 1e-12 on the home branch).
 
+    The factorization, its ZOH discretization and the pre-simulation (:meth:`discrete`,
+    :meth:`factorize`, :meth:`simulate_factorized`) run in the compiled core
+    (:mod:`parallel_gpc.model.native_update`) when it is available; this class is their Python
+    reference (the two agree to rounding, tested) and the compiled path calls back into it for
+    anything unusual, so errors are the same.
+
     Args:
         robot: the robot (its model may carry a mass scale or another gravity).
+        native: None (default) = use the compiled model update when it is available, False = the
+            pure-Python reference, True = require the compiled one (InvalidParameterError if it
+            is not available).
+
+    Attributes:
+        native: True when the compiled model update is used; ``native_reason`` says why or why not.
     """
 
-    def __init__(self, robot: ParallelRobot):
+    def __init__(self, robot: ParallelRobot, native: bool | None = None):
         self.robot = robot
+        self._native = compiled_model_update(robot, native)
+        self.native = self._native is not None
+        self.native_reason = model_update_status(native)
         self.n_y = robot.n_y
         self.n_u = robot.n_u
         self.n_x = 2 * robot.n_y
@@ -192,6 +208,8 @@ class ReducedModel:
     def _factor_rows(self, X: np.ndarray, base=None) -> np.ndarray:
         """(n_y, n_y + n_u + 1) Z = M_r⁻¹ [−C_r | B_r | −g_r]: the ẏ-rows [A₂₂ | B₂ | c₂] of the
         factorization (3) at X (see :meth:`factorize`)."""
+        if self._native is not None and base is None:
+            return self._native.factor_rows(X)
         r = self.robot
         model, data = r.model, r.data
         ny = self.n_y
@@ -248,6 +266,8 @@ class ReducedModel:
         intermediate matrices.
         """
         X = np.asarray(X, dtype=float)
+        if self._native is not None:
+            return _zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return _zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
     def _zoh_augmented(self, X: np.ndarray, Ts: float) -> np.ndarray:
@@ -282,6 +302,9 @@ class ReducedModel:
         u_seq = np.asarray(u_seq, dtype=float)
         K = u_seq.shape[0]
         ny, nu, nx = self.n_y, self.n_u, self.n_x
+        if self._native is not None:
+            Es, Xs = self._native.simulate(X0, u_seq, Ts, None if offset is None else np.asarray(offset, dtype=float))
+            return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs
         n_aug = nx + nu + 1
         aug = np.zeros((K, n_aug, n_aug))
         aug[:, :ny, ny:nx] = np.eye(ny) * Ts

@@ -1,0 +1,132 @@
+// Warm-started assembly and velocity map: the C++ twin of ReducedModel._kinematics
+// (model/dynamics.py) and AssemblyMixin.assemble_warm/_lstsq_z/_map_from (model/assembly.py).
+// Anything unusual goes to the validated Python path (ModelUpdate::fallback), which raises the
+// package's errors exactly as the pure-Python model does.
+#include <Eigen/SVD>
+#include <cmath>
+#include <nanobind/eigen/dense.h>
+#include <stdexcept>
+
+#include "model_update.hpp"
+
+namespace pgpc {
+namespace {
+constexpr double SINGULAR_RCOND = 1e-8;  // assembly.SINGULAR_RCOND
+constexpr double NEWTON_RCOND = 1e-10;   // assembly._NEWTON_RCOND
+
+Mat columns(const Mat &a, const std::vector<long> &idx) {
+  Mat out(a.rows(), static_cast<Index>(idx.size()));
+  for (size_t j = 0; j < idx.size(); ++j) out.col(j) = a.col(idx[j]);
+  return out;
+}
+}  // namespace
+
+void ModelUpdate::step(Vec &q, const Vec &dz) const {
+  if (kin.flat) {
+    for (Index i = 0; i < n_z; ++i) q[cfg.z_idx[i]] -= dz[i];
+    return;
+  }
+  Vec dv = Vec::Zero(nv);
+  for (Index i = 0; i < n_z; ++i) dv[cfg.z_idx[i]] = -dz[i];
+  q = kin.integrate(q, dv);
+}
+
+void ModelUpdate::lstsq_z(const Mat &jac, const Vec &res, Vec &out) {
+  Eigen::JacobiSVD<Mat> svd(columns(jac, cfg.z_idx), Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const Vec &s = svd.singularValues();
+  Index r = 0;
+  if (s[0] > 0)
+    for (Index i = 0; i < s.size(); ++i) r += s[i] > NEWTON_RCOND * s[0];
+  const Vec coef = (svd.matrixU().leftCols(r).transpose() * res).array() / s.head(r).array();
+  out = svd.matrixV().leftCols(r) * coef;
+}
+
+bool ModelUpdate::map_from(const Mat &jac) {
+  Eigen::JacobiSVD<Mat> svd(columns(jac, cfg.z_idx), Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const Vec &s = svd.singularValues();
+  if (!(s[n_z - 1] > SINGULAR_RCOND * s[0])) return false;
+  pinv_ = (svd.matrixV().leftCols(n_z) * s.head(n_z).cwiseInverse().asDiagonal()) *
+          svd.matrixU().leftCols(n_z).transpose();
+  if (!kin.task) {
+    T_.setZero(nv, n_y);
+    for (Index i = 0; i < n_y; ++i) T_(cfg.y_idx[i], i) = 1.0;
+    const Mat Tz = -(pinv_ * columns(jac, cfg.y_idx));
+    for (Index i = 0; i < n_z; ++i) T_.row(cfg.z_idx[i]) = Tz.row(i);
+  } else {
+    T_ = pinv_.rightCols(n_y);
+  }
+  return true;
+}
+
+bool ModelUpdate::assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bool near) {
+  if (!kin.task)
+    for (Index i = 0; i < n_y; ++i) q[cfg.y_q[i]] = pose[i];
+  const double tol2 = 1e-12 * 1e-12;
+  constexpr int max_iter = 8;
+  Vec res, dz;
+  int it = 0;
+  for (; it < max_iter; ++it) {
+    kin.eval(q);
+    res = kin.res_;
+    if (kin.task) res.tail(n_y) -= pose;
+    const double err2 = res.dot(res);
+    if (err2 <= tol2) break;
+    if (!(err2 < 1e-4)) return false;
+    if (it == 0 && pinv_hint != nullptr) {
+      dz = *pinv_hint * res;
+      dz += *pinv_hint * (res - columns(kin.jac_, cfg.z_idx) * dz);
+    } else {
+      lstsq_z(kin.jac_, res, dz);
+    }
+    step(q, dz);
+  }
+  if (it == max_iter) return false;
+  if (!cfg.branch_q.empty() && !(near && it == 0)) {
+    double lowest = INFINITY;
+    for (size_t i = 0; i < cfg.branch_q.size(); ++i)
+      lowest = std::min(lowest, std::sin(q[cfg.branch_q[i]]) * cfg.branch[i]);
+    if (!(lowest > 0)) return false;
+  }
+  if (!map_from(kin.jac_)) return false;
+  q_ = std::move(q);
+  return true;
+}
+
+void ModelUpdate::fallback(const Vec &y) {
+  // robot.assemble(y, q_last) + robot.velocity_map_nocopy(q) in Python: raises UnreachablePoseError,
+  // SingularPoseError, ... with the package's messages
+  Vec q = nb::cast<Vec>(handler_.attr("assemble")(y, q_last));
+  kin.eval(q);
+  if (!map_from(kin.jac_)) {
+    handler_.attr("singular")(q);
+    throw std::runtime_error("compiled velocity map singular where the Python one is not");
+  }
+  q_ = std::move(q);
+}
+
+void ModelUpdate::kinematics(const Vec &y, const Warm *base) {
+  bool near = base != nullptr;
+  const Warm *b = base != nullptr ? base : (warm_ ? &*warm_ : nullptr);
+  bool ok;
+  if (b == nullptr) {
+    ok = assemble_warm(y, q_last, nullptr, near);
+  } else {
+    const Vec dy = y - b->y;
+    Vec step = b->T * dy;
+    if (near) {  // an explicitly given base is ~0.1 mm away: first order is enough
+      near = dy.dot(dy) < 1e-8;
+    } else if (b->has_w) {  // z'' along δy ≈ −Φ_z⁺ Φ̇_q(T δy) T δy with T δy ≈ α T ẏ
+      const double ss = b->yd.dot(b->yd);
+      if (ss > 0.0) {
+        const double a = 0.5 * dy.dot(b->yd) / ss;
+        const Vec curv = a * (b->W * dy);
+        for (Index i = 0; i < n_z; ++i) step[cfg.z_idx[i]] -= curv[i];
+      }
+    }
+    ok = assemble_warm(y, kin.integrate(b->q, step), &b->pinv, near);
+  }
+  if (!ok) fallback(y);
+  q_last = q_;
+  warm_ = Warm{q_, y, T_, pinv_, false, Mat(), Vec()};
+}
+}  // namespace pgpc

@@ -1,0 +1,116 @@
+// Compiled model update of a closed-chain robot: the C++ twin of ReducedModel._factor_rows and
+// everything under it (src/parallel_gpc/model/{assembly,closures,outputs,universal,dynamics}.py).
+// The Python modules are the reference; each function here names the Python function it ports.
+#pragma once
+
+#include <array>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <nanobind/nanobind.h>
+
+#include "zoh.hpp"
+#include "pinocchio/algorithm/frames.hpp"
+#include "pinocchio/algorithm/jacobian.hpp"
+#include "pinocchio/algorithm/joint-configuration.hpp"
+#include "pinocchio/algorithm/rnea-derivatives.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
+
+namespace pgpc {
+namespace nb = nanobind;
+
+// What ParallelRobot knows about the robot (model/robot.py, _setup_outputs/_setup_fast_paths).
+struct RobotConfig {
+  std::vector<std::array<long, 2>> closure_frames;  // (frame a, frame b) per closure
+  std::vector<long> jac_rows;   // rows kept of the stacked 6-D frame differences (robot._jac_rows)
+  long n_y = 0, n_u = 0;
+  std::vector<long> y_q;        // q indices of the output joints (joint outputs)
+  std::vector<long> y_idx;      // v indices of the output joints (joint outputs)
+  std::vector<long> z_idx;      // v indices of the dependent coordinates
+  std::vector<long> drive_idx;  // v indices of the drives
+  long task_frame = -1;         // output frame of a task-space output, -1: joint outputs
+  std::vector<long> task_rows;  // kept axes of [x y z rx ry rz]
+  Eigen::Matrix3d R_ref = Eigen::Matrix3d::Identity();
+  std::vector<long> branch_q;   // q indices of the branch joints
+  Vec branch;                   // home branch signature (signs of sin q)
+  Vec q_home;
+  bool bias_symmetric = true;
+  std::vector<std::array<long, 2>> universal;  // (joint id, first v index) of universal joints
+  std::vector<double> degree_norms;            // discretization._DEGREE_NORMS
+};
+
+// One evaluated configuration: the Newton predictor of the next one (ReducedModel._warm).
+struct Warm {
+  Vec q, y;
+  Mat T, pinv;
+  bool has_w = false;
+  Mat W;
+  Vec yd;
+};
+
+// Kinematics of the assembly rows Ψ = [Φ; h − y] (closures.py, outputs.py, universal.py).
+class Kinematics {
+ public:
+  Kinematics(pinocchio::Model model, const RobotConfig &cfg);
+  // Ψ(q) + [0; y] and ∂Ψ/∂v (ClosureMixin._eval); fills res_, jac_
+  void eval(const Vec &q);
+  // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv)
+  void jacobian_rate(const Vec &q, const Vec &v, Mat &out);
+  // ∂h/∂v · T by RNEA polarization (UniversalJoints.bias_derivative)
+  void universal_bias_derivative(const Vec &q, const Vec &v, const Mat &T, Mat &out);
+  Vec integrate(const Vec &q, const Vec &dv) const;
+
+  pinocchio::Model model;
+  pinocchio::Data data, data_u;
+  const RobotConfig &cfg;
+  bool flat, task, task_rotation;
+  long n_c = 0, rows = 0;  // closure rows, assembly rows (closures + task outputs)
+  Vec res_;
+  Mat jac_;
+
+ private:
+  void frame_rate(long frame, const Vec &v, Eigen::Matrix<double, 6, Eigen::Dynamic> &dJ);
+  std::vector<std::vector<long>> uni_cols_;  // per frame id: v columns of universal joints moving it
+  std::vector<Eigen::Matrix<double, 6, Eigen::Dynamic>> Ja_, Jb_;
+  Eigen::Matrix<double, 6, Eigen::Dynamic> Jt_, dJt_;
+};
+
+class ModelUpdate {
+ public:
+  ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
+  // ReducedModel._factor_rows: Z = M_r⁻¹ [−C_r | B_r | −g_r] at X; base: explicit warm start or null
+  const Mat &factor_rows(const Vec &X, const Warm *base);
+  // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
+  void discrete(const Vec &X, double Ts, double *out);
+  // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
+  void simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es, double *Xs);
+  void reset();
+
+  RobotConfig cfg;
+  Kinematics kin;
+  long n_y, n_u, n_x, n_aug, nv, n_z;
+  Vec q_last;
+
+ private:
+  // ReducedModel._kinematics: (q, T, K⁺) at pose y from the warm start; sets warm_
+  void kinematics(const Vec &y, const Warm *base);
+  // AssemblyMixin.assemble_warm; false when anything is unusual
+  bool assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bool near);
+  bool map_from(const Mat &jac);  // AssemblyMixin._map_from into T_, pinv_
+  void lstsq_z(const Mat &jac, const Vec &res, Vec &out);
+  void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
+  void fallback(const Vec &y);             // the validated Python path (raises the package errors)
+  void zoh(const Mat &Z, double Ts);       // exp of the augmented ZOH matrix, top rows into E_
+
+  nb::object handler_;
+  std::optional<Warm> warm_;
+  std::vector<Warm> sim_warm_, sim_next_;
+  Vec q_, zero_v_;
+  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
+  Mat aug_, E_;
+  TopRowsExpm expm_;
+};
+
+}  // namespace pgpc

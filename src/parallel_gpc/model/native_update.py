@@ -1,0 +1,104 @@
+"""The compiled model update of a :class:`~parallel_gpc.model.robot.ParallelRobot`.
+
+``parallel_gpc._native.ModelUpdate`` is the C++ twin of ``ReducedModel._factor_rows`` and
+everything under it (warm-started assembly, velocity map, Ψ̇_q, RNEA derivatives, reduction,
+factorization (3), the ZOH exponential (4) and the pre-simulation (10)), against Pinocchio's C++
+API. It receives the model in Pinocchio's serialization (mass scale and gravity included) and the
+index tables the robot computed. Whenever the compiled path meets something unusual (Newton not
+converging in a few steps, another branch, a singular K, a non-SPD M_r, NaN/inf) it calls back
+into :class:`_ValidatedPath`, the pure-Python code, which raises the package's errors
+(:class:`~parallel_gpc.errors.UnreachablePoseError`, :class:`~parallel_gpc.errors.SingularPoseError`,
+:class:`~parallel_gpc.errors.NonFiniteError`) exactly as the Python model does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import InvalidParameterError, NonFiniteError, SingularPoseError
+from .discretization import _DEGREE_NORMS
+from .native import native_module, native_status
+
+__all__ = ["compiled_model_update", "model_update_status"]
+
+
+class _ValidatedPath:
+    """The Python calls the compiled model update makes in unusual cases (see the module doc)."""
+
+    def __init__(self, robot):
+        self.robot = robot
+
+    def assemble(self, y: np.ndarray, q_last: np.ndarray) -> np.ndarray:
+        """ReducedModel._kinematics' fallback: Newton from the last q, continuation from home."""
+        q = self.robot.assemble(y, q_last)
+        self.robot.velocity_map_nocopy(q)  # SingularPoseError where K loses rank
+        return q
+
+    def singular(self, q: np.ndarray) -> None:
+        """The compiled rank check failed where Python's passed (a borderline K): raise."""
+        cond = self.robot.singularity(q)["cond_phi_z"]
+        raise SingularPoseError(f"legs singular at platform pose {np.round(self.robot.platform_pose(q), 6).tolist()}: "
+                                f"cond(Φ_z) = {cond:.3g} (compiled model update)")
+
+    @staticmethod
+    def nonfinite() -> None:
+        raise NonFiniteError("matrix exponential of a matrix with NaN or inf entries")
+
+    @staticmethod
+    def spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+        from .dynamics import _spd_solve
+
+        return _spd_solve(A, B)
+
+
+def _output_q_indices(robot) -> list[int]:
+    if robot.task_output is not None:
+        return []
+    return [robot._joint_index(n, "output joint")[0] for n in robot.description.output_joints]
+
+
+def model_update_status(native) -> str:
+    """Why the compiled model update is or is not available (``native`` as in ReducedModel)."""
+    if native is False:
+        return "pure-Python model update (native=False)"
+    module = native_module()
+    if module is None:
+        return f"pure-Python model update: {native_status()}"
+    if not getattr(module, "has_model_update", False):
+        return "pure-Python model update: the compiled core has no model update"
+    return "compiled model update"
+
+
+def compiled_model_update(robot, native=None):
+    """The ``_native.ModelUpdate`` of ``robot``, or None for the pure-Python path.
+
+    Args:
+        robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
+        native: None = use the compiled core when it is available, False = never, True = require it.
+
+    Raises:
+        InvalidParameterError: ``native`` is not None/True/False, or True while the compiled
+            core is not available (the message says why).
+    """
+    if native not in (None, True, False):
+        raise InvalidParameterError(f"native must be None (automatic), True or False, got {native!r}")
+    status = model_update_status(native)
+    if status != "compiled model update":
+        if native:
+            raise InvalidParameterError(f"native=True, but the compiled model update is not available: {status}")
+        return None
+    task = robot.task_output
+    return native_module().ModelUpdate(
+        model=robot.model.saveToString(),
+        closure_frames=[(int(fa), int(fb)) for fa, fb, _ in robot.closure_frames],
+        jac_rows=robot._jac_rows.tolist(), n_y=robot.n_y, n_u=robot.n_u,
+        y_q=_output_q_indices(robot), y_idx=robot.y_idx.tolist(), z_idx=robot.z_idx.tolist(),
+        drive_idx=robot.drive_idx.tolist(),
+        task_frame=-1 if task is None else task.frame_id,
+        task_rows=[] if task is None else task.rows.tolist(),
+        R_ref=np.eye(3) if task is None else np.array(task.R_ref, dtype=float),
+        branch_q=robot._branch_q.tolist(), branch=np.asarray(robot._branch, dtype=float),
+        q_home=robot.q_home, bias_symmetric=bool(robot.bias_symmetric),
+        universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
+        degree_norms=list(_DEGREE_NORMS), handler=_ValidatedPath(robot),
+    )
