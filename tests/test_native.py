@@ -1,0 +1,165 @@
+"""The compiled model update (parallel_gpc._native.ModelUpdate) against the pure-Python reference.
+
+Every embedded robot and the special robots of the suite (universal joints, spherical joint with a
+rotation output, task-space output, MJCF, weld closure, free-flyer root): ``discrete`` and
+``simulate_factorized`` along a trajectory agree to 1e-12 relative, the failure paths raise the same
+package errors, and closed loops of each form give the same inputs. Without the compiled core the
+tests skip with the reason, except under CI (``pip install .`` builds it there: it must exist).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights
+from parallel_gpc.errors import InvalidParameterError, NonFiniteError, UnreachablePoseError
+from parallel_gpc.model.native_update import model_update_status
+
+import mechanisms as mech
+import mechanisms_ups as ups
+
+STATUS = model_update_status(None)
+if STATUS != "compiled model update":
+    if os.environ.get("CI"):
+        raise RuntimeError(f"CI must test the compiled core, but: {STATUS}")
+    print(f"test_native skipped: {STATUS}")
+    pytestmark = pytest.mark.skip(reason=STATUS)
+
+TS = 0.002
+EMBEDDED = ["planar_4rrr", "planar_3rrr", "delta_3rus", "hexapod_6ups", "hexapod_8ups"]
+SPECIAL = ["ups_universal", "rps_spherical", "fivebar_task", "fivebar_mjcf", "fivebar_weld", "fivebar_free_flyer"]
+
+
+def _special(name: str, folder) -> ParallelRobot:
+    if name == "ups_universal":
+        return ParallelRobot.load(mech.write(folder, name, ups.ups_urdf(True), ups.ups_sidecar(True), ".urdf", ".yaml"))
+    if name == "rps_spherical":
+        return ParallelRobot.load(mech.write(folder, name, mech.rps_urdf(True), mech.rps_sidecar(True), ".urdf", ".yaml"))
+    if name == "fivebar_task":
+        return ParallelRobot.load(mech.write(folder, name, mech.fivebar_urdf(), mech.fivebar_sidecar()))
+    if name == "fivebar_mjcf":
+        return ParallelRobot.load(mech.write(folder, name, mech.fivebar_mjcf(), mech.fivebar_mjcf_sidecar(), ".xml"))
+    if name == "fivebar_weld":
+        return ParallelRobot.load(mech.write(folder, name, mech.fivebar_urdf(split=True),
+                                             mech.fivebar_sidecar(split=True)))
+    side = mech.fivebar_sidecar(extra='root = "free_flyer"\n') + (
+        '[[closures]]\nname = "ground"\nkind = "weld"\nframes = ["base", "universe"]\n')
+    return ParallelRobot.load(mech.write(folder, name, mech.fivebar_urdf(), side))
+
+
+@pytest.fixture(scope="module", params=EMBEDDED + SPECIAL)
+def robot(request, tmp_path_factory) -> ParallelRobot:
+    if request.param in EMBEDDED:
+        return ParallelRobot.load(request.param)
+    return _special(request.param, tmp_path_factory.mktemp(request.param))
+
+
+def _trajectory(robot: ParallelRobot, n: int = 20) -> list[np.ndarray]:
+    """n states X = [y, ẏ] along a curved path near home with nonzero velocities (m, rad, /s)."""
+    rng = np.random.default_rng(3)
+    direction, bend = rng.uniform(-1, 1, robot.n_y), rng.uniform(-1, 1, robot.n_y)
+    s = np.linspace(0.0, 1.0, n)
+    return [np.concatenate([robot.home_pose + 0.02 * (t * direction + t * t * bend),
+                            0.5 * (direction + 2 * t * bend)]) for t in s]
+
+
+def _assert_close(ref, got, what: str, rtol: float = 1e-12) -> None:
+    for i, (a, b) in enumerate(zip(ref, got)):
+        a, b = np.asarray(a), np.asarray(b)
+        assert a.shape == b.shape, (what, i, a.shape, b.shape)
+        err = np.linalg.norm(a - b)
+        assert err <= rtol * np.linalg.norm(a) or err == 0.0, f"{what}[{i}]: ‖Δ‖ = {err:.3g}, ‖ref‖ = {np.linalg.norm(a):.3g}"
+
+
+def test_every_robot_uses_the_compiled_update(robot):
+    model = ReducedModel(robot)
+    assert model.native and model.native_reason == "compiled model update"
+    assert not ReducedModel(robot, native=False).native
+
+
+def test_discrete_matches_python_along_a_trajectory(robot):
+    py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)
+    for k, X in enumerate(_trajectory(robot)):
+        _assert_close(py.discrete(X, TS), cc.discrete(X, TS), f"discrete at state {k}")
+        _assert_close(py.factorize(X), cc.factorize(X), f"factorize at state {k}")
+    # a cold start far from the last pose (Newton from the last q, no predictor)
+    X = _trajectory(robot)[0]
+    _assert_close(ReducedModel(robot, native=False).discrete(X, TS), ReducedModel(robot).discrete(X, TS), "cold")
+
+
+def test_simulate_factorized_matches_python(robot):
+    py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)
+    rng = np.random.default_rng(5)
+    X0 = _trajectory(robot)[3]
+    u = rng.uniform(-1, 1, (20, robot.n_u))
+    offset = 1e-4 * rng.standard_normal(2 * robot.n_y)
+    for shift in range(3):  # receding horizon: the second and third calls use the pre-simulation warm starts
+        args = (X0 + 1e-4 * shift, np.roll(u, -shift, axis=0), TS)
+        for off in (None, offset):
+            ref, got = py.simulate_factorized(*args, off), cc.simulate_factorized(*args, off)
+            for name, a, b in zip(("A", "B", "c", "X"), ref, got):
+                _assert_close(a, b, f"simulate {name} (shift {shift})")
+
+
+def test_failure_paths_raise_the_python_errors():
+    robot = ParallelRobot.load("planar_3rrr")
+    py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)
+    far = np.array([2.5, 0.5, 0.0, 0.0, 0.0, 0.0])
+    errors = []
+    for model in (py, cc):
+        with pytest.raises(UnreachablePoseError) as info:
+            model.discrete(far, TS)
+        errors.append(str(info.value))
+    assert errors[0] == errors[1] and "2.5" in errors[0]
+    bad_speed = np.concatenate([robot.home_pose, [np.nan, 0.0, 0.0]])
+    for model in (py, cc):
+        with pytest.raises(NonFiniteError, match="NaN"):
+            model.discrete(bad_speed, TS)
+        with pytest.raises(NonFiniteError, match="NaN"):
+            model.simulate_factorized(bad_speed, np.zeros((3, robot.n_u)), TS)
+    # after a failure both continue from where they were
+    X = np.concatenate([robot.home_pose + 0.01, [0.1, -0.2, 0.3]])
+    _assert_close(py.discrete(X, TS), cc.discrete(X, TS), "after failure")
+
+
+def test_wrong_sizes_and_the_native_switch_are_checked(robot4):
+    cc = ReducedModel(robot4, native=True)
+    with pytest.raises(ValueError, match="n_x"):
+        cc.discrete(np.zeros(4), TS)
+    with pytest.raises(ValueError, match="u_seq"):
+        cc.simulate_factorized(np.concatenate([robot4.home_pose, np.zeros(3)]), np.zeros((3, 2)), TS)
+    with pytest.raises(InvalidParameterError, match="native"):
+        ReducedModel(robot4, native="yes")
+
+
+def test_environment_switch_gives_the_python_path(robot4, monkeypatch):
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
+    model = ReducedModel(robot4)
+    assert not model.native and "PARALLEL_GPC_NATIVE=0" in model.native_reason
+    with pytest.raises(InvalidParameterError, match="not available"):
+        ReducedModel(robot4, native=True)
+
+
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+def test_closed_loop_inputs_are_the_same(name, form):
+    robot = ParallelRobot.load(name)
+    ref = SCurve(duration=0.2) if name == "planar_4rrr" else None
+    pose0 = robot.home_pose if ref is None else ref.pose(0.0)
+    target = pose0 + 0.01
+    runs = []
+    for native in (False, True):
+        ctl = GPCController(ReducedModel(robot, native=native), TS, Horizons(20), Weights(1.0, 1e-5), form=form)
+        plant = ConstrainedPlant(robot, np.concatenate([pose0, np.zeros(robot.n_y)]))
+        us = []
+        for k in range(40):
+            window = ref.window(k * TS, TS, 20) if ref is not None else np.tile(target, (20, 1))
+            u = ctl.step(plant.X, window).u
+            us.append(u)
+            plant.step(u, TS)
+        runs.append(np.array(us))
+    scale = np.abs(runs[0]).max()
+    np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-10 * max(scale, 1.0))
