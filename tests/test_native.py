@@ -163,3 +163,14 @@ def test_closed_loop_inputs_are_the_same(name, form):
         runs.append(np.array(us))
     scale = np.abs(runs[0]).max()
     np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-10 * max(scale, 1.0))
+
+
+def test_cli_info_says_which_model_update_is_used(capsys, monkeypatch):
+    from parallel_gpc.cli import main
+
+    main(["info", "planar_3rrr"])
+    out = capsys.readouterr().out
+    assert "compiled core in use" in out and "model update" in out and "compiled model update" in out
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
+    main(["info", "planar_3rrr"])
+    assert "pure-Python model update" in capsys.readouterr().out

@@ -35,8 +35,11 @@ def robot_info(robot) -> list[tuple[str, str]]:
     from ..model.dynamics import ReducedModel
     from .plan import default_poses
 
+    from ..model.native import native_status
+
     q = robot.q_home
-    terms = ReducedModel(robot).terms_at_q(q, np.zeros(robot.n_y))
+    model = ReducedModel(robot)
+    terms = model.terms_at_q(q, np.zeros(robot.n_y))
     cond = robot.singularity(q)
     rows = [
         ("robot", robot.name),
@@ -51,6 +54,8 @@ def robot_info(robot) -> list[tuple[str, str]]:
         ("closure residual at home [m]", f"{np.max(np.abs(robot.closure_residual(q))):.2e}"),
         ("cond(M) full / reduced", f"{np.linalg.cond(terms.M):.3g} / {np.linalg.cond(terms.M_r):.3g}"),
         ("cond(Phi_z) / cond(B_r) at home", f"{cond['cond_phi_z']:.3g} / {cond['cond_B_r']:.3g}"),
+        ("compiled core", native_status()),
+        ("model update", model.native_reason),
     ]
     A, B = default_poses(robot)
     checks = [(f"pose {label} {np.round(pose, 4).tolist()}", _reach, (pose,))

@@ -1,0 +1,95 @@
+"""Compiled vs pure-Python model update: median µs per call, and the controller step with each.
+
+Per robot: ``ReducedModel.discrete(X, Ts)`` over 20 states along a path with nonzero velocities
+(consecutive calls, as the controller makes them) and one ``simulate_factorized`` of N = 20 states
+(the nonlinear form's pre-simulation, receding: each call starts one state further). Then the
+full ``GPCController.step`` of the absolute and nonlinear forms on planar_4rrr (N = 20,
+Ts = 2 ms, S-curve, closed loop on the constrained plant; only the step is timed) with the
+compiled update on and off.
+
+    OPENBLAS_NUM_THREADS=1 taskset -c 1 python benchmarks/bench_native.py [--reps 5]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from parallel_gpc import (  # noqa: E402
+    ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights,
+)
+
+TS = 0.002
+N = 20
+ROBOTS = ["planar_4rrr", "planar_3rrr", "delta_3rus", "hexapod_6ups", "hexapod_8ups"]
+
+
+def _path(robot: ParallelRobot, n: int = N) -> list[np.ndarray]:
+    rng = np.random.default_rng(3)
+    direction = rng.uniform(-1, 1, robot.n_y)
+    return [np.concatenate([robot.home_pose + 0.02 * t * direction, 0.5 * direction]) for t in np.linspace(0, 1, n)]
+
+
+def _median_us(times) -> float:
+    return float(np.median(times)) * 1e6
+
+
+def model_update_times(name: str, reps: int) -> dict:
+    robot = ParallelRobot.load(name)
+    states = _path(robot)
+    u = np.random.default_rng(1).uniform(-0.5, 0.5, (N, robot.n_u))
+    out = {}
+    for native in (False, True):
+        model = ReducedModel(robot, native=native)
+        disc, sim = [], []
+        for _ in range(reps):
+            for X in states:
+                t0 = time.perf_counter()
+                model.discrete(X, TS)
+                disc.append(time.perf_counter() - t0)
+            for k in range(len(states) - 1):
+                t0 = time.perf_counter()
+                model.simulate_factorized(states[k], np.roll(u, -k, axis=0), TS)
+                sim.append(time.perf_counter() - t0)
+        out["compiled" if native else "python"] = (_median_us(disc), _median_us(sim))
+    return out
+
+
+def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int = 20) -> float:
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = SCurve()
+    ctl = GPCController(ReducedModel(robot, native=native), TS, Horizons(N), Weights(1.0, 1e-5), form=form)
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    times = []
+    for k in range(steps):
+        w = ref.window(k * TS, TS, N)
+        t0 = time.perf_counter()
+        info = ctl.step(plant.X, w)
+        times.append(time.perf_counter() - t0)
+        plant.step(info.u, TS)
+    return _median_us(times[warmup:])
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--reps", type=int, default=5)
+    args = parser.parse_args()
+    print(f"{'robot':<14}{'discrete py':>13}{'compiled':>10}{'ratio':>7}{'simulate20 py':>15}{'compiled':>10}{'ratio':>7}")
+    for name in ROBOTS:
+        t = model_update_times(name, args.reps)
+        (dp, sp), (dc, sc) = t["python"], t["compiled"]
+        print(f"{name:<14}{dp:>11.1f}µs{dc:>8.1f}µs{dp / dc:>6.1f}×{sp:>13.0f}µs{sc:>8.0f}µs{sp / sc:>6.1f}×")
+    print("\nGPCController.step, planar_4rrr, N = 20, Ts = 2 ms (median µs, closed loop)")
+    for form in ("absolute", "nonlinear"):
+        py = np.median([controller_step_times(form, False) for _ in range(args.reps // 2 + 1)])
+        cc = np.median([controller_step_times(form, True) for _ in range(args.reps // 2 + 1)])
+        print(f"  {form:<10} python {py:8.0f} µs   compiled {cc:8.0f} µs   ratio {cc / py:.2f}")
+
+
+if __name__ == "__main__":
+    main()
