@@ -2,6 +2,7 @@
 // (model/dynamics.py) and AssemblyMixin.assemble_warm/_lstsq_z/_map_from (model/assembly.py).
 // Anything unusual goes to the validated Python path (ModelUpdate::fallback), which raises the
 // package's errors exactly as the pure-Python model does.
+#include <Eigen/QR>
 #include <Eigen/SVD>
 #include <cmath>
 #include <nanobind/eigen/dense.h>
@@ -41,12 +42,24 @@ void ModelUpdate::lstsq_z(const Mat &jac, const Vec &res, Vec &out) {
   out = svd.matrixV().leftCols(r) * coef;
 }
 
-bool ModelUpdate::map_from(const Mat &jac) {
-  Eigen::JacobiSVD<Mat> svd(columns(jac, cfg.z_idx), Eigen::ComputeThinU | Eigen::ComputeThinV);
-  const Vec &s = svd.singularValues();
-  if (!(s[n_z - 1] > SINGULAR_RCOND * s[0])) return false;
-  pinv_ = (svd.matrixV().leftCols(n_z) * s.head(n_z).cwiseInverse().asDiagonal()) *
-          svd.matrixU().leftCols(n_z).transpose();
+bool ModelUpdate::map_from(const Mat &jac, bool exact) {
+  const Mat Kz = columns(jac, cfg.z_idx);
+  bool ok = false;
+  if (!exact && Kz.rows() >= n_z) {
+    // Fast path: K⁺ = R⁻¹ Qᵀ (the same K⁺ as the SVD's when K has full column rank), accepted when
+    // the bound s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F) already clears Python's rank test; else the SVD decides.
+    Eigen::HouseholderQR<Mat> qr(Kz);
+    const Mat Qt = (qr.householderQ() * Mat::Identity(Kz.rows(), n_z)).transpose();
+    pinv_ = qr.matrixQR().topRows(n_z).triangularView<Eigen::Upper>().solve(Qt);
+    ok = 1.0 / (pinv_.norm() * Kz.norm()) > SINGULAR_RCOND;
+  }
+  if (!ok) {
+    Eigen::JacobiSVD<Mat> svd(Kz, Eigen::ComputeThinU | Eigen::ComputeThinV);
+    const Vec &s = svd.singularValues();
+    if (!(s[n_z - 1] > SINGULAR_RCOND * s[0])) return false;
+    pinv_ = (svd.matrixV().leftCols(n_z) * s.head(n_z).cwiseInverse().asDiagonal()) *
+            svd.matrixU().leftCols(n_z).transpose();
+  }
   if (!kin.task) {
     T_.setZero(nv, n_y);
     for (Index i = 0; i < n_y; ++i) T_(cfg.y_idx[i], i) = 1.0;
@@ -87,7 +100,7 @@ bool ModelUpdate::assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bo
       lowest = std::min(lowest, std::sin(q[cfg.branch_q[i]]) * cfg.branch[i]);
     if (!(lowest > 0)) return false;
   }
-  if (!map_from(kin.jac_)) return false;
+  if (!map_from(kin.jac_, false)) return false;
   q_ = std::move(q);
   return true;
 }
@@ -97,7 +110,7 @@ void ModelUpdate::fallback(const Vec &y) {
   // SingularPoseError, ... with the package's messages
   Vec q = nb::cast<Vec>(handler_.attr("assemble")(y, q_last));
   kin.eval(q);
-  if (!map_from(kin.jac_)) {
+  if (!map_from(kin.jac_, true)) {
     handler_.attr("singular")(q);
     throw std::runtime_error("compiled velocity map singular where the Python one is not");
   }

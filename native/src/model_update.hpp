@@ -98,7 +98,8 @@ class ModelUpdate {
   void kinematics(const Vec &y, const Warm *base);
   // AssemblyMixin.assemble_warm; false when anything is unusual
   bool assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bool near);
-  bool map_from(const Mat &jac);  // AssemblyMixin._map_from into T_, pinv_
+  // AssemblyMixin._map_from into T_, pinv_; exact: decide the rank by SVD (as Python) only
+  bool map_from(const Mat &jac, bool exact);
   void lstsq_z(const Mat &jac, const Vec &res, Vec &out);
   void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
   void fallback(const Vec &y);             // the validated Python path (raises the package errors)
