@@ -2,7 +2,8 @@
 
 Per robot: ``ReducedModel.discrete(X, Ts)`` over 20 states along a path with nonzero velocities
 (consecutive calls, as the controller makes them) and one ``simulate_factorized`` of N = 20 states
-(the nonlinear form's pre-simulation, receding: each call starts one state further). Then the
+(the nonlinear form's pre-simulation with inputs near those holding the home pose,
+receding: each call starts at the previous call's second state). Then the
 full ``GPCController.step`` of the absolute and nonlinear forms on planar_4rrr (N = 20,
 Ts = 2 ms, S-curve, closed loop on the constrained plant; only the step is timed) with the
 compiled update on and off.
@@ -40,24 +41,28 @@ def _median_us(times) -> float:
 
 
 def model_update_times(name: str, reps: int) -> dict:
+    """Median µs of discrete and simulate_factorized, Python and compiled interleaved per repetition
+    (a shared, loaded machine inflates both alike)."""
     robot = ParallelRobot.load(name)
     states = _path(robot)
-    u = np.random.default_rng(1).uniform(-0.5, 0.5, (N, robot.n_u))
-    out = {}
-    for native in (False, True):
-        model = ReducedModel(robot, native=native)
-        disc, sim = [], []
-        for _ in range(reps):
+    hold = ReducedModel(robot, native=False).terms(np.concatenate([robot.home_pose, np.zeros(robot.n_y)]))
+    u_hold = np.linalg.lstsq(hold.B_r, hold.h_r, rcond=None)[0]  # drive efforts that hold the home pose
+    u = u_hold + np.random.default_rng(1).uniform(-0.5, 0.5, (N, robot.n_u))
+    models = {False: ReducedModel(robot, native=False), True: ReducedModel(robot, native=True)}
+    times = {(native, what): [] for native in models for what in ("discrete", "simulate")}
+    for _ in range(reps):
+        for native, model in models.items():
             for X in states:
                 t0 = time.perf_counter()
                 model.discrete(X, TS)
-                disc.append(time.perf_counter() - t0)
-            for k in range(len(states) - 1):
+                times[native, "discrete"].append(time.perf_counter() - t0)
+            X = states[0]
+            for k in range(N):  # receding horizon: the next call starts at the next simulated state
                 t0 = time.perf_counter()
-                model.simulate_factorized(states[k], np.roll(u, -k, axis=0), TS)
-                sim.append(time.perf_counter() - t0)
-        out["compiled" if native else "python"] = (_median_us(disc), _median_us(sim))
-    return out
+                X_seq = model.simulate_factorized(X, np.roll(u, -k, axis=0), TS)[3]
+                times[native, "simulate"].append(time.perf_counter() - t0)
+                X = X_seq[1]
+    return {key: _median_us(t) for key, t in times.items()}
 
 
 def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int = 20) -> float:
@@ -82,14 +87,16 @@ def main() -> None:
     print(f"{'robot':<14}{'discrete py':>13}{'compiled':>10}{'ratio':>7}{'simulate20 py':>15}{'compiled':>10}{'ratio':>7}")
     for name in ROBOTS:
         t = model_update_times(name, args.reps)
-        (dp, sp), (dc, sc) = t["python"], t["compiled"]
+        dp, sp, dc, sc = (t[False, "discrete"], t[False, "simulate"], t[True, "discrete"], t[True, "simulate"])
         print(f"{name:<14}{dp:>11.1f}µs{dc:>8.1f}µs{dp / dc:>6.1f}×{sp:>13.0f}µs{sc:>8.0f}µs{sp / sc:>6.1f}×")
     print("\nGPCController.step, planar_4rrr, N = 20, Ts = 2 ms (median µs, closed loop)")
     for form in ("absolute", "nonlinear"):
-        py = np.median([controller_step_times(form, False) for _ in range(args.reps // 2 + 1)])
-        cc = np.median([controller_step_times(form, True) for _ in range(args.reps // 2 + 1)])
+        runs = {native: [] for native in (False, True)}
+        for _ in range(args.reps):  # interleaved
+            for native in runs:
+                runs[native].append(controller_step_times(form, native))
+        py, cc = np.median(runs[False]), np.median(runs[True])
         print(f"  {form:<10} python {py:8.0f} µs   compiled {cc:8.0f} µs   ratio {cc / py:.2f}")
-
 
 if __name__ == "__main__":
     main()

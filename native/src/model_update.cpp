@@ -176,12 +176,29 @@ ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>>
   c.degree_norms = std::move(degree_norms);
   return new ModelUpdate(model_str, std::move(c), std::move(handler));
 }
+// the instance holds a Python object (the validated path): let the cyclic GC see and break it
+int traverse(PyObject *self, visitproc visit, void *arg) {
+  Py_VISIT(Py_TYPE(self));
+  if (!nb::inst_ready(self)) return 0;
+  Py_VISIT(nb::inst_ptr<ModelUpdate>(self)->handler().ptr());
+  return 0;
+}
+
+int clear(PyObject *self) {
+  nb::inst_ptr<ModelUpdate>(self)->handler() = nb::none();
+  return 0;
+}
+
+PyType_Slot gc_slots[] = {{Py_tp_traverse, reinterpret_cast<void *>(traverse)},
+                          {Py_tp_clear, reinterpret_cast<void *>(clear)},
+                          {0, nullptr}};
 }  // namespace
 
 void bind_model_update(nb::module_ &m) {
   m.attr("has_model_update") = true;
   nb::class_<ModelUpdate>(m, "ModelUpdate",
-                          "Compiled model update of one robot (see parallel_gpc.model.native_update)")
+                          "Compiled model update of one robot (see parallel_gpc.model.native_update)",
+                          nb::type_slots(gc_slots))
       .def(nb::new_(&make), nb::arg("model"), nb::arg("closure_frames"), nb::arg("jac_rows"), nb::arg("n_y"),
            nb::arg("n_u"), nb::arg("y_q"), nb::arg("y_idx"), nb::arg("z_idx"), nb::arg("drive_idx"),
            nb::arg("task_frame"), nb::arg("task_rows"), nb::arg("R_ref"), nb::arg("branch_q"),

@@ -87,6 +87,7 @@ class ModelUpdate {
   // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
   void simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es, double *Xs);
   void reset();
+  nb::object &handler() { return handler_; }  // for the cyclic GC (tp_traverse / tp_clear)
 
   RobotConfig cfg;
   Kinematics kin;
