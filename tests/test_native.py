@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights
-from parallel_gpc.errors import InvalidParameterError, NonFiniteError, UnreachablePoseError
+from parallel_gpc.errors import InvalidParameterError, NonFiniteError, SingularPoseError, UnreachablePoseError
 from parallel_gpc.model.native_update import model_update_status
 
 import mechanisms as mech
@@ -123,6 +123,36 @@ def test_failure_paths_raise_the_python_errors():
     # after a failure both continue from where they were
     X = np.concatenate([robot.home_pose + 0.01, [0.1, -0.2, 0.3]])
     _assert_close(py.discrete(X, TS), cc.discrete(X, TS), "after failure")
+
+
+def test_a_far_jump_takes_the_validated_path_and_still_matches(monkeypatch):
+    from parallel_gpc.model import native_update
+
+    calls = []
+    original = native_update._ValidatedPath.assemble
+    monkeypatch.setattr(native_update._ValidatedPath, "assemble",
+                        lambda self, y, q_last: calls.append(y.copy()) or original(self, y, q_last))
+    robot = ParallelRobot.load("planar_4rrr")
+    py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)
+    for jump in (0.0, 0.15, -0.1):  # 0.15 m away: Newton from the warm start is refused, continuation from home
+        X = np.concatenate([robot.home_pose + jump * np.array([1.0, 0.5, 0.0]), [0.2, -0.1, 0.3]])
+        _assert_close(py.discrete(X, TS), cc.discrete(X, TS), f"jump {jump}")
+    assert len(calls) >= 1
+
+
+def test_a_singular_velocity_map_on_the_fallback_path_raises_singular_pose_error(monkeypatch):
+    """The compiled rank check (SVD on the fallback path) refuses a configuration with a stretched
+    leg (elbow angle exactly 0: Φ_z loses rank) and reports it through the package's error."""
+    from parallel_gpc.model import native_update
+
+    robot = ParallelRobot.load("planar_3rrr")
+    stretched = robot.q_home.copy()
+    stretched[robot.model.joints[robot.model.getJointId("elbow_1")].idx_q] = 0.0
+    assert robot.singularity(stretched)["cond_phi_z"] > 1e8
+    monkeypatch.setattr(native_update._ValidatedPath, "assemble", lambda self, y, q_last: stretched)
+    model = ReducedModel(robot, native=True)
+    with pytest.raises(SingularPoseError, match="legs singular"):
+        model.discrete(np.array([2.5, 0.5, 0.0, 0.0, 0.0, 0.0]), TS)  # unreachable: the fallback path
 
 
 def test_wrong_sizes_and_the_native_switch_are_checked(robot4):
