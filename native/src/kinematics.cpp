@@ -2,6 +2,8 @@
 // model/closures.py (ClosureMixin._eval, closure_jacobian_derivative), model/outputs.py
 // (TaskOutput.value/jacobian/jacobian_derivative, hlog3) and model/universal.py.
 #include <cmath>
+#include <stdexcept>
+#include <string>
 
 #include "model_update.hpp"
 #include "pinocchio/algorithm/kinematics.hpp"
@@ -52,12 +54,25 @@ Kinematics::Kinematics(pinocchio::Model model_, const RobotConfig &cfg_)
   Jb_ = Ja_;
   Jt_.setZero(6, model.nv);
   dJt_.setZero(6, model.nv);
+  for (const auto &ab : cfg.closure_frames) frames_.insert(frames_.end(), ab.begin(), ab.end());
+  if (task) frames_.push_back(cfg.task_frame);
+  for (long f : frames_)
+    if (f < 0 || f >= static_cast<long>(model.nframes))
+      throw std::invalid_argument("ModelUpdate: frame index " + std::to_string(f) + " is not in the model");
   uni_cols_.assign(model.nframes, {});
   for (long f = 0; f < static_cast<long>(model.nframes); ++f) {  // UniversalJoints._frame_columns
     const auto &supports = model.supports[model.frames[f].parentJoint];
     for (const auto &jv : cfg.universal)
       for (auto jid : supports)
         if (static_cast<long>(jid) == jv[0]) uni_cols_[f].push_back(jv[1]);
+  }
+}
+
+void Kinematics::place_frames() {
+  // what updateFramePlacements does, for the closure and output frames only
+  for (long f : frames_) {
+    const auto &frame = model.frames[f];
+    data.oMf[f] = data.oMi[frame.parentJoint] * frame.placement;
   }
 }
 
@@ -70,7 +85,7 @@ Vec Kinematics::integrate(const Vec &q, const Vec &dv) const {
 
 void Kinematics::eval(const Vec &q) {
   pinocchio::computeJointJacobians(model, data, q);
-  pinocchio::updateFramePlacements(model, data);
+  place_frames();
   long row = 0;
   for (size_t k = 0; k < cfg.closure_frames.size(); ++k) {
     const auto &oMa = data.oMf[cfg.closure_frames[k][0]];
@@ -134,7 +149,7 @@ void Kinematics::frame_rate(long frame, const Vec &v, Eigen::Matrix<double, 6, E
 void Kinematics::jacobian_rate(const Vec &q, const Vec &v, Mat &out) {
   out.resize(rows, model.nv);
   pinocchio::computeJointJacobiansTimeVariation(model, data, q, v);
-  if (!cfg.universal.empty()) pinocchio::updateFramePlacements(model, data);
+  if (!cfg.universal.empty()) place_frames();
   for (size_t k = 0; k < cfg.closure_frames.size(); ++k) {
     frame_rate(cfg.closure_frames[k][0], v, Ja_[k]);
     frame_rate(cfg.closure_frames[k][1], v, Jb_[k]);

@@ -71,7 +71,9 @@ class Kinematics {
   Mat jac_;
 
  private:
+  void place_frames();  // data.oMf of the closure and output frames (from data.oMi)
   void frame_rate(long frame, const Vec &v, Eigen::Matrix<double, 6, Eigen::Dynamic> &dJ);
+  std::vector<long> frames_;                 // closure frames, then the output frame
   std::vector<std::vector<long>> uni_cols_;  // per frame id: v columns of universal joints moving it
   std::vector<Eigen::Matrix<double, 6, Eigen::Dynamic>> Ja_, Jb_;
   Eigen::Matrix<double, 6, Eigen::Dynamic> Jt_, dJt_;
