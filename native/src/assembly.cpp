@@ -2,6 +2,7 @@
 // (model/dynamics.py) and AssemblyMixin.assemble_warm/_lstsq_z/_map_from (model/assembly.py).
 // Anything unusual goes to the validated Python path (ModelUpdate::fallback), which raises the
 // package's errors exactly as the pure-Python model does.
+#include <Eigen/LU>
 #include <Eigen/QR>
 #include <Eigen/SVD>
 #include <cmath>
@@ -20,6 +21,32 @@ Mat columns(const Mat &a, const std::vector<long> &idx) {
   for (size_t j = 0; j < idx.size(); ++j) out.col(j) = a.col(idx[j]);
   return out;
 }
+
+// K⁺ of a K with full column rank by a fast factorization, and a lower bound of s_min/s_max
+// (0 when not computed). K⁺ is unique then, so it equals the SVD's K⁺ to rounding: an LU inverse
+// when K is square once its identically-zero rows are dropped (planar point closures, the usual
+// case), Householder QR (K⁺ = R⁻¹ Qᵀ) otherwise. Bound: s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F).
+double fast_pinv(const Mat &K, Mat &P) {
+  const Index n = K.cols();
+  std::vector<Index> rows;
+  for (Index i = 0; i < K.rows(); ++i)
+    if (!(K.row(i).array() == 0.0).all()) rows.push_back(i);
+  if (static_cast<Index>(rows.size()) == n) {
+    Mat Ks(n, n);
+    for (Index i = 0; i < n; ++i) Ks.row(i) = K.row(rows[i]);
+    const Mat inv = Eigen::PartialPivLU<Mat>(Ks).inverse();
+    P.setZero(n, K.rows());
+    for (Index i = 0; i < n; ++i) P.col(rows[i]) = inv.col(i);
+  } else if (K.rows() >= n) {
+    Eigen::HouseholderQR<Mat> qr(K);
+    const Mat Qt = (qr.householderQ() * Mat::Identity(K.rows(), n)).transpose();
+    P = qr.matrixQR().topRows(n).triangularView<Eigen::Upper>().solve(Qt);
+  } else {
+    return 0.0;
+  }
+  const double bound = 1.0 / (P.norm() * K.norm());
+  return std::isfinite(bound) ? bound : 0.0;
+}
 }  // namespace
 
 void ModelUpdate::step(Vec &q, const Vec &dz) const {
@@ -33,7 +60,13 @@ void ModelUpdate::step(Vec &q, const Vec &dz) const {
 }
 
 void ModelUpdate::lstsq_z(const Mat &jac, const Vec &res, Vec &out) {
-  Eigen::JacobiSVD<Mat> svd(columns(jac, cfg.z_idx), Eigen::ComputeThinU | Eigen::ComputeThinV);
+  const Mat Kz = columns(jac, cfg.z_idx);
+  Mat P;
+  if (fast_pinv(Kz, P) > NEWTON_RCOND) {  // no singular value is cut: the minimum-norm solution is K⁺ res
+    out = P * res;
+    return;
+  }
+  Eigen::JacobiSVD<Mat> svd(Kz, Eigen::ComputeThinU | Eigen::ComputeThinV);
   const Vec &s = svd.singularValues();
   Index r = 0;
   if (s[0] > 0)
@@ -44,15 +77,8 @@ void ModelUpdate::lstsq_z(const Mat &jac, const Vec &res, Vec &out) {
 
 bool ModelUpdate::map_from(const Mat &jac, bool exact) {
   const Mat Kz = columns(jac, cfg.z_idx);
-  bool ok = false;
-  if (!exact && Kz.rows() >= n_z) {
-    // Fast path: K⁺ = R⁻¹ Qᵀ (the same K⁺ as the SVD's when K has full column rank), accepted when
-    // the bound s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F) already clears Python's rank test; else the SVD decides.
-    Eigen::HouseholderQR<Mat> qr(Kz);
-    const Mat Qt = (qr.householderQ() * Mat::Identity(Kz.rows(), n_z)).transpose();
-    pinv_ = qr.matrixQR().topRows(n_z).triangularView<Eigen::Upper>().solve(Qt);
-    ok = 1.0 / (pinv_.norm() * Kz.norm()) > SINGULAR_RCOND;
-  }
+  // fast path accepted when the bound clears Python's rank test; else the SVD decides
+  const bool ok = !exact && fast_pinv(Kz, pinv_) > SINGULAR_RCOND;
   if (!ok) {
     Eigen::JacobiSVD<Mat> svd(Kz, Eigen::ComputeThinU | Eigen::ComputeThinV);
     const Vec &s = svd.singularValues();
