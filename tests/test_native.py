@@ -173,7 +173,7 @@ def test_environment_switch_gives_the_python_path(robot4, monkeypatch):
         ReducedModel(robot4, native=True)
 
 
-@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus", "hexapod_6ups"])
 @pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
 def test_closed_loop_inputs_are_the_same(name, form):
     robot = ParallelRobot.load(name)
