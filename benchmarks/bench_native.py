@@ -8,7 +8,9 @@ full ``GPCController.step`` of the absolute and nonlinear forms on planar_4rrr (
 Ts = 2 ms, S-curve, closed loop on the constrained plant; only the step is timed) with the
 compiled update on and off.
 
-    OPENBLAS_NUM_THREADS=1 taskset -c 1 python benchmarks/bench_native.py [--reps 5]
+    OPENBLAS_NUM_THREADS=1 taskset -c 1 python benchmarks/bench_native.py [--reps 5] [--cpu]
+
+``--cpu`` times with the thread's CPU clock instead of the wall clock (for a shared machine).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from parallel_gpc import (  # noqa: E402
 
 TS = 0.002
 N = 20
+clock = time.perf_counter  # --cpu: time.thread_time
 ROBOTS = ["planar_4rrr", "planar_3rrr", "delta_3rus", "hexapod_6ups", "hexapod_8ups"]
 
 
@@ -53,14 +56,14 @@ def model_update_times(name: str, reps: int) -> dict:
     for _ in range(reps):
         for native, model in models.items():
             for X in states:
-                t0 = time.perf_counter()
+                t0 = clock()
                 model.discrete(X, TS)
-                times[native, "discrete"].append(time.perf_counter() - t0)
+                times[native, "discrete"].append(clock() - t0)
             X = states[0]
             for k in range(N):  # receding horizon: the next call starts at the next simulated state
-                t0 = time.perf_counter()
+                t0 = clock()
                 X_seq = model.simulate_factorized(X, np.roll(u, -k, axis=0), TS)[3]
-                times[native, "simulate"].append(time.perf_counter() - t0)
+                times[native, "simulate"].append(clock() - t0)
                 X = X_seq[1]
     return {key: _median_us(t) for key, t in times.items()}
 
@@ -73,9 +76,9 @@ def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int
     times = []
     for k in range(steps):
         w = ref.window(k * TS, TS, N)
-        t0 = time.perf_counter()
+        t0 = clock()
         info = ctl.step(plant.X, w)
-        times.append(time.perf_counter() - t0)
+        times.append(clock() - t0)
         plant.step(info.u, TS)
     return _median_us(times[warmup:])
 
@@ -83,7 +86,10 @@ def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=5)
+    parser.add_argument("--cpu", action="store_true", help="the thread's CPU clock instead of the wall clock")
     args = parser.parse_args()
+    global clock
+    clock = time.thread_time if args.cpu else time.perf_counter
     print(f"{'robot':<14}{'discrete py':>13}{'compiled':>10}{'ratio':>7}{'simulate20 py':>15}{'compiled':>10}{'ratio':>7}")
     for name in ROBOTS:
         t = model_update_times(name, args.reps)
