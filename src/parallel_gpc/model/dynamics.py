@@ -26,7 +26,7 @@ import pinocchio as pin
 from scipy.linalg import lapack
 
 from .discretization import _zoh_split, discretize_zoh, expm, rk4_step
-from .native_update import compiled_model_update, model_update_status
+from .native_update import compiled_model_update, model_update_status, use_native
 from .robot import ParallelRobot
 from ..validation import finite_vector, positive
 
@@ -101,9 +101,9 @@ class ReducedModel:
 
     def __init__(self, robot: ParallelRobot, native: bool | None = None):
         self.robot = robot
-        self._native = compiled_model_update(robot, native)
-        self.native = self._native is not None
+        self.native = use_native(native)
         self.native_reason = model_update_status(native)
+        self._compiled = None  # the _native.ModelUpdate, built at first use (plants only need terms)
         self.n_y = robot.n_y
         self.n_u = robot.n_u
         self.n_x = 2 * robot.n_y
@@ -119,6 +119,13 @@ class ReducedModel:
         self._rhs[:, 2 * ny:2 * ny + nu] = self._S
         self._A0 = np.zeros((2 * ny, 2 * ny))
         self._A0[:ny, ny:] = np.eye(ny)
+
+    @property
+    def _native(self):
+        """The compiled model update (built at first use)."""
+        if self._compiled is None:
+            self._compiled = compiled_model_update(self.robot)
+        return self._compiled
 
     # -------------------------------------------------------------- kinematics
     def _kinematics(self, y: np.ndarray, base=None):
@@ -208,7 +215,7 @@ class ReducedModel:
     def _factor_rows(self, X: np.ndarray, base=None) -> np.ndarray:
         """(n_y, n_y + n_u + 1) Z = M_r⁻¹ [−C_r | B_r | −g_r]: the ẏ-rows [A₂₂ | B₂ | c₂] of the
         factorization (3) at X (see :meth:`factorize`)."""
-        if self._native is not None and base is None:
+        if self.native and base is None:
             return self._native.factor_rows(X)
         r = self.robot
         model, data = r.model, r.data
@@ -266,7 +273,7 @@ class ReducedModel:
         intermediate matrices.
         """
         X = np.asarray(X, dtype=float)
-        if self._native is not None:
+        if self.native:
             return _zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return _zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
@@ -302,7 +309,7 @@ class ReducedModel:
         u_seq = np.asarray(u_seq, dtype=float)
         K = u_seq.shape[0]
         ny, nu, nx = self.n_y, self.n_u, self.n_x
-        if self._native is not None:
+        if self.native:
             Es, Xs = self._native.simulate(X0, u_seq, Ts, None if offset is None else np.asarray(offset, dtype=float))
             return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs
         n_aug = nx + nu + 1

@@ -19,7 +19,7 @@ from ..errors import InvalidParameterError, NonFiniteError, SingularPoseError
 from .discretization import _DEGREE_NORMS
 from .native import native_module, native_status
 
-__all__ = ["compiled_model_update", "model_update_status"]
+__all__ = ["compiled_model_update", "model_update_status", "use_native"]
 
 
 class _ValidatedPath:
@@ -69,12 +69,11 @@ def model_update_status(native) -> str:
     return "compiled model update"
 
 
-def compiled_model_update(robot, native=None):
-    """The ``_native.ModelUpdate`` of ``robot``, or None for the pure-Python path.
+def use_native(native=None) -> bool:
+    """Whether a ReducedModel built with ``native`` uses the compiled model update.
 
     Args:
-        robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
-        native: None = use the compiled core when it is available, False = never, True = require it.
+        native: None = when the compiled core is available, False = never, True = required.
 
     Raises:
         InvalidParameterError: ``native`` is not None/True/False, or True while the compiled
@@ -86,7 +85,13 @@ def compiled_model_update(robot, native=None):
     if status != "compiled model update":
         if native:
             raise InvalidParameterError(f"native=True, but the compiled model update is not available: {status}")
-        return None
+        return False
+    return True
+
+
+def compiled_model_update(robot):
+    """The ``_native.ModelUpdate`` of ``robot`` (the compiled core must be available, see
+    :func:`use_native`): the model in Pinocchio's serialization and the robot's index tables."""
     task = robot.task_output
     return native_module().ModelUpdate(
         model=robot.model.saveToString(),
