@@ -88,7 +88,7 @@ class AssemblyMixin:
         q = np.array(q_guess, dtype=float)
         task = self.task_output is not None
         if not task:
-            q[self._ys] = pose
+            q[self._y_q] = pose  # q indices (y_idx are v indices: they differ after a multi-DOF joint)
         zs = self.dependent_v
         tol2 = tol * tol
         for it in range(max_iter):
