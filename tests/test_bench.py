@@ -183,6 +183,11 @@ def test_tiny_benchmark_writes_json_and_plot(tiny_run):
         assert ("step", form) in methods and ("step", f"{form} +limits") in methods
     names = {t["target"] for t in data["targets"]}
     assert names >= {"absolute step median (replayed)", "nonlinear step median (closed loop)"}
+    rows = {(r["section"], r["method"]): r for r in data["results"]}
+    for form in ("absolute", "incremental", "nonlinear"):  # the speed-up over the same run's Python step
+        fast, ref = rows[("step", form)], rows[("step", f"{form} (Python reference)")]
+        assert fast["speedup_over_python"] == pytest.approx(ref["median_us"] / fast["median_us"])
+        assert f"{form} step speed-up over the pure-Python reference step (replayed)" in names
     assert any(n.startswith("closed loop 0.02 s at 1000 Hz") for n in names)
 
 

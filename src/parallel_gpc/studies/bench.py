@@ -99,7 +99,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
     lim_methods += [(name, make_solver(name)) for name in ("bvls", "qr-first:bvls", "qr-first:daqp-direct")]
 
     # ---- full steps: each controller's own closed loop (untimed recording pass)
-    steps = _controllers(lambda: ReducedModel(robot), cfg, N, tau)
+    steps = _controllers(lambda native: ReducedModel(robot, native=native), cfg, N, tau)
     seqs = {cname: _record(ctl, robot, stretches, ref, N, run.entry("loop", name, N, cname), cfg.warmup)
             for cname, ctl in steps}
     # ---- qpmpc: the LTV models of the nonlinear pre-simulation at each sample

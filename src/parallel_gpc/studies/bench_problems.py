@@ -23,6 +23,7 @@ from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..model.robot import ParallelRobot
 from .simulation import simulate
+from .bench_report import PYTHON_REFERENCE
 
 if TYPE_CHECKING:
     from .bench_store import _Entry
@@ -125,20 +126,23 @@ def _start_at(ctl: GPCController, smp: _Sample) -> None:
 
 
 def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
-    """The full-step configurations: (name, controller)."""
+    """The full-step configurations: (name, controller). ``model_factory(native)`` builds the
+    controller's model: ``native=None`` the default (the compiled core when built), ``False`` the
+    pure-Python reference, timed in the same run for the speed-up rows."""
     H = Horizons(N)
     W = Weights(1.0, cfg.qu)
     out = []
     for form in ("absolute", "incremental", "nonlinear"):
-        out.append((f"{form}", GPCController(model_factory(), cfg.Ts, H, W, form=form)))
-        out.append((f"{form} +limits", GPCController(model_factory(), cfg.Ts, H, W, form=form, torque_limit=tau)))
+        out.append((f"{form}", GPCController(model_factory(None), cfg.Ts, H, W, form=form)))
+        out.append((f"{form}{PYTHON_REFERENCE}", GPCController(model_factory(False), cfg.Ts, H, W, form=form)))
+        out.append((f"{form} +limits", GPCController(model_factory(None), cfg.Ts, H, W, form=form, torque_limit=tau)))
     for form in ("absolute", "incremental"):  # the paper's Fig. 2 weights: Qu = 0, minimum-norm QR
-        out.append((f"{form} Qu=0", GPCController(model_factory(), cfg.Ts, H, Weights(1.0, 0.0), form=form)))
+        out.append((f"{form} Qu=0", GPCController(model_factory(None), cfg.Ts, H, Weights(1.0, 0.0), form=form)))
     for form in ("absolute", "incremental"):  # limits through DAQP alone (no QR first)
-        out.append((f"{form} +limits daqp-direct", GPCController(model_factory(), cfg.Ts, H, W, form=form,
+        out.append((f"{form} +limits daqp-direct", GPCController(model_factory(None), cfg.Ts, H, W, form=form,
                                                                  torque_limit=tau, solver="daqp-direct")))
-    out.append(("absolute +limits bvls", GPCController(model_factory(), cfg.Ts, H, W, torque_limit=tau, solver="bvls")))
-    out.append(("absolute cholesky", GPCController(model_factory(), cfg.Ts, H, W, solver="cholesky")))
+    out.append(("absolute +limits bvls", GPCController(model_factory(None), cfg.Ts, H, W, torque_limit=tau, solver="bvls")))
+    out.append(("absolute cholesky", GPCController(model_factory(None), cfg.Ts, H, W, solver="cholesky")))
     return out
 
 

@@ -17,7 +17,11 @@ TARGETS = {
     "qpmpc_speedup": 8.0,
     "nonlinear_step_median_s": 2.0e-3,
     "closed_loop_wall_per_simulated_s": 0.5,
+    "step_speedup_over_python": 4.0,
+    "nonlinear_step_speedup_over_python": 6.0,
 }
+#: suffix of the step rows timed with the pure-Python model update (the reference of the speed-ups)
+PYTHON_REFERENCE = " (Python reference)"
 #: the method name of the unit row: one bare LAPACK QR of the stacked problem's size.
 QR_UNIT = "one LAPACK QR (dgeqrf, same size)"
 
@@ -54,7 +58,9 @@ def machine_info() -> dict:
 def ratios(rows: list[dict]) -> None:
     """ratio_to_qr: median / median of the QR (LAPACK) solve of the same robot and N;
     ratio_to_qr_unit: median / median of one bare ``dgeqrf`` of the same size (:data:`QR_UNIT`);
-    limited steps also get ratio_to_unconstrained_step."""
+    limited steps also get ratio_to_unconstrained_step, and the default steps
+    speedup_over_python: the median of the same form's pure-Python reference step (same run,
+    same section) over this one."""
     qr = {(r["robot"], r["N"]): r["median_us"] for r in rows
           if r["section"] == "unconstrained" and r["method"] == "qr (LAPACK)"}
     unit = {(r["robot"], r["N"]): r["median_us"] for r in rows
@@ -69,6 +75,9 @@ def ratios(rows: list[dict]) -> None:
         if r["section"] in ("step", "loop") and " +limits" in r["method"]:
             free = steps.get((r["section"], r["robot"], r["N"], r["method"].split(" +limits")[0]))
             r["ratio_to_unconstrained_step"] = r["median_us"] / free if free else None
+        if r["section"] in ("step", "loop") and r["median_us"]:
+            ref = steps.get((r["section"], r["robot"], r["N"], r["method"] + PYTHON_REFERENCE))
+            r["speedup_over_python"] = ref / r["median_us"] if ref else None
 
 
 def evaluate_targets(rows: list[dict], closed_loop: dict | None = None, robot: str = "planar_4rrr",
@@ -107,6 +116,12 @@ def evaluate_targets(rows: list[dict], closed_loop: dict | None = None, robot: s
         r = get.get((sec, robot, N, "nonlinear"))
         if r:
             add(f"nonlinear step median ({label})", r["median_us"], TARGETS["nonlinear_step_median_s"] * 1e6, "us")
+        for form in ("absolute", "incremental", "nonlinear"):
+            r = get.get((sec, robot, N, form))
+            if r and r.get("speedup_over_python"):
+                goal = TARGETS["nonlinear_step_speedup_over_python" if form == "nonlinear" else "step_speedup_over_python"]
+                add(f"{form} step speed-up over the pure-Python reference step ({label})", r["speedup_over_python"],
+                    goal, "x", better="higher")
     section = [r for k, r in get.items() if k[0] == "qpmpc" and k[1] == robot and k[2] == N and r["median_us"]]
     ours = [r for r in section if r["method"].startswith("ours:")]
     peers = [r for r in section if r["method"].startswith("qpmpc:")]
