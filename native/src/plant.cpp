@@ -14,6 +14,7 @@
 #include <vector>
 
 #include <nanobind/eigen/dense.h>
+#include <nanobind/stl/pair.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>

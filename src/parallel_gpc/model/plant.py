@@ -17,11 +17,15 @@ import pinocchio as pin
 
 from .discretization import rk4_step
 from .dynamics import ReducedModel
+from .native_plant import compiled_plant
 from .robot import ParallelRobot
 from ..errors import NonFiniteError
 from ..validation import finite_vector, positive
 
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
+#: ``pin.ProximalSettings(accuracy, mu, max_iter)`` of every constraintDynamics call
+_PROXIMAL = (1e-12, 1e-10, 50)
+_NO_FORCE = np.zeros(0)
 
 
 class _PlantBase:
@@ -65,10 +69,18 @@ class ConstrainedPlant(_PlantBase):
         torque_limit: drive saturation (N·m), scalar or (n_u,), or None.
         platform_force: (n_y,) constant external generalized force on the platform coordinates
             (N, N, N·m), e.g. a disturbance.
+        native: integrate each sample with the compiled core (``parallel_gpc._native.Plant``, the
+            same RK4 of the same ``constraintDynamics`` in one call): None uses it when it is
+            available (:func:`~parallel_gpc.model.native.native_module`), False never (the
+            Python reference), True requires it. The projection onto the closures is the
+            robot's (Python) in both cases.
+
+    Attributes:
+        compiled: the compiled integrator, or None on the Python path.
     """
 
     def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, baumgarte=(100.0, 20.0),
-                 torque_limit=None, platform_force=None):
+                 torque_limit=None, platform_force=None, native: bool | None = None):
         super().__init__(robot, torque_limit, platform_force)
         model = robot.model
         self.data = model.createData()
@@ -85,7 +97,9 @@ class ConstrainedPlant(_PlantBase):
         for cm in self.cms:
             self.cds.append(cm.createData())
         pin.initConstraintDynamics(model, self.data, self.cms, self.cds)
-        self.prox = pin.ProximalSettings(1e-12, 1e-10, 50)
+        self.prox = pin.ProximalSettings(*_PROXIMAL)
+        self.compiled = compiled_plant(robot, baumgarte, _PROXIMAL, native)
+        self._forces = self.cds  # where constraint_forces() reads: the last dynamics call's
         X0 = finite_vector("X0", X0, 2 * self.n_y)
         self.q = robot.assemble(X0[: self.n_y])
         T, _ = robot.velocity_map(self.q)
@@ -105,23 +119,41 @@ class ConstrainedPlant(_PlantBase):
             tau[self.robot.y_idx] += self.platform_force
         elif np.any(self.platform_force):  # a force f on y acts as Hᵀ f (H T = I)
             tau += self.robot.output_jacobian(q).T @ self.platform_force
+        self._forces = self.cds
         return pin.constraintDynamics(self.robot.model, self.data, q, v, tau, self.cms, self.cds, self.prox)
 
     def constraint_forces(self) -> np.ndarray:
-        """Closure forces (N) of the last dynamics call, stacked."""
+        """(3 k,) linear closure forces (N) of the last dynamics call, stacked (k closures)."""
+        if self._forces is None:
+            return self.compiled.contact_forces()
         return np.concatenate([np.asarray(cd.contact_force.linear) for cd in self.cds])
 
     def step(self, u, Ts: float) -> np.ndarray:
         """Advance one sample with u held; returns the new state X."""
         Ts = positive("Ts", Ts, " s")
         u = self._saturate(u)
-        q, v = self.q, self.v
-        h = Ts / self.substeps
-        for _ in range(self.substeps):
-            q, v = self._rk4(q, v, u, h)
+        if self.compiled is None:
+            q, v = self.q, self.v
+            h = Ts / self.substeps
+            for _ in range(self.substeps):
+                q, v = self._rk4(q, v, u, h)
+            self._forces = self.cds
+        else:
+            q, v = self._compiled_sample(u, Ts)
         self._check_finite((q, v), u, Ts)
         self._project(q, v)
         return self.X
+
+    def _compiled_sample(self, u: np.ndarray, Ts: float):
+        """(q, v) after one sample by the compiled RK4 (the same arithmetic as :meth:`_rk4`)."""
+        tau = self._S @ u
+        f_task = _NO_FORCE
+        if self.robot.task_output is None:
+            tau[self.robot.y_idx] += self.platform_force
+        elif np.any(self.platform_force):  # H(q)ᵀ f at every stage, in C++
+            f_task = self.platform_force
+        self._forces = None
+        return self.compiled.integrate(self.q, self.v, tau, f_task, Ts, self.substeps)
 
     def _rk4(self, q, v, u, h):
         """One classical RK4 step of (q̇, v̇) = (v, q̈) on the configuration manifold (q ⊕ h v)."""
