@@ -85,7 +85,10 @@ def test_compiled_and_python_plants_agree_over_50_samples(any_robot):
     forces = ref.constraint_forces()
     assert forces.shape == (3 * len(any_robot.closure_frames),) and np.linalg.norm(forces) > 1e-3
     assert _relative(fast.constraint_forces(), forces) <= 1e-10
-    assert np.max(np.abs(any_robot.closure_residual(fast.q))) < 1e-10
+    for plant in (ref, fast):  # projected onto the closures: positions and velocities
+        closure = any_robot.closure_kinematics(plant.q)
+        assert np.max(np.abs(closure.residual)) < 1e-10
+        assert np.max(np.abs(closure.jacobian @ plant.v)) < 1e-10 * max(1.0, np.max(np.abs(plant.v)))
 
 
 def test_compiled_accelerations_equal_constraint_dynamics(any_robot):
@@ -154,3 +157,16 @@ def test_compiled_plant_refuses_wrong_sizes(robot4):
         plant.integrate(np.zeros(nq), np.zeros(nv), np.zeros(nv), np.zeros(0), -SAMPLE, 2)
     with pytest.raises(ValueError, match=r"f_task must be empty"):
         plant.integrate(np.zeros(nq), np.zeros(nv), np.zeros(nv), np.zeros(3), SAMPLE, 2)
+
+
+def test_projection_far_from_the_closures_takes_the_validated_path(robot4):
+    """A drift too large for the warm Newton (residual > 1e-2) is projected by assemble()."""
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), native=True)
+    q, v = plant.q.copy(), plant.v + 0.3  # velocities off the closures too
+    q[robot4.z_idx] += 0.05  # rad: every dependent joint off its assembled value
+    assert robot4.assemble_warm(robot4.platform_pose(q), q, plant._pinv) is None
+    plant._project(q, v)
+    closure = robot4.closure_kinematics(plant.q)
+    assert np.max(np.abs(closure.residual)) < 1e-12 and np.max(np.abs(closure.jacobian @ plant.v)) < 1e-12
+    np.testing.assert_array_equal(robot4.platform_pose(plant.q), robot4.platform_pose(q))
+    np.testing.assert_allclose(robot4.output_velocity(plant.q, plant.v), v[robot4.y_idx], rtol=1e-14)

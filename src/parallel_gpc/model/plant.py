@@ -51,7 +51,7 @@ class _PlantBase:
 
     def _check_finite(self, state, u: np.ndarray, Ts: float) -> None:
         """Refuse a state that became NaN/inf within one sample, naming the inputs that drove it."""
-        if not all(np.all(np.isfinite(x)) for x in state):
+        if not all(np.isfinite(x).all() for x in state):
             raise NonFiniteError(
                 f"the plant diverged within one sample Ts = {Ts:g} s (its state is no longer finite) under drive "
                 f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; check the "
@@ -102,7 +102,7 @@ class ConstrainedPlant(_PlantBase):
         self._forces = self.cds  # where constraint_forces() reads: the last dynamics call's
         X0 = finite_vector("X0", X0, 2 * self.n_y)
         self.q = robot.assemble(X0[: self.n_y])
-        T, _ = robot.velocity_map(self.q)
+        T, self._pinv = robot.velocity_map_nocopy(self.q)  # K⁺: the next projection's preconditioner
         self.v = T @ X0[self.n_y:]
         self._S = robot.drive_selection
 
@@ -169,11 +169,21 @@ class ConstrainedPlant(_PlantBase):
         return q_next, v + (h / 6.0) * (a1 + 2 * a2 + 2 * a3 + a4)
 
     def _project(self, q, v) -> None:
-        """Project (q, v) onto Φ(q) = 0 and Φ_q v = 0 keeping the platform coordinates."""
+        """Project (q, v) onto Φ(q) = 0 and Φ_q v = 0 keeping the platform coordinates.
+
+        Newton from q (warm: its first step preconditioned by K⁺ of the previous projection) with
+        the velocity map from its last Jacobian; the validated path (:meth:`ParallelRobot.assemble`)
+        when that does not converge on the home branch, which also reports the errors.
+        """
         r = self.robot
         ydot = r.output_velocity(q, v)
-        self.q = r.assemble(r.platform_pose(q), q)
-        T, _ = r.velocity_map(self.q)
+        pose = r.platform_pose(q)
+        out = r.assemble_warm(pose, q, self._pinv)
+        if out is None:
+            self.q = r.assemble(pose, q)
+            T, self._pinv = r.velocity_map_nocopy(self.q)
+        else:
+            self.q, T, self._pinv = out
         self.v = T @ ydot
 
 
