@@ -73,6 +73,28 @@ def test_internal_force_is_measured_against_the_plant_drives(robot4):
     assert null_space_component(B_r, 3.0 * null) == pytest.approx(3.0, rel=1e-9)
 
 
+def test_null_space_component_equals_the_pseudo_inverse_formula():
+    """Against ‖u − pinv(B) B u‖ on full-rank and rank-deficient matrices."""
+    rng = np.random.default_rng(11)
+    for shape, rank in [((3, 4), 3), ((6, 8), 6), ((3, 4), 2), ((3, 3), 3)]:
+        B = rng.normal(size=(shape[0], rank)) @ rng.normal(size=(rank, shape[1]))
+        u = rng.normal(size=shape[1])
+        expected = np.linalg.norm(u - np.linalg.pinv(B) @ (B @ u))
+        assert null_space_component(B, u) == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    assert null_space_component(np.zeros((3, 4)), np.ones(4)) == pytest.approx(2.0)
+
+
+def test_plant_input_matrix_is_the_one_at_its_configuration(robot4):
+    """simulate() reads B_r from the plant (T kept from its projection): it equals Tᵀ Sᵀ of the
+    velocity map at the plant's configuration."""
+    plant = ConstrainedPlant(robot4, np.concatenate([SCurve().pose(0.0), [0.1, -0.2, 0.3]]))
+    for _ in range(3):
+        plant.step(np.array([1.0, -1.0, 0.5, 0.2]), TS)
+    robot4._ck_cache = robot4._vm_cache = None  # recomputed from q, not read back from the plant
+    expected = robot4.velocity_map(plant.q)[0].T @ robot4.drive_selection
+    np.testing.assert_array_equal(plant.input_matrix(), expected)
+
+
 @pytest.fixture(scope="module")
 def comparison(robot4):
     """Every form, estimator off and on, at the demo's setting (Ts 10 ms, N 30, Qu 1e-3, plant

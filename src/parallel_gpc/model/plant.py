@@ -40,6 +40,11 @@ class _PlantBase:
             "platform_force", platform_force, robot.n_y)
         self.saturated = 0
 
+    def input_matrix(self) -> np.ndarray:
+        """(n_y, n_u) B_r = Tᵀ Sᵀ at the plant's current configuration: the generalized force on
+        the outputs per unit drive torque (its null space only produces internal force)."""
+        return self.robot.velocity_map(self.q)[0].T @ self.robot.drive_selection
+
     def _saturate(self, u) -> np.ndarray:
         u = finite_vector("drive torques u", u, self.n_u)
         if self.torque_limit is None:
@@ -102,8 +107,8 @@ class ConstrainedPlant(_PlantBase):
         self._forces = self.cds  # where constraint_forces() reads: the last dynamics call's
         X0 = finite_vector("X0", X0, 2 * self.n_y)
         self.q = robot.assemble(X0[: self.n_y])
-        T, self._pinv = robot.velocity_map_nocopy(self.q)  # K⁺: the next projection's preconditioner
-        self.v = T @ X0[self.n_y:]
+        self._T, self._pinv = robot.velocity_map_nocopy(self.q)  # K⁺: the next projection's preconditioner
+        self.v = self._T @ X0[self.n_y:]
         self._S = robot.drive_selection
 
     @property
@@ -181,10 +186,14 @@ class ConstrainedPlant(_PlantBase):
         out = r.assemble_warm(pose, q, self._pinv)
         if out is None:
             self.q = r.assemble(pose, q)
-            T, self._pinv = r.velocity_map_nocopy(self.q)
+            self._T, self._pinv = r.velocity_map_nocopy(self.q)
         else:
-            self.q, T, self._pinv = out
-        self.v = T @ ydot
+            self.q, self._T, self._pinv = out
+        self.v = self._T @ ydot
+
+    def input_matrix(self) -> np.ndarray:
+        """(n_y, n_u) B_r = Tᵀ Sᵀ at the current configuration (T kept from the projection)."""
+        return self._T.T @ self._S
 
 
 class ReducedPlant(_PlantBase):

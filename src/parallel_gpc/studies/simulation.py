@@ -18,6 +18,7 @@ from tqdm import tqdm
 
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
+from ..model.linalg import svd_thin
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
 from ..results import robot_reference, save_result, saturation_flags
 from ..validation import check_allocation, finite_vector, positive
@@ -113,8 +114,14 @@ class SimulationResult:
 
 
 def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
-    """‖(I − B_r⁺ B_r) u‖: the part of u that only produces internal force (N·m)."""
-    return float(np.linalg.norm(u - np.linalg.pinv(B_r) @ (B_r @ u)))
+    """‖(I − B_r⁺ B_r) u‖: the part of u that only produces internal force (N·m).
+
+    B_r⁺ B_r = V_r V_rᵀ with V_r the right singular vectors of the singular values above
+    1e-15·s_max (``numpy.linalg.pinv``'s cut).
+    """
+    _, s, Vt = svd_thin(B_r)
+    V = Vt[:int(np.count_nonzero(s > 1e-15 * s[0]))] if s.size and s[0] > 0 else Vt[:0]
+    return float(np.linalg.norm(u - V.T @ (V @ u)))
 
 
 def _step(controller: GPCController, X: np.ndarray, meas: np.ndarray, w: np.ndarray, noise_std):
@@ -174,7 +181,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             meas = X if noise_std is None else X + rng.normal(0.0, 1.0, X.shape) * noise_std
             info = _step(controller, X, meas, reference.window(t, Ts, controller.horizons.N), noise_std)
             q = np.array(plant.q)
-            B_r = robot.velocity_map(q)[0].T @ robot.drive_selection
+            B_r = plant.input_matrix() if n_u > n_y else None  # at the state u was computed for
             sat_before = plant.saturated
             plant.step(info.u, Ts)
             rec["t"].append(t)
@@ -182,7 +189,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             rec["pose"].append(X[:n_y])
             rec["velocity"].append(X[n_y:])
             rec["u"].append(info.u)
-            rec["internal_force"].append(null_space_component(B_r, info.u) if n_u > n_y else 0.0)
+            rec["internal_force"].append(0.0 if B_r is None else null_space_component(B_r, info.u))
             rec["q"].append(q)
             rec["step_time"].append(info.step_time)
             rec["solve_time"].append(info.solve_time)
