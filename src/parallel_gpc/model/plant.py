@@ -2,7 +2,8 @@
 
 * :class:`ConstrainedPlant` integrates the **full** constrained model with Pinocchio's
   ``constraintDynamics`` (legacy ``RigidConstraintModel`` CONTACT_3D / CONTACT_6D closures with
-  Baumgarte stabilization), RK4 over each sample, then projects q and v back onto the closures.
+  Baumgarte stabilization), RK4 over each sample (in Python, or in one call to the compiled core
+  ``parallel_gpc._native`` when it is built), then projects q and v back onto the closures.
 * :class:`ReducedPlant` integrates the reduced ODE ``ÿ = f + g u`` with RK4 sub-steps.
 
 Both hold the input constant over a sample (zero-order hold), accept a constant external force

@@ -143,7 +143,8 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
 
     Args:
         controller: the GPC controller (its model is the controller's, not the plant's).
-        plant: a :class:`~parallel_gpc.plant.ConstrainedPlant` or ``ReducedPlant``.
+        plant: a :class:`~parallel_gpc.plant.ConstrainedPlant` or ``ReducedPlant`` (with redundant
+            drives, its ``input_matrix()`` gives B_r for the internal-force record).
         reference: the reference motion w(t).
         duration: s.
         noise_std: measurement noise standard deviation on [y, ẏ] (scalar or (2·n_y,)).
