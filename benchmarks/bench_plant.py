@@ -8,7 +8,11 @@ Usage: ``OPENBLAS_NUM_THREADS=1 taskset -c 1 python benchmarks/bench_plant.py [-
 1 ms under gravity-holding torques (the same conditions for both, interleaved so that machine
 load hits both alike). Per path: the median µs of the whole step, of the integration alone
 (RK4, 2 sub-steps of ``constraintDynamics``) and of the projection onto the closures. Prints a
-Markdown table. See benchmarks/README.md.
+Markdown table. ``--closed-loop K`` then runs K samples of the closed loop of
+``closed_loop_wall_time`` (planar_4rrr, absolute controller, N = 20, 1 kHz) in which, at every
+sample, both plants step from the same state with the same u (in alternating order; the loop goes
+on from the compiled one) and prints the median controller step, plant steps and the loop's own
+bookkeeping (reference window, internal-force record), in µs. See benchmarks/README.md.
 """
 
 import os
@@ -76,11 +80,48 @@ def bench_robot(name: str, samples: int, repeats: int) -> dict:
     return {native: {k: 1e6 * float(np.median(v)) for k, v in d.items()} for native, d in out.items()}
 
 
+def closed_loop(K: int) -> None:
+    """Paired plant steps inside the closed loop (see the module docstring)."""
+    from parallel_gpc import ReducedModel
+    from parallel_gpc.gpc.controller import GPCController
+    from parallel_gpc.gpc.criterion import Weights
+    from parallel_gpc.gpc.prediction import Horizons
+    from parallel_gpc.gpc.references import SCurve, path_for
+    from parallel_gpc.studies.simulation import null_space_component
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    ctl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-5))
+    fast, slow = (ConstrainedPlant(robot, ref.initial_state(), native=native) for native in (True, False))
+    times = {k: [] for k in ("controller", "python", "compiled", "bookkeeping")}
+    deviation = 0.0
+    for k in range(K):
+        t0 = time.perf_counter()
+        X, w = fast.X, ref.window(k * TS, TS, 20)
+        t1 = time.perf_counter()
+        info = ctl.step(X, w)
+        t2 = time.perf_counter()
+        null_space_component(fast.input_matrix(), info.u)  # what simulate() records per sample
+        ref.pose(k * TS)
+        t3 = time.perf_counter()
+        times["controller"].append(t2 - t1)
+        times["bookkeeping"].append(t1 - t0 + t3 - t2)
+        slow.q, slow.v, slow._T, slow._pinv = fast.q, fast.v, fast._T, fast._pinv
+        for plant in ((fast, slow) if k % 2 else (slow, fast)):
+            t0 = time.perf_counter()
+            plant.step(info.u, TS)
+            times["compiled" if plant is fast else "python"].append(time.perf_counter() - t0)
+        deviation = max(deviation, float(np.max(np.abs(fast.X - slow.X))))
+    print(f"closed loop, {K} samples, median µs: " + ", ".join(f"{k} {1e6 * np.median(v):.0f}" for k, v in times.items())
+          + f"; max |X_python − X_compiled| after a sample: {deviation:.1e}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=400, help="samples per path and repetition")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--robots", nargs="+", default=ROBOTS)
+    parser.add_argument("--closed-loop", type=int, default=0, metavar="K", help="samples of the paired closed loop")
     args = parser.parse_args()
     print("| robot | nv | Python step µs (integrate + project) | compiled step µs (integrate + project) | speed-up |")
     print("|---|---|---|---|---|")
@@ -91,6 +132,8 @@ def main() -> None:
         print(f"| {name} | {nv} | {py['step']:.0f} ({py['integrate']:.0f} + {py['project']:.0f}) | "
               f"{c['step']:.0f} ({c['integrate']:.0f} + {c['project']:.0f}) | {py['step'] / c['step']:.2f}× |",
               flush=True)
+    if args.closed_loop > 0:
+        closed_loop(args.closed_loop)
 
 
 if __name__ == "__main__":
