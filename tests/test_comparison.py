@@ -12,7 +12,7 @@ import pytest
 from parallel_gpc import ReducedModel
 from parallel_gpc.gpc import GPCController, Horizons, SCurve, Weights
 from parallel_gpc.gpc.settings import FORMS
-from parallel_gpc.model.plant import ConstrainedPlant
+from parallel_gpc.model.plant import ConstrainedPlant, ReducedPlant
 from parallel_gpc.studies.comparison import (DEMO_SETTINGS, comparison_table, deadbeat_check, run_comparison,
                                              steady_state_error)
 from parallel_gpc.studies.simulation import null_space_component, simulate
@@ -93,6 +93,8 @@ def test_plant_input_matrix_is_the_one_at_its_configuration(robot4):
     robot4._ck_cache = robot4._vm_cache = None  # recomputed from q, not read back from the plant
     expected = robot4.velocity_map(plant.q)[0].T @ robot4.drive_selection
     np.testing.assert_array_equal(plant.input_matrix(), expected)
+    reduced = ReducedPlant(robot4, plant.X)
+    np.testing.assert_allclose(reduced.input_matrix(), expected, rtol=1e-9, atol=1e-12)
 
 
 @pytest.fixture(scope="module")
