@@ -170,3 +170,17 @@ def test_projection_far_from_the_closures_takes_the_validated_path(robot4):
     assert np.max(np.abs(closure.residual)) < 1e-12 and np.max(np.abs(closure.jacobian @ plant.v)) < 1e-12
     np.testing.assert_array_equal(robot4.platform_pose(plant.q), robot4.platform_pose(q))
     np.testing.assert_allclose(robot4.output_velocity(plant.q, plant.v), v[robot4.y_idx], rtol=1e-14)
+
+
+def test_compiled_plant_takes_mass_scale_and_gravity_from_the_robot(robot4):
+    """The model reaches C++ serialized: a heavier robot under another gravity gives the Python
+    plant's states, and not the nominal robot's."""
+    heavy = robot4.with_mass_scale(1.3)
+    heavy.model.gravity.linear = np.array([1.0, -4.0, -9.81])
+    X0 = np.concatenate([robot4.home_pose, [0.05, -0.02, 0.1]])
+    u = np.array([0.5, -0.3, 0.2, 0.4])
+    runs = [ConstrainedPlant(r, X0, native=n) for r, n in ((heavy, True), (heavy, False), (robot4, True))]
+    for _ in range(20):
+        fast, ref, nominal = (p.step(u, SAMPLE) for p in runs)
+    assert _relative(fast, ref) <= 1e-10
+    assert _relative(nominal, ref) > 1e-4
