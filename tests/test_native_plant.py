@@ -184,3 +184,23 @@ def test_compiled_plant_takes_mass_scale_and_gravity_from_the_robot(robot4):
         fast, ref, nominal = (p.step(u, SAMPLE) for p in runs)
     assert _relative(fast, ref) <= 1e-10
     assert _relative(nominal, ref) > 1e-4
+
+
+def test_compiled_plants_in_threads_give_the_sequential_states(robot4):
+    """Plant.integrate releases the GIL: plants stepped in parallel threads share no state."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    X0 = np.concatenate([robot4.home_pose, [0.05, -0.02, 0.1]])
+    inputs = [np.array([0.5, -0.3, 0.2, 0.4]) * s for s in (1.0, -2.0, 3.0)]
+
+    def run(u):
+        plant = ConstrainedPlant(robot4.with_mass_scale(1.0), X0, native=True)  # one robot per thread
+        for _ in range(30):
+            X = plant.step(u, SAMPLE)
+        return X
+
+    sequential = [run(u) for u in inputs]
+    with ThreadPoolExecutor(3) as pool:
+        parallel = list(pool.map(run, inputs))
+    for a, b in zip(parallel, sequential):
+        np.testing.assert_array_equal(a, b)

@@ -129,7 +129,10 @@ class Plant {
     }
     VectorXd q = q0, v = v0;
     const double h = Ts / substeps;
-    for (int s = 0; s < substeps; ++s) rk4(q, v, tau, f_task, h);
+    {
+      nb::gil_scoped_release release;  // pure C++ from here on: other Python threads may run
+      for (int s = 0; s < substeps; ++s) rk4(q, v, tau, f_task, h);
+    }
     return {std::move(q), std::move(v)};
   }
 
@@ -183,15 +186,19 @@ class Plant {
   void rk4(VectorXd &q, VectorXd &v, const CRef &tau, const CRef &f_task, double h) {
     a1_ = acc(q, v, tau, f_task);
     v2_ = v + 0.5 * h * a1_;
-    step_q(q, 0.5 * h * v, qi_);
+    dv_ = 0.5 * h * v;
+    step_q(q, dv_, qi_);
     a2_ = acc(qi_, v2_, tau, f_task);
     v3_ = v + 0.5 * h * a2_;
-    step_q(q, 0.5 * h * v2_, qi_);
+    dv_ = 0.5 * h * v2_;
+    step_q(q, dv_, qi_);
     a3_ = acc(qi_, v3_, tau, f_task);
     v4_ = v + h * a3_;
-    step_q(q, h * v3_, qi_);
+    dv_ = h * v3_;
+    step_q(q, dv_, qi_);
     a4_ = acc(qi_, v4_, tau, f_task);
-    step_q(q, (h / 6.0) * (v + 2 * v2_ + 2 * v3_ + v4_), qi_);
+    dv_ = (h / 6.0) * (v + 2 * v2_ + 2 * v3_ + v4_);
+    step_q(q, dv_, qi_);
     q.swap(qi_);
     v = v + (h / 6.0) * (a1_ + 2 * a2_ + 2 * a3_ + a4_);
   }
@@ -204,7 +211,7 @@ class Plant {
   bool flat_ = true;
   bool has_task_ = false;
   TaskForce task_;
-  VectorXd a1_, a2_, a3_, a4_, v2_, v3_, v4_, qi_, tau_;
+  VectorXd a1_, a2_, a3_, a4_, v2_, v3_, v4_, qi_, dv_, tau_;  // work vectors (no allocation per sample)
 };
 
 }  // namespace
