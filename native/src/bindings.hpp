@@ -6,4 +6,5 @@ namespace pgpc {
 namespace nb = nanobind;
 void bind_model_update(nb::module_ &m);  // model_update.cpp
 void bind_plant(nb::module_ &m);         // plant.cpp
+void bind_riccati(nb::module_ &m);       // riccati.cpp
 }  // namespace pgpc

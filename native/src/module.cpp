@@ -7,4 +7,5 @@ NB_MODULE(_native, m) {
   m.attr("pinocchio_version") = PGPC_PINOCCHIO_VERSION;
   pgpc::bind_model_update(m);
   pgpc::bind_plant(m);
+  pgpc::bind_riccati(m);
 }

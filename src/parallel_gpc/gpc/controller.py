@@ -28,14 +28,15 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError
-from ..solvers import SolveResult, make_solver
+from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError
+from ..solvers import QRSolver, SolveResult, make_solver
 from ..validation import all_finite, finite_vector
 from .criterion import Criterion, Weights, _limit_vector
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
 from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
-from .protocol import ControlModel, condition_number, conditioning_rule
+from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
+from .riccati import RiccatiPath
 from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
 __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "DEFAULT_BOX_SOLVER", "LIMIT_MARGIN",
@@ -77,7 +78,9 @@ class GPCController:
         horizons: N, No, Nu.
         weights: square-root weights Qy, Qu.
         form: ``"absolute"``, ``"incremental"``, ``"incremental-delayed"`` or ``"nonlinear"``.
-        solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`); default ``"qr"``
+        solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``
+            (the unconstrained problem by the Riccati recursion of :mod:`parallel_gpc.gpc.riccati`,
+            no condensing; Qu nonsingular, no limits; the same plan as ``"qr"``); default ``"qr"``
             without limits; with limits ``"qr-first:bvls"`` (absolute form) or
             ``"qr-first:daqp-direct"`` (incremental forms).
         torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
@@ -136,7 +139,7 @@ class GPCController:
                 f"use Ts = {model_Ts!r} s (a discrete model holds at its own sample time only)")
         self._apply(settings)
         self._gain = conditioning_rule(model)
-        self._backend = make_solver(settings.solver)
+        self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
         self.reset(u0)
 
     def _apply(self, settings: GPCSettings) -> None:
@@ -145,6 +148,8 @@ class GPCController:
         tau = None if settings.torque_limit is None else _limit_vector("torque_limit", settings.torque_limit, self.n_u)
         delta = None if settings.du_limit is None else _limit_vector("du_limit", settings.du_limit, self.n_u)
         self._limits = (tau, delta, tightened(tau), tightened(delta))
+        self._riccati = None if settings.solver != "riccati" else RiccatiPath(self._criterion, self.model.C,
+                                                                              settings.form)
         self._settings = settings
 
     # ------------------------------------------------------------------ settings (read-only views)
@@ -238,17 +243,26 @@ class GPCController:
         """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
-            return self._simulative(X)
+            return simulative_prediction(*self._presimulate(X), H)
+        Ad, Bd, cd, base = self._linear_stages(X)
+        if self.form == "absolute":
+            return absolute_prediction(Ad, Bd, cd, C, X, H)
+        return incremental_prediction(Ad, Bd, cd, C, X, base, H, delayed=self.form == "incremental-delayed")
+
+    def _linear_stages(self, X: np.ndarray):
+        """(A_d, B_d, c_d + d, base) at X for the absolute and incremental forms; base is the input
+        in the augmented state (incremental: u(k−1) without its null(B_d) part; delayed: u(k);
+        absolute: None). Keeps the one-step model for the disturbance estimate."""
         Ad, Bd, cd = self.discrete_model(X)
         cd = cd + self.disturbance
         self._one_step = (Ad, Bd, cd)
         self._null = False  # null(B_d) of this step, computed on first use
         if self.form == "absolute":
-            return absolute_prediction(Ad, Bd, cd, C, X, H)
+            return Ad, Bd, cd, None
         if self.form == "incremental-delayed":  # u(k), decided at k−1, is the state's last block
             self._u_now = self._applicable(self._base(self.plan[1]), self.plan[1].copy())
-            return incremental_prediction(Ad, Bd, cd, C, X, self._u_now, H, delayed=True)
-        return incremental_prediction(Ad, Bd, cd, C, X, self._base(self.u_prev), H)
+            return Ad, Bd, cd, self._u_now
+        return Ad, Bd, cd, self._base(self.u_prev)
 
     def _base(self, u: np.ndarray) -> np.ndarray:
         """The input the increments add to: u without its null(B_d) component (no drive fighting
@@ -274,15 +288,15 @@ class GPCController:
         if alpha > 0.0 and self._x_next is not None:
             self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
-    def _simulative(self, X: np.ndarray) -> Prediction:
-        H, C = self.horizons, self.model.C
+    def _presimulate(self, X: np.ndarray):
+        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
+        C = self.model.C
         u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         self._null = False
-        y_sim = X_sim[1:] @ C.T
-        return simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, H)
+        return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
     # ------------------------------------------------------------------ step
     def _reference_rows(self, w) -> np.ndarray:
@@ -314,19 +328,21 @@ class GPCController:
         w = self._reference_rows(w)
         t0 = time.perf_counter()
         self._update_disturbance(X)
-        pred = self.predict(X)
+        stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
+        pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
         if gain is not None:
             self._check_conditioning(X, gain)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
-        problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
-        t2 = time.perf_counter()
-        try:
-            result = self._backend.solve(problem, self._warm_start(pred, problem.n))
-        except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
-            result = SolveResult(np.full(problem.n, np.nan), np.inf, "failed", self._backend.name,
-                                 message=f"{type(exc).__name__}: {exc}")
+        result = None if stages is None else self._riccati.solve(*stages)
+        if result is not None and result.ok:
+            pred, t2 = self._riccati.input_map(self, stages), t1
+        else:  # the dense path (and a failed Riccati solve's visible replacement: QR, with its reason)
+            pred = self.predict(X) if pred is None else pred
+            problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
+            t2 = time.perf_counter()
+            result = self._dense_solve(problem, pred, result)
         violation = limit_violation(pred, result.v, self.form, self.u_prev, *self._limits[:2]) if result.ok else ""
         if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
             result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
@@ -354,29 +370,21 @@ class GPCController:
         self._x_next = Ad @ X + Bd @ u + cd
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback)
 
-    def _check_conditioning(self, X: np.ndarray, gain: np.ndarray) -> None:
-        """Raise :class:`SingularPoseError` when the input gain at X is near-singular.
+    def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None) -> SolveResult:
+        """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),
+        QR's, with the Riccati failure in the message. A back end's exception becomes a failed result."""
+        backend = self._backend if failed is None else QRSolver()
+        try:
+            result = backend.solve(problem, self._warm_start(pred, problem.n))
+        except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
+            return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", backend.name,
+                               message=f"{type(exc).__name__}: {exc}")
+        return result if failed is None else replace(result, message=f"riccati failed ({failed.message}); solved by QR")
 
-        For a robot, ``gain = B_d[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition
-        number grows without bound at an actuation (direct) singularity and as a leg stretches
-        or folds. Other models: :func:`~parallel_gpc.gpc.protocol.conditioning_rule`.
-        """
-        cond = condition_number(gain)
-        if not cond <= self.max_condition:
-            n_y = self.n_y
-            if self.n_x == 2 * n_y and np.any(X[n_y:]):  # [y, ẏ]: is it the pose or the velocity?
-                rest = np.concatenate([X[:n_y], np.zeros(n_y)])
-                at_rest = condition_number(self._gain(self.model.discrete(rest, self.Ts)[1]))
-                if at_rest <= self.max_condition:
-                    raise InvalidParameterError(
-                        f"measured velocity {np.asarray(X[n_y:]).tolist()} is too large for the one-sample model at "
-                        f"pose {np.round(X[:n_y], 6).tolist()}: cond(g) = {cond:.3g} at this velocity, {at_rest:.3g} "
-                        f"at rest (max_condition = {self.max_condition:.3g}); check the measurement and its units")
-            raise SingularPoseError(
-                f"near-singular pose {np.round(X[:self.n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
-                f"> max_condition = {self.max_condition:.3g}; the drives cannot move the platform in some "
-                f"direction, so the controller stops instead of commanding unbounded torques"
-            )
+    def _check_conditioning(self, X: np.ndarray, gain: np.ndarray) -> None:
+        """Raise :class:`SingularPoseError` when the input gain at X is near-singular
+        (:func:`~parallel_gpc.gpc.protocol.check_conditioning`)."""
+        check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)
 
     def _warm_start(self, pred: Prediction, n: int) -> np.ndarray | None:
         """The previous plan shifted by one sample, as v: absolute, v shifted; incremental and

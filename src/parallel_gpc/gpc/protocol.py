@@ -14,6 +14,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from scipy.linalg import lapack
 
+from ..errors import InvalidParameterError, SingularPoseError
+
 
 @runtime_checkable
 class ControlModel(Protocol):
@@ -83,3 +85,39 @@ def _velocity_rows(n_y: int):
         return Bd[n_y:]
 
     return gain
+
+
+def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_condition: float, Ts: float) -> None:
+    """Raise :class:`~parallel_gpc.errors.SingularPoseError` when the input gain at X is near-singular.
+
+    For a robot, ``gain = B_d[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition
+    number grows without bound at an actuation (direct) singularity and as a leg stretches
+    or folds. Other models: :func:`conditioning_rule` (``rule`` is its result for ``model``).
+
+    Args:
+        model: the controller's model; rule: the gain rule of :func:`conditioning_rule`.
+        X: (n_x,) measured state; gain: the checked gain at X.
+        max_condition: largest accepted condition number. Ts: sample time (s).
+
+    Raises:
+        InvalidParameterError: the pose is fine at rest, the measured velocity is what makes the
+            one-sample model near-singular (a measurement or unit error).
+        SingularPoseError: the pose itself is near-singular.
+    """
+    cond = condition_number(gain)
+    if cond <= max_condition:
+        return
+    n_y, n_x = model.n_y, model.n_x
+    if n_x == 2 * n_y and np.any(X[n_y:]):  # [y, ẏ]: is it the pose or the velocity?
+        rest = np.concatenate([X[:n_y], np.zeros(n_y)])
+        at_rest = condition_number(rule(model.discrete(rest, Ts)[1]))
+        if at_rest <= max_condition:
+            raise InvalidParameterError(
+                f"measured velocity {np.asarray(X[n_y:]).tolist()} is too large for the one-sample model at "
+                f"pose {np.round(X[:n_y], 6).tolist()}: cond(g) = {cond:.3g} at this velocity, {at_rest:.3g} "
+                f"at rest (max_condition = {max_condition:.3g}); check the measurement and its units")
+    raise SingularPoseError(
+        f"near-singular pose {np.round(X[:n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
+        f"> max_condition = {max_condition:.3g}; the drives cannot move the platform in some "
+        f"direction, so the controller stops instead of commanding unbounded torques"
+    )

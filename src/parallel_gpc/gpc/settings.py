@@ -54,7 +54,9 @@ class GPCSettings:
         form: ``"absolute"`` (7), ``"incremental"`` (8)–(9) with state [X; u(k−1)],
             ``"incremental-delayed"`` (8)–(9) as printed: state [X; u(k)], B̄ = [0; I], the
             increment realized one sample later (needs N ≥ 2), or ``"nonlinear"`` (10)–(12).
-        solver: back-end name (:func:`parallel_gpc.solvers.make_solver`); None resolves to
+        solver: back-end name (:func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``: the
+            unconstrained problem by the Riccati recursion, no condensing (needs Qu nonsingular and
+            no limits; :mod:`parallel_gpc.gpc.riccati`); None resolves to
             ``"qr"`` without limits; with limits ``"qr-first:bvls"`` (absolute form) or
             ``"qr-first:daqp-direct"`` (incremental forms).
         torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
@@ -107,6 +109,10 @@ class GPCSettings:
                 f"solver {self.solver!r} cannot enforce torque/Δu limits; use a QP back end such as "
                 f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
             )
+        if self.solver == "riccati" and limited:
+            raise InvalidParameterError(
+                "solver 'riccati' solves the unconstrained problem only; with torque/Δu limits use a QP back end "
+                f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
         if self.solver.endswith("bvls") and self.form != "absolute" and self.torque_limit is not None:
             raise InvalidParameterError(
                 f"solver {self.solver!r} handles box limits only; the {self.form} form's torque limit acts on "

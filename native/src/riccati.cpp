@@ -1,0 +1,175 @@
+// The Riccati recursion of solvers/riccati.py (lq_tracking) for the controller's unconstrained
+// problems, with the stage models of gpc/riccati.py built here from (A_d, B_d, c_d): one call per
+// control step, workspaces kept between calls. Forms (see gpc/riccati.py):
+//   0 absolute     z = x (Nu = N) or [x; u_held] (Nu < N), v = u held after Nu
+//   1 incremental  z = [x; u(k−1)], v = Δu, B̄ = [B; I], Δu = 0 after Nu
+//   2 delayed      z = [x; u(k)],   v = Δu, B̄ = [0; I]
+//   3 deviation    the nonlinear form's deviation model along the pre-simulation: per-stage
+//                  A_i, B_i, z = [δx; δu] from 0, no affine term, targets w − ŷ_sim
+#include <Eigen/Cholesky>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
+#include <stdexcept>
+#include <vector>
+
+#include "bindings.hpp"
+#include "zoh.hpp"
+
+namespace pgpc {
+namespace {
+using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using CMap = Eigen::Map<const RowMat>;
+using VMap = Eigen::Map<const Vec>;
+using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using Array = nb::ndarray<nb::numpy, double>;
+
+class Riccati {
+ public:
+  Riccati(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form)
+      : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
+    if (form < 0 || form > 3) throw std::invalid_argument("Riccati: form must be 0..3");
+    if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("Riccati: bad horizons");
+    if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("Riccati: weight shapes");
+    nz = (form == 0 && Nu == N) ? n : n + m;
+    Mat Cz = Mat::Zero(p, nz);
+    Cz.leftCols(n) = C;
+    CQ_ = Cz.transpose() * (Wy.transpose() * Wy);
+    CQC_ = CQ_ * Cz;
+    R_ = Wu.transpose() * Wu;
+    C_ = C;
+    Wy_ = Wy;
+    Abar_.assign(N, Mat::Zero(nz, nz));
+    Bbar_.assign(N, Mat::Zero(nz, m));
+    cbar_.assign(N, Vec::Zero(nz));
+    K_.assign(Nu, Mat::Zero(m, nz));
+    k_.assign(Nu, Vec::Zero(m));
+  }
+
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n), x0 (n), u0 (m), r (N − No, p) → v (Nu·m); J
+  double solve(const double *A, long nA, const double *B, long nB, const double *c, long nc, const double *x0,
+               const double *u0, const double *r, double *v) {
+    for (long i = 0; i < N; ++i) stage(i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
+                                       c ? c + (nc == 1 ? 0 : i) * n : nullptr);
+    CMap W(r, N - No, p);
+    Mat P = CQC_;
+    Vec q = CQ_ * W.row(N - No - 1).transpose();
+    for (long i = N - 1; i >= 0; --i) {
+      const Mat &Ai = Abar_[i];
+      PA_.noalias() = P * Ai;
+      s_.noalias() = P * cbar_[i];
+      s_ -= q;
+      if (i < Nu) {
+        const Mat &Bi = Bbar_[i];
+        BPA_.noalias() = Bi.transpose() * PA_;
+        PB_.noalias() = P * Bi;
+        H_ = R_;
+        H_.noalias() += Bi.transpose() * PB_;
+        llt_.compute(H_);
+        if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
+        K_[i] = llt_.solve(BPA_);
+        k_[i] = llt_.solve(Bi.transpose() * s_);
+        P.noalias() = Ai.transpose() * PA_;
+        P.noalias() -= BPA_.transpose() * K_[i];
+        q.noalias() = BPA_.transpose() * k_[i];
+        q.noalias() -= Ai.transpose() * s_;
+      } else {
+        P.noalias() = Ai.transpose() * PA_;
+        q.noalias() = -(Ai.transpose() * s_);
+      }
+      P = 0.5 * (P + P.transpose()).eval();
+      if (i > No) {
+        P += CQC_;
+        q.noalias() += CQ_ * W.row(i - No - 1).transpose();
+      }
+    }
+    z_.setZero(nz);
+    if (form != 3) z_.head(n) = VMap(x0, n);
+    if (form == 1 || form == 2) z_.tail(m) = VMap(u0, m);
+    double J = 0.0;
+    Eigen::Map<Vec> out(v, Nu * m);
+    for (long i = 0; i < N; ++i) {
+      if (i < Nu) {
+        auto vi = out.segment(i * m, m);
+        vi.noalias() = -K_[i] * z_;
+        vi -= k_[i];
+        J += (vi.transpose() * R_ * vi).value();
+        zn_.noalias() = Abar_[i] * z_ + Bbar_[i] * vi;
+      } else {
+        zn_.noalias() = Abar_[i] * z_;
+      }
+      z_ = zn_ + cbar_[i];
+      if (i + 1 > No) {
+        e_.noalias() = C_ * z_.head(n);
+        e_ -= W.row(i - No).transpose();
+        J += (Wy_ * e_).squaredNorm();
+      }
+    }
+    if (!out.allFinite()) throw std::runtime_error("Riccati: the solution is not finite");
+    return J;
+  }
+
+  long n, m, p, N, No, Nu, nz;
+  int form;
+
+ private:
+  void stage(long i, const double *A, const double *B, const double *c) {
+    Mat &Ai = Abar_[i];
+    Mat &Bi = Bbar_[i];
+    Ai.topLeftCorner(n, n) = CMap(A, n, n);
+    if (c && form != 3)
+      cbar_[i].head(n) = VMap(c, n);
+    if (nz == n) {
+      Bi = CMap(B, n, m);
+      return;
+    }
+    const bool decide = i < Nu;
+    const bool held = form != 0 || !decide;  // the input memory feeds x
+    if (held) Ai.topRightCorner(n, m) = CMap(B, n, m); else Ai.topRightCorner(n, m).setZero();
+    Ai.bottomRightCorner(m, m) = held ? Mat::Identity(m, m) : Mat::Zero(m, m);
+    if (form == 2) Bi.topRows(n).setZero(); else Bi.topRows(n) = CMap(B, n, m);
+    Bi.bottomRows(m).setIdentity();
+  }
+
+  Mat C_, Wy_, CQ_, CQC_, R_, PA_, BPA_, PB_, H_;
+  Vec s_, z_, zn_, e_;
+  std::vector<Mat> Abar_, Bbar_, K_;
+  std::vector<Vec> cbar_, k_;
+  Eigen::LLT<Mat> llt_;
+};
+
+long stacked(const In2 &X, long n, const char *name) {
+  if (X.shape(0) % size_t(n) != 0) throw std::invalid_argument(std::string("Riccati.solve: bad rows of ") + name);
+  return long(X.shape(0)) / n;
+}
+}  // namespace
+
+void bind_riccati(nb::module_ &m) {
+  nb::class_<Riccati>(m, "Riccati", "Riccati recursion of the unconstrained GPC problem (see parallel_gpc.gpc.riccati)")
+      .def(nb::init<const Mat &, const Mat &, const Mat &, long, long, long, int>(), nb::arg("C"), nb::arg("Wy"),
+           nb::arg("Wu"), nb::arg("N"), nb::arg("No"), nb::arg("Nu"), nb::arg("form"))
+      .def("solve",
+           [](Riccati &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
+              In1 u0, In2 r) {
+             const long n = self.n, m = self.m;
+             const long nA = stacked(A, n, "A"), nB = stacked(B, n, "B");
+             if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != self.N) ||
+                 (nB != 1 && nB != self.N))
+               throw std::invalid_argument("Riccati.solve: A must be (n or N·n, n), B (n or N·n, m)");
+             const long nc_total = long(c.size());
+             if (self.form != 3 && nc_total != n && nc_total != self.N * n)
+               throw std::invalid_argument("Riccati.solve: c must have n or N·n entries");
+             if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(self.N - self.No) ||
+                 r.shape(1) != size_t(self.p))
+               throw std::invalid_argument("Riccati.solve: x0 (n,), u0 (m,), r (N − No, p)");
+             double *buf = new double[self.Nu * m];
+             nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
+             const double J = self.solve(A.data(), nA, B.data(), nB, nc_total ? c.data() : nullptr,
+                                         nc_total == n ? 1 : self.N, x0.data(), u0.data(), r.data(), buf);
+             size_t shape[1] = {size_t(self.Nu * m)};
+             return nb::make_tuple(Array(buf, 1, shape, owner), J);
+           },
+           nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
+           "(v (Nu·m,), J): the plan and its input cost (see gpc/riccati.py)");
+}
+}  // namespace pgpc

@@ -1,0 +1,192 @@
+"""The controller's unconstrained problems solved by the Riccati recursion (``solver="riccati"``).
+
+The criterion (5) of every form is a linear-quadratic tracking problem of a state-space model
+over the horizon; instead of condensing it into ŷ = f + G v (eq. (7)–(12)) and solving the
+square-root system (15)–(19) by QR, the Riccati recursion of
+:func:`parallel_gpc.solvers.riccati.lq_tracking` solves it stage by stage (work linear in N).
+Stage models z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, output ŷ = C̄ z, C̄ = [C 0]:
+
+* absolute (7), v = u: z = x and (Ā, B̄, c̄) = (A_d, B_d, c_d) when Nu = N; with Nu < N the
+  input is held in the state, z = [x; u_h]: Ā = [[A_d, 0], [0, 0]], B̄ = [B_d; I] while
+  deciding (i < Nu), then Ā = [[A_d, B_d], [0, I]] with no decision (u held);
+* incremental (8)–(9), v = Δu: z = [x; u(k−1)] (the base without its null(B_d) part),
+  Ā = [[A_d, B_d], [0, I]], B̄ = [B_d; I], Δu = 0 after Nu;
+* incremental-delayed: z = [x; u(k)], B̄ = [0; I];
+* nonlinear (10)–(12): the deviation model along the pre-simulation, z = [δx; δu] from 0,
+  Ā_i = [[A_i, B_i], [0, I]], B̄_i = [B_i; I], no affine term, targets w − ŷ_sim.
+
+The minimizer equals the QR back end's whenever it is unique: Qu nonsingular (R = QuᵀQu ≻ 0).
+Not covered (a clear :class:`~parallel_gpc.errors.InvalidParameterError` when requested):
+Qu singular (redundant drives need the minimum-norm QR answer) and torque/Δu limits.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import InvalidParameterError, SolverError
+from ..model.native import native_module
+from ..solvers import SolveResult
+from ..solvers.riccati import lq_tracking
+from ..model.discretization import cached_identity
+from .prediction import Horizons, Prediction, _cumulative_map
+
+__all__ = ["RiccatiPath", "RiccatiSolver", "stage_models", "FORM_CODES"]
+
+#: form codes of the compiled ``_native.Riccati``
+FORM_CODES = {"absolute": 0, "incremental": 1, "incremental-delayed": 2, "nonlinear": 3}
+
+
+def stage_models(form: str, A, B, c, C, x0, u0, horizons: Horizons):
+    """The stage models of the module docstring (the Python twin of ``Riccati::stage`` in C++).
+
+    Args:
+        form: one of :data:`FORM_CODES`.
+        A: (n, n) or (N, n, n); B: (n, m) or (N, n, m); c: (n,), (N, n) or None (nonlinear: ignored).
+        C: (p, n) output matrix. x0: (n,) state (nonlinear: ignored, δx = 0).
+        u0: (m,) the input in the state (incremental: u(k−1); delayed: u(k); otherwise ignored).
+        horizons: N, No, Nu.
+
+    Returns:
+        (Ā (N, nz, nz), B̄ (N, nz, m), c̄ (N, nz), C̄ (p, nz), z0 (nz,)).
+    """
+    N, Nu = horizons.N, horizons.Nu
+    C = np.asarray(C, float)
+    n = C.shape[1]
+    A = np.broadcast_to(np.asarray(A, float), (N, n, n))
+    B = np.asarray(B, float)
+    m = B.shape[-1]
+    B = np.broadcast_to(B, (N, n, m))
+    c = np.zeros((N, n)) if c is None or form == "nonlinear" else np.broadcast_to(np.asarray(c, float), (N, n))
+    if form == "absolute" and Nu == N:
+        return A.copy(), B.copy(), c.copy(), C, np.asarray(x0, float).copy()
+    nz = n + m
+    Ab, Bb, cb = np.zeros((N, nz, nz)), np.zeros((N, nz, m)), np.zeros((N, nz))
+    Ab[:, :n, :n], cb[:, :n] = A, c
+    held = np.arange(N) >= Nu if form == "absolute" else np.ones(N, bool)
+    Ab[held, :n, n:] = B[held]
+    Ab[held, n:, n:] = np.eye(m)
+    if form != "incremental-delayed":
+        Bb[:, :n] = B
+    Bb[:, n:] = np.eye(m)
+    z0 = np.zeros(nz)
+    if form != "nonlinear":
+        z0[:n] = x0
+    if form in ("incremental", "incremental-delayed"):
+        z0[n:] = u0
+    return Ab, Bb, cb, np.hstack([C, np.zeros((C.shape[0], m))]), z0
+
+
+class RiccatiSolver:
+    """Riccati solve of one controller's unconstrained problem (compiled when available).
+
+    Args:
+        Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular).
+        C: (p, n) output matrix.
+        horizons: N, No, Nu. form: the controller's form.
+        native: None = the compiled ``_native.Riccati`` when it is available, False = the Python
+            reference :func:`~parallel_gpc.solvers.riccati.lq_tracking`, True = compiled or raise.
+
+    Raises:
+        InvalidParameterError: Qu singular (the minimizer is not unique: use ``solver="qr"``),
+            or native=True without the compiled core.
+    """
+
+    name = "riccati"
+
+    def __init__(self, Wy, Wu, C, horizons: Horizons, form: str, native: bool | None = None):
+        Wu = np.asarray(Wu, float)
+        sv = np.linalg.svd(Wu, compute_uv=False)
+        if not sv.size or not sv.min() > 1e-12 * max(1.0, sv.max()):
+            raise InvalidParameterError(
+                f"solver 'riccati' needs a nonsingular input weight Qu (R = QuᵀQu ≻ 0); Qu has singular values "
+                f"{np.round(sv, 12).tolist()}: use solver 'qr' (its minimum-norm answer avoids drive fighting)")
+        if form not in FORM_CODES:
+            raise InvalidParameterError(f"form {form!r} is not one of {tuple(FORM_CODES)}")
+        self.Wy, self.Wu, self.C = np.asarray(Wy, float), Wu, np.ascontiguousarray(C, dtype=float)
+        self.horizons, self.form = horizons, form
+        mod = native_module() if native is not False else None
+        if native is True and (mod is None or not hasattr(mod, "Riccati")):
+            raise InvalidParameterError("native=True but the compiled core (parallel_gpc._native.Riccati) is unavailable")
+        self._compiled = None
+        if mod is not None and hasattr(mod, "Riccati"):
+            H = horizons
+            self._compiled = mod.Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
+        self.native = self._compiled is not None
+
+    def solve(self, A, B, c, x0, u0, r) -> SolveResult:
+        """The plan v (Nu·m,) of the form's problem.
+
+        Args:
+            A: (n, n) or (N, n, n) (N·n rows when compiled); B: (n, m) or (N, n, m);
+                c: (n,), (N, n) or None: the model (absolute and incremental: A_d, B_d, c_d at X;
+                nonlinear: A_i, B_i along the pre-simulation).
+            x0: (n,) state. u0: (m,) the input held in the state (incremental forms), else ignored.
+            r: (N − No, p) targets (w; nonlinear: w − ŷ_sim).
+
+        Returns:
+            SolveResult with status ``unconstrained`` and J of the criterion (5), or ``failed``
+            (the message says why) when R + BᵀPB is not positive definite or v is not finite.
+        """
+        t0 = time.perf_counter()
+        n, m = self.C.shape[1], self.Wu.shape[0]
+        try:
+            if self._compiled is not None:
+                cc = np.zeros(n) if c is None else np.asarray(c, float)
+                v, J = self._compiled.solve(np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
+                                            cc.reshape(-1), x0, np.zeros(m) if u0 is None else u0, r)
+            else:
+                Ab, Bb, cb, Cz, z0 = stage_models(self.form, A, B, c, self.C, x0, u0, self.horizons)
+                v, J = lq_tracking(Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, self.horizons.No, self.horizons.Nu)
+        except (SolverError, RuntimeError) as exc:
+            n_v = self.horizons.Nu * m
+            return SolveResult(np.full(n_v, np.nan), np.inf, "failed", self.name, None, time.perf_counter() - t0,
+                               False, str(exc))
+        return SolveResult(v, J, "unconstrained", self.name, None, time.perf_counter() - t0, False, "")
+
+
+class RiccatiPath:
+    """A controller's ``solver="riccati"``: the step's stage data without condensing, the solve,
+    and the input map u = u_base + u_map v the controller's bookkeeping uses.
+
+    Args:
+        criterion: the controller's :class:`~parallel_gpc.gpc.criterion.Criterion`.
+        C: (p, n) output matrix of the model. form: the controller's form.
+        native: as in :class:`RiccatiSolver`.
+
+    Raises:
+        InvalidParameterError: Qu singular (see :class:`RiccatiSolver`).
+    """
+
+    def __init__(self, criterion, C, form: str, native: bool | None = None):
+        Wy, Wu = criterion.weights.blocks(criterion.n_outputs, criterion.n_inputs)
+        self.solver = RiccatiSolver(Wy, Wu, C, criterion.horizons, form, native)
+        self.form, self.horizons, self.m = form, criterion.horizons, criterion.n_inputs
+        self._u_sim = None
+
+    def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
+        """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
+        keeps the controller's one-step model (and, nonlinear, the pre-simulated inputs)."""
+        if self.form == "nonlinear":
+            A_seq, B_seq, _, y_sim, self._u_sim = ctl._presimulate(X)
+            return A_seq, B_seq, None, X, None, w - y_sim[self.horizons.No:]
+        Ad, Bd, cd, base = ctl._linear_stages(X)
+        return Ad, Bd, cd, X, base, w
+
+    def solve(self, A, B, c, x0, u0, r) -> SolveResult:
+        """:meth:`RiccatiSolver.solve`."""
+        return self.solver.solve(A, B, c, x0, u0, r)
+
+    def input_map(self, ctl, stages: tuple) -> Prediction:
+        """A :class:`~parallel_gpc.gpc.prediction.Prediction` carrying only the input map of the
+        form (f and G are empty: nothing was condensed)."""
+        H, m = self.horizons, self.m
+        empty, none = np.empty((0, H.Nu * m)), np.empty(0)
+        if self.form == "absolute":
+            return Prediction(none, empty, np.zeros(H.Nu * m), cached_identity(H.Nu * m), H, "absolute")
+        if self.form == "nonlinear":
+            return Prediction(none, empty, self._u_sim.reshape(-1), _cumulative_map(H.N, H.Nu, m), H, "simulative")
+        base = stages[4]
+        return Prediction(none, empty, np.tile(base, H.Nu), _cumulative_map(H.Nu, H.Nu, m), H, "incremental")
