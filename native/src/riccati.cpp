@@ -126,7 +126,7 @@ class Riccati {
     const bool decide = i < Nu;
     const bool held = form != 0 || !decide;  // the input memory feeds x
     if (held) Ai.topRightCorner(n, m) = CMap(B, n, m); else Ai.topRightCorner(n, m).setZero();
-    Ai.bottomRightCorner(m, m) = held ? Mat::Identity(m, m) : Mat::Zero(m, m);
+    if (held) Ai.bottomRightCorner(m, m).setIdentity(); else Ai.bottomRightCorner(m, m).setZero();
     if (form == 2) Bi.topRows(n).setZero(); else Bi.topRows(n) = CMap(B, n, m);
     Bi.bottomRows(m).setIdentity();
   }
