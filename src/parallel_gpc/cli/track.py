@@ -25,7 +25,9 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--Qy", type=float, default=d["Qy"], help=f"square-root output weight (default {d['Qy']:g})")
     p.add_argument("--Qu", type=float, default=d["Qu"],
                    help=f"square-root input / increment weight (default {d['Qu']:g})")
-    p.add_argument("--solver", default=None, help="back end: qr, osqp-direct, proxqp-direct, daqp-direct, "
+    p.add_argument("--solver", default=None,
+                   help="back end: qr, riccati (unconstrained, Qu > 0: the Riccati recursion, no condensing), "
+                   "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
     p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")

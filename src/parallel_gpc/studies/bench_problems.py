@@ -143,6 +143,8 @@ def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
                                                                  torque_limit=tau, solver="daqp-direct")))
     out.append(("absolute +limits bvls", GPCController(model_factory(None), cfg.Ts, H, W, torque_limit=tau, solver="bvls")))
     out.append(("absolute cholesky", GPCController(model_factory(None), cfg.Ts, H, W, solver="cholesky")))
+    for form in ("absolute", "incremental", "nonlinear"):  # the Riccati recursion: no condensing
+        out.append((f"{form} riccati", GPCController(model_factory(None), cfg.Ts, H, W, form=form, solver="riccati")))
     return out
 
 
