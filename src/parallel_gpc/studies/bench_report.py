@@ -76,7 +76,8 @@ def ratios(rows: list[dict]) -> None:
             free = steps.get((r["section"], r["robot"], r["N"], r["method"].split(" +limits")[0]))
             r["ratio_to_unconstrained_step"] = r["median_us"] / free if free else None
         if r["section"] in ("step", "loop") and r["median_us"]:
-            ref = steps.get((r["section"], r["robot"], r["N"], r["method"] + PYTHON_REFERENCE))
+            form = r["method"].removesuffix(" riccati")  # the riccati rows against their form's reference
+            ref = steps.get((r["section"], r["robot"], r["N"], form + PYTHON_REFERENCE))
             r["speedup_over_python"] = ref / r["median_us"] if ref else None
 
 
