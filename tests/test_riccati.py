@@ -13,10 +13,10 @@ from scipy.linalg import solve_discrete_are
 
 from parallel_gpc import ConstrainedPlant, DiscreteLinearModel, GPCController, Horizons, ParallelRobot, ReducedModel
 from parallel_gpc import SCurve, Weights
-from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.errors import InvalidParameterError, SolverNotFoundError
 from parallel_gpc.gpc.riccati import RiccatiPath, RiccatiSolver
 from parallel_gpc.model.native import native_module
-from parallel_gpc.solvers import QRSolver
+from parallel_gpc.solvers import QRSolver, make_solver
 
 TS = 0.002
 FORMS = ["absolute", "incremental", "incremental-delayed", "nonlinear"]
@@ -141,6 +141,8 @@ def test_uncovered_cases_are_clear_errors():
         ctl.torque_limit = 2.0  # a limit added later is refused the same way
     with pytest.raises(InvalidParameterError, match="form"):
         RiccatiSolver(np.eye(4), np.eye(2), np.eye(4), Horizons(10), "bogus")
+    with pytest.raises(SolverNotFoundError, match="path of the GPC controller.*use 'qr' here"):
+        make_solver("riccati")  # the planner and the benchmark's condensed problems
 
 
 def test_a_failed_riccati_solve_is_replaced_by_qr_visibly(monkeypatch):

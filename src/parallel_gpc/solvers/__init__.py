@@ -15,6 +15,9 @@ with named structure hints that its builder fills in).
 * :class:`BVLSSolver` — bounded-variable least squares (Lawson & Hanson ch. 23): an active set
   on the QR form for box limits, no QP Hessian.
 * :class:`QRFirst` — solves by QR and calls the QP only when the QR solution violates a limit.
+* :func:`~parallel_gpc.solvers.riccati.lq_tracking` — the Riccati recursion of an unconstrained
+  linear-quadratic tracking problem over stages (not a back end of a condensed problem: the
+  controller's ``solver="riccati"`` path, :mod:`parallel_gpc.gpc.riccati`, calls it).
 
 Back ends register themselves (qpsolvers' style): each module is imported inside
 ``try/except ImportError`` and only those whose package imports are listed by
@@ -108,6 +111,11 @@ def make_solver(name: str):
         if isinstance(inner, (QRSolver, NormalEquationsSolver)):
             raise SolverNotFoundError(f"qr-first needs a back end that enforces limits, not {inner.name!r}")
         return QRFirst(inner)
+    if name == "riccati":
+        raise SolverNotFoundError(
+            "'riccati' is a path of the GPC controller (GPCController(..., solver='riccati'), track --solver riccati): "
+            "it solves the unconstrained problem from the model without condensing, it is not a back end of a "
+            f"condensed least-squares problem; use 'qr' here (available: {available_solvers()})")
     if name in DIRECT_BACKENDS:
         return DIRECT_BACKENDS[name]()
     if name in KNOWN_DIRECT_BACKENDS:
