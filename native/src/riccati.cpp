@@ -42,6 +42,10 @@ class Riccati {
     Abar_.assign(N, Mat::Zero(nz, nz));
     Bbar_.assign(N, Mat::Zero(nz, m));
     cbar_.assign(N, Vec::Zero(nz));
+    An_.assign(N, Mat::Zero(n, n));
+    Bn_.assign(N, Mat::Zero(n, m));
+    PA_.setZero(nz, nz);
+    T_.setZero(nz, nz);
     K_.assign(Nu, Mat::Zero(m, nz));
     k_.assign(Nu, Vec::Zero(m));
   }
@@ -56,7 +60,7 @@ class Riccati {
     Vec q = CQ_ * W.row(N - No - 1).transpose();
     for (long i = N - 1; i >= 0; --i) {
       const Mat &Ai = Abar_[i];
-      PA_.noalias() = P * Ai;
+      right_A(P, i, PA_);  // P Ā_i, with Ā_i's structure
       s_.noalias() = P * cbar_[i];
       s_ -= q;
       if (i < Nu) {
@@ -68,16 +72,18 @@ class Riccati {
         llt_.compute(H_);
         if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
         K_[i] = llt_.solve(BPA_);
-        k_[i] = llt_.solve(Bi.transpose() * s_);
-        P.noalias() = Ai.transpose() * PA_;
+        g_.noalias() = Bi.transpose() * s_;
+        k_[i] = llt_.solve(g_);
+        left_AT(PA_, i, P);
         P.noalias() -= BPA_.transpose() * K_[i];
         q.noalias() = BPA_.transpose() * k_[i];
         q.noalias() -= Ai.transpose() * s_;
       } else {
-        P.noalias() = Ai.transpose() * PA_;
+        left_AT(PA_, i, P);
         q.noalias() = -(Ai.transpose() * s_);
       }
-      P = 0.5 * (P + P.transpose()).eval();
+      T_ = P.transpose();
+      P = 0.5 * (P + T_);
       if (i > No) {
         P += CQC_;
         q.noalias() += CQ_ * W.row(i - No - 1).transpose();
@@ -113,9 +119,49 @@ class Riccati {
   int form;
 
  private:
+  // Ā_i: 0 = A (nz = n), 1 = [[A, B], [0, I]] (input held in the state), 2 = [[A, 0], [0, 0]]
+  // (the absolute form deciding while Nu < N)
+  int kind(long i) const { return nz == n ? 0 : (form == 0 && i < Nu) ? 2 : 1; }
+
+  // out = P Ā_i (nz × nz) from the blocks of Ā_i: n·nz·(n + m) multiplications instead of nz³
+  void right_A(const Mat &P, long i, Mat &out) const {
+    const Mat &A = An_[i], &B = Bn_[i];
+    const int k = kind(i);
+    if (k == 0) {
+      out.noalias() = P * A;
+      return;
+    }
+    out.leftCols(n).noalias() = P.leftCols(n) * A;
+    if (k == 2) {
+      out.rightCols(m).setZero();
+      return;
+    }
+    out.rightCols(m) = P.rightCols(m);
+    out.rightCols(m).noalias() += P.leftCols(n) * B;
+  }
+
+  // out = Ā_iᵀ Y (nz × nz), likewise
+  void left_AT(const Mat &Y, long i, Mat &out) const {
+    const Mat &A = An_[i], &B = Bn_[i];
+    const int k = kind(i);
+    if (k == 0) {
+      out.noalias() = A.transpose() * Y;
+      return;
+    }
+    out.topRows(n).noalias() = A.transpose() * Y.topRows(n);
+    if (k == 2) {
+      out.bottomRows(m).setZero();
+      return;
+    }
+    out.bottomRows(m) = Y.bottomRows(m);
+    out.bottomRows(m).noalias() += B.transpose() * Y.topRows(n);
+  }
+
   void stage(long i, const double *A, const double *B, const double *c) {
     Mat &Ai = Abar_[i];
     Mat &Bi = Bbar_[i];
+    An_[i] = CMap(A, n, n);
+    Bn_[i] = CMap(B, n, m);
     Ai.topLeftCorner(n, n) = CMap(A, n, n);
     if (c && form != 3)
       cbar_[i].head(n) = VMap(c, n);
@@ -131,9 +177,9 @@ class Riccati {
     Bi.bottomRows(m).setIdentity();
   }
 
-  Mat C_, Wy_, CQ_, CQC_, R_, PA_, BPA_, PB_, H_;
-  Vec s_, z_, zn_, e_;
-  std::vector<Mat> Abar_, Bbar_, K_;
+  Mat C_, Wy_, CQ_, CQC_, R_, PA_, T_, BPA_, PB_, H_;
+  Vec s_, g_, z_, zn_, e_;
+  std::vector<Mat> An_, Bn_, Abar_, Bbar_, K_;
   std::vector<Vec> cbar_, k_;
   Eigen::LLT<Mat> llt_;
 };
