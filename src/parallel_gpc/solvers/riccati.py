@@ -15,7 +15,9 @@ is solved backwards with the cost-to-go V_i(z) = zᵀ P_i z − 2 q_iᵀ z + con
 
 (the bracketed output terms for No < i), and forwards v(i) = −K_i z(i) − k_i. The work grows
 linearly with N instead of the cubic cost of a QR of the condensed problem (15)–(16); the
-minimizer is the same (R ≻ 0 makes it unique).
+minimizer is the same (R ≻ 0 makes it unique). Accuracy: this (non-square-root) form loses
+about eps·‖BᵀPB‖/λ_min(R) relative, against eps·cond for the QR of (15)–(19); on the controllers'
+problems (Qu ≥ 1e-8 N·m-scale weights, redundant drives included) it agrees with QR to ≤ 1e-10.
 """
 
 from __future__ import annotations
