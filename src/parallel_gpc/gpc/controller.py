@@ -331,8 +331,8 @@ class GPCController:
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
-        if gain is not None:
-            self._check_conditioning(X, gain)
+        if gain is not None:  # SingularPoseError at a near-singular pose
+            check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
         result = None if stages is None else self._riccati.solve(*stages)
@@ -380,11 +380,6 @@ class GPCController:
             return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", backend.name,
                                message=f"{type(exc).__name__}: {exc}")
         return result if failed is None else replace(result, message=f"riccati failed ({failed.message}); solved by QR")
-
-    def _check_conditioning(self, X: np.ndarray, gain: np.ndarray) -> None:
-        """Raise :class:`SingularPoseError` when the input gain at X is near-singular
-        (:func:`~parallel_gpc.gpc.protocol.check_conditioning`)."""
-        check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)
 
     def _warm_start(self, pred: Prediction, n: int) -> np.ndarray | None:
         """The previous plan shifted by one sample, as v: absolute, v shifted; incremental and
