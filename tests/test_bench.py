@@ -177,8 +177,12 @@ def test_tiny_benchmark_writes_json_and_plot(tiny_run):
     assert ("step", "absolute +limits bvls") in methods
     for r in data["results"]:
         assert r["ratio_to_qr_unit"] > 0
-    loop = data["closed_loop"]
-    assert loop["wall_s"] > loop["controller_s"] > 0 and loop["simulated_s"] == BenchConfig.tiny().closed_loop_s
+    loops = data["closed_loop"]  # default (QR), Riccati, and the pure-Python reference
+    assert [(loop["solver"], loop.get("reference", False)) for loop in loops] == [
+        ("qr", False), ("riccati", False), ("qr", True)]
+    assert loops[2]["native"] is False and loops[0]["native"] == loops[1]["native"]
+    for loop in loops:
+        assert loop["wall_s"] > loop["controller_s"] > 0 and loop["simulated_s"] == BenchConfig.tiny().closed_loop_s
     for form in ("absolute", "incremental", "nonlinear"):
         assert ("step", form) in methods and ("step", f"{form} +limits") in methods
     names = {t["target"] for t in data["targets"]}
@@ -188,7 +192,7 @@ def test_tiny_benchmark_writes_json_and_plot(tiny_run):
         fast, ref = rows[("step", form)], rows[("step", f"{form} (Python reference)")]
         assert fast["speedup_over_python"] == pytest.approx(ref["median_us"] / fast["median_us"])
         assert f"{form} step speed-up over the pure-Python reference step (replayed)" in names
-    assert any(n.startswith("closed loop 0.02 s at 1000 Hz") for n in names)
+    assert sum(n.startswith("closed loop 0.02 s at 1000 Hz") for n in names) == 2  # QR and Riccati
 
 
 def test_tiny_benchmark_solutions_match_their_references(tiny_run):

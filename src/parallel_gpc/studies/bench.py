@@ -221,23 +221,31 @@ def _shift(v, m: int):
     return np.concatenate([v[m:], v[-m:]])
 
 
-def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: float = 1e-3) -> dict:
-    """Wall time of a closed-loop simulation: the absolute controller (N, Qu = 1e-5, QR) at
-    1/Ts on the full constrained plant tracking the robot's default path for ``seconds``.
+def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: float = 1e-3, solver: str = "qr",
+                          native: bool | None = None) -> dict:
+    """Wall time of a closed-loop simulation: the absolute controller (N, Qu = 1e-5, ``solver``)
+    at 1/Ts on the full constrained plant tracking the robot's default path for ``seconds``.
+
+    Args:
+        solver: the controller's back end (``"qr"``, the default, or ``"riccati"``).
+        native: None = the compiled core where built (model update and plant), False = the
+            pure-Python reference.
 
     Returns:
-        {"robot", "N", "Ts_s", "simulated_s", "wall_s", "wall_per_simulated_s", "controller_s"}
-        (controller_s: the sum of the controller's step times).
+        {"robot", "N", "Ts_s", "solver", "native", "simulated_s", "wall_s", "wall_per_simulated_s",
+        "controller_s"} (controller_s: the sum of the controller's step times).
     """
     robot = ParallelRobot.load(robot_name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
-    ctl = GPCController(ReducedModel(robot), Ts, Horizons(N), Weights(1.0, 1e-5))
-    plant = ConstrainedPlant(robot, ref.initial_state())
+    model = ReducedModel(robot, native=native)
+    ctl = GPCController(model, Ts, Horizons(N), Weights(1.0, 1e-5), solver=solver)
+    plant = ConstrainedPlant(robot, ref.initial_state(), native=native)
     t0 = time.perf_counter()
     res = simulate(ctl, plant, ref, seconds, progress=False)
     wall = time.perf_counter() - t0
-    return {"robot": robot_name, "N": N, "Ts_s": Ts, "simulated_s": seconds, "wall_s": wall,
-            "wall_per_simulated_s": wall / seconds, "controller_s": float(np.sum(res.step_time))}
+    return {"robot": robot_name, "N": N, "Ts_s": Ts, "solver": solver, "native": bool(model.native),
+            "simulated_s": seconds, "wall_s": wall, "wall_per_simulated_s": wall / seconds,
+            "controller_s": float(np.sum(res.step_time))}
 
 
 # ------------------------------------------------------------------------------- entry points
@@ -289,7 +297,10 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
     closed_loop = None
     if cfg.closed_loop_s > 0 and not interrupted:
         try:
-            closed_loop = closed_loop_wall_time(cfg.robots[0], cfg.closed_loop_s)
+            closed_loop = [closed_loop_wall_time(cfg.robots[0], cfg.closed_loop_s),
+                           closed_loop_wall_time(cfg.robots[0], cfg.closed_loop_s, solver="riccati"),
+                           {**closed_loop_wall_time(cfg.robots[0], cfg.closed_loop_s, native=False),
+                            "reference": True}]  # the pure-Python reference: timed, no target
         except KeyboardInterrupt:  # Ctrl-C during the closed loop: the table rows are kept
             interrupted = True
     robots = {r: i for i, (r, _) in enumerate(plan)}
