@@ -11,8 +11,10 @@ load hits both alike). Per path: the median µs of the whole step, of the integr
 Markdown table. ``--closed-loop K`` then runs K samples of the closed loop of
 ``closed_loop_wall_time`` (planar_4rrr, absolute controller, N = 20, 1 kHz) in which, at every
 sample, both plants step from the same state with the same u (in alternating order; the loop goes
-on from the compiled one) and prints the median controller step, plant steps and the loop's own
-bookkeeping (reference window, internal-force record), in µs. See benchmarks/README.md.
+on from the compiled one) and prints the median controller step and plant steps in µs.
+``--split S`` runs ``closed_loop_wall_time("planar_4rrr", S)`` itself (``simulate``, default plant)
+with ``ConstrainedPlant.step`` timed and prints wall, controller (its step times), plant and the
+rest (the loop's bookkeeping) in s per simulated s. See benchmarks/README.md.
 """
 
 import os
@@ -87,25 +89,18 @@ def closed_loop(K: int) -> None:
     from parallel_gpc.gpc.criterion import Weights
     from parallel_gpc.gpc.prediction import Horizons
     from parallel_gpc.gpc.references import SCurve, path_for
-    from parallel_gpc.studies.simulation import null_space_component
 
     robot = ParallelRobot.load("planar_4rrr")
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     ctl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-5))
     fast, slow = (ConstrainedPlant(robot, ref.initial_state(), native=native) for native in (True, False))
-    times = {k: [] for k in ("controller", "python", "compiled", "bookkeeping")}
+    times = {k: [] for k in ("controller", "python", "compiled")}
     deviation = 0.0
     for k in range(K):
-        t0 = time.perf_counter()
         X, w = fast.X, ref.window(k * TS, TS, 20)
         t1 = time.perf_counter()
         info = ctl.step(X, w)
-        t2 = time.perf_counter()
-        null_space_component(fast.input_matrix(), info.u)  # what simulate() records per sample
-        ref.pose(k * TS)
-        t3 = time.perf_counter()
-        times["controller"].append(t2 - t1)
-        times["bookkeeping"].append(t1 - t0 + t3 - t2)
+        times["controller"].append(time.perf_counter() - t1)
         slow.q, slow.v, slow._T, slow._pinv = fast.q, fast.v, fast._T, fast._pinv
         for plant in ((fast, slow) if k % 2 else (slow, fast)):
             t0 = time.perf_counter()
@@ -116,12 +111,36 @@ def closed_loop(K: int) -> None:
           + f"; max |X_python − X_compiled| after a sample: {deviation:.1e}")
 
 
+def loop_split(seconds: float) -> None:
+    """``closed_loop_wall_time`` with the plant's steps timed: s per simulated s of each part."""
+    from parallel_gpc.studies.bench import closed_loop_wall_time
+
+    spent = []
+    step = ConstrainedPlant.step
+
+    def timed_step(self, u, Ts):
+        t0 = time.perf_counter()
+        out = step(self, u, Ts)
+        spent.append(time.perf_counter() - t0)
+        return out
+
+    ConstrainedPlant.step = timed_step
+    try:
+        r = closed_loop_wall_time("planar_4rrr", seconds)
+    finally:
+        ConstrainedPlant.step = step
+    wall, ctl, plant = r["wall_s"], r["controller_s"], float(np.sum(spent))
+    print(f"simulate {seconds:g} s at 1 kHz: wall {wall / seconds:.3f} s/s = controller {ctl / seconds:.3f} + plant "
+          f"{plant / seconds:.3f} + loop {(wall - ctl - plant) / seconds:.3f}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=400, help="samples per path and repetition")
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--robots", nargs="+", default=ROBOTS)
+    parser.add_argument("--robots", nargs="*", default=ROBOTS, help="robots of the plant-step table (none: skip it)")
     parser.add_argument("--closed-loop", type=int, default=0, metavar="K", help="samples of the paired closed loop")
+    parser.add_argument("--split", type=float, default=0.0, metavar="S", help="s of simulate with the split timed")
     args = parser.parse_args()
     print("| robot | nv | Python step µs (integrate + project) | compiled step µs (integrate + project) | speed-up |")
     print("|---|---|---|---|---|")
@@ -134,6 +153,8 @@ def main() -> None:
               flush=True)
     if args.closed_loop > 0:
         closed_loop(args.closed_loop)
+    if args.split > 0:
+        loop_split(args.split)
 
 
 if __name__ == "__main__":

@@ -87,7 +87,8 @@ def test_null_space_component_equals_the_pseudo_inverse_formula():
 def test_plant_input_matrix_is_the_one_at_its_configuration(robot4):
     """simulate() reads B_r from the plant (T kept from its projection): it equals Tᵀ Sᵀ of the
     velocity map at the plant's configuration."""
-    plant = ConstrainedPlant(robot4, np.concatenate([SCurve().pose(0.0), [0.1, -0.2, 0.3]]))
+    X0 = np.concatenate([SCurve().pose(0.0), [0.1, -0.2, 0.3]])
+    plant = ConstrainedPlant(robot4, X0, native=False)  # the Python projection: the robot's own T
     for _ in range(3):
         plant.step(np.array([1.0, -1.0, 0.5, 0.2]), TS)
     robot4._ck_cache = robot4._vm_cache = None  # recomputed from q, not read back from the plant
@@ -95,6 +96,14 @@ def test_plant_input_matrix_is_the_one_at_its_configuration(robot4):
     np.testing.assert_array_equal(plant.input_matrix(), expected)
     reduced = ReducedPlant(robot4, plant.X)
     np.testing.assert_allclose(reduced.input_matrix(), expected, rtol=1e-9, atol=1e-12)
+    # the default plant (compiled projection when built): T from C++ (an LU where the Python uses
+    # an SVD), equal to rounding
+    compiled = ConstrainedPlant(robot4, X0)
+    for _ in range(3):
+        compiled.step(np.array([1.0, -1.0, 0.5, 0.2]), TS)
+    robot4._ck_cache = robot4._vm_cache = None
+    expected = robot4.velocity_map(compiled.q)[0].T @ robot4.drive_selection
+    np.testing.assert_allclose(compiled.input_matrix(), expected, rtol=0, atol=1e-12)
 
 
 @pytest.fixture(scope="module")

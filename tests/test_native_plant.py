@@ -204,3 +204,46 @@ def test_compiled_plants_in_threads_give_the_sequential_states(robot4):
         parallel = list(pool.map(run, inputs))
     for a, b in zip(parallel, sequential):
         np.testing.assert_array_equal(a, b)
+
+
+def test_compiled_projection_equals_the_python_projection(any_robot):
+    """ModelUpdate.project (the plant's compiled projection) against the Python projection
+    (``native=False``) from the same drifted states: q, v and T to ≤ 1e-12, sample after sample
+    (each projection preconditioned by the previous one's K⁺)."""
+    X0, _, _ = _drive_case(any_robot, seed=7)
+    fast = ConstrainedPlant(any_robot, X0, native=True)
+    ref = ConstrainedPlant(any_robot, X0, native=False)
+    assert fast.projector is not None and ref.projector is None
+    rng = np.random.default_rng(8)
+    nv = any_robot.model.nv
+    for _ in range(10):
+        # a sample's drift off the closures: what the RK4 leaves for the projection
+        q = any_robot.integrate(fast.q, 0.01 * fast.v + rng.uniform(-1e-6, 1e-6, nv))
+        v = fast.v + rng.uniform(-1e-3, 1e-3, nv)
+        assert np.max(np.abs(any_robot.closure_kinematics(q).residual)) > 1e-9  # a real projection
+        ref.q, ref.v, ref._T, ref._pinv = fast.q, fast.v, fast._T, fast._pinv
+        fast._project(q, v)
+        ref._project(q, v)
+        assert np.max(np.abs(fast.q - ref.q)) <= 1e-12
+        assert np.max(np.abs(fast.v - ref.v)) <= 1e-12 * max(1.0, np.max(np.abs(ref.v)))
+        assert np.max(np.abs(fast._T - ref._T)) <= 1e-12 * max(1.0, np.max(np.abs(ref._T)))
+        assert np.max(np.abs(fast.input_matrix() - ref.input_matrix())) <= 1e-12 * max(1.0, np.max(np.abs(ref._T)))
+
+
+def test_compiled_projection_goes_on_after_the_validated_path(robot4):
+    """After a projection the warm Newton refuses (the Python path takes it), the compiled one
+    resumes with that K⁺ as its preconditioner and equals the Python projection."""
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), native=True)
+    ref = ConstrainedPlant(robot4, plant.X, native=False)
+    q = plant.q.copy()
+    q[robot4.z_idx] += 0.05  # too far for the warm Newton
+    assert plant.projector.project(q, plant.v, plant._pinv) is None
+    plant._project(q, plant.v)
+    ref._project(q, plant.v)
+    np.testing.assert_array_equal(plant.q, ref.q)
+    q = robot4.integrate(plant.q, 1e-3 * plant.v)
+    ref.q, ref.v, ref._T, ref._pinv = plant.q, plant.v, plant._T, plant._pinv
+    out = plant.projector.project(q, plant.v, plant._pinv)  # the warm path again
+    assert out is not None
+    ref._project(q, plant.v)
+    assert np.max(np.abs(out[0] - ref.q)) <= 1e-12 and np.max(np.abs(out[1] - ref.v)) <= 1e-12

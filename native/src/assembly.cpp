@@ -143,6 +143,21 @@ void ModelUpdate::fallback(const Vec &y) {
   q_ = std::move(q);
 }
 
+bool ModelUpdate::project(const Vec &q, const Vec &v, const Mat *pinv_hint, Vec &q_out, Vec &v_out) {
+  Vec pose(n_y), yd(n_y);
+  if (kin.task) {  // y = h(q) and ẏ = H v from the assembly rows of the task output
+    kin.eval(q);
+    pose = kin.res_.tail(n_y);
+    yd.noalias() = kin.jac_.bottomRows(n_y) * v;
+  } else {
+    for (Index i = 0; i < n_y; ++i) pose[i] = q[cfg.y_q[i]], yd[i] = v[cfg.y_idx[i]];
+  }
+  if (!assemble_warm(pose, q, pinv_hint, false)) return false;
+  q_out = q_;
+  v_out.noalias() = T_ * yd;
+  return true;
+}
+
 void ModelUpdate::kinematics(const Vec &y, const Warm *base) {
   bool near = base != nullptr;
   const Warm *b = base != nullptr ? base : (warm_ ? &*warm_ : nullptr);

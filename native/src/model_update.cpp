@@ -232,6 +232,19 @@ void bind_model_update(nb::module_ &m) {
            },
            nb::arg("X0"), nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(),
            "(E (K, n_x, n_aug), X (K + 1, n_x)) of the pre-simulation (10)")
+      .def("project",
+           [](ModelUpdate &self, const Vec &q, const Vec &v, const Mat &pinv_hint) -> nb::object {
+             if (q.size() != self.kin.model.nq || v.size() != self.nv)
+               throw std::invalid_argument("project: q must be (nq,) and v (nv,)");
+             if (pinv_hint.rows() != self.n_z || pinv_hint.cols() != self.kin.rows)
+               throw std::invalid_argument("project: pinv_hint must be K⁺ (n_z, assembly rows)");
+             Vec q_out, v_out;
+             if (!self.project(q, v, &pinv_hint, q_out, v_out)) return nb::none();
+             return nb::make_tuple(q_out, v_out, Mat(self.velocity_map()), Mat(self.pinv()));
+           },
+           nb::arg("q"), nb::arg("v"), nb::arg("pinv_hint"),
+           "(q, v, T, K⁺) projected onto the closures keeping the output pose and velocity (the first "
+           "Newton step preconditioned by pinv_hint, the previous K⁺), or None: take the validated path")
       .def("reset", &ModelUpdate::reset, "forget the warm starts (back to the home configuration)")
       .def_prop_ro("q_last", [](ModelUpdate &self) { return Vec(self.q_last); });
 }

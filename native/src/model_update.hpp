@@ -88,6 +88,12 @@ class ModelUpdate {
   void discrete(const Vec &X, double Ts, double *out);
   // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
   void simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es, double *Xs);
+  // ConstrainedPlant._project: (q, v) onto Ψ = 0 keeping the output pose, v = T ẏ keeping ẏ;
+  // pinv_hint: K⁺ of the previous projection (or null). False when the warm Newton meets anything
+  // unusual (the caller takes the validated path); else T and K⁺ at q_out in velocity_map/pinv
+  bool project(const Vec &q, const Vec &v, const Mat *pinv_hint, Vec &q_out, Vec &v_out);
+  const Mat &velocity_map() const { return T_; }
+  const Mat &pinv() const { return pinv_; }
   void reset();
   nb::object &handler() { return handler_; }  // for the cyclic GC (tp_traverse / tp_clear)
 

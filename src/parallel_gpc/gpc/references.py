@@ -24,8 +24,9 @@ class Reference:
         raise NotImplementedError
 
     def window(self, t: float, Ts: float, N: int) -> np.ndarray:
-        """(N, n_y) poses at t + Ts … t + N·Ts."""
-        return np.array([self.pose(t + (j + 1) * Ts) for j in range(N)])
+        """(N, n_y) poses at t + Ts … t + N·Ts (one vectorized :meth:`sample` where the
+        subclass has one)."""
+        return self.sample(t + Ts * np.arange(1, N + 1))
 
     def initial_state(self, t: float = 0.0) -> np.ndarray:
         """(2·n_y,) state X = [y, ẏ] at rest on the reference at time t (s): pose (m, rad), zero velocity.
@@ -37,7 +38,7 @@ class Reference:
 
     def sample(self, times) -> np.ndarray:
         """(K, n_y) poses at the given times (s)."""
-        return np.array([self.pose(float(t)) for t in times])
+        return np.array([self.pose(float(t)) for t in np.asarray(times, dtype=float)])
 
 
 def pose_error_norms(e, angular=None) -> tuple[np.ndarray, np.ndarray]:
@@ -62,6 +63,12 @@ def pose_error_norms(e, angular=None) -> tuple[np.ndarray, np.ndarray]:
 def quintic(tau: float) -> float:
     """Smooth time scaling s(τ) = 10τ³ − 15τ⁴ + 6τ⁵ on [0, 1] (zero velocity and acceleration at the ends)."""
     tau = min(max(tau, 0.0), 1.0)
+    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
+
+
+def quintic_array(tau: np.ndarray) -> np.ndarray:
+    """:func:`quintic` of every entry of ``tau`` (the same arithmetic, elementwise)."""
+    tau = np.minimum(np.maximum(tau, 0.0), 1.0)
     return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2)
 
 
@@ -102,6 +109,25 @@ class SCurve(Reference):
             cx, cy = x0, y0 + 3 * r
         psi = self.psi_start + (self.psi_end - self.psi_start) * s
         return np.array([cx + r * math.cos(theta), cy + r * math.sin(theta), psi])
+
+    def sample(self, times) -> np.ndarray:
+        """(K, 3) poses at the given times (s): :meth:`pose` vectorized over the times."""
+        s = quintic_array((np.asarray(times, dtype=float) - self.t_start) / self.duration)
+        x0, y0 = self.start
+        r = self.radius
+        first = s <= 0.5
+        if first.all():  # the usual window: on one half circle (np.where for the few that span both)
+            theta, cy = -math.pi / 2 + 2 * math.pi * s, y0 + r
+        elif not first.any():
+            theta, cy = -math.pi / 2 - 2 * math.pi * (s - 0.5), y0 + 3 * r
+        else:
+            theta = np.where(first, -math.pi / 2 + 2 * math.pi * s, -math.pi / 2 - 2 * math.pi * (s - 0.5))
+            cy = np.where(first, y0 + r, y0 + 3 * r)
+        out = np.empty((s.size, 3))
+        out[:, 0] = x0 + r * np.cos(theta)
+        out[:, 1] = cy + r * np.sin(theta)
+        out[:, 2] = self.psi_start + (self.psi_end - self.psi_start) * s
+        return out
 
 
 @dataclass(frozen=True)
@@ -160,6 +186,19 @@ class Helix(Reference):
         pose[others] += np.asarray(self.angle_amplitude) * math.sin(2 * math.pi * s)
         return pose
 
+    def sample(self, times) -> np.ndarray:
+        """(K, n_y) poses at the given times (s): :meth:`pose` vectorized over the times."""
+        s = quintic_array((np.asarray(times, dtype=float) - self.t_start) / self.duration)
+        poses = np.tile(np.array(self.start, dtype=float), (s.size, 1))
+        ix, iy, iz = self.position_columns
+        phi = 2 * math.pi * self.turns * s
+        poses[:, ix] += self.radius * (np.cos(phi) - 1.0)
+        poses[:, iy] += self.radius * np.sin(phi)
+        poses[:, iz] += self.rise * s
+        others = [i for i in range(poses.shape[1]) if i not in self.position_columns]
+        poses[:, others] += np.multiply.outer(np.sin(2 * math.pi * s), np.asarray(self.angle_amplitude))
+        return poses
+
 
 @dataclass(frozen=True)
 class Hold(Reference):
@@ -169,6 +208,9 @@ class Hold(Reference):
 
     def pose(self, t: float) -> np.ndarray:
         return np.asarray(self.target, dtype=float)
+
+    def sample(self, times) -> np.ndarray:
+        return np.tile(np.asarray(self.target, dtype=float), (np.asarray(times).size, 1))
 
 
 class SampledTrajectory(Reference):
@@ -197,8 +239,8 @@ class SampledTrajectory(Reference):
     def pose(self, t: float) -> np.ndarray:
         return np.array([np.interp(t, self.t, self.poses[:, i]) for i in range(self.poses.shape[1])])
 
-    def window(self, t: float, Ts: float, N: int) -> np.ndarray:
-        times = t + Ts * np.arange(1, N + 1)
+    def sample(self, times) -> np.ndarray:
+        times = np.asarray(times, dtype=float)
         return np.stack([np.interp(times, self.t, self.poses[:, i]) for i in range(self.poses.shape[1])], axis=1)
 
     def save(self, path) -> Path:

@@ -19,6 +19,7 @@ import pinocchio as pin
 from .discretization import rk4_step
 from .dynamics import ReducedModel
 from .native_plant import compiled_plant
+from .native_update import compiled_model_update, model_update_status
 from .robot import ParallelRobot
 from ..errors import NonFiniteError
 from ..validation import finite_vector, positive
@@ -78,11 +79,14 @@ class ConstrainedPlant(_PlantBase):
         native: integrate each sample with the compiled core (``parallel_gpc._native.Plant``, the
             same RK4 of the same ``constraintDynamics`` in one call): None uses it when it is
             available (:func:`~parallel_gpc.model.native.native_module`), False never (the
-            Python reference), True requires it. The projection onto the closures is the
-            robot's (Python) in both cases.
+            Python reference), True requires it. With the compiled integrator, the projection
+            onto the closures is the compiled model update's (``ModelUpdate.project``, the same
+            warm Newton) when the core has it, the robot's (Python) otherwise and in every
+            unusual case.
 
     Attributes:
         compiled: the compiled integrator, or None on the Python path.
+        projector: the compiled projection (a ``_native.ModelUpdate`` of the robot), or None.
     """
 
     def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, baumgarte=(100.0, 20.0),
@@ -111,6 +115,9 @@ class ConstrainedPlant(_PlantBase):
         self._T, self._pinv = robot.velocity_map_nocopy(self.q)  # K⁺: the next projection's preconditioner
         self.v = self._T @ X0[self.n_y:]
         self._S = robot.drive_selection
+        self.projector = None
+        if self.compiled is not None and model_update_status(None) == "compiled model update":
+            self.projector = compiled_model_update(robot)
 
     @property
     def X(self) -> np.ndarray:
@@ -178,13 +185,19 @@ class ConstrainedPlant(_PlantBase):
         """Project (q, v) onto Φ(q) = 0 and Φ_q v = 0 keeping the platform coordinates.
 
         Newton from q (warm: its first step preconditioned by K⁺ of the previous projection) with
-        the velocity map from its last Jacobian; the validated path (:meth:`ParallelRobot.assemble`)
-        when that does not converge on the home branch, which also reports the errors.
+        the velocity map from its last Jacobian (in C++ when :attr:`projector` is set); the
+        validated path (:meth:`ParallelRobot.assemble`) when that does not converge on the home
+        branch, which also reports the errors.
         """
+        if self.projector is not None:
+            out = self.projector.project(q, v, self._pinv)
+            if out is not None:
+                self.q, self.v, self._T, self._pinv = out
+                return
         r = self.robot
         ydot = r.output_velocity(q, v)
         pose = r.platform_pose(q)
-        out = r.assemble_warm(pose, q, self._pinv)
+        out = None if self.projector is not None else r.assemble_warm(pose, q, self._pinv)
         if out is None:
             self.q = r.assemble(pose, q)
             self._T, self._pinv = r.velocity_map_nocopy(self.q)

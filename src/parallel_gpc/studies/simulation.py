@@ -124,6 +124,31 @@ def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
     return float(np.linalg.norm(u - V.T @ (V @ u)))
 
 
+def null_space_components(B_r: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """(K,) :func:`null_space_component` of K pairs at once (one batched SVD).
+
+    Args:
+        B_r: (K, n_y, n_u) input matrices. u: (K, n_u) drive torques (N·m).
+    """
+    _, s, Vt = np.linalg.svd(B_r, full_matrices=False)
+    keep = s > 1e-15 * s[:, :1]  # all False where s_max = 0: V_r is empty, the whole u counts
+    V = Vt * keep[:, :, None]
+    return np.linalg.norm(u - np.einsum("kri,kr->ki", V, np.einsum("kri,ki->kr", V, u)), axis=1)
+
+
+#: samples whose reference windows are evaluated in one vectorized call
+_WINDOW_CHUNK = 500
+
+
+def _windows(reference: Reference, k0: int, count: int, Ts: float, N: int) -> np.ndarray:
+    """(count, N + 1, n_y) poses at t_k + j·Ts (t_k = k·Ts, k = k0 … k0 + count − 1, j = 0 … N):
+    row 0 the reference at t_k, rows 1… the window ``reference.window(t_k, Ts, N)``, in one
+    :meth:`~parallel_gpc.gpc.references.Reference.sample` call (the same times, to the bit)."""
+    t = np.arange(k0, k0 + count) * Ts
+    times = t[:, None] + Ts * np.arange(0, N + 1)
+    return reference.sample(times.ravel()).reshape(count, N + 1, -1)
+
+
 def _step(controller: GPCController, X: np.ndarray, meas: np.ndarray, w: np.ndarray, noise_std):
     """controller.step on the measurement; an error caused by the noise names ``noise_std``."""
     try:
@@ -172,25 +197,36 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         if not np.all(np.isfinite(noise_std)) or np.any(noise_std < 0):
             raise InvalidParameterError(f"noise_std = {np.asarray(noise_std).tolist()} must be finite and ≥ 0 "
                                         f"(a scalar or {2 * n_y} values for [y, ẏ])")
-    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "internal_force", "q", "step_time",
+    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time",
                            "solve_time", "iterations", "status", "fallback", "saturated")}
+    B_rs = []  # (n_y, n_u) B_r per sample with redundant drives: internal force after the loop
+    N = controller.horizons.N
+    batched = type(reference).window is Reference.window  # else the subclass's own window()
+    windows = None
     interrupted = False
     try:
         for k in tqdm(range(K), disable=not progress, desc=f"{controller.form} GPC", unit="step", leave=False):
             t = k * Ts
+            if batched and k % _WINDOW_CHUNK == 0:
+                windows = _windows(reference, k, min(_WINDOW_CHUNK, K - k), Ts, N)
             X = plant.X
             meas = X if noise_std is None else X + rng.normal(0.0, 1.0, X.shape) * noise_std
-            info = _step(controller, X, meas, reference.window(t, Ts, controller.horizons.N), noise_std)
+            if batched:
+                rows = windows[k % _WINDOW_CHUNK]
+                w, pose_t = rows[1:], rows[0]
+            else:
+                w, pose_t = reference.window(t, Ts, N), reference.pose(t)
+            info = _step(controller, X, meas, w, noise_std)
             q = np.array(plant.q)
-            B_r = plant.input_matrix() if n_u > n_y else None  # at the state u was computed for
+            if n_u > n_y:
+                B_rs.append(plant.input_matrix())  # at the state u was computed for
             sat_before = plant.saturated
             plant.step(info.u, Ts)
             rec["t"].append(t)
-            rec["reference"].append(reference.pose(t))
+            rec["reference"].append(pose_t)
             rec["pose"].append(X[:n_y])
             rec["velocity"].append(X[n_y:])
             rec["u"].append(info.u)
-            rec["internal_force"].append(0.0 if B_r is None else null_space_component(B_r, info.u))
             rec["q"].append(q)
             rec["step_time"].append(info.step_time)
             rec["solve_time"].append(info.solve_time)
@@ -203,6 +239,10 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
+    done = min(len(v) for v in rec.values())  # an interrupt may fall between a sample's records
+    arrays = {k: v[:done] for k, v in arrays.items()}
+    arrays["internal_force"] = null_space_components(np.asarray(B_rs[:done]), arrays["u"]) if B_rs \
+        else np.zeros(done)
     info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form, "solver": controller.solver,
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
