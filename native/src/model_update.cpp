@@ -195,7 +195,6 @@ PyType_Slot gc_slots[] = {{Py_tp_traverse, reinterpret_cast<void *>(traverse)},
 }  // namespace
 
 void bind_model_update(nb::module_ &m) {
-  m.attr("has_model_update") = true;
   nb::class_<ModelUpdate>(m, "ModelUpdate",
                           "Compiled model update of one robot (see parallel_gpc.model.native_update)",
                           nb::type_slots(gc_slots))

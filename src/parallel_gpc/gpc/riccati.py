@@ -27,7 +27,7 @@ import time
 import numpy as np
 
 from ..errors import InvalidParameterError, SolverError
-from ..model.native import native_module
+from ..model.native import compiled_part
 from ..solvers import SolveResult
 from ..solvers.riccati import lq_tracking
 from ..model.discretization import cached_identity
@@ -107,13 +107,11 @@ class RiccatiSolver:
             raise InvalidParameterError(f"form {form!r} is not one of {tuple(FORM_CODES)}")
         self.Wy, self.Wu, self.C = np.asarray(Wy, float), Wu, np.ascontiguousarray(C, dtype=float)
         self.horizons, self.form = horizons, form
-        mod = native_module() if native is not False else None
-        if native is True and (mod is None or not hasattr(mod, "Riccati")):
-            raise InvalidParameterError("native=True but the compiled core (parallel_gpc._native.Riccati) is unavailable")
+        Riccati = compiled_part(native, "Riccati", "the compiled Riccati solve")
         self._compiled = None
-        if mod is not None and hasattr(mod, "Riccati"):
+        if Riccati is not None:
             H = horizons
-            self._compiled = mod.Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
+            self._compiled = Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
         self.native = self._compiled is not None
 
     def solve(self, A, B, c, x0, u0, r) -> SolveResult:

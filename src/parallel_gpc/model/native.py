@@ -18,7 +18,9 @@ from __future__ import annotations
 import os
 from functools import lru_cache
 
-__all__ = ["native_module", "native_status", "native_enabled"]
+from ..errors import InvalidParameterError
+
+__all__ = ["native_module", "native_status", "native_enabled", "compiled_part"]
 
 #: environment variable that switches the compiled core off when set to "0"
 ENV_SWITCH = "PARALLEL_GPC_NATIVE"
@@ -57,3 +59,28 @@ def native_status() -> str:
     if not native_enabled():
         return f"pure-Python reference path ({ENV_SWITCH}=0)"
     return _load()[1]
+
+
+def compiled_part(native, part: str, what: str):
+    """The compiled class ``part`` (``"ModelUpdate"``, ``"Plant"``, ``"Riccati"``) for an object
+    built with ``native``, or None for its Python reference path.
+
+    Args:
+        native: None = the compiled class when it is available, False = never, True = required.
+        part: attribute name of the class in ``parallel_gpc._native``.
+        what: what it is, for the message (e.g. ``"the compiled plant"``).
+
+    Raises:
+        InvalidParameterError: ``native`` is not None/True/False, or True while the class is not
+            available (the message says why: not built, Pinocchio mismatch, switched off).
+    """
+    if native not in (None, True, False):
+        raise InvalidParameterError(f"native = {native!r}; valid: None (automatic), True or False")
+    if native is False:
+        return None
+    module = native_module()
+    cls = None if module is None else getattr(module, part, None)
+    if cls is None and native:
+        why = native_status() if module is None else f"the compiled core has no {part}"
+        raise InvalidParameterError(f"native=True asks for {what}, but it is not available: {why}")
+    return cls

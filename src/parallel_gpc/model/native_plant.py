@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidParameterError
-from .native import native_module, native_status
+from .native import compiled_part
 
 #: constraint dimension of each closure kind (CONTACT_3D / CONTACT_6D)
 _DIMS = {"point": 3, "weld": 6}
@@ -30,18 +29,12 @@ def compiled_plant(robot, baumgarte, proximal, native: bool | None):
         InvalidParameterError: ``native`` is not None/True/False, or True while the compiled core
             cannot be used (the message says why: not built, Pinocchio mismatch, switched off).
     """
-    if native not in (None, True, False):
-        raise InvalidParameterError(f"native = {native!r}; valid: None (automatic), True or False")
-    if native is False:
-        return None
-    module = native_module()
-    if module is None:
-        if native:
-            raise InvalidParameterError(f"native=True asks for the compiled plant, but: {native_status()}")
+    Plant = compiled_part(native, "Plant", "the compiled plant")
+    if Plant is None:
         return None
     model = robot.model
     frames = [(model.frames[fa], model.frames[fb], c) for fa, fb, c in robot.closure_frames]
-    plant = module.Plant(
+    plant = Plant(
         model.saveToString(), [_DIMS[c.kind] for _, _, c in frames],
         [int(Fa.parentJoint) for Fa, _, _ in frames], [np.array(Fa.placement.homogeneous) for Fa, _, _ in frames],
         [int(Fb.parentJoint) for _, Fb, _ in frames], [np.array(Fb.placement.homogeneous) for _, Fb, _ in frames],

@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..errors import InvalidParameterError, NonFiniteError, SingularPoseError
+from ..errors import NonFiniteError, SingularPoseError
 from .discretization import _DEGREE_NORMS
-from .native import native_module, native_status
+from .native import compiled_part, native_module, native_status
 
 __all__ = ["compiled_model_update", "model_update_status", "use_native"]
 
@@ -52,9 +52,10 @@ class _ValidatedPath:
 
 
 def _output_q_indices(robot) -> list[int]:
+    """Indices in q of the output joints (none for task-space outputs): the robot's own table."""
     if robot.task_output is not None:
         return []
-    return [robot._joint_index(n, "output joint")[0] for n in robot.description.output_joints]
+    return np.arange(robot.model.nq)[robot._y_q].tolist()
 
 
 def model_update_status(native) -> str:
@@ -64,7 +65,7 @@ def model_update_status(native) -> str:
     module = native_module()
     if module is None:
         return f"pure-Python model update: {native_status()}"
-    if not getattr(module, "has_model_update", False):
+    if not hasattr(module, "ModelUpdate"):
         return "pure-Python model update: the compiled core has no model update"
     return "compiled model update"
 
@@ -79,21 +80,14 @@ def use_native(native=None) -> bool:
         InvalidParameterError: ``native`` is not None/True/False, or True while the compiled
             core is not available (the message says why).
     """
-    if native not in (None, True, False):
-        raise InvalidParameterError(f"native must be None (automatic), True or False, got {native!r}")
-    status = model_update_status(native)
-    if status != "compiled model update":
-        if native:
-            raise InvalidParameterError(f"native=True, but the compiled model update is not available: {status}")
-        return False
-    return True
+    return compiled_part(native, "ModelUpdate", "the compiled model update") is not None
 
 
 def compiled_model_update(robot):
     """The ``_native.ModelUpdate`` of ``robot`` (the compiled core must be available, see
     :func:`use_native`): the model in Pinocchio's serialization and the robot's index tables."""
     task = robot.task_output
-    return native_module().ModelUpdate(
+    return compiled_part(True, "ModelUpdate", "the compiled model update")(
         model=robot.model.saveToString(),
         closure_frames=[(int(fa), int(fb)) for fa, fb, _ in robot.closure_frames],
         jac_rows=robot._jac_rows.tolist(), n_y=robot.n_y, n_u=robot.n_u,

@@ -19,7 +19,7 @@ import pinocchio as pin
 from .discretization import rk4_step
 from .dynamics import ReducedModel
 from .native_plant import compiled_plant
-from .native_update import compiled_model_update, model_update_status
+from .native_update import compiled_model_update, use_native
 from .robot import ParallelRobot
 from ..errors import NonFiniteError
 from ..validation import finite_vector, positive
@@ -116,7 +116,7 @@ class ConstrainedPlant(_PlantBase):
         self.v = self._T @ X0[self.n_y:]
         self._S = robot.drive_selection
         self.projector = None
-        if self.compiled is not None and model_update_status(None) == "compiled model update":
+        if self.compiled is not None and use_native(None):
             self.projector = compiled_model_update(robot)
 
     @property
