@@ -22,7 +22,7 @@ from .native_plant import compiled_plant
 from .native_update import compiled_model_update, use_native
 from .robot import ParallelRobot
 from ..errors import NonFiniteError
-from ..validation import finite_vector, positive
+from ..validation import all_finite, finite_vector, positive
 
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
 #: ``pin.ProximalSettings(accuracy, mu, max_iter)`` of every constraintDynamics call
@@ -58,7 +58,7 @@ class _PlantBase:
 
     def _check_finite(self, state, u: np.ndarray, Ts: float) -> None:
         """Refuse a state that became NaN/inf within one sample, naming the inputs that drove it."""
-        if not all(np.isfinite(x).all() for x in state):
+        if not all(all_finite(x) for x in state):
             raise NonFiniteError(
                 f"the plant diverged within one sample Ts = {Ts:g} s (its state is no longer finite) under drive "
                 f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; check the "

@@ -18,7 +18,6 @@ from tqdm import tqdm
 
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
-from ..model.linalg import svd_thin
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
 from ..results import robot_reference, save_result, saturation_flags
 from ..validation import check_allocation, finite_vector, positive
@@ -114,14 +113,9 @@ class SimulationResult:
 
 
 def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
-    """‖(I − B_r⁺ B_r) u‖: the part of u that only produces internal force (N·m).
-
-    B_r⁺ B_r = V_r V_rᵀ with V_r the right singular vectors of the singular values above
-    1e-15·s_max (``numpy.linalg.pinv``'s cut).
-    """
-    _, s, Vt = svd_thin(B_r)
-    V = Vt[:int(np.count_nonzero(s > 1e-15 * s[0]))] if s.size and s[0] > 0 else Vt[:0]
-    return float(np.linalg.norm(u - V.T @ (V @ u)))
+    """‖(I − B_r⁺ B_r) u‖: the part of u that only produces internal force (N·m). One pair; the
+    simulation records all samples at once with :func:`null_space_components`."""
+    return float(np.linalg.norm(u - np.linalg.pinv(B_r) @ (B_r @ u)))
 
 
 def null_space_components(B_r: np.ndarray, u: np.ndarray) -> np.ndarray:
