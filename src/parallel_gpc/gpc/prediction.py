@@ -299,40 +299,6 @@ def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed
     return Prediction(f, G, u_base, u_map, horizons, "incremental")
 
 
-@lru_cache(maxsize=16)
-def _accumulated_inputs(N: int, Nu: int, m: int) -> np.ndarray:
-    """(N + 1, m, 1 + Nu·m) read-only: ∂u(k+i−1)/∂Δu of the augmented state [δx; u] at step i
-    (column 0: the free response, zero): I_m in the blocks of Δu(k+j), j < min(i, Nu)."""
-    P = np.zeros((N + 1, m, 1 + Nu * m))
-    for i in range(1, N + 1):
-        for j in range(min(i, Nu)):
-            P[i, :, 1 + j * m:1 + (j + 1) * m] = np.eye(m)
-    P.setflags(write=False)
-    return P
-
-
-def _deviation_gain(A, B, C, horizons: Horizons) -> np.ndarray:
-    """G of the deviation model along the pre-simulation: the recursion of :func:`_condense_ltv`
-    on the augmented model of :func:`_augment` (state [δx; u], zero initial state, no affine term,
-    Δu = 0 beyond Nu) without forming the augmented matrices — its u rows are the fixed pattern of
-    :func:`_accumulated_inputs`, its x rows [A_i B_i] S(i) (causal columns only), plus B_i in the
-    block of Δu(k+i)."""
-    N, No, Nu = horizons.N, horizons.No, horizons.Nu
-    n, m = B.shape[-2], B.shape[-1]
-    K = Nu * m
-    AB = np.concatenate([A, B], axis=2)  # (N, n, n + m): the x rows of the augmented A_i
-    S = np.empty((N + 1, n + m, K + 1))
-    S[:, :n] = 0.0
-    S[:, n:] = _accumulated_inputs(N, Nu, m)
-    for i in range(N):
-        cols = 1 + min(i, Nu) * m
-        np.matmul(AB[i], S[i, :, :cols], out=S[i + 1, :n, :cols])
-        if i < Nu:
-            S[i + 1, :n, cols:cols + m] = B[i]
-    Y = C @ S[No + 1:, :n]  # (n_rows, p, K + 1)
-    return Y[:, :, 1:].reshape(horizons.n_rows * C.shape[0], K)
-
-
 def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:
     """Incremental prediction with nonlinear simulative substitution, eq. (10)–(12).
 
@@ -350,8 +316,9 @@ def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> 
     A_seq, B_seq = np.asarray(A_seq, dtype=float), np.asarray(B_seq, dtype=float)
     N = horizons.N
     n, m = B_seq.shape[-2], B_seq.shape[-1]
-    G = _deviation_gain(_per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m)),
-                        np.asarray(C, dtype=float), horizons)
+    Aa, Ba, _ = _augment(_per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m)), None)
+    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+    _, G = condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)
     y_sim = np.asarray(y_sim, dtype=float)
     if y_sim.shape != (N, C.shape[0]):
         raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, C.shape[0])}")
