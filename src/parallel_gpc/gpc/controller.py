@@ -30,6 +30,7 @@ import numpy as np
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError
 from ..solvers import QRSolver, SolveResult, make_solver
+from ..solvers.problem import from_cumulative
 from ..validation import all_finite, finite_vector
 from .criterion import Criterion, Weights, _limit_vector
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
@@ -391,8 +392,6 @@ class GPCController:
         m = self.n_u
         if self.form in ("incremental", "nonlinear"):
             target = np.vstack([self.plan[1:], self.plan[-1:]])[:n // m].reshape(-1)
-            v = target - pred.u_base[:n]
-            v[m:] -= v[:-m].copy()
-            return v
+            return from_cumulative(target - pred.u_base[:n], m)
         tail = self._v_prev[-m:] if self.form == "absolute" else np.zeros(m)
         return np.concatenate([self._v_prev[m:], tail])
