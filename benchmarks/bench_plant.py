@@ -113,7 +113,7 @@ def closed_loop(K: int) -> None:
 
 def loop_split(seconds: float) -> None:
     """``closed_loop_wall_time`` with the plant's steps timed: s per simulated s of each part."""
-    from parallel_gpc.studies.bench import closed_loop_wall_time
+    from parallel_gpc.bench import closed_loop_wall_time
 
     spent = []
     step = ConstrainedPlant.step

@@ -19,8 +19,8 @@ import platform  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from parallel_gpc.studies.sweep import TIMING_COLUMNS, failed_record, load_spec  # noqa: E402
-from parallel_gpc.studies.sweep_runner import run_sweep  # noqa: E402
+from parallel_gpc.sweeps import TIMING_COLUMNS, failed_record, load_spec  # noqa: E402
+from parallel_gpc.sweeps import run_sweep  # noqa: E402
 
 
 #: Repetitions of the no-op timings (the median is reported).
@@ -113,7 +113,7 @@ def _start(LocalCluster, Client, workers):
     cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                            dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
     client = Client(cluster)
-    client.run(lambda: __import__("parallel_gpc.studies.sweep"))  # imports done before the timing
+    client.run(lambda: __import__("parallel_gpc.sweeps"))  # imports done before the timing
     return cluster, client
 
 

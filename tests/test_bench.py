@@ -15,7 +15,7 @@ from parallel_gpc.gpc import absolute_prediction, condense, incremental_predicti
 from parallel_gpc.model.dynamics import expm
 from parallel_gpc.solvers import QRSolver, qr_least_squares
 from parallel_gpc.cli.bench import register_bench
-from parallel_gpc.studies.bench import BenchConfig, run_benchmark
+from parallel_gpc.bench import BenchConfig, run_benchmark, write_benchmark
 
 from conftest import POSE_A, POSE_B, random_states
 
@@ -153,7 +153,9 @@ def test_structured_qr_equals_dense_pivoted_qr_on_gpc_problems(model4, form, qu)
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    return run_benchmark(config=BenchConfig.tiny(), out_dir=out), out
+    result = run_benchmark(config=BenchConfig.tiny())
+    write_benchmark(result, out)
+    return result, out
 
 
 def test_tiny_benchmark_writes_json_and_plot(tiny_run):

@@ -13,10 +13,10 @@ from parallel_gpc import ReducedModel
 from parallel_gpc.gpc import GPCController, Horizons, SCurve, Weights
 from parallel_gpc.gpc.settings import FORMS
 from parallel_gpc.model.plant import ConstrainedPlant, ReducedPlant
-from parallel_gpc.studies.comparison import (DEMO_SETTINGS, comparison_table, deadbeat_check, run_comparison,
+from parallel_gpc.studies import (DEMO_SETTINGS, comparison_table, deadbeat_check, run_comparison,
                                              steady_state_error)
-from parallel_gpc.studies.simulation import null_space_component, simulate
-from parallel_gpc.studies.tracking import TrackingSettings
+from parallel_gpc.studies import null_space_component, simulate
+from parallel_gpc.studies import TrackingSettings
 
 TS = 0.002
 

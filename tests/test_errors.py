@@ -27,8 +27,8 @@ from parallel_gpc.model.plant import ConstrainedPlant, ReducedPlant
 from parallel_gpc.gpc.prediction import Horizons
 from parallel_gpc.gpc.references import Hold, SampledTrajectory
 from parallel_gpc.model.robot import urdf_dir
-from parallel_gpc.studies.robustness import robustness_study
-from parallel_gpc.studies.simulation import SimulationResult, simulate
+from parallel_gpc.sweeps import robustness_study
+from parallel_gpc.studies import SimulationResult, simulate
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.solvers import make_solver
 

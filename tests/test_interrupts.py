@@ -18,7 +18,7 @@ from parallel_gpc.gpc.prediction import Horizons
 from parallel_gpc.gpc.references import SCurve
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.solvers.osqp_ import OSQPBackend
-from parallel_gpc.studies import bench
+from parallel_gpc.bench import harness as bench
 from parallel_gpc.viz.gallery import GalleryServer
 
 PLAN = ["plan", "--Nmax", "20", "--Nmin", "5", "--Ts", "0.05", "--settle", "4", "--no-progress"]

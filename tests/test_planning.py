@@ -279,7 +279,7 @@ def test_cli_plan_writes_figures_and_trajectories(tmp_path, capsys):
                               "--no-progress", "--out", str(tmp_path)])
     assert args.func(args) == 0
     out = capsys.readouterr().out
-    for text in ("end-point error", "time to reach", "drive energy", "peak torque", "dead-beat"):
+    for text in ("end-point error", "time to reach", "drive energy", "peak drive effort [N·m]", "dead-beat"):
         assert text in out
     for name in ("plan_fig3.png", "plan_fig4.png"):
         img = mpimg.imread(tmp_path / name)

@@ -11,18 +11,18 @@ from pathlib import Path
 import pytest
 from matplotlib.figure import Figure
 
-from parallel_gpc.studies import save_figure
-from parallel_gpc.studies.plots_bench import plot_results
+from parallel_gpc.plots import save_figure
+from parallel_gpc.plots import plot_results
 
 ROOT = Path(__file__).resolve().parents[1]
-PLOT_MODULES = ["plots_common", "plots_tracking", "plots_planning", "plots_robustness", "plots_bench", "plots_sweep"]
+PLOT_MODULES = ["common", "tracking", "planning", "robustness", "bench", "sweep"]
 
 
 @pytest.mark.parametrize("module", PLOT_MODULES)
 def test_importing_a_plot_module_keeps_the_backend(module):
     """In a fresh interpreter the user picks the SVG backend, then imports the module."""
     probe = ("import matplotlib\nmatplotlib.use('svg')\n"
-             f"import parallel_gpc.studies.{module}\n"
+             f"import parallel_gpc.plots.{module}\n"
              "print(matplotlib.get_backend())\n")
     env = {k: v for k, v in os.environ.items() if k != "MPLBACKEND"}
     env["PYTHONPATH"] = str(ROOT / "src")

@@ -7,8 +7,9 @@ import math
 import pytest
 
 from parallel_gpc import robustness_study
-from parallel_gpc.studies import COLUMNS, RobustnessResult, robustness_cases, save_figure
-from parallel_gpc.studies.plots_robustness import plot_robustness
+from parallel_gpc.plots import save_figure
+from parallel_gpc.sweeps import COLUMNS, RobustnessResult, robustness_cases
+from parallel_gpc.plots import plot_robustness
 
 
 @pytest.fixture(scope="module")

@@ -10,7 +10,7 @@ from parallel_gpc import GPCController, Horizons, ReducedModel, Weights
 from parallel_gpc.gpc.references import SCurve
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.studies import simulation
-from parallel_gpc.studies.simulation import null_space_component, null_space_components, simulate
+from parallel_gpc.studies import null_space_component, null_space_components, simulate
 
 TS = 0.01  # s
 

@@ -20,7 +20,7 @@ from parallel_gpc.errors import InvalidParameterError, RobotFormatError
 from parallel_gpc.gpc.planning import PlanSettings, hold_torque, plan_point_to_point
 from parallel_gpc.gpc.references import Helix, path_for, pose_error_norms
 from parallel_gpc.model.robot import urdf_dir
-from parallel_gpc.studies.tracking import TrackingSettings, run_tracking
+from parallel_gpc.studies import TrackingSettings, run_tracking
 
 from test_dynamics import _pin_constraint_dynamics, assert_matches_constraint_dynamics
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from parallel_gpc.errors import InvalidParameterError
-from parallel_gpc.studies.sweep import (
+from parallel_gpc.sweeps import (
     METRIC_COLUMNS,
     TIMING_COLUMNS,
     Cell,
@@ -21,8 +21,8 @@ from parallel_gpc.studies.sweep import (
     load_spec,
     run_cell,
 )
-from parallel_gpc.studies.sweep_runner import run_sweep
-from parallel_gpc.studies.sweep_store import SweepStore, load_results
+from parallel_gpc.sweeps import run_sweep
+from parallel_gpc.sweeps import SweepStore, load_results
 
 ROBOTS = Path(__file__).resolve().parents[1] / "urdf"
 #: Tiny runs: hold of the home pose offset by the default hold pose, 0.1 s at Ts = 5 ms, N = 4.
@@ -131,7 +131,7 @@ def test_cell_settings_vector_elements_and_velocity_noise():
 
 # ---------------------------------------------------------------- one cell
 def test_run_cell_matches_the_closed_loop_and_keeps_the_trajectory_on_request(robot3):
-    from parallel_gpc.studies.tracking import run_tracking
+    from parallel_gpc.studies import run_tracking
 
     params = {**TINY, "form": "incremental", "noise_std": 1e-5, "seed": 3}
     record = run_cell(Cell(4, params, trajectory=True))
@@ -275,7 +275,7 @@ def test_trajectories_on_request_are_result_files(tmp_path):
 def test_pareto_mask_against_a_sort_oracle():
     rng = np.random.default_rng(0)
     cost, error = rng.uniform(size=60), rng.uniform(size=60)
-    from parallel_gpc.studies.plots_sweep import pareto_mask
+    from parallel_gpc.plots import pareto_mask
 
     mask = pareto_mask(cost, error)
     order = np.argsort(cost)  # on the front iff its error is below every cheaper point's
@@ -289,7 +289,7 @@ def test_pareto_mask_against_a_sort_oracle():
 def test_plots_return_figures_and_mark_failed_cells(tmp_path):
     from matplotlib.figure import Figure
 
-    from parallel_gpc.studies.plots_sweep import heatmap, plot_sweep, robustness_bands
+    from parallel_gpc.plots import heatmap, plot_sweep, robustness_bands
 
     spec = load_spec({"sweep": {"samples": 2}, "base": dict(TINY),
                       "grid": {"form": ["absolute", "nonlinear"], "mass_scale": [0.8, 1.0, -1.0]},
@@ -335,7 +335,7 @@ def test_local_cluster_gives_the_serial_metrics_records_failures_and_keeps_cells
     preset gives the serial table."""
     from dask.distributed import Client, LocalCluster
 
-    from parallel_gpc.studies.robustness import robustness_study
+    from parallel_gpc.sweeps import robustness_study
 
     spec = load_spec({"sweep": {"samples": 2, "seed": 1}, "base": dict(TINY),
                       "grid": {"form": ["absolute", "incremental", "nonlinear"], "mass_scale": [0.9, -1.0]},

@@ -8,8 +8,9 @@ Names are resolved lazily (PEP 562), so ``import parallel_gpc`` and the command 
 ``--help`` do not import Pinocchio or matplotlib until a name that needs them is used.
 Layers, left to right (a module imports only from layers to its left): ``model`` (robot,
 reduced dynamics, plants) → ``solvers`` (least squares, QP back ends) → ``gpc`` (criterion,
-predictions, controller, planning, references) → ``studies`` (simulation, tracking,
-robustness, benchmark, plots) → ``viz`` (meshcat) → ``cli``. ``results`` (the one result file
+predictions, controller, planning, references) → ``studies`` (simulation, tracking, the forms
+compared) → ``sweeps`` (sweeps and the robustness study on Dask) → ``plots`` (figures) →
+``bench`` (the benchmark harness) → ``viz`` (meshcat) → ``cli``. ``results`` (the one result file
 format) and ``errors`` sit beside them and import only NumPy and the robot description.
 """
 
@@ -35,10 +36,14 @@ _PUBLIC = {
     "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
     "SampledTrajectory": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
     "ControlModel": "gpc", "Criterion": "gpc",
+    "plan_modes": "gpc", "plan_table": "gpc",
     # studies
     "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
-    "run_tracking": "studies", "robustness_study": "studies", "save_figure": "studies",
-    "load_spec": "studies", "run_sweep": "studies", "load_results": "studies",
+    "run_tracking": "studies", "metrics_table": "studies",
+    # sweeps
+    "robustness_study": "sweeps", "load_spec": "sweeps", "run_sweep": "sweeps", "load_results": "sweeps",
+    # plots
+    "save_figure": "plots",
     # result files
     "save_result": "results", "load_result": "results", "ResultFile": "results",
 }

@@ -1,4 +1,4 @@
-"""``parallel-gpc bench [--quick] [--out DIR]``: the benchmark of :mod:`parallel_gpc.studies.bench`.
+"""``parallel-gpc bench [--quick] [--out DIR]``: the benchmark of :mod:`parallel_gpc.bench.harness`.
 
 Timings need one BLAS thread, fixed before NumPy loads: without ``OPENBLAS_NUM_THREADS=1`` the
 command runs itself again in a fresh interpreter with it set.
@@ -22,10 +22,18 @@ def cmd_bench(args) -> int:
         argv = [sys.executable, "-m", "parallel_gpc", "bench", "--out", str(args.out)] + (["--quick"] if args.quick else [])
         sys.stdout.flush()
         os.execve(sys.executable, argv, env)
-    from ..studies.bench import run_benchmark
+    from ..bench import format_table, run_benchmark, write_benchmark
+    from ..bench.report import format_targets
     from .outputs import prepare_out_dir
 
-    result = run_benchmark(quick=args.quick, out_dir=prepare_out_dir(args.out))
+    out = prepare_out_dir(args.out)
+    result = run_benchmark(quick=args.quick)
+    print(format_table(result["results"]))
+    print()
+    print(format_targets(result["targets"]))
+    written = write_benchmark(result, out)
+    print("wrote " + ", ".join(str(p) for p in written)
+          + (f" (interrupted: {len(result['results'])} finished rows)" if result["interrupted"] else ""))
     if result["interrupted"]:
         print("interrupted: partial results saved")
         return 130

@@ -8,6 +8,6 @@ FORMS = ("absolute", "incremental", "incremental-delayed", "nonlinear")
 #: = the fields of ``parallel_gpc.TrackingSettings()`` that ``track`` and ``demo`` expose.
 TRACKING = {"Ts": 0.002, "N": 20, "No": 0, "Qy": 1.0, "Qu": 0.0, "disturbance_gain": None, "mass_scale": 1.0,
             "platform_force": (0.0, 0.0, 0.0), "duration": None}
-#: = the same fields of ``parallel_gpc.studies.comparison.DEMO_SETTINGS`` (the ``demo`` command).
+#: = the same fields of ``parallel_gpc.studies.DEMO_SETTINGS`` (the ``demo`` command).
 DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platform_force": (5.0, -5.0, 0.5),
         "duration": 3.0, "disturbance_gain": 0.5}

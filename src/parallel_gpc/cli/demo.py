@@ -1,6 +1,6 @@
 """``parallel-gpc demo``: the paper's Fig. 2 comparison where the forms differ.
 
-Two parts (library: :mod:`parallel_gpc.studies.comparison`):
+Two parts (library: :mod:`parallel_gpc.studies`):
 
 1. Qu = 0, the paper's setting: all forms in lockstep on one closed loop, compared with the
    one-step dead-beat law: they give the same u(k) (dead-beat, form-independent).
@@ -22,9 +22,9 @@ from .track import add_tracking_arguments, settings_from_args
 
 def cmd_demo(args) -> int:
     from ..model.robot import ParallelRobot
-    from ..studies.comparison import comparison_table, deadbeat_check, run_comparison
-    from ..studies.plots_common import save_figure
-    from ..studies.plots_tracking import plot_comparison, plot_paths
+    from ..studies import comparison_table, deadbeat_check, run_comparison
+    from ..plots import save_figure
+    from ..plots import plot_comparison, plot_paths
 
     settings = settings_from_args(args)
     robot = ParallelRobot.load(settings.robot)

@@ -49,52 +49,12 @@ def _pose_rad(robot, values, default, name: str) -> np.ndarray:
     return np.where(robot.output_angular, np.radians(values), np.asarray(values, dtype=float))
 
 
-def _fmt(value: float, spec: str = ".3g") -> str:
-    return "not reached" if isinstance(value, float) and math.isnan(value) else format(value, spec)
-
-
-def metrics_rows(results) -> list[tuple[str, list[str]]]:
-    """Table rows (label, one value per result) comparing planned moves."""
-    tol_p, tol_a = results[0].settings.reach_tolerance
-    rows = []
-    for label, get in (
-        ("end-point error, position [m]", lambda r: _fmt(r.end_error[0], ".2e")),
-        ("end-point error, orientation [deg]", lambda r: _fmt(math.degrees(r.end_error[1]), ".2e")),
-        ("error at t = Nmax·Ts [m, deg]",
-         lambda r: f"{r.arrival_error[0]:.2e}, {math.degrees(r.arrival_error[1]):.2e}"),
-        ("end speed [m/s, deg/s]", lambda r: f"{r.end_speed[0]:.2e}, {math.degrees(r.end_speed[1]):.2e}"),
-        (f"time to reach B ±{tol_p:g} m, ±{math.degrees(tol_a):.2g}° [s]", lambda r: _fmt(r.time_to_reach, ".3f")),
-        ("time to within 1 mm of B [s]", lambda r: _fmt(r.time_within(1e-3), ".3f")),
-        ("overshoot past B along A→B [m]", lambda r: f"{r.overshoot:.2e}"),
-        ("ψ outside [ψ_A, ψ_B] (spin) [deg]", lambda r: f"{math.degrees(r.orientation_excursion):.3g}"),
-        ("drive energy Σ‖u‖²·Ts [N²·m²·s]", lambda r: _fmt(r.energy, ".4g")),
-        ("peak torque [N·m]", lambda r: _fmt(r.peak_torque, ".4g")),
-        ("recorded duration [s]", lambda r: f"{r.t[-1]:.2f}"),
-        ("solves (failed)", lambda r: f"{r.metrics()['solves']} ({r.metrics()['failed_solves']})"),
-        ("mean solve time [ms]", lambda r: f"{1000 * r.metrics()['mean_solve_time_s']:.2f}"),
-    ):
-        rows.append((label, [get(r) for r in results]))
-    return rows
-
-
-def print_comparison(results, rows, out=None) -> None:
-    """Print the rows as an aligned table with one column per result."""
-    headers = [r.label for r in results]
-    lw = max(len(label) for label, _ in rows)
-    widths = [max(len(h), *(len(vals[i]) for _, vals in rows)) for i, h in enumerate(headers)]
-    print("  " + " " * lw + "  " + "  ".join(h.ljust(w) for h, w in zip(headers, widths)), file=out)
-    for label, vals in rows:
-        print("  " + label.ljust(lw) + "  " + "  ".join(v.ljust(w) for v, w in zip(vals, widths)), file=out)
-
-
 def cmd_plan(args) -> int:
     import numpy as np
 
-    from ..model.dynamics import ReducedModel
-    from ..gpc.planning import MODES, PlanSettings, deadbeat_inputs, plan_point_to_point
-    from ..model.robot import ParallelRobot
-    from ..studies.plots_common import save_figure
-    from ..studies.plots_planning import plot_fig3, plot_fig4
+    from ..gpc import MODES, PlanSettings, plan_modes, plan_table
+    from ..model import ParallelRobot
+    from ..plots import plot_fig3, plot_fig4, save_figure
 
     out = prepare_out_dir(args.out)
     check_view_outputs(args)
@@ -107,27 +67,18 @@ def cmd_plan(args) -> int:
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
           f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
           f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
-    results = []
-    try:
-        for mode in MODES:
-            res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=not args.no_progress)
-            if res.stopped:
-                print(f"  mode ({mode}): {res.stopped}")
-            results.append(res)
-            if res.interrupted:
-                break
-    except KeyboardInterrupt:  # before the mode's first sample: keep the finished modes
-        pass
-    if len(results) < len(MODES) or results[-1].interrupted:
-        if not results:
-            raise KeyboardInterrupt
+    comparison = plan_modes(robot, A, B, settings, progress=not args.no_progress)
+    results = comparison.results
+    for res in results:
+        if res.stopped:
+            print(f"  mode ({res.mode}): {res.stopped}")
+    if comparison.interrupted:
         written = [res.save(out / f"plan_{res.mode}.npz") for res in results]
         print("interrupted: partial results saved: " + ", ".join(str(p) for p in written))
         return 130
-    deadbeat = deadbeat_inputs(ReducedModel(robot), np.concatenate([A, np.zeros(robot.n_y)]), B, settings)
-    print_comparison(results, metrics_rows(results))
+    print(plan_table(results, robot.drive_unit))
     print(f"  for comparison, the dead-beat move (same criterion, minimal horizon N = k = {settings.k}) needs a "
-          f"peak torque of {np.max(np.abs(deadbeat)):.4g} N·m")
+          f"peak drive effort of {np.max(np.abs(comparison.deadbeat)):.4g} {robot.drive_unit}")
     written = [res.save(out / f"plan_{res.mode}.npz") for res in results]
     written += [save_figure(plot_fig3(results, robot=robot), out / "plan_fig3.png", dpi=120, bbox_inches="tight"),
                 save_figure(plot_fig4(results), out / "plan_fig4.png")]

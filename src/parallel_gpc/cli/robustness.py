@@ -27,15 +27,15 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def cmd_robustness(args) -> int:
-    from ..studies.robustness import (
+    from ..sweeps import (
         DEFAULT_DISTURBANCES,
         DEFAULT_MASS_SCALES,
         DEFAULT_NOISE_LEVELS,
         DEFAULT_WEIGHTS,
         robustness_study,
     )
-    from ..studies.plots_common import save_figure
-    from ..studies.plots_robustness import plot_robustness
+    from ..plots import save_figure
+    from ..plots import plot_robustness
     from ..gpc.criterion import Weights
     from .outputs import prepare_out_dir
 

@@ -1,6 +1,6 @@
 """``parallel-gpc sweep SPEC.toml``: a grid / Monte-Carlo sweep of closed-loop runs on Dask.
 
-A thin layer over :func:`parallel_gpc.studies.sweep_runner.run_sweep`: expands the spec, runs
+A thin layer over :func:`parallel_gpc.sweeps.runner.run_sweep`: expands the spec, runs
 the cells not yet in ``--out`` (a local cluster by default, ``--workers 0`` serial,
 ``--scheduler tcp://HOST:PORT`` an existing cluster), writes ``results.parquet``/``results.csv``
 and the plots of the spec's ``[plots]`` table, and prints a summary. Ctrl-C keeps the finished
@@ -22,10 +22,10 @@ DESCRIPTION = ("Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) 
 
 
 def cmd_sweep(args) -> int:
-    from ..studies.plots_sweep import plot_sweep
-    from ..studies.sweep import load_spec
-    from ..studies.sweep_runner import run_sweep
-    from ..studies.sweep_store import SweepStore
+    from ..plots import plot_sweep
+    from ..sweeps import load_spec
+    from ..sweeps import run_sweep
+    from ..sweeps import SweepStore
 
     spec = load_spec(args.spec)
     cells = spec.cells()

@@ -52,7 +52,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
 
 def settings_from_args(args):
     """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments."""
-    from ..studies.tracking import TrackingSettings
+    from ..studies import TrackingSettings
 
     return TrackingSettings(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
@@ -67,9 +67,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     """Run, print the metrics table, write plots and result files; returns the exit code."""
     from ..model.robot import ParallelRobot
     from ..results import saturation_flags
-    from ..studies.plots_common import save_figure
-    from ..studies.plots_tracking import plot_paths, plot_time_histories
-    from ..studies.tracking import metrics_table, run_tracking
+    from ..plots import save_figure
+    from ..plots import plot_paths, plot_time_histories
+    from ..studies import metrics_table, run_tracking
     from .view import show_trajectory
 
     out = prepare_out_dir(out)

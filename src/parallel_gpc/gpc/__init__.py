@@ -7,11 +7,12 @@ from .linear_model import DiscreteLinearModel
 from .settings import ControllerState, GPCSettings
 from .controller import FORMS, GPCController, StepInfo
 from .references import Hold, Reference, SampledTrajectory, SCurve
-from .planning import PlanResult, PlanSettings, deadbeat_inputs, plan_point_to_point
+from .planning import MODES, PlanComparison, PlanResult, PlanSettings, deadbeat_inputs, plan_modes, plan_point_to_point
+from .plan_result import plan_table
 
 __all__ = [
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
     "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings",
     "FORMS", "GPCController", "StepInfo", "Hold", "Reference", "SampledTrajectory", "SCurve", "PlanResult",
-    "PlanSettings", "deadbeat_inputs", "plan_point_to_point",
+    "PlanSettings", "deadbeat_inputs", "plan_point_to_point", "MODES", "PlanComparison", "plan_modes", "plan_table",
 ]

@@ -220,3 +220,47 @@ class PlanRecorder:
         self.steps = i + 1
         return True
 
+
+def _fmt(value: float, spec: str = ".3g") -> str:
+    return "not reached" if isinstance(value, float) and math.isnan(value) else format(value, spec)
+
+
+def plan_table(results: list[PlanResult], drive_unit: str = "N·m") -> str:
+    """An aligned text table comparing planned moves, one column per result; orientation rows
+    only when the outputs have angles.
+
+    Args:
+        results: the :class:`PlanResult` s to compare (the first one's reach tolerance is used).
+        drive_unit: ``"N·m"`` (revolute drives) or ``"N"`` (prismatic), for the effort rows.
+    """
+    tol_p, tol_a = results[0].settings.reach_tolerance
+    angular = any(r.angular is None or np.any(r.angular) for r in results)
+    rows = [("end-point error, position [m]", lambda r: _fmt(r.end_error[0], ".2e"))]
+    if angular:
+        rows += [("end-point error, orientation [deg]", lambda r: _fmt(math.degrees(r.end_error[1]), ".2e")),
+                 ("error at t = Nmax·Ts [m, deg]",
+                  lambda r: f"{r.arrival_error[0]:.2e}, {math.degrees(r.arrival_error[1]):.2e}"),
+                 ("end speed [m/s, deg/s]", lambda r: f"{r.end_speed[0]:.2e}, {math.degrees(r.end_speed[1]):.2e}"),
+                 (f"time to reach B ±{tol_p:g} m, ±{math.degrees(tol_a):.2g}° [s]",
+                  lambda r: _fmt(r.time_to_reach, ".3f"))]
+    else:
+        rows += [("error at t = Nmax·Ts [m]", lambda r: f"{r.arrival_error[0]:.2e}"),
+                 ("end speed [m/s]", lambda r: f"{r.end_speed[0]:.2e}"),
+                 (f"time to reach B ±{tol_p:g} m [s]", lambda r: _fmt(r.time_to_reach, ".3f"))]
+    rows += [("time to within 1 mm of B [s]", lambda r: _fmt(r.time_within(1e-3), ".3f")),
+             ("overshoot past B along A→B [m]", lambda r: f"{r.overshoot:.2e}")]
+    if angular:
+        rows.append(("rotation outside [A, B] (spin) [deg]", lambda r: f"{math.degrees(r.orientation_excursion):.3g}"))
+    unit2 = "N²·m²·s" if drive_unit == "N·m" else f"{drive_unit}²·s"
+    rows += [(f"drive energy Σ‖u‖²·Ts [{unit2}]", lambda r: _fmt(r.energy, ".4g")),
+             (f"peak drive effort [{drive_unit}]", lambda r: _fmt(r.peak_torque, ".4g")),
+             ("recorded duration [s]", lambda r: f"{r.t[-1]:.2f}"),
+             ("solves (failed)", lambda r: f"{r.metrics()['solves']} ({r.metrics()['failed_solves']})"),
+             ("mean solve time [ms]", lambda r: f"{1000 * r.metrics()['mean_solve_time_s']:.2f}")]
+    table = [(label, [get(r) for r in results]) for label, get in rows]
+    headers = [r.label for r in results]
+    lw = max(len(label) for label, _ in table)
+    widths = [max(len(h), *(len(vals[i]) for _, vals in table)) for i, h in enumerate(headers)]
+    lines = ["  " + " " * lw + "  " + "  ".join(h.ljust(w) for h, w in zip(headers, widths))]
+    lines += ["  " + label.ljust(lw) + "  " + "  ".join(v.ljust(w) for v, w in zip(vals, widths)) for label, vals in table]
+    return "\n".join(lines)

@@ -41,7 +41,7 @@ Qu shortens the move: it trades end-point error for energy).
 from __future__ import annotations
 
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from tqdm import tqdm
@@ -278,3 +278,51 @@ def _run_receding(model, plant, B, settings: PlanSettings, backend, rec: PlanRec
         remaining = plan[1:]
         if not rec.apply(i, plan[0], N, status, Ts):
             break
+
+
+@dataclass
+class PlanComparison:
+    """The modes of :func:`plan_modes` planned for one move.
+
+    Attributes:
+        results: the :class:`PlanResult` of each mode that ran, in order (the last one may be
+            interrupted: see :attr:`interrupted`).
+        interrupted: True when Ctrl-C stopped the run before every mode finished.
+        deadbeat: (k, n_u) the dead-beat inputs of the same criterion at the minimal horizon
+            N = k (N·m or N), or None when interrupted.
+    """
+
+    results: list
+    interrupted: bool = False
+    deadbeat: np.ndarray | None = None
+
+
+def plan_modes(robot, A, B, settings: PlanSettings, modes=MODES, progress: bool = False) -> PlanComparison:
+    """Plan the move A → B in each of ``modes`` (the paper's Fig. 3/4 comparison) on fresh plants.
+
+    Ctrl-C keeps the modes finished so far (and the samples of the interrupted one): the
+    comparison is returned with ``interrupted`` True; before the first sample of the first mode
+    it propagates.
+
+    Args:
+        robot: the :class:`~parallel_gpc.model.ParallelRobot`.
+        A, B: (n_y,) start and end poses (m, rad).
+        settings: the :class:`PlanSettings`.
+        modes: the modes to plan, a subset of :data:`MODES` in any order.
+        progress: progress bar over the steps of each receding mode.
+    """
+    results = []
+    try:
+        for mode in modes:
+            res = plan_point_to_point(robot, A, B, settings, mode=mode, progress=progress)
+            results.append(res)
+            if res.interrupted:
+                break
+    except KeyboardInterrupt:  # before the mode's first sample: keep the finished modes
+        if not results:
+            raise
+    if len(results) < len(modes) or results[-1].interrupted:
+        return PlanComparison(results, interrupted=True)
+    X0 = np.concatenate([np.asarray(A, dtype=float), np.zeros(robot.n_y)])
+    return PlanComparison(results, deadbeat=deadbeat_inputs(ReducedModel(robot), X0, np.asarray(B, dtype=float),
+                                                            settings))

@@ -71,7 +71,7 @@ def expm(M: np.ndarray) -> np.ndarray:
         s = int(math.ceil(math.log2(norm / _EXPM_THETA)))
         M = M * 2.0 ** -s
         norm *= 2.0 ** -s
-    K = bisect.bisect_left(_DEGREE_NORMS, norm) + 1
+    K = bisect.bisect_left(DEGREE_NORMS, norm) + 1
     powers = np.empty((K + 1, *shape))  # I, M, M², …, M^K
     powers[0] = cached_identity(n)
     powers[1] = M
@@ -111,11 +111,11 @@ def _degree_table() -> list[float]:
     return table
 
 
-#: ``_DEGREE_NORMS[K - 1]`` = largest norm handled by the degree-K Taylor polynomial.
-_DEGREE_NORMS = _degree_table()
+#: ``DEGREE_NORMS[K - 1]`` = largest norm handled by the degree-K Taylor polynomial.
+DEGREE_NORMS = _degree_table()
 
 
-def _zoh_split(E: np.ndarray, n: int, m: int):
+def zoh_split(E: np.ndarray, n: int, m: int):
     """(A_d, B_d, c_d) blocks of exp([[A, B, c], [0, 0, 0]]·Ts) (or of a stack of them)."""
     return E[..., :n, :n], E[..., :n, n:n + m], E[..., :n, n + m]
 
@@ -139,7 +139,7 @@ def discretize_zoh(A: np.ndarray, B: np.ndarray, c: np.ndarray | None, Ts: float
     if c is not None:
         aug[:n, n + m] = c
     aug *= Ts
-    return _zoh_split(expm(aug), n, m)
+    return zoh_split(expm(aug), n, m)
 
 
 def rk4_step(deriv, X: np.ndarray, u: np.ndarray, Ts: float, substeps: int = 1) -> np.ndarray:

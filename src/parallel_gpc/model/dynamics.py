@@ -23,9 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pinocchio as pin
-from scipy.linalg import lapack
 
-from .discretization import _zoh_split, discretize_zoh, expm, rk4_step
+from .discretization import discretize_zoh, expm, rk4_step, zoh_split
+from .linalg import spd_solve
 from .native_update import compiled_model_update, model_update_status, use_native
 from .robot import ParallelRobot
 from ..validation import finite_vector, positive
@@ -240,7 +240,7 @@ class ReducedModel:
         rhs[:, ny:2 * ny] = M[:, r.dependent_v] @ W - 0.5 * DT
         rhs[:, -1] = -g  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
         red = T.T @ rhs
-        return _spd_solve(red[:, :ny], red[:, ny:])
+        return spd_solve(red[:, :ny], red[:, ny:])
 
     def factorize(self, X: np.ndarray):
         """State-dependent factorization ``Ẋ = A(X) X + B(X) u + c(X)``, eq. (3).
@@ -274,8 +274,8 @@ class ReducedModel:
         """
         X = np.asarray(X, dtype=float)
         if self.native:
-            return _zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
-        return _zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
+            return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
+        return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
     def _zoh_augmented(self, X: np.ndarray, Ts: float) -> np.ndarray:
         """The (n_x + n_u + 1)² matrix [[A, B, c], [0, 0, 0]]·Ts of the factorization at X."""
@@ -365,16 +365,6 @@ class ReducedModel:
         B = np.vstack([np.zeros((self.n_y, self.n_u)), terms.g])
         F = np.concatenate([X[self.n_y:], terms.acceleration(u)])
         return A, B, F - A @ X - B @ u
-
-
-def _spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """A⁻¹ B for a symmetric positive definite A (Cholesky; LU if A is not numerically SPD)."""
-    _, X, info = lapack.dposv(A, B)
-    if info != 0:
-        _, _, X, info = lapack.dgesv(A, B)
-        if info != 0:
-            raise np.linalg.LinAlgError(f"singular reduced mass matrix (LAPACK info {info})")
-    return X
 
 
 def kinetic_energy(model: ReducedModel, X: np.ndarray) -> float:

@@ -27,3 +27,13 @@ def svd_thin(a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if info != 0:  # pragma: no cover - LAPACK convergence failure: take numpy's path and its error
         return np.linalg.svd(a, full_matrices=False)
     return U, s, Vt
+
+
+def spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """A⁻¹ B for a symmetric positive definite A (Cholesky; LU if A is not numerically SPD)."""
+    _, X, info = lapack.dposv(A, B)
+    if info != 0:
+        _, _, X, info = lapack.dgesv(A, B)
+        if info != 0:
+            raise np.linalg.LinAlgError(f"singular reduced mass matrix (LAPACK info {info})")
+    return X

@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NonFiniteError, SingularPoseError
-from .discretization import _DEGREE_NORMS
+from .discretization import DEGREE_NORMS
+from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
 __all__ = ["compiled_model_update", "model_update_status", "use_native"]
@@ -46,16 +47,14 @@ class _ValidatedPath:
 
     @staticmethod
     def spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-        from .dynamics import _spd_solve
-
-        return _spd_solve(A, B)
+        return spd_solve(A, B)
 
 
 def _output_q_indices(robot) -> list[int]:
     """Indices in q of the output joints (none for task-space outputs): the robot's own table."""
     if robot.task_output is not None:
         return []
-    return np.arange(robot.model.nq)[robot._y_q].tolist()
+    return robot.output_q_indices
 
 
 def model_update_status(native) -> str:
@@ -90,14 +89,14 @@ def compiled_model_update(robot):
     return compiled_part(True, "ModelUpdate", "the compiled model update")(
         model=robot.model.saveToString(),
         closure_frames=[(int(fa), int(fb)) for fa, fb, _ in robot.closure_frames],
-        jac_rows=robot._jac_rows.tolist(), n_y=robot.n_y, n_u=robot.n_u,
+        jac_rows=robot.closure_jacobian_rows, n_y=robot.n_y, n_u=robot.n_u,
         y_q=_output_q_indices(robot), y_idx=robot.y_idx.tolist(), z_idx=robot.z_idx.tolist(),
         drive_idx=robot.drive_idx.tolist(),
         task_frame=-1 if task is None else task.frame_id,
         task_rows=[] if task is None else task.rows.tolist(),
         R_ref=np.eye(3) if task is None else np.array(task.R_ref, dtype=float),
-        branch_q=robot._branch_q.tolist(), branch=np.asarray(robot._branch, dtype=float),
+        branch_q=robot.branch_q_indices, branch=robot.home_branch,
         q_home=robot.q_home, bias_symmetric=bool(robot.bias_symmetric),
         universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
-        degree_norms=list(_DEGREE_NORMS), handler=_ValidatedPath(robot),
+        degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot),
     )

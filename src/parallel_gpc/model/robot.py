@@ -267,6 +267,26 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         S[self.drive_idx, np.arange(self.n_u)] = 1.0
         return S
 
+    @property
+    def output_q_indices(self) -> list[int]:
+        """Indices in q of the output joints (empty for frame outputs)."""
+        return np.arange(self.model.nq)[self._y_q].tolist()
+
+    @property
+    def closure_jacobian_rows(self) -> list[int]:
+        """Rows of the stacked 6-D frame differences that the closures keep (the rows of Φ_q)."""
+        return self._jac_rows.tolist()
+
+    @property
+    def branch_q_indices(self) -> list[int]:
+        """Indices in q of the branch joints (sidecar ``home.branch_joints``)."""
+        return self._branch_q.tolist()
+
+    @property
+    def home_branch(self) -> np.ndarray:
+        """(n_branch,) signs of sin(q) of the branch joints at home: the assembly branch kept."""
+        return np.asarray(self._branch, dtype=float).copy()
+
     def __repr__(self) -> str:
         red = f", redundancy={self.redundancy}" if self.redundancy else ""
         return (f"ParallelRobot({self.name!r}, dof={self.n_y}, drives={self.n_u}{red}, "

@@ -1,20 +1,26 @@
-"""Studies layer: closed-loop simulation, tracking runs, robustness study, sweeps, benchmark harness, plots.
+"""Closed-loop studies: simulation of a controller on a plant, tracking runs, the forms compared.
 
-The figures live in one module per family (``plots_tracking``, ``plots_planning``,
-``plots_robustness``, ``plots_bench``, ``plots_sweep``); each returns a
-:class:`matplotlib.figure.Figure`, and :func:`save_figure` writes one. Importing them never
-changes the matplotlib backend. Sweeps (``sweep``, ``sweep_runner``, ``sweep_store``) run many
-closed loops as independent tasks, serially or on Dask.
+* :mod:`.simulation` — :func:`simulate` one controller against a plant, the recorded
+  :class:`SimulationResult`;
+* :mod:`.tracking` — :func:`run_tracking` builds the controller's model and the plant from
+  :class:`TrackingSettings` and runs every form; :func:`metrics_table`;
+* :mod:`.comparison` — the paper's Fig. 2 comparison measured (``parallel-gpc demo``).
+
+Many closed loops as tasks (sweeps, the robustness study) are :mod:`parallel_gpc.sweeps`; figures
+are :mod:`parallel_gpc.plots`; the benchmark harness is :mod:`parallel_gpc.bench`.
 """
 
-from .simulation import SimulationResult, simulate
-from .tracking import TrackingSettings, metrics_table, run_tracking
-from .robustness import COLUMNS, RobustnessResult, robustness_cases, robustness_study
-from .plots_common import save_figure
-from .sweep import Cell, SweepSpec, load_spec, run_cell
-from .sweep_runner import SweepResult, run_sweep
-from .sweep_store import SweepStore, load_results
+from .._lazy import lazy_exports
 
-__all__ = ["SimulationResult", "simulate", "TrackingSettings", "metrics_table", "run_tracking",
-           "COLUMNS", "RobustnessResult", "robustness_cases", "robustness_study", "save_figure",
-           "Cell", "SweepSpec", "load_spec", "run_cell", "SweepResult", "run_sweep", "SweepStore", "load_results"]
+_PUBLIC = {
+    "SimulationResult": "simulation", "simulate": "simulation", "null_space_component": "simulation",
+    "null_space_components": "simulation",
+    "TrackingSettings": "tracking", "run_tracking": "tracking", "metrics_table": "tracking",
+    "DEMO_SETTINGS": "comparison", "run_comparison": "comparison", "comparison_table": "comparison",
+    "deadbeat_check": "comparison", "DeadbeatCheck": "comparison", "steady_state_error": "comparison",
+    "one_step_deadbeat_input": "comparison",
+}
+
+__all__ = list(_PUBLIC)
+
+__getattr__, __dir__ = lazy_exports(__name__, globals(), _PUBLIC)

@@ -1,17 +1,16 @@
 """The problems the benchmark times: what to run, the closed-loop samples along the S-curve,
 and the controllers that replay them.
 
-:class:`BenchConfig` says which robots, horizons and stretches; :func:`_closed_loop_states` runs the
+:class:`BenchConfig` says which robots, horizons and stretches; :func:`closed_loop_states` runs the
 absolute controller on the full constrained plant and cuts the run into stretches of consecutive
-samples (state, input and plan held before each); :func:`_record` replays a controller from such a
-stretch so that every repetition of :mod:`parallel_gpc.studies.bench` meets the same problems.
+samples (state, input and plan held before each); :func:`replay` replays a controller from such a
+stretch so that every repetition of :mod:`parallel_gpc.bench.harness` meets the same problems.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,13 +21,12 @@ from ..gpc.references import SCurve
 from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..model.robot import ParallelRobot
-from .simulation import simulate
-from .bench_report import PYTHON_REFERENCE
+from ..studies.simulation import simulate
+from .report import PYTHON_REFERENCE
+from .store import BenchEntry
 
-if TYPE_CHECKING:
-    from .bench_store import _Entry
 
-__all__ = ["BenchConfig", "robot_C"]
+__all__ = ["BenchConfig", "robot_C", "closed_loop_states", "replay_controllers", "replay"]
 
 
 @dataclass
@@ -91,7 +89,7 @@ class _Sample:
     plan: np.ndarray
 
 
-def _closed_loop_states(robot: ParallelRobot, cfg: BenchConfig, ref: SCurve) -> dict[float, list[_Sample]]:
+def closed_loop_states(robot: ParallelRobot, cfg: BenchConfig, ref: SCurve) -> dict[float, list[_Sample]]:
     """States of a closed-loop run (absolute GPC, N = 20, full constrained plant) on the S-curve,
     cut into the configured stretches of consecutive samples."""
     Ts = cfg.Ts
@@ -125,7 +123,7 @@ def _start_at(ctl: GPCController, smp: _Sample) -> None:
     ctl.plan = np.vstack([plan, np.repeat(plan[-1:], N - len(plan), axis=0)])
 
 
-def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
+def replay_controllers(model_factory, cfg: BenchConfig, N: int, tau):
     """The full-step configurations: (name, controller). ``model_factory(native)`` builds the
     controller's model: ``native=None`` the default (the compiled core when built), ``False`` the
     pure-Python reference, timed in the same run for the speed-up rows."""
@@ -148,7 +146,7 @@ def _controllers(model_factory, cfg: BenchConfig, N: int, tau):
     return out
 
 
-def _record(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: int, entry: _Entry | None = None,
+def replay(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: int, entry: BenchEntry | None = None,
             warmup: int = 0) -> list[list[tuple]]:
     """Run ``ctl`` in closed loop on the full plant over each stretch (from the recorded state,
     with the recorded input and plan) and keep, per sample, (X, w, controller state before the

@@ -37,7 +37,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..gpc.references import pose_error_norms
-from .tracking import TrackingSettings
+from ..studies.tracking import TrackingSettings
 
 #: Fraction of the run at its end over which the steady-state error is averaged.
 SETTLE_FRACTION = 0.1
@@ -320,7 +320,7 @@ def run_cell(cell: Cell) -> dict:
     ``cell.trajectory`` the record also holds ``"trajectory"``: the SimulationResult.
     """
     from ..model.robot import ParallelRobot
-    from .tracking import run_tracking
+    from ..studies.tracking import run_tracking
 
     record = failed_record(cell, "")
     start = time.perf_counter()

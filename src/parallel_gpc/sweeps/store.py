@@ -19,7 +19,7 @@ import json
 from pathlib import Path
 
 from ..errors import InvalidParameterError
-from .sweep import METRIC_COLUMNS, RECORD_COLUMNS
+from .spec import METRIC_COLUMNS, RECORD_COLUMNS
 
 #: Statuses of a finished cell (an interrupted cell is run again on resume).
 FINISHED = ("ok", "failed")

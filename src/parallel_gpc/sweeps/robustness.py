@@ -34,8 +34,8 @@ from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from ..results import json_default
-from .sweep import SETTLE_FRACTION, Cell
-from .sweep_runner import run_sweep
+from .spec import SETTLE_FRACTION, Cell
+from .runner import run_sweep
 from ..gpc.criterion import Weights
 from ..validation import finite_vector, positive
 
@@ -234,7 +234,7 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
             ``"hold"`` (the home pose) or a :class:`~parallel_gpc.references.Reference`.
         seed: seed of the measurement noise (the same noise sequence for every form).
         on_row: optional callback receiving each row as soon as its run finishes.
-        workers, scheduler: where the runs go (a preset of :func:`~parallel_gpc.studies.sweep_runner.run_sweep`):
+        workers, scheduler: where the runs go (a preset of :func:`~parallel_gpc.sweeps.runner.run_sweep`):
             0 = serially in this process (default), n = a local Dask cluster of n processes,
             scheduler = an existing Dask cluster.
 

@@ -1,5 +1,5 @@
 """Benchmark report: the machine, ratios to the QR solve, the targets met or missed, the text
-table and the Markdown report of :func:`~parallel_gpc.studies.bench.run_benchmark`'s rows."""
+table and the Markdown report of :func:`~parallel_gpc.bench.harness.run_benchmark`'s rows."""
 
 from __future__ import annotations
 
@@ -219,3 +219,13 @@ def markdown_report(result: dict) -> str:
 
 def _fmt(x) -> str:
     return "-" if x is None else (f"{x:.0f}" if x >= 10 else f"{x:.1f}")
+
+
+def format_targets(targets: list[dict]) -> str:
+    """One line per target of :func:`evaluate_targets`: value, limit, met or missed."""
+    lines = []
+    for t in targets:
+        status = "met" if t["met"] else f"MISSED ({t['off_by']:.2f}× off)"
+        lines.append(f"target {t['target']} ({t['robot']}, N = {t['N']}): {t['value']:.3g} {t['unit']} "
+                     f"(limit {t['limit']:.3g}) {status}")
+    return "\n".join(lines)

@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 from tqdm import tqdm
 
 from ..errors import InvalidParameterError
-from .sweep import SweepSpec, failed_record, run_cell
-from .sweep_store import SweepStore, records_frame
+from .spec import SweepSpec, failed_record, run_cell
+from .store import SweepStore, records_frame
 
 
 @dataclass
@@ -49,7 +49,7 @@ class SweepResult:
     total: int = 0
 
     def frame(self):
-        """The records as a pandas DataFrame (see :func:`~parallel_gpc.studies.sweep_store.records_frame`)."""
+        """The records as a pandas DataFrame (see :func:`~parallel_gpc.sweeps.store.records_frame`)."""
         return records_frame(self.records)
 
 
@@ -80,16 +80,16 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
     """Run every cell of a sweep not already finished in ``store``.
 
     Args:
-        spec: a :class:`~parallel_gpc.studies.sweep.SweepSpec` or a list of cells.
+        spec: a :class:`~parallel_gpc.sweeps.spec.SweepSpec` or a list of cells.
         workers: 0 = serial in-process; n ≥ 1 = a LocalCluster of n processes; None = CPU cores.
         scheduler: address ``"tcp://HOST:PORT"`` of a running Dask scheduler, or a Client
             (then ``workers`` is ignored).
-        store: a :class:`~parallel_gpc.studies.sweep_store.SweepStore`, a folder path, or None
+        store: a :class:`~parallel_gpc.sweeps.store.SweepStore`, a folder path, or None
             (keep the records in memory only).
         progress: show the progress bar (done / failed / ETA).
         on_record: callback receiving each record as its cell finishes (in this process).
         retry_failed: run the cells recorded as failed again.
-        func: the cell function (default :func:`~parallel_gpc.studies.sweep.run_cell`); it must
+        func: the cell function (default :func:`~parallel_gpc.sweeps.spec.run_cell`); it must
             be importable by the workers.
 
     Returns:

@@ -1,7 +1,7 @@
 """Plots of a sweep's result table: heatmaps over two axes, a Pareto front, robustness bands.
 
 Every function takes the tidy table (a pandas DataFrame from
-:func:`~parallel_gpc.studies.sweep_store.load_results` or ``SweepResult.frame()``) and returns a
+:func:`~parallel_gpc.sweeps.store.load_results` or ``SweepResult.frame()``) and returns a
 matplotlib :class:`~matplotlib.figure.Figure` (no pyplot, the caller's backend is untouched);
 save it with ``fig.savefig(path)``. Only cells with status ``"ok"`` enter the statistics; failed
 cells are shown as such (grey "failed" cells in a heatmap, a count in the titles).
@@ -210,7 +210,7 @@ def plot_sweep(frame, plots: dict, directory) -> list:
     Raises:
         InvalidParameterError: an unknown kind or argument.
     """
-    from .plots_common import save_figure
+    from .common import save_figure
 
     paths = []
     for kind, requests in plots.items():

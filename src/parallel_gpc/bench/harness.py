@@ -45,16 +45,16 @@ from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons, Prediction, condense
 from ..gpc.references import SCurve, path_for
 from ..model.robot import ParallelRobot
-from .bench_report import evaluate_targets, format_table, machine_info, markdown_report, ratios
-from .plots_bench import plot_results
-from .plots_common import save_figure
-from .bench_qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
-from .simulation import simulate
+from .report import evaluate_targets, machine_info, markdown_report, ratios
+from ..plots.bench import plot_results
+from ..plots.common import save_figure
+from .qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
+from ..studies.simulation import simulate
 from ..results import json_default
 from ..solvers import DAQPBackend, QRSolver, make_solver
 from ..gpc.criterion import Weights, build_problem
-from .bench_problems import BenchConfig, _closed_loop_states, _controllers, _record, robot_C
-from .bench_store import _log_solve, _rel, _Run
+from .problems import BenchConfig, closed_loop_states, replay_controllers, replay, robot_C
+from .store import log_solve, relative_error, BenchRun
 
 __all__ = ["BenchConfig", "run_benchmark", "closed_loop_wall_time", "lapack_qr_unit", "robot_C"]
 
@@ -67,7 +67,7 @@ def lapack_qr_unit(A: np.ndarray) -> None:
 
 
 # ------------------------------------------------------------------------------- the run
-def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCurve, bar) -> None:
+def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: SCurve, bar) -> None:
     cfg = run.cfg
     Ts, name = cfg.Ts, robot.name
     m = robot.n_u
@@ -75,7 +75,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
     H = Horizons(N)
     stretches = list(stretches.values())
     # ---- the absolute controller's own closed loop: its problems, and the torque limit τ
-    seq_abs = _record(GPCController(ReducedModel(robot), Ts, H, W, form="absolute"), robot, stretches, ref, N)
+    seq_abs = replay(GPCController(ReducedModel(robot), Ts, H, W, form="absolute"), robot, stretches, ref, N)
     abs_ctl = GPCController(ReducedModel(robot), Ts, H, W, form="absolute")
     problems = [[(pred := abs_ctl.predict(X), build_problem(pred, w, W, robot.n_y, m)) for X, w, _ in rows]
                 for rows in seq_abs]
@@ -99,8 +99,8 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
     lim_methods += [(name, make_solver(name)) for name in ("bvls", "qr-first:bvls", "qr-first:daqp-direct")]
 
     # ---- full steps: each controller's own closed loop (untimed recording pass)
-    steps = _controllers(lambda native: ReducedModel(robot, native=native), cfg, N, tau)
-    seqs = {cname: _record(ctl, robot, stretches, ref, N, run.entry("loop", name, N, cname), cfg.warmup)
+    steps = replay_controllers(lambda native: ReducedModel(robot, native=native), cfg, N, tau)
+    seqs = {cname: replay(ctl, robot, stretches, ref, N, run.entry("loop", name, N, cname), cfg.warmup)
             for cname, ctl in steps}
     # ---- qpmpc: the LTV models of the nonlinear pre-simulation at each sample
     nl = dict(steps)["nonlinear"]
@@ -153,7 +153,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     warm[("free", mname)] = _shift(v, m)
                     if timed:
                         e = run.entry("unconstrained", name, N, mname)
-                        _log_solve(e, dt, np.all(np.isfinite(v)), v, v_ref, prob)
+                        log_solve(e, dt, np.all(np.isfinite(v)), v, v_ref, prob)
                 # limited solves
                 for mname, solver in lim_methods:
                     t0 = time.perf_counter()
@@ -161,7 +161,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     dt = time.perf_counter() - t0
                     warm[("lim", mname)] = _shift(res.v, m) if res.ok else None
                     if timed:
-                        e = _log_solve(run.entry("limited", name, N, mname), dt, res.ok, res.v, v_ref_l, prob_l)
+                        e = log_solve(run.entry("limited", name, N, mname), dt, res.ok, res.v, v_ref_l, prob_l)
                         e.violations.append(prob_l.violation(res.v) if res.ok else math.inf)
                 # the LTV problem: our condenser + QP vs qpmpc
                 A_seq, B_seq, c_seq, X, w, wdot, v_ref_ltv = ltv[si][k]
@@ -174,7 +174,7 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                     dt = time.perf_counter() - t0
                     warm[("ltv", mname)] = _shift(res.v, m) if res.ok else None
                     if timed:
-                        _log_solve(run.entry("qpmpc", name, N, mname), dt, res.ok, res.v, v_ref_ltv)
+                        log_solve(run.entry("qpmpc", name, N, mname), dt, res.ok, res.v, v_ref_ltv)
                 for peer in peers:
                     t0 = time.perf_counter()
                     with warnings.catch_warnings():
@@ -189,13 +189,13 @@ def _bench_robot_N(run: _Run, robot: ParallelRobot, N: int, stretches, ref: SCur
                                            f"cost scaled by κ = {kappa:.3g}")
                         e.times.append(dt)
                         e.failures += int(v is None)
-                        e.errors.append(_rel(v, v_ref_ltv))
+                        e.errors.append(relative_error(v, v_ref_ltv))
                 if bar is not None:
                     bar.update(1)
         _time_steps(run, name, N, steps, seqs, len(stretches), cfg.warmup)
 
 
-def _time_steps(run: _Run, robot: str, N: int, steps, seqs, n_stretches: int, warmup: int) -> None:
+def _time_steps(run: BenchRun, robot: str, N: int, steps, seqs, n_stretches: int, warmup: int) -> None:
     """Full control steps: each controller replays its own closed-loop samples of a stretch one
     after the other (state restored before every step), as a control loop would call it —
     interleaving the steps with the other solvers, as the benchmark did before, inflated the step
@@ -249,13 +249,12 @@ def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: floa
 
 
 # ------------------------------------------------------------------------------- entry points
-def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None = None) -> dict:
-    """Run the benchmark; print the table; write ``bench_gpc.json``, ``bench_gpc.md`` and
-    ``bench_gpc.png``.
+def run_benchmark(quick: bool = False, config: BenchConfig | None = None) -> dict:
+    """Run the benchmark and return its rows (nothing is printed or written: see
+    :func:`write_benchmark` and :func:`~parallel_gpc.bench.report.format_table`).
 
     Args:
         quick: a short run (fewer stretches, samples and repetitions).
-        out_dir: folder for the JSON and the plot (created); None writes nothing.
         config: full control over what runs (overrides ``quick``).
 
     Returns:
@@ -266,7 +265,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
     cfg = config or (BenchConfig.quick() if quick else BenchConfig())
     if os.environ.get("OPENBLAS_NUM_THREADS") != "1":
         warnings.warn("OPENBLAS_NUM_THREADS is not 1: BLAS threads distort small-matrix timings", stacklevel=2)
-    run = _Run(cfg)
+    run = BenchRun(cfg)
     plan = [(r, cfg.Ns) for r in cfg.robots] + [(r, cfg.spatial_Ns) for r in cfg.spatial]
     total = sum(len(Ns) for _, Ns in plan) * cfg.reps * len(cfg.segments) * cfg.segment_length
     bar = None
@@ -281,7 +280,7 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         for rname, Ns in plan:
             robot = ParallelRobot.load(rname)
             ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
-            stretches = _closed_loop_states(robot, cfg, ref)
+            stretches = closed_loop_states(robot, cfg, ref)
             for N in Ns:
                 if bar is not None:
                     bar.set_description(f"{rname} N={N}")
@@ -319,21 +318,22 @@ def run_benchmark(quick: bool = False, out_dir=None, config: BenchConfig | None 
         "wall_time_s": time.perf_counter() - t_start,
         "interrupted": interrupted,
     }
-    print(format_table(rows))
-    print()
-    for t in targets:
-        status = "met" if t["met"] else f"MISSED ({t['off_by']:.2f}× off)"
-        print(f"target {t['target']} ({t['robot']}, N = {t['N']}): {t['value']:.3g} {t['unit']} "
-              f"(limit {t['limit']:.3g}) {status}")
-    if out_dir is not None:
-        out = Path(out_dir)
-        out.mkdir(parents=True, exist_ok=True)
-        written = [out / "bench_gpc.json"]
-        written[0].write_text(json.dumps(result, indent=1, default=json_default))
-        if rows:
-            (out / "bench_gpc.md").write_text(markdown_report(result))
-            written += [out / "bench_gpc.md", save_figure(plot_results(rows), out / "bench_gpc.png")]
-        print("wrote " + ", ".join(str(p) for p in written)
-              + (f" (interrupted: {len(rows)} finished rows)" if interrupted else ""))
     return result
+
+
+def write_benchmark(result: dict, out_dir) -> list[Path]:
+    """Write ``bench_gpc.json`` (always), ``bench_gpc.md`` and ``bench_gpc.png`` (when there are
+    rows) of a :func:`run_benchmark` result into ``out_dir`` (created).
+
+    Returns:
+        The paths written.
+    """
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written = [out / "bench_gpc.json"]
+    written[0].write_text(json.dumps(result, indent=1, default=json_default))
+    if result["results"]:
+        (out / "bench_gpc.md").write_text(markdown_report(result))
+        written += [out / "bench_gpc.md", save_figure(plot_results(result["results"]), out / "bench_gpc.png")]
+    return written
 

@@ -1,5 +1,5 @@
 """The LTV MPC problem of the benchmark in the ``qpmpc`` package's terms, and a peer that solves
-it with ``qpmpc.solve_mpc`` (the comparison rows of :mod:`parallel_gpc.studies.bench`)."""
+it with ``qpmpc.solve_mpc`` (the comparison rows of :mod:`parallel_gpc.bench.harness`)."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """Figures of closed-loop runs (paper Fig. 2): path in the plane and time histories.
 
 Each function returns a :class:`matplotlib.figure.Figure`; save it with
-:func:`~parallel_gpc.studies.plots_common.save_figure` or ``fig.savefig``.
+:func:`~parallel_gpc.plots.common.save_figure` or ``fig.savefig``.
 """
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..gpc.references import pose_error_norms
-from .simulation import SimulationResult
+from ..studies.simulation import SimulationResult
 
 _DOTTED = {"x": "ẋ", "y": "ẏ", "z": "ż", "ψ": "ψ̇"}
 

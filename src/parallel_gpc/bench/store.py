@@ -10,11 +10,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..solvers import LeastSquaresProblem
-from .bench_problems import BenchConfig
 
 
 @dataclass
-class _Entry:
+class BenchEntry:
     """One row of the benchmark: wall times (s) and solution checks of one method on one (robot, N)."""
 
     section: str
@@ -47,37 +46,38 @@ class _Entry:
         }
 
 
-def _log_solve(e: _Entry, dt: float, ok, v, v_ref, problem: LeastSquaresProblem | None = None) -> _Entry:
+def log_solve(e: BenchEntry, dt: float, ok, v, v_ref, problem: LeastSquaresProblem | None = None) -> BenchEntry:
     """Record one timed solve in ``e``: wall time ``dt`` (s), a failure unless ``ok``, the relative
     error of ``v`` against ``v_ref`` and, given the problem, the relative cost gap."""
     e.times.append(dt)
     e.failures += int(not ok)
-    e.errors.append(_rel(v, v_ref))
+    e.errors.append(relative_error(v, v_ref))
     if problem is not None:
         e.cost_gaps.append(_cost_gap(problem, v, v_ref))
     return e
 
 
-def _rel(v, ref) -> float:
+def relative_error(v, ref) -> float:
     """Relative error ‖v − ref‖ / ‖ref‖ (inf for a missing or non-finite v)."""
     if v is None or not np.all(np.isfinite(v)):
         return math.inf
     return float(np.linalg.norm(v - ref) / max(np.linalg.norm(ref), 1e-300))
 
 
-class _Run:
+class BenchRun:
     """The entries of one benchmark run, by (section, robot, N, method), and the torque limit τ (N·m)
     chosen per (robot, N)."""
 
-    def __init__(self, cfg: BenchConfig):
+    def __init__(self, cfg):
+        """``cfg``: the run's :class:`~parallel_gpc.bench.problems.BenchConfig`."""
         self.cfg = cfg
-        self.entries: dict[tuple, _Entry] = {}
+        self.entries: dict[tuple, BenchEntry] = {}
         self.limits: dict[tuple, float] = {}
 
-    def entry(self, section, robot, N, method, note="") -> _Entry:
+    def entry(self, section, robot, N, method, note="") -> BenchEntry:
         key = (section, robot, N, method)
         if key not in self.entries:
-            self.entries[key] = _Entry(section, robot, N, method, note=note)
+            self.entries[key] = BenchEntry(section, robot, N, method, note=note)
         return self.entries[key]
 
 
