@@ -70,6 +70,28 @@ def test_help_defaults_are_the_library_defaults():
         library.robot, library.Ts, library.N, library.No, library.Qy, library.Qu)
 
 
+def test_one_vocabulary_for_forms_and_references():
+    """--forms (space-separated, or all) and --reference take the same words in every command,
+    the library's words, and the help names every form and every reference."""
+    from parallel_gpc.gpc.references import PATH_KINDS
+    from parallel_gpc.gpc.settings import PAPER_FORMS
+
+    assert defaults.PAPER_FORMS == PAPER_FORMS and defaults.REFERENCES == (*PATH_KINDS, "hold")
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices
+    for command in ("track", "demo", "robustness"):
+        options = {a.dest: a for a in sub[command]._actions}
+        assert options["forms"].choices == [*FORMS, "all"] and options["forms"].nargs == "+"
+        assert options["reference"].choices == defaults.REFERENCES and options["reference"].default == "auto"
+        assert all(form in options["forms"].help for form in FORMS)
+        assert all(name in options["reference"].help for name in defaults.REFERENCES)
+        args = parser.parse_args([command, "--forms", "nonlinear", "absolute"])
+        assert args.forms == ["nonlinear", "absolute"]
+    assert parser.parse_args(["robustness"]).forms == list(PAPER_FORMS)
+    assert parser.parse_args(["track", "--form", "absolute"]).forms == ["absolute"]  # the earlier spelling
+    assert "the helix on spatial ones" in " ".join(parser.format_help().split())  # track's one-line help
+
+
 def test_robots_lists_every_embedded_robot(capsys):
     assert main(["robots"]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -236,8 +236,11 @@ def test_cli_debug_shows_the_exception(capsys):
 @pytest.mark.parametrize("argv, needle", [
     (["robustness", "--N", "0"], "N = 0"),
     (["robustness", "--Ts", "-0.01"], "-0.01"),
-    (["robustness", "--forms", "absolute,bogus"], "bogus"),
-    (["robustness", "--mass-scales", "0.7,x"], "0.7,x"),
+    (["robustness", "--forms", "absolute", "bogus"], "'bogus' (choose from 'absolute', 'incremental', "
+                                                     "'incremental-delayed', 'nonlinear', 'all')"),
+    (["robustness", "--forms", "absolute,incremental"], "'absolute,incremental'"),  # the earlier comma spelling
+    (["robustness", "--reference", "path"], "'path' (choose from 'auto', 's-curve', 'helix', 'hold')"),
+    (["robustness", "--mass-scales", "0.7", "x"], "'x'"),
     (["robustness", "--robot", "nosuch_robot"], "nosuch_robot"),
 ])
 def test_cli_robustness_bad_input_exits_2(cli_with_robustness, capsys, tmp_path, argv, needle):
@@ -353,8 +356,8 @@ def test_cli_robustness_ctrl_c_saves_partial_table_and_exits_130(cli_with_robust
         return original(self, t, Ts, N)
 
     monkeypatch.setattr(references.SCurve, "window", interrupting)
-    code = cli_with_robustness.main(["robustness", "--forms", "absolute", "--duration", "0.2", "--mass-scales", "",
-                                     "--noise", "", "--disturbances", "", "--out", str(tmp_path)])
+    code = cli_with_robustness.main(["robustness", "--forms", "absolute", "--duration", "0.2", "--mass-scales",
+                                     "--noise", "--disturbances", "--out", str(tmp_path)])
     assert code == 130
     rows = (tmp_path / "robustness.csv").read_text().strip().splitlines()
     assert len(rows) == 2 and rows[1].startswith("absolute,nominal") and rows[1].endswith("interrupted")

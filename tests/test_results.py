@@ -81,7 +81,7 @@ def test_view_opens_plan_files(tmp_path, monkeypatch):
 
 
 def test_robustness_writes_no_trajectory_files(tmp_path):
-    assert cli_main(["robustness", "--quick", "--mass-scales", "0.7", "--noise", "", "--disturbances", "",
+    assert cli_main(["robustness", "--quick", "--mass-scales", "0.7", "--noise", "--disturbances",
                      "--forms", "absolute", "--duration", "0.1", "--out", str(tmp_path)]) == 0
     assert not list(tmp_path.glob("*.npz")) and (tmp_path / "robustness.csv").exists()
 

@@ -147,7 +147,7 @@ def urdf_text(name: str, n_legs: int) -> str:
 def sidecar_text(name: str, n_legs: int) -> str:
     """Return the TOML closure sidecar of the planar n-RRR."""
     lines = [
-        f"# Closure sidecar of {name}.urdf (parallel-gpc robot format, see README).",
+        f"# Closure sidecar of {name}.urdf (parallel-gpc robot format, see docs/robot-files.md).",
         "# Numbers are our own stand-in; the paper gives no robot data.",
         f'name = "{name}"',
         f'description = "planar {n_legs}-RRR, {n_legs} drives, 3 DOF, horizontal plane"',

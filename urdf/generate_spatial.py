@@ -145,7 +145,7 @@ def sidecar(name: str, description: str, numbers: str, output: list[str], labels
             home, poses: dict, branch: list[str], q_guess: dict, drives: list[str], limits: list[float],
             closures: list[tuple[str, str]]) -> str:
     """The TOML closure sidecar (parallel-gpc robot format)."""
-    lines = [f"# Closure sidecar of {name}.urdf (parallel-gpc robot format, see README).",
+    lines = [f"# Closure sidecar of {name}.urdf (parallel-gpc robot format, see docs/robot-files.md).",
              "# Numbers are our own stand-in; the paper gives no robot data:",
              *(f"#   {line}" for line in numbers.splitlines()),
              f'name = "{name}"', f'description = "{description}"', "",

@@ -11,3 +11,7 @@ TRACKING = {"Ts": 0.002, "N": 20, "No": 0, "Qy": 1.0, "Qu": 0.0, "disturbance_ga
 #: = the same fields of ``parallel_gpc.studies.DEMO_SETTINGS`` (the ``demo`` command).
 DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platform_force": (5.0, -5.0, 0.5),
         "duration": 3.0, "disturbance_gain": 0.5}
+#: = :data:`parallel_gpc.gpc.settings.PAPER_FORMS`, the forms the paper compares.
+PAPER_FORMS = ("absolute", "incremental", "nonlinear")
+#: = ``parallel_gpc.gpc.references.PATH_KINDS`` and ``"hold"``: what ``--reference`` names.
+REFERENCES = ("auto", "s-curve", "helix", "hold")

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .defaults import DEMO, FORMS
+from .defaults import DEMO
 from .track import add_tracking_arguments, settings_from_args
+from .vocabulary import add_forms_argument, selected_forms
 
 
 def cmd_demo(args) -> int:
@@ -36,7 +37,7 @@ def cmd_demo(args) -> int:
           f"the stacked G has full row rank, so every form is the one-step dead-beat law "
           f"u(k) = (C B_d)⁺ (w(k+1) − C(A_d X + c_d)).\n   max |u_form − u_dead-beat| over "
           f"{len(check.t)} samples [N·m]: {diffs} — the forms are indistinguishable at Qu = 0.")
-    forms = list(FORMS) if args.forms == ["all"] else args.forms
+    forms = selected_forms(args.forms)
     runs = run_comparison(settings, forms, gains=(0.0, settings.disturbance_gain), progress=not args.no_progress,
                           robot=robot)
     print(f"2) Qu = {settings.Qu:g} (the horizon matters), Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, "
@@ -83,7 +84,7 @@ def register_demo(sub) -> None:
                        description=__doc__.split("\n\n")[0] + " Qu = 0 (dead-beat, form-independent) and Qu > 0 "
                        "on a mismatched, loaded plant with the disturbance estimate off and on.")
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    p.add_argument("--forms", nargs="+", choices=[*FORMS, "all"], default=["all"], help="forms to compare (default all)")
+    add_forms_argument(p)
     p.add_argument("--deadbeat-duration", type=float, default=1.0, help="s of the Qu = 0 lockstep check (default 1)")
     add_tracking_arguments(p, DEMO, html=False)  # it writes demo_<form>.html itself
     p.set_defaults(func=cmd_demo)

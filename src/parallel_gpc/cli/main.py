@@ -3,8 +3,8 @@
 Each sub-command module has a ``register_*`` function that adds its parser and sets ``func``;
 the function receives the parsed arguments and returns an exit code. Command modules import
 their heavy dependencies (Pinocchio, matplotlib, meshcat) inside the handler, so ``--help``
-starts fast. Package errors end the program with a one-line message and exit code 2 (a
-traceback only with ``--debug``).
+starts fast. Package errors and usage errors end the program with a one-line message and exit
+code 2 (a traceback only with ``--debug``).
 """
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import argparse
 import sys
 
 from .. import __version__
-from ..errors import ParallelGPCError
+from ..errors import InvalidParameterError, ParallelGPCError
 from .bench import register_bench
 from .demo import register_demo
 from .gallery import register_gallery
@@ -30,9 +30,18 @@ REGISTRARS = [register_robots, register_info, register_demo, register_track, reg
               register_sweep, register_bench, register_view, register_gallery]
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors (an unknown choice, a missing value) raise
+    :class:`~parallel_gpc.errors.InvalidParameterError`, which :func:`main` prints on one line."""
+
+    def error(self, message: str):
+        command = self.prog.removeprefix("parallel-gpc").strip()
+        raise InvalidParameterError(f"{command}: {message}" if command else message)
+
+
 def build_parser(registrars=None) -> argparse.ArgumentParser:
     """The ``parallel-gpc`` parser with every sub-command of ``registrars`` (default :data:`REGISTRARS`)."""
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="parallel-gpc",
         description="Generalized Predictive Control of parallel robots (Pinocchio closed-chain models).",
     )
@@ -47,14 +56,15 @@ def build_parser(registrars=None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns its exit code (2: bad input, 130: interrupted)."""
     parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "func", None):
-        parser.print_help()
-        return 1
+    args = None
     try:
+        args = parser.parse_args(argv)
+        if not getattr(args, "func", None):
+            parser.print_help()
+            return 1
         return int(args.func(args) or 0)
     except (ParallelGPCError, OSError) as exc:  # bad input or an unreadable/unwritable file
-        if args.debug:
+        if args is not None and args.debug:
             raise
         message = " ".join(str(exc).split())  # one line, even for multi-line parser messages
         print(f"parallel-gpc: error: {message}", file=sys.stderr)

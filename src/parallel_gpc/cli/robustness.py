@@ -9,21 +9,14 @@ from __future__ import annotations
 
 import sys
 
-from ..errors import InvalidParameterError
-from .defaults import DEFAULT_ROBOT
+from .defaults import DEFAULT_ROBOT, PAPER_FORMS
+from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
 
 #: Exit code of a run stopped by Ctrl-C (after saving what it computed).
 EXIT_INTERRUPTED = 130
 
 #: ``--quick``: fewer cases (nominal, ±30 % mass, one noise level, one force), same runs.
 QUICK = dict(mass_scales=(0.7, 1.3), noise_levels=(1e-4,), disturbances=(20.0,))
-
-
-def _floats(text: str) -> tuple[float, ...]:
-    try:
-        return tuple(float(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise InvalidParameterError(f"{text!r} is not a comma-separated list of numbers") from None
 
 
 def cmd_robustness(args) -> int:
@@ -39,17 +32,17 @@ def cmd_robustness(args) -> int:
     from ..gpc.criterion import Weights
     from .outputs import prepare_out_dir
 
-    forms = tuple(f.strip() for f in args.forms.split(",") if f.strip())
+    forms = selected_forms(args.forms)
     settings = dict(mass_scales=DEFAULT_MASS_SCALES, noise_levels=DEFAULT_NOISE_LEVELS,
                     disturbances=DEFAULT_DISTURBANCES, duration=2.5)
     if args.quick:
         settings.update(QUICK)
     if args.mass_scales is not None:
-        settings["mass_scales"] = _floats(args.mass_scales)
+        settings["mass_scales"] = tuple(args.mass_scales)
     if args.noise is not None:
-        settings["noise_levels"] = _floats(args.noise)
+        settings["noise_levels"] = tuple(args.noise)
     if args.disturbances is not None:
-        settings["disturbances"] = _floats(args.disturbances)
+        settings["disturbances"] = tuple(args.disturbances)
     if args.duration is not None:
         settings["duration"] = args.duration
     weights = Weights(DEFAULT_WEIGHTS.Qy if args.Qy is None else args.Qy,
@@ -82,22 +75,23 @@ def register_robustness(sub) -> None:
         "robustness", help="tracking error of each GPC form under mass mismatch, noise and a constant force",
         description="For each prediction form, run the closed loop on the full constrained plant with the "
                     "plant's masses/inertias scaled (-30 … +30 %), with measurement noise, and with a "
-                    "constant force on the platform; print a table and write CSV, JSON and a plot.",
+                    "constant force on the platform, along the robot's path (the S-curve on planar robots, the "
+                    "helix on spatial ones); print a table and write CSV, JSON and a plot.",
     )
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
-    p.add_argument("--forms", default="absolute,incremental,nonlinear",
-                   help="comma-separated prediction forms (default: all three)")
-    p.add_argument("--duration", type=float, default=None, help="length of each run in s (default 2.5; the S-curve takes 80 %% of it)")
+    add_forms_argument(p, PAPER_FORMS)
+    p.add_argument("--duration", type=float, default=None, help="length of each run in s (default 2.5; the path takes 80 %% of it, then a hold)")
     p.add_argument("--Ts", type=float, default=0.005, help="sample time in s (default 0.005)")
     p.add_argument("--N", type=int, default=10, help="prediction horizon in samples (default 10)")
     p.add_argument("--Qy", type=float, default=None, help="output weight (square root, default 1)")
     p.add_argument("--Qu", type=float, default=None, help="input/increment weight (square root, default 1e-4)")
-    p.add_argument("--mass-scales", default=None, help="comma-separated plant mass scales (default 0.7,0.85,1.15,1.3)")
-    p.add_argument("--noise", default=None, help="comma-separated pose noise σ in m (default 1e-5,1e-4)")
-    p.add_argument("--disturbances", default=None, help="comma-separated platform forces along x in N (default 10,20)")
-    p.add_argument("--reference", choices=("path", "scurve", "helix", "hold"), default="path",
-                   help="the robot's path (then a hold): the paper's S-curve for planar robots, the helix "
-                        "for spatial ones; or a hold of the home pose")
+    p.add_argument("--mass-scales", type=float, nargs="*", default=None, metavar="S",
+                   help="plant mass scales, space-separated (default 0.7 0.85 1.15 1.3; none: no mass cases)")
+    p.add_argument("--noise", type=float, nargs="*", default=None, metavar="STD",
+                   help="pose noise σ in m, space-separated (default 1e-5 1e-4; none: no noise cases)")
+    p.add_argument("--disturbances", type=float, nargs="*", default=None, metavar="F",
+                   help="platform forces along x in N, space-separated (default 10 20; none: no force cases)")
+    add_reference_argument(p, "the home pose")
     p.add_argument("--out", default="out/robustness", help="output folder (default out/robustness)")
     p.add_argument("--quick", action="store_true", help="fewer cases: ±30 %% mass, noise 1e-4 m, 20 N (about half the time)")
     p.add_argument("--workers", type=int, default=0,

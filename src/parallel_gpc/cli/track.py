@@ -1,4 +1,5 @@
-"""``parallel-gpc track``: S-curve (or hold) tracking with each GPC form on the nonlinear plant.
+"""``parallel-gpc track``: tracking with each GPC form on the full constrained plant: the paper's
+S-curve (planar robots), the helix (spatial robots) or a hold.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
 and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
@@ -9,9 +10,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .defaults import DEFAULT_ROBOT, FORMS, TRACKING
+from .defaults import DEFAULT_ROBOT, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
+from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
@@ -42,8 +44,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--force", type=float, nargs="+", default=d["platform_force"], metavar="F",
                    help="constant disturbance on the platform, one value per coordinate (N, N·m), e.g. FX FY MZ "
                         f"(default {' '.join(f'{v:g}' for v in d['platform_force'])})")
-    p.add_argument("--reference", choices=["auto", "s-curve", "helix", "hold"], default="auto",
-                   help="auto: the S-curve for planar robots, the 3-D helix for spatial ones")
+    add_reference_argument(p, "a step to a pose near home, held")
     p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
                    + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -97,15 +98,16 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
 
 
 def cmd_track(args) -> int:
-    forms = list(FORMS) if args.form == "all" else [args.form]
+    forms = selected_forms(args.forms)
     title = f"Tracking ({args.reference} reference)"
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", help="track the S-curve (or a hold pose) with GPC on the nonlinear plant")
-    p.add_argument("--form", choices=[*FORMS, "all"], default="all", help="GPC form (default all)")
+    p = sub.add_parser("track", help="track a reference (the S-curve on planar robots, the helix on spatial ones, or "
+                                     "a hold) with each GPC form on the full constrained plant")
+    add_forms_argument(p, None, "--form")  # --form: the earlier spelling, still accepted
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)
     p.set_defaults(func=cmd_track)

@@ -101,7 +101,7 @@ def register_view(sub) -> None:
         description="Animate a result file: write a self-contained HTML file (--html, the default "
                     "RESULT.html) and/or serve it live on 127.0.0.1 (--serve, until Ctrl-C).",
     )
-    p.add_argument("result", metavar="RESULT.npz", help="result file (t, q, robot; see the README's file format)")
+    p.add_argument("result", metavar="RESULT.npz", help="result file (t, q, robot; the format: docs/validation.md)")
     p.add_argument("--robot", default=None,
                    help="robot name or path, overriding the file's (for files that name none)")
     add_view_arguments(p)

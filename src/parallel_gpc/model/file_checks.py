@@ -1,7 +1,7 @@
 """Validation of robot files at load: bounded reads, sidecar value types, URDF/MJCF physics, and
 the consistency of a description (duplicates, identical closure frames).
 
-Policies (the README's "Input limits and validation" states them too):
+Policies (docs/validation.md states them too):
 
 * A robot file (URDF, MJCF or sidecar) must be a regular file (not a device, FIFO or folder) of at
   most :data:`URDF_MAX_BYTES` / :data:`SIDECAR_MAX_BYTES`, UTF-8 encoded. The size is checked

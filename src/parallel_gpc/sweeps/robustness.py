@@ -163,12 +163,11 @@ def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
         return reference
     if reference == "hold":
         return Hold(tuple(robot.home_pose))
-    kind = {"scurve": "s-curve", "path": "auto"}.get(reference, reference)
-    if kind not in PATH_KINDS:
-        raise InvalidParameterError(f"reference {reference!r} is not 'scurve', 'helix', 'path', 'hold' or a "
+    if reference not in PATH_KINDS:
+        raise InvalidParameterError(f"reference {reference!r} is not one of {[*PATH_KINDS, 'hold']} or a "
                                     "Reference object")
     # the path takes 80 % of the run, the rest is a hold (steady state)
-    return path_for(kind, robot.home_pose, robot.output_angular, 0.8 * duration)
+    return path_for(reference, robot.home_pose, robot.output_angular, 0.8 * duration)
 
 
 def _status(record: dict) -> str:
@@ -213,7 +212,7 @@ def robustness_cells(robot_name: str, forms, cases, ref: Reference, duration: fl
 def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_scales=DEFAULT_MASS_SCALES,
                      noise_levels=DEFAULT_NOISE_LEVELS, disturbances=DEFAULT_DISTURBANCES,
                      duration: float = 2.5, Ts: float = 0.005, N: int = 10, progress: bool = False,
-                     weights: Weights = DEFAULT_WEIGHTS, reference="path", seed: int = 0,
+                     weights: Weights = DEFAULT_WEIGHTS, reference="auto", seed: int = 0,
                      on_row=None, workers: int = 0, scheduler=None) -> RobustnessResult:
     """Tracking error of each form under plant mismatch, measurement noise and a constant load.
 
@@ -228,10 +227,10 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
             (No = 0, Nu = N).
         progress: show a progress bar over the runs.
         weights: square-root weights Qy, Qu, the same for every form.
-        reference: ``"path"`` (the robot's default path: the paper's S-curve for planar
-            outputs, the helix for spatial ones, over 80 % of the run, then a hold), ``"scurve"``,
-            ``"helix"``,
-            ``"hold"`` (the home pose) or a :class:`~parallel_gpc.references.Reference`.
+        reference: ``"auto"`` (the robot's default path: the paper's S-curve for planar
+            outputs, the helix for spatial ones), ``"s-curve"`` or ``"helix"`` (each over 80 % of
+            the run, then a hold), ``"hold"`` (the home pose) or a
+            :class:`~parallel_gpc.references.Reference`.
         seed: seed of the measurement noise (the same noise sequence for every form).
         on_row: optional callback receiving each row as soon as its run finishes.
         workers, scheduler: where the runs go (a preset of :func:`~parallel_gpc.sweeps.runner.run_sweep`):
