@@ -17,6 +17,8 @@ _PUBLIC = {
     "SweepResult": "runner", "run_sweep": "runner",
     "SweepStore": "store", "load_results": "store", "records_frame": "store",
     "COLUMNS": "robustness", "RobustnessCase": "robustness", "RobustnessResult": "robustness",
+    "DEFAULT_DISTURBANCES": "robustness", "DEFAULT_MASS_SCALES": "robustness", "DEFAULT_NOISE_LEVELS": "robustness",
+    "DEFAULT_WEIGHTS": "robustness",
     "robustness_cases": "robustness", "robustness_cells": "robustness", "robustness_study": "robustness",
 }
 
