@@ -77,7 +77,7 @@ class SimulationResult:
         extra = {"deadline_overruns": int(self.overruns)} if "deadline_overruns" in self.meta else {}
         if self.estimate_error is not None:
             est_pos, est_ang = pose_error_norms(self.estimate_error[sel, :e.shape[1]], self.angular)
-            extra = {"rms_estimate_position_error_m": float(np.sqrt(np.mean(est_pos**2))),
+            extra |= {"rms_estimate_position_error_m": float(np.sqrt(np.mean(est_pos**2))),
                      "rms_estimate_orientation_error_rad": float(np.sqrt(np.mean(est_ang**2)))}
         return {
             "rms_position_error_m": float(np.sqrt(np.mean(pos**2))),
