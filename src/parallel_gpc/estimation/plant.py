@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError, SensorError, ShapeError
 from ..validation import positive
-from .sensors import Measurement, Sensors
+from .sensors import Measurement, Sensors, encoder_readings
 
 
 @runtime_checkable
@@ -102,10 +102,8 @@ class SensedPlant:
         if self.sensors.kind == "full":
             return Measurement(state=self.plant.X)
         r = self.robot
-        exact = np.asarray(self.plant.q)[r.drive_q_indices]
-        noisy = exact + self._rng.normal(0.0, self.sensors.noise_counts, r.n_u) * self._resolution \
-            if self.sensors.noise_counts else exact
-        drives = np.round(noisy / self._resolution) * self._resolution
+        drives = encoder_readings(self.sensors, self._resolution, np.asarray(self.plant.q)[r.drive_q_indices],
+                                  self._rng)
         rates = None
         if self._rates:
             v = np.asarray(self.plant.v) if hasattr(self.plant, "v") else \

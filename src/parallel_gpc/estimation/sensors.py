@@ -89,6 +89,14 @@ class Sensors:
         return res * np.sqrt(1.0 / 12.0 + self.noise_counts**2)
 
 
+def encoder_readings(sensors: Sensors, resolution: np.ndarray, exact: np.ndarray,
+                     rng: np.random.Generator) -> np.ndarray:
+    """(n_u,) what the encoders read at the exact drive positions (rad or m): white noise of
+    ``noise_counts`` counts, then quantized to the resolution (rounded to the nearest count)."""
+    noisy = exact + rng.normal(0.0, sensors.noise_counts, exact.shape) * resolution if sensors.noise_counts else exact
+    return np.round(noisy / resolution) * resolution
+
+
 @dataclass(frozen=True)
 class Measurement:
     """One sample of what the machine measured (None: not measured).
