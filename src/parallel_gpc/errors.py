@@ -44,6 +44,11 @@ class NonFiniteError(InvalidParameterError):
     """A state, measurement or input contains NaN or infinity."""
 
 
+class SensorError(InvalidParameterError):
+    """A drive reading (or a plant's measurement) is NaN, out of the drive's range, inconsistent
+    with every pose, or of the wrong kind; the message names the drive."""
+
+
 class SolverNotFoundError(ParallelGPCError, ValueError):
     """The requested QP solver is not installed or not known."""
 

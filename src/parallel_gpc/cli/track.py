@@ -47,6 +47,12 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     add_reference_argument(p, "a step to a pose near home, held")
     p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
                    + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
+    p.add_argument("--sensors", default="full", metavar="full|encoders[:COUNTS_PER_REV]",
+                   help="what the controller sees: the full state, or quantized drive encoders through a Kalman "
+                        "filter (default counts 2^20 per revolution; e.g. encoders:65536) (default full)")
+    p.add_argument("--plant", choices=["own", "mujoco"], default="own",
+                   help="the simulated machine: our constrained plant, or the robot exported to MuJoCo "
+                        "(pip install 'parallel-gpc[mujoco]') (default own)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_view_arguments(p, html=html)
 
@@ -60,7 +66,7 @@ def settings_from_args(args):
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
         disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
-        reference=args.reference, duration=args.duration,
+        reference=args.reference, duration=args.duration, sensors=args.sensors, plant=args.plant,
     )
 
 
@@ -79,7 +85,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
           f"Nu = {settings.Nu or settings.N}, Qy = {settings.Qy:g}, Qu = {settings.Qu:g}, "
-          f"mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
+          f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
     print(metrics_table(results, robot.drive_unit))

@@ -11,8 +11,9 @@ import math
 
 import numpy as np
 
-from ..errors import AssemblyError, SingularPoseError, UnreachablePoseError
+from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector
+from .forward import check_readings, drive_resolution, rates_to_velocity, solve_forward
 from .linalg import svd_thin
 
 #: K smallest/largest singular value below which the legs count as singular.
@@ -184,29 +185,54 @@ class AssemblyMixin:
         """(n_u,) drive coordinates (rad or m) that place the platform at ``pose``."""
         return self.assemble(pose)[self._drive_q].copy()
 
-    def forward_kinematics(self, drives, q_guess: np.ndarray | None = None, tol: float = 1e-12,
-                           max_iter: int = 50) -> np.ndarray:
-        """(n_y,) output for drive coordinates (rad or m), by Newton from ``q_guess`` (home).
+    def forward_kinematics(self, drives, q_guess: np.ndarray | None = None, resolution=None,
+                           max_residual: float = 50.0) -> np.ndarray:
+        """(n_y,) output (m, rad) for drive readings (rad or m): weighted least squares over the
+        drives, on the home branch (:func:`~parallel_gpc.model.forward.solve_forward`).
 
-        With redundant drives the drive values must be consistent (e.g. from
-        :meth:`inverse_kinematics`); the least-squares solution is returned otherwise.
+        Args:
+            drives: (n_u,) drive positions (rad or m), e.g. encoder readings.
+            q_guess: (nq,) warm start (e.g. the last configuration); default home.
+            resolution: (n_u,) or scalar resolution of the drive encoders (rad or m), the
+                least-squares weights; default the robot's sensors
+                (:func:`~parallel_gpc.model.forward.drive_resolution`).
+            max_residual: largest accepted residual of a drive at the solution, in counts.
+
+        Raises:
+            SensorError: a NaN or out-of-range reading, or readings no pose explains (naming
+                the worst drive).
         """
-        drives = finite_vector("drive coordinates", drives, self.n_u)
-        q = (self.q_home if q_guess is None else np.asarray(q_guess, dtype=float)).copy()
-        q[self._drive_q] = drives
-        free = np.array([i for i in range(self.model.nv) if i not in set(self.drive_idx.tolist())])
-        for _ in range(max_iter):
-            ck = self.closure_kinematics(q)
-            if np.max(np.abs(ck.residual)) <= tol:
-                return self.platform_pose(q)
-            step, *_ = np.linalg.lstsq(ck.jacobian[:, free], ck.residual, rcond=1e-10)
-            dv = np.zeros(self.model.nv)
-            dv[free] = -step * min(1.0, 0.2 / max(np.max(np.abs(step)), 1e-300))  # damped: stay on branch
-            q = self.integrate(q, dv)
-        raise AssemblyError(
-            f"forward kinematics did not converge for drives {np.round(drives, 6).tolist()}: "
-            f"closure residual {np.max(np.abs(self.closure_residual(q))):.3g}"
-        )
+        return self.forward_solution(drives, q_guess, resolution, max_residual).pose
+
+    def forward_solution(self, drives, q_guess: np.ndarray | None = None, resolution=None,
+                         max_residual: float = 50.0):
+        """:meth:`forward_kinematics` with the configuration, drive Jacobian and residuals
+        (a :class:`~parallel_gpc.model.forward.ForwardSolution`)."""
+        res = drive_resolution(self) if resolution is None else np.broadcast_to(
+            np.asarray(resolution, dtype=float), (self.n_u,))
+        if not (np.all(np.isfinite(res)) and np.all(res > 0)):
+            raise InvalidParameterError(f"encoder resolution {np.asarray(resolution).tolist()} must be finite and > 0 "
+                                        f"(rad or m per count, a scalar or {self.n_u} values)")
+        readings = check_readings(self, drives, res)
+        if q_guess is None:
+            q0, pose0 = self.q_home, self.home_pose
+        else:
+            q0 = finite_vector("q_guess", q_guess, self.model.nq)
+            pose0 = self.platform_pose(q0)
+        return solve_forward(self, readings, res, pose0, q0, max_residual=float(max_residual))
+
+    def forward_velocity(self, solution, rates, rate_resolution=None) -> np.ndarray:
+        """(n_y,) ẏ (m/s, rad/s) from (n_u,) drive rates (rad/s or m/s) at a
+        :meth:`forward_solution`: weighted least squares through its drive Jacobian.
+
+        Args:
+            solution: the :class:`~parallel_gpc.model.forward.ForwardSolution` of the same sample.
+            rates: (n_u,) drive rates. rate_resolution: (n_u,) or scalar weights σ (default equal).
+        """
+        rates = finite_vector("drive rates", rates, self.n_u)
+        sigma = np.ones(self.n_u) if rate_resolution is None else np.broadcast_to(
+            np.asarray(rate_resolution, dtype=float), (self.n_u,))
+        return rates_to_velocity(solution.jacobian, rates, sigma)
 
     def velocity_map(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """T (q̇ = T ẏ) and the rank-revealing pseudo-inverse K⁺ at q.

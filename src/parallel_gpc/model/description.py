@@ -41,6 +41,7 @@ from .sidecar import (
     _read_sidecar,
     _require,
     _torque_limits,
+    read_sensors,
 )
 
 # The sidecar vocabulary lives in .sidecar; re-exported here (robot, closures, outputs, builder import it from here).
@@ -96,6 +97,8 @@ class RobotDescription:
             time: "m" for lengths, "rad" for angles), or None.
         pose_a, pose_b: (n_y,) default start and end poses of point-to-point planning
             (sidecar ``[home] A = [...]``, ``B = [...]``, output units m and rad), or None.
+        sensors: the sidecar's ``[sensors]`` table (``counts_per_rev``, ``counts_per_m``,
+            ``rates``), checked; empty: the defaults of :mod:`parallel_gpc.estimation`.
     """
 
     name: str
@@ -118,6 +121,7 @@ class RobotDescription:
     output_units: tuple[str, ...] | None = None
     pose_a: tuple[float, ...] | None = None
     pose_b: tuple[float, ...] | None = None
+    sensors: dict = field(default_factory=dict)
 
     @property
     def n_y(self) -> int:
@@ -231,6 +235,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         output_units=_names(output["units"], "output units", where) if "units" in output else None,
         pose_a=ends["A"],
         pose_b=ends["B"],
+        sensors=read_sensors(data.get("sensors"), where),
     )
     check_description(description)
     return description

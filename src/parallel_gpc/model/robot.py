@@ -268,6 +268,28 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         return S
 
     @property
+    def drive_q_indices(self) -> np.ndarray:
+        """(n_u,) indices in q of the drive coordinates (the encoders' positions), in the order of u."""
+        return self._drive_q.copy()
+
+    @property
+    def drive_angular(self) -> np.ndarray:
+        """(n_u,) bool: True for a revolute drive (position in rad), False for a prismatic one (m)."""
+        return np.array(["JointModelP" not in self.model.joints[self.model.getJointId(n)].shortname()
+                         for n in self.description.drive_joints])
+
+    @property
+    def drive_position_units(self) -> tuple[str, ...]:
+        """Unit of each drive position: ``"rad"`` or ``"m"``."""
+        return tuple("rad" if a else "m" for a in self.drive_angular)
+
+    @property
+    def drive_range(self) -> tuple[np.ndarray, np.ndarray]:
+        """((n_u,), (n_u,)) lower and upper position limits of the drives (rad or m) from the model file."""
+        return (np.array(self.model.lowerPositionLimit[self._drive_q]),
+                np.array(self.model.upperPositionLimit[self._drive_q]))
+
+    @property
     def output_q_indices(self) -> list[int]:
         """Indices in q of the output joints (empty for frame outputs)."""
         return np.arange(self.model.nq)[self._y_q].tolist()

@@ -28,7 +28,7 @@ OUTPUT_KINDS = ("joints", "position", "pose")
 POSE_AXES = ("x", "y", "z", "rx", "ry", "rz")
 ROOTS = ("fixed", "free_flyer")
 
-_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root"}
+_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root", "sensors"}
 #: Every key a sidecar may hold, per table; anything else is refused (never ignored).
 SIDECAR_KEYS = {
     "toml": _COMMON_KEYS | {"closures", "drives"},
@@ -38,6 +38,7 @@ SIDECAR_KEYS = {
     "drives": {"joints", "torque_limit"},
     "output": {"joints", "frame", "kind", "axes", "labels", "units"},
     "home": {"pose", "q_guess", "branch_joints", "A", "B"},
+    "sensors": {"counts_per_rev", "counts_per_m", "rates"},
 }
 
 
@@ -210,4 +211,22 @@ def _q_guess(raw, where: str) -> dict:
         except (TypeError, ValueError):
             raise RobotFormatError(f"sidecar {where}: home.q_guess {k} = {v!r} must be a number "
                                    f"(or a list of nq numbers for a multi-DOF joint)") from None
+    return out
+
+
+def read_sensors(raw, where: str) -> dict:
+    """The ``[sensors]`` table: ``counts_per_rev`` (revolute drive encoders) and ``counts_per_m``
+    (prismatic drives' scales), numbers > 0; ``rates`` (drive rates measured), a boolean."""
+    table = _check_keys(raw, SIDECAR_KEYS["sensors"], "[sensors]", where)
+    out = {}
+    for key in ("counts_per_rev", "counts_per_m"):
+        if key in table:
+            value = table[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (0 < value < math.inf):
+                raise RobotFormatError(f"sidecar {where}: sensors.{key} = {value!r} must be a finite number > 0")
+            out[key] = float(value)
+    if "rates" in table:
+        if not isinstance(table["rates"], bool):
+            raise RobotFormatError(f"sidecar {where}: sensors.rates = {table['rates']!r} must be true or false")
+        out["rates"] = table["rates"]
     return out

@@ -39,6 +39,9 @@ class SimulationResult:
         interrupted: True if the run was stopped early (Ctrl-C).
         angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
             convention [x, y, ψ] (see :func:`~parallel_gpc.gpc.references.pose_error_norms`).
+        estimate_error: (K, 2 n_y) state estimate − true state, or None (no estimator, or a
+            plant that does not know its true state; :func:`~parallel_gpc.studies.loop.run_loop`).
+        overruns: steps whose estimate + control time exceeded Ts (run_loop; 0 otherwise).
     """
 
     t: np.ndarray
@@ -57,6 +60,8 @@ class SimulationResult:
     meta: dict = field(default_factory=dict)
     interrupted: bool = False
     angular: np.ndarray | None = None
+    estimate_error: np.ndarray | None = None
+    overruns: int = 0
 
     @property
     def error(self) -> np.ndarray:
@@ -69,6 +74,11 @@ class SimulationResult:
         sel = self.t >= skip
         e = self.error[sel]
         pos, ang = pose_error_norms(e, self.angular)
+        extra = {"deadline_overruns": int(self.overruns)} if "deadline_overruns" in self.meta else {}
+        if self.estimate_error is not None:
+            est_pos, est_ang = pose_error_norms(self.estimate_error[sel, :e.shape[1]], self.angular)
+            extra |= {"rms_estimate_position_error_m": float(np.sqrt(np.mean(est_pos**2))),
+                     "rms_estimate_orientation_error_rad": float(np.sqrt(np.mean(est_ang**2)))}
         return {
             "rms_position_error_m": float(np.sqrt(np.mean(pos**2))),
             "max_position_error_m": float(np.max(pos)),
@@ -82,6 +92,7 @@ class SimulationResult:
             "fallbacks": int(np.sum(self.fallback)),
             "saturated_steps": int(np.sum(self.saturated)),
             "steps": int(len(self.t)),
+            **extra,
         }
 
     def save(self, path) -> Path:

@@ -18,7 +18,14 @@ from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, hold_pose_for, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..estimation.kalman import StateEstimator
+from ..estimation.plant import SensedPlant
+from ..estimation.sensors import Sensors
+from .loop import run_loop
 from .simulation import SimulationResult, simulate
+
+#: plants a tracking run can drive
+PLANTS = ("own", "mujoco")
 from ..gpc.criterion import Weights
 
 
@@ -50,6 +57,11 @@ class TrackingSettings:
         hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
             (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
         seed: seed of the measurement noise.
+        sensors: what the controller sees: ``"full"`` (the state [y, ẏ]) or ``"encoders"`` /
+            ``"encoders:COUNTS_PER_REV"`` (quantized drive readings through a Kalman filter,
+            :mod:`parallel_gpc.estimation`; the controller then runs without its own
+            disturbance estimate).
+        plant: ``"own"`` (our constrained plant) or ``"mujoco"`` (the robot exported to MuJoCo).
     """
 
     robot: str = DEFAULT_ROBOT
@@ -72,6 +84,8 @@ class TrackingSettings:
     hold_pose: tuple[float, ...] | None = None
     seed: int = 0
     plant_torque_limit: float | str | None = "controller"
+    sensors: str = "full"
+    plant: str = "own"
     extra: dict = field(default_factory=dict)
 
     def make_reference(self, robot: ParallelRobot) -> Reference:
@@ -117,7 +131,20 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     if settings.reference == "hold":
         start = robot.home_pose
     results = {}
+    machine = settings.sensors != "full" or settings.plant != "own"
+    sensors = check_machine(settings) if machine else None
     for form in forms:
+        if machine:
+            try:
+                res = _run_machine(settings, sensors, form, robot, plant_robot, reference, start)
+            except KeyboardInterrupt:
+                if not results:
+                    raise
+                break
+            results[form] = res
+            if res.interrupted:
+                break
+            continue
         ctrl = GPCController(
             ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
             Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
@@ -143,6 +170,42 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     return results
 
 
+def check_machine(settings: TrackingSettings) -> Sensors:
+    """The sensors of a run through :func:`~parallel_gpc.studies.loop.run_loop` (encoder sensors or
+    the MuJoCo plant), refusing the options that loop does not model."""
+    sensors = Sensors.parse(settings.sensors)
+    if settings.plant not in PLANTS:
+        raise InvalidParameterError(f"plant {settings.plant!r} is not one of {list(PLANTS)}")
+    if settings.noise_std:
+        raise InvalidParameterError(f"noise_std = {settings.noise_std!r} is state noise of full-state runs on our own "
+                                    "plant; encoder noise is Sensors(noise_counts=...)")
+    if settings.plant == "mujoco" and any(settings.platform_force):
+        raise InvalidParameterError("the MuJoCo plant has no platform force; run it with platform_force zero")
+    return sensors
+
+
+def _run_machine(settings: TrackingSettings, sensors: Sensors, form: str, robot, plant_robot, reference, start):
+    """One form through run_loop: our plant behind sensors, or MuJoCo; an estimator for encoders."""
+    Ts, encoders = settings.Ts, sensors.kind == "encoders"
+    X0 = np.concatenate([start, np.zeros(robot.n_y)])
+    ctrl = GPCController(
+        ReducedModel(robot), Ts, Horizons(settings.N, settings.No, settings.Nu), Weights(settings.Qy, settings.Qu),
+        form=form, solver=settings.solver, torque_limit=settings.torque_limit, du_limit=settings.du_limit,
+        disturbance_gain=0.0 if encoders else settings.disturbance_gain)
+    if settings.plant == "mujoco":
+        from ..estimation.mujoco_plant import MujocoPlant
+
+        plant = MujocoPlant(plant_robot, Ts, X0, sensors, torque_limit=settings.plant_limit(robot), seed=settings.seed)
+    else:
+        plant = SensedPlant(ConstrainedPlant(plant_robot, X0, torque_limit=settings.plant_limit(robot),
+                                             platform_force=settings.platform_force if any(settings.platform_force)
+                                             else None), Ts, sensors, seed=settings.seed)
+    estimator = StateEstimator(ReducedModel(robot), Ts, sensors, X0) if encoders else None
+    return run_loop(ctrl, plant, reference, settings.run_duration, estimator=estimator,
+                    meta={"mass_scale": settings.mass_scale, "plant": settings.plant, "sensors_spec": settings.sensors,
+                          "disturbance_gain": ctrl.disturbance_gain, "platform_force": list(settings.platform_force)})
+
+
 def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m") -> str:
     """A text table of the tracking metrics by form (position error in mm, orientation error in
     mrad — the norm of the angular output errors, ψ on a planar robot —, drive effort in
@@ -158,15 +221,22 @@ def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m"
             f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
     units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {unit:>8} "
              f"{unit:>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
+    estimated = any(r.estimate_error is not None for r in results.values())
+    if estimated:
+        head, units = head + f" {'est. err':>9}", units + f" {'[mm]':>9}"
     lines = [head, units]
     for form, res in results.items():
         m = res.metrics()
+        est = ""
+        if estimated:
+            est = f" {1e3 * m['rms_estimate_position_error_m']:9.2e}" if "rms_estimate_position_error_m" in m \
+                else f" {'—':>9}"
         lines.append(
             f"{form:<20} {res.meta.get('disturbance_gain', float('nan')):6.2f} "
             f"{1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
             f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
             f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
-            f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
+            f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}" + est
             + ("  (interrupted)" if res.interrupted else "")
         )
     return "\n".join(lines)

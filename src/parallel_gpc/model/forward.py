@@ -1,0 +1,192 @@
+"""Forward kinematics from drive readings: the platform pose that explains the encoders.
+
+The unknown is the output y. For a trial y the configuration q(y) is assembled on the home
+branch (the robot's warm Newton, its validated path when that fails), so the closures hold
+exactly and no iterate can leave the branch; the drive coordinates of q(y) are compared with
+the readings r. Weighted Gauss-Newton on
+
+    min_y  Σ_i ((q_drive,i(y) − r_i) / σ_i)²
+
+with the drive Jacobian J = ∂q_drive/∂y = T[drives] (rows of the velocity map q̇ = T ẏ) is
+the least-squares answer over redundant drives, weighted by the resolution σ_i of each
+encoder. Steps are bounded (trust region in drive space) and halved when the trial pose does
+not assemble or does not lower the cost, so readings that some pose explains within their
+resolution always give a pose. Readings that no pose explains (a broken encoder) end in
+:class:`~parallel_gpc.errors.SensorError` naming the drive with the largest weighted residual.
+
+Drive rates give ẏ by least squares through the same Jacobian: ẏ = argmin ‖(J ẏ − ṙ)/σ_ṙ‖.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import AssemblyError, SensorError, ShapeError, SingularPoseError
+
+#: default encoder resolution of a revolute drive: 2^20 counts per revolution
+DEFAULT_COUNTS_PER_REV = 2.0**20
+#: default resolution of a prismatic drive's linear scale: 10^7 counts per metre (0.1 µm)
+DEFAULT_COUNTS_PER_M = 1e7
+#: largest change of any drive coordinate (rad or m) that one Gauss-Newton step may predict
+MAX_DRIVE_STEP = 0.1
+#: step halvings tried before an iteration gives up
+_HALVINGS = 30
+
+
+@dataclass(frozen=True)
+class ForwardSolution:
+    """What :func:`solve_forward` found.
+
+    Attributes:
+        pose: (n_y,) output y (m, rad).
+        q: (nq,) assembled configuration at ``pose``.
+        jacobian: (n_u, n_y) drive Jacobian J = ∂q_drive/∂y at ``q``.
+        residual: (n_u,) q_drive(pose) − readings (rad or m).
+        iterations: Gauss-Newton iterations taken.
+    """
+
+    pose: np.ndarray
+    q: np.ndarray
+    jacobian: np.ndarray
+    residual: np.ndarray
+    iterations: int
+
+    def weighted_residual(self, resolution: np.ndarray) -> np.ndarray:
+        """(n_u,) residual in units of each drive's resolution (counts)."""
+        return self.residual / resolution
+
+
+def drive_resolution(robot, counts_per_rev: float | None = None, counts_per_m: float | None = None) -> np.ndarray:
+    """(n_u,) size of one count of each drive's encoder: 2π/counts_per_rev (rad) for revolute
+    drives, 1/counts_per_m (m) for prismatic ones; None takes the robot file's ``[sensors]``
+    value, else :data:`DEFAULT_COUNTS_PER_REV` / :data:`DEFAULT_COUNTS_PER_M`."""
+    sidecar = robot.description.sensors or {}
+    cpr = counts_per_rev if counts_per_rev is not None else sidecar.get("counts_per_rev", DEFAULT_COUNTS_PER_REV)
+    cpm = counts_per_m if counts_per_m is not None else sidecar.get("counts_per_m", DEFAULT_COUNTS_PER_M)
+    return np.where(robot.drive_angular, 2.0 * np.pi / cpr, 1.0 / cpm)
+
+
+def check_readings(robot, readings, resolution: np.ndarray, what: str = "drive readings") -> np.ndarray:
+    """(n_u,) readings as floats; NaN/inf or values outside the drives' joint range (by more
+    than two counts) raise :class:`SensorError` naming the drive."""
+    arr = np.asarray(readings, dtype=float)
+    if arr.shape != (robot.n_u,):
+        raise ShapeError(f"{what} have shape {arr.shape}; {robot.name!r} has {robot.n_u} drives "
+                         f"{list(robot.description.drive_joints)}, expected ({robot.n_u},)")
+    names = robot.description.drive_joints
+    units = robot.drive_position_units
+    bad = np.flatnonzero(~np.isfinite(arr))
+    if bad.size:
+        i = int(bad[0])
+        raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]}; a reading must be a finite "
+                          f"position in {units[i]} (a broken or disconnected encoder?)")
+    lo, hi = robot.drive_range
+    out = np.flatnonzero((arr < lo - 2 * resolution) | (arr > hi + 2 * resolution))
+    if out.size:
+        i = int(out[0])
+        raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]:.9g} {units[i]}, outside its range "
+                          f"[{lo[i]:.6g}, {hi[i]:.6g}] {units[i]} (a broken encoder or a wrong zero offset?)")
+    return arr
+
+
+def _assembled(robot, pose: np.ndarray, q_guess: np.ndarray):
+    """(q, T) at ``pose`` on the home branch from q_guess, or None if it does not assemble there."""
+    out = robot.assemble_warm(pose, q_guess)
+    if out is not None:
+        return out[0], out[1]
+    try:
+        q = robot.assemble(pose, q_guess)
+        T, _ = robot.velocity_map_nocopy(q)
+    except (AssemblyError, SingularPoseError):
+        return None
+    return q, T
+
+
+def solve_forward(robot, readings: np.ndarray, resolution: np.ndarray, pose_guess: np.ndarray,
+                  q_guess: np.ndarray, max_residual: float = 50.0, max_iter: int = 50) -> ForwardSolution:
+    """Weighted least-squares forward kinematics (see the module docstring).
+
+    Args:
+        robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
+        readings: (n_u,) drive positions (rad or m), already checked (:func:`check_readings`).
+        resolution: (n_u,) σ_i > 0, the resolution of each drive's encoder (rad or m): the weights.
+        pose_guess: (n_y,) start (the last pose for a warm start, else home); must assemble.
+        q_guess: (nq,) configuration near ``pose_guess``.
+        max_residual: largest accepted |residual_i| / σ_i (counts) at the solution.
+        max_iter: Gauss-Newton iterations.
+
+    Raises:
+        SensorError: the best pose leaves a drive more than ``max_residual`` counts from its
+            reading (the message names the worst drive), or the start does not assemble.
+    """
+    drive_q, drive_v = robot.drive_q_indices, robot.drive_idx
+    start = _assembled(robot, np.asarray(pose_guess, dtype=float), q_guess)
+    if start is None:
+        start = _assembled(robot, robot.home_pose, robot.q_home)
+        pose = robot.home_pose.copy()
+    else:
+        pose = np.array(pose_guess, dtype=float)
+    q, T = start
+    J = T[drive_v]
+    e = q[drive_q] - readings
+    cost = float(np.sum((e / resolution) ** 2))
+    it = 0
+    for it in range(1, max_iter + 1):
+        Jw, ew = J / resolution[:, None], e / resolution
+        step = -np.linalg.lstsq(Jw, ew, rcond=1e-12)[0]
+        predicted = J @ step
+        if not np.max(np.abs(predicted / resolution)) > 1e-6:  # converged to a millionth of a count
+            break
+        lam = min(1.0, MAX_DRIVE_STEP / max(float(np.max(np.abs(predicted))), 1e-300))
+        for _ in range(_HALVINGS):
+            trial = pose + lam * step
+            out = _assembled(robot, trial, q)
+            if out is not None:
+                e_new = out[0][drive_q] - readings
+                cost_new = float(np.sum((e_new / resolution) ** 2))
+                if cost_new <= cost * (1 + 1e-12) + 1e-18:
+                    break
+            lam *= 0.5
+        else:  # no step lowers the cost: a (local) minimum of the residual
+            break
+        improvement = cost - cost_new
+        pose, (q, T), e, cost = trial, out, e_new, cost_new
+        J = T[drive_v]
+        if improvement <= 1e-14 * max(cost, 1.0) and lam < 1.0:
+            break
+    sol = ForwardSolution(pose, q, J, e, it)
+    counts = np.abs(sol.weighted_residual(resolution))
+    if not counts.max() <= max_residual:
+        raise SensorError(_inconsistency(robot, readings, sol, resolution, max_residual))
+    return sol
+
+
+def _inconsistency(robot, readings, sol: ForwardSolution, resolution: np.ndarray, max_residual: float) -> str:
+    """Message for readings no pose explains, naming the suspect drive(s).
+
+    The suspect is the drive of the largest standardized residual |r_i| / √P_ii (P the projector
+    onto the residual space of the weighted Jacobian): for one broken encoder it is the broken
+    one. With a single redundant drive every drive's standardized residual is the same, and the
+    message names them all.
+    """
+    Jw = sol.jacobian / resolution[:, None]
+    P = np.eye(len(resolution)) - Jw @ np.linalg.pinv(Jw)
+    r = sol.weighted_residual(resolution)
+    std = np.abs(r) / np.sqrt(np.maximum(np.diag(P), 1e-30))
+    names, units = robot.description.drive_joints, robot.drive_position_units
+    suspects = [int(i) for i in np.flatnonzero(std >= 0.999 * std.max())]
+    worst = max(suspects, key=lambda i: abs(r[i]))
+    which = (f"drive {worst} ({names[worst]!r}) is off by {abs(r[worst]):.3g} counts ({sol.residual[worst]:.3g} "
+             f"{units[worst]}) at the best pose {np.round(sol.pose, 6).tolist()}")
+    if len(suspects) > 1:
+        which += (f"; drives {[names[i] for i in suspects]} explain the mismatch equally (one redundant drive "
+                  "cannot tell which encoder is broken)")
+    return (f"drive readings {np.round(readings, 9).tolist()} are inconsistent: no pose of {robot.name!r} explains "
+            f"them within {max_residual:g} counts; {which} (a broken encoder?)")
+
+
+def rates_to_velocity(jacobian: np.ndarray, rates: np.ndarray, rate_resolution: np.ndarray) -> np.ndarray:
+    """(n_y,) ẏ from (n_u,) drive rates ṙ: weighted least squares through J (ṙ = J ẏ)."""
+    return np.linalg.lstsq(jacobian / rate_resolution[:, None], rates / rate_resolution, rcond=1e-12)[0]

@@ -1,0 +1,146 @@
+"""Encoder-only closed loops: sensors, the Kalman filter and the machine loop runner.
+
+Oracle: the same controller on the same simulated plant fed the true state (full sensors, the
+controller's own disturbance estimate); the encoder-only loop (quantized drive readings →
+forward kinematics → Kalman filter of [y, ẏ, d]) must track nearly as well. 1 s of the S-curve
+(its accelerating half) at Ts = 2 ms, N = 20, Qu = 1e-4.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, Weights
+from parallel_gpc.errors import InvalidParameterError, SensorError, ShapeError
+from parallel_gpc.estimation import Measurement, Sensors, SensedPlant, StateEstimator
+from parallel_gpc.gpc.references import path_for
+from parallel_gpc.studies.loop import run_loop
+
+TS = 0.002
+FORMS = ("absolute", "incremental", "incremental-delayed", "nonlinear")
+
+
+def loop(robot, form, sensors, duration=1.0, computation_delay=False, plant=None):
+    kind = "s-curve" if robot.name.startswith("planar") else "helix"
+    ref = path_for(kind, robot.home_pose, robot.output_angular, 2.0)
+    X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
+    encoders = sensors.kind == "encoders"
+    ctrl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
+                         disturbance_gain=0.0 if encoders else None)
+    plant = plant or SensedPlant(ConstrainedPlant(robot, X0), TS, sensors)
+    est = StateEstimator(ReducedModel(robot), TS, sensors, X0) if encoders else None
+    return run_loop(ctrl, plant, ref, duration, estimator=est, computation_delay=computation_delay)
+
+
+_FULL = {}
+
+
+def full_state_rms(robot, form, duration=1.0):
+    key = (robot.name, form, duration)
+    if key not in _FULL:
+        _FULL[key] = loop(robot, form, Sensors("full"), duration).metrics()["rms_position_error_m"]
+    return _FULL[key]
+
+
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("counts, factor", [(2**20, 1.5), (2**16, 3.0)])
+def test_encoder_loop_tracks_like_the_full_state_loop(robot4, form, counts, factor):
+    res = loop(robot4, form, Sensors("encoders", counts_per_rev=counts))
+    m = res.metrics()
+    assert m["rms_position_error_m"] <= factor * full_state_rms(robot4, form)
+    assert m["fallbacks"] == 0
+    # the estimate itself: within a few counts' worth of platform motion (0.3 m legs)
+    assert m["rms_estimate_position_error_m"] < 200 * 2 * np.pi / counts * 0.3
+
+
+@pytest.mark.parametrize("name", ["delta_3rus", "hexapod_6ups"])
+@pytest.mark.parametrize("form", ["absolute", "nonlinear"])
+def test_encoder_loop_on_spatial_robots(name, form):
+    robot = ParallelRobot.load(name)
+    res = loop(robot, form, Sensors("encoders"), duration=0.6)
+    assert res.metrics()["rms_position_error_m"] <= 1.5 * full_state_rms(robot, form, 0.6)
+
+
+def test_computation_delay_is_compensated(robot4):
+    """u(k) applied one sample late, computed from x̂(k+1|k): tracks as well as without the delay."""
+    delayed = loop(robot4, "incremental", Sensors("encoders"), computation_delay=True)
+    assert delayed.meta["computation_delay"]
+    assert delayed.metrics()["rms_position_error_m"] <= 1.2 * full_state_rms(robot4, "incremental")
+
+
+def test_deadline_overruns_are_the_steps_longer_than_ts(robot4):
+    res = loop(robot4, "absolute", Sensors("encoders"), duration=0.05)
+    assert res.overruns == int(np.sum(res.step_time > TS)) == res.metrics()["deadline_overruns"]
+
+
+def test_quantized_readings_are_multiples_of_the_resolution(robot4):
+    sensors = Sensors("encoders", counts_per_rev=4096, rates=True)
+    X0 = np.concatenate([robot4.home_pose + 0.01, np.zeros(3)])
+    plant = SensedPlant(ConstrainedPlant(robot4, X0), TS, sensors)
+    m = plant.measure()
+    counts = m.drives / (2 * np.pi / 4096)
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
+    assert np.max(np.abs(m.drives - robot4.assemble(X0[:3])[robot4.drive_q_indices])) <= np.pi / 4096 + 1e-12
+    assert m.rates.shape == (4,)
+
+
+def test_one_sample_sensor_delay(robot4):
+    X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
+    plant = SensedPlant(ConstrainedPlant(robot4, X0), TS, Sensors("encoders", delay=1))
+    first = plant.measure()
+    plant.apply(np.full(4, 5.0))
+    np.testing.assert_array_equal(plant.measure().drives, first.drives)  # the reading of one sample ago
+
+
+class _WrongShapePlant:
+    """A foreign plant whose measure() returns three drive readings for four drives."""
+
+    def __init__(self, robot):
+        self.robot, self.Ts, self.applied = robot, TS, 0
+        self.sensors = Sensors("encoders")
+
+    def measure(self):
+        return Measurement(drives=np.zeros(3))
+
+    def apply(self, u):
+        self.applied += 1
+
+
+def test_a_plant_returning_the_wrong_shape_is_refused_at_the_first_step(robot4):
+    plant = _WrongShapePlant(robot4)
+    with pytest.raises(ShapeError, match=r"drives of shape \(3,\); expected \(4,\)"):
+        loop(robot4, "absolute", Sensors("encoders"), duration=0.01, plant=plant)
+    assert plant.applied == 0
+
+
+def test_a_nan_reading_names_the_drive(robot4):
+    X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
+    est = StateEstimator(ReducedModel(robot4), TS, Sensors("encoders"), X0)
+    drives = robot4.inverse_kinematics(robot4.home_pose)
+    drives[3] = np.nan
+    with pytest.raises(SensorError, match=r"drive 3 \('drive_4'\) reads nan"):
+        est.update(Measurement(drives=drives))
+
+
+def test_two_disturbance_estimators_are_refused(robot4):
+    ref = path_for("s-curve", robot4.home_pose, robot4.output_angular, 2.0)
+    X0 = np.concatenate([ref.pose(0.0), np.zeros(3)])
+    sensors = Sensors("encoders")
+    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(20), Weights(1.0, 1e-4), form="incremental")
+    with pytest.raises(InvalidParameterError, match="disturbance_gain=0"):
+        run_loop(ctrl, SensedPlant(ConstrainedPlant(robot4, X0), TS, sensors), ref, 0.01,
+                 estimator=StateEstimator(ReducedModel(robot4), TS, sensors, X0))
+
+
+@pytest.mark.parametrize("spec, kind, counts", [("full", "full", None), ("encoders", "encoders", None),
+                                                ("encoders:65536", "encoders", 65536.0)])
+def test_sensor_specs(spec, kind, counts):
+    s = Sensors.parse(spec)
+    assert (s.kind, s.counts_per_rev) == (kind, counts)
+
+
+@pytest.mark.parametrize("spec", ["pose", "encoders:abc", "encoders:-5", "full:12"])
+def test_bad_sensor_specs(spec):
+    with pytest.raises(InvalidParameterError):
+        Sensors.parse(spec)
