@@ -37,8 +37,11 @@ _PUBLIC = {
     "SampledTrajectory": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
     "ControlModel": "gpc", "Criterion": "gpc",
     "plan_modes": "gpc", "plan_table": "gpc",
+    "path_for": "gpc",
+    # estimation
+    "Sensors": "estimation", "Measurement": "estimation", "StateEstimator": "estimation",
     # studies
-    "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
+    "run_loop": "studies", "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
     "run_tracking": "studies", "metrics_table": "studies",
     # sweeps
     "robustness_study": "sweeps", "load_spec": "sweeps", "run_sweep": "sweeps", "load_results": "sweeps",

@@ -19,6 +19,7 @@ _PUBLIC = {
     "DEMO_SETTINGS": "comparison", "run_comparison": "comparison", "comparison_table": "comparison",
     "deadbeat_check": "comparison", "DeadbeatCheck": "comparison", "steady_state_error": "comparison",
     "one_step_deadbeat_input": "comparison",
+    "run_loop": "loop",
 }
 
 __all__ = list(_PUBLIC)
