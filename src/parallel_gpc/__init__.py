@@ -39,6 +39,8 @@ _PUBLIC = {
     "simulate": "studies", "SimulationResult": "studies", "TrackingSettings": "studies",
     "run_tracking": "studies", "robustness_study": "studies", "save_figure": "studies",
     "load_spec": "studies", "run_sweep": "studies", "load_results": "studies",
+    # limits
+    "Limits": "limits",
     # result files
     "save_result": "results", "load_result": "results", "ResultFile": "results",
 }

@@ -91,7 +91,9 @@ def cmd_plan(args) -> int:
     import numpy as np
 
     from ..model.dynamics import ReducedModel
+    from ..gpc.criterion import Weights
     from ..gpc.planning import MODES, PlanSettings, deadbeat_inputs, plan_point_to_point
+    from ..limits import Limits
     from ..model.robot import ParallelRobot
     from ..studies.plots_common import save_figure
     from ..studies.plots_planning import plot_fig3, plot_fig4
@@ -101,12 +103,12 @@ def cmd_plan(args) -> int:
     robot = ParallelRobot.load(args.robot)
     A, B = (_pose_rad(robot, values, default, name)
             for values, default, name in zip((args.A, args.B), default_poses(robot), "AB"))
-    settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, Qy=args.Qy, Qu=args.Qu,
-                            torque_limit=args.torque_limit, solver=args.solver, settle_steps=args.settle)
+    settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, weights=Weights(args.Qy, args.Qu),
+                            limits=Limits(torque=args.torque_limit), solver=args.solver, settle_steps=args.settle)
     print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, rad); "
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
-          f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
-          f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
+          f"(move {settings.duration:g} s), Qy = {settings.weights.Qy}, Qu = {settings.weights.Qu}, "
+          f"torque limit = {settings.limits.to_dict()['torque']}, solver = {settings.solver}")
     results = []
     try:
         for mode in MODES:

@@ -4,6 +4,7 @@ from .prediction import Horizons, Prediction, absolute_prediction, condense, inc
 from .criterion import Criterion, Weights, build_problem
 from .protocol import ControlModel
 from .linear_model import DiscreteLinearModel
+from ..limits import Limits
 from .settings import ControllerState, GPCSettings
 from .controller import FORMS, GPCController, StepInfo
 from .references import Hold, Reference, SampledTrajectory, SCurve
@@ -11,7 +12,7 @@ from .planning import PlanResult, PlanSettings, deadbeat_inputs, plan_point_to_p
 
 __all__ = [
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
-    "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings",
+    "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
     "FORMS", "GPCController", "StepInfo", "Hold", "Reference", "SampledTrajectory", "SCurve", "PlanResult",
     "PlanSettings", "deadbeat_inputs", "plan_point_to_point",
 ]
