@@ -73,8 +73,8 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
         if arr.ndim == 0:
             arr = np.full(size, float(arr))
         elif arr.shape != (size,):
-            raise ShapeError(f"{name} limit has {arr.size} values {arr.tolist()}; expected a scalar or one per "
-                             f"drive ({size},)")
+            raise ShapeError(f"{name} limit {arr.tolist()} has shape {arr.shape}; expected a scalar or one value "
+                             f"per drive ({size},)")
     arr.setflags(write=False)
     return arr
 

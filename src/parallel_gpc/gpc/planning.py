@@ -203,7 +203,7 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     elif np.max(np.abs(np.asarray(plant.X, dtype=float)[:n_y] - A)) > 1e-6:
         raise InvalidParameterError(f"the plant is at pose {np.round(np.asarray(plant.X)[:n_y], 6).tolist()}, "
                                     f"not at the start pose A = {np.round(A, 6).tolist()}")
-    check_sample_time(plant, settings.Ts, "the plan's")
+    check_sample_time(plant, settings.Ts, "plant", "the plan's")
     backend = make_solver(settings.solver)
     sat0 = getattr(plant, "saturated", 0)
     K = settings.Nmax if mode == "once" else settings.Nmax + settings.settle_steps

@@ -202,8 +202,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             raise InvalidParameterError(f"form {form!r} is not one of {FORMS}")
     if settings.limits.du is not None and "absolute" in forms:
         raise InvalidParameterError(
-            f"the du limit {settings.limits.du.tolist()} N·m per sample applies to the incremental forms only; the "
-            f"absolute form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
+            f"du_limit = {settings.limits.to_dict()['du']!r} N·m per sample applies to the incremental forms only; "
+            f"the absolute form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
     per_form = {form: settings.controller_settings(form) for form in forms}  # every form checked first
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
