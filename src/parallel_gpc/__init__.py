@@ -10,7 +10,8 @@ Layers, left to right (a module imports only from layers to its left): ``model``
 reduced dynamics, plants) → ``solvers`` (least squares, QP back ends) → ``gpc`` (criterion,
 predictions, controller, planning, references) → ``studies`` (simulation, tracking,
 robustness, benchmark, plots) → ``viz`` (meshcat) → ``cli``. ``results`` (the one result file
-format) and ``errors`` sit beside them and import only NumPy and the robot description.
+format), ``limits`` (the one input-limits type, :class:`~parallel_gpc.limits.Limits`) and ``errors``
+sit beside them and import only NumPy and the robot description.
 """
 
 from __future__ import annotations
