@@ -71,15 +71,15 @@ def model_update_times(name: str, reps: int) -> dict:
 def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int = 20) -> float:
     robot = ParallelRobot.load("planar_4rrr")
     ref = SCurve()
-    ctl = GPCController(ReducedModel(robot, native=native), TS, Horizons(N), Weights(1.0, 1e-5), form=form)
-    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]))
+    ctl = GPCController.build(ReducedModel(robot, native=native), TS, Horizons(N), Weights(1.0, 1e-5), form=form)
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]), Ts=TS)
     times = []
     for k in range(steps):
         w = ref.window(k * TS, TS, N)
         t0 = clock()
         info = ctl.step(plant.X, w)
         times.append(clock() - t0)
-        plant.step(info.u, TS)
+        plant.step(info.u)
     return _median_us(times[warmup:])
 
 

@@ -48,7 +48,7 @@ def time_block(plant: ConstrainedPlant, u: np.ndarray, times: dict) -> None:
     for _ in range(BLOCK):
         q0, v0 = plant.q, plant.v
         t0 = time.perf_counter()
-        plant.step(u, TS)
+        plant.step(u)
         t1 = time.perf_counter()
         times["step"].append(t1 - t0)
         q1, v1 = plant.q, plant.v
@@ -78,7 +78,7 @@ def bench_robot(name: str, samples: int, repeats: int) -> dict:
         out[native] = {k: [] for k in ("step", "integrate", "project")}
     for _ in range(repeats * max(1, samples // BLOCK)):
         for native in (False, True):
-            time_block(ConstrainedPlant(robot, X0, native=native), u, out[native])
+            time_block(ConstrainedPlant(robot, X0, Ts=TS, native=native), u, out[native])
     return {native: {k: 1e6 * float(np.median(v)) for k, v in d.items()} for native, d in out.items()}
 
 
@@ -92,8 +92,8 @@ def closed_loop(K: int) -> None:
 
     robot = ParallelRobot.load("planar_4rrr")
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
-    ctl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-5))
-    fast, slow = (ConstrainedPlant(robot, ref.initial_state(), native=native) for native in (True, False))
+    ctl = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-5))
+    fast, slow = (ConstrainedPlant(robot, ref.initial_state(), Ts=TS, native=native) for native in (True, False))
     times = {k: [] for k in ("controller", "python", "compiled")}
     deviation = 0.0
     for k in range(K):
@@ -104,7 +104,7 @@ def closed_loop(K: int) -> None:
         slow.q, slow.v, slow._T, slow._pinv = fast.q, fast.v, fast._T, fast._pinv
         for plant in ((fast, slow) if k % 2 else (slow, fast)):
             t0 = time.perf_counter()
-            plant.step(info.u, TS)
+            plant.step(info.u)
             times["compiled" if plant is fast else "python"].append(time.perf_counter() - t0)
         deviation = max(deviation, float(np.max(np.abs(fast.X - slow.X))))
     print(f"closed loop, {K} samples, median µs: " + ", ".join(f"{k} {1e6 * np.median(v):.0f}" for k, v in times.items())

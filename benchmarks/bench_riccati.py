@@ -35,14 +35,14 @@ WEIGHTS = Weights(1.0, 1e-5)
 
 def _states(robot, ref, N: int, samples: int):
     """States and reference windows of a closed loop (absolute, qr) on the full plant."""
-    ctl = GPCController(ReducedModel(robot), TS, Horizons(N), WEIGHTS)
-    plant = ConstrainedPlant(robot, ref.initial_state())
+    ctl = GPCController.build(ReducedModel(robot), TS, Horizons(N), WEIGHTS)
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
     Xs, ws = [], []
     for k in range(samples):
         w = ref.window(k * TS, TS, N)
         Xs.append(plant.X.copy())
         ws.append(w)
-        plant.step(ctl.step(plant.X, w).u, TS)
+        plant.step(ctl.step(plant.X, w).u)
     return Xs, ws
 
 
@@ -55,9 +55,9 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
         raise SystemExit(f"the compiled model update is not in use: {compiled.native_reason}")
     configs = {}
     for form in ("absolute", "incremental"):
-        configs[f"{form} reference-python qr"] = GPCController(python, TS, Horizons(N), WEIGHTS, form=form)
+        configs[f"{form} reference-python qr"] = GPCController.build(python, TS, Horizons(N), WEIGHTS, form=form)
         for solver in ("qr", "riccati"):
-            configs[f"{form} compiled {solver}"] = GPCController(compiled, TS, Horizons(N), WEIGHTS, form=form,
+            configs[f"{form} compiled {solver}"] = GPCController.build(compiled, TS, Horizons(N), WEIGHTS, form=form,
                                                                  solver=solver)
     times = {key: [] for key in configs}
     us = {key: [] for key in configs}

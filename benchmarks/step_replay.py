@@ -32,6 +32,7 @@ import time
 
 import numpy as np
 
+from parallel_gpc.limits import Limits
 from parallel_gpc.gpc.controller import FORMS, GPCController
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.gpc.prediction import Horizons
@@ -43,15 +44,16 @@ from parallel_gpc.model.robot import ParallelRobot
 TS, N, SAMPLES = 0.002, 20, 60
 WEIGHTS = Weights(1.0, 1e-5)
 RECORD_ROBOTS = ("planar_4rrr", "hexapod_8ups", "delta_3rus")
-#: name → (form, controller keywords); "tau" stands for the torque limit, "delta" for 0.2 τ.
+#: name → (form, limit kinds, solver); "torque" stands for τ, "du" for 0.2 τ.
 CONFIGS = {
-    "absolute": ("absolute", {}), "incremental": ("incremental", {}), "nonlinear": ("nonlinear", {}),
-    "absolute +tau": ("absolute", {"torque_limit": "tau"}),
-    "incremental +tau": ("incremental", {"torque_limit": "tau"}),
-    "nonlinear +tau": ("nonlinear", {"torque_limit": "tau"}),
-    "incremental +du": ("incremental", {"du_limit": "delta"}),
-    "absolute +tau daqp-direct": ("absolute", {"torque_limit": "tau", "solver": "daqp-direct"}),
-    "absolute +tau bvls": ("absolute", {"torque_limit": "tau", "solver": "bvls"}),
+    "absolute": ("absolute", (), None), "incremental": ("incremental", (), None),
+    "nonlinear": ("nonlinear", (), None),
+    "absolute +tau": ("absolute", ("torque",), None),
+    "incremental +tau": ("incremental", ("torque",), None),
+    "nonlinear +tau": ("nonlinear", ("torque",), None),
+    "incremental +du": ("incremental", ("du",), None),
+    "absolute +tau daqp-direct": ("absolute", ("torque",), "daqp-direct"),
+    "absolute +tau bvls": ("absolute", ("torque",), "bvls"),
 }
 
 
@@ -87,25 +89,25 @@ def time_steps(robot_name: str, reps: int, names, clock=time.perf_counter) -> No
     """Print, per configuration, the median step time without the model update (µs)."""
     robot, ref = _robot_and_path(robot_name)
     start = round(0.5 / TS)
-    ctl = GPCController(ReducedModel(robot), TS, Horizons(N), WEIGHTS)
-    plant = ConstrainedPlant(robot, ref.initial_state())
+    ctl = GPCController.build(ReducedModel(robot), TS, Horizons(N), WEIGHTS)
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
     us = []
     for k in range(start):
         us.append(ctl.step(plant.X, ref.window(k * TS, TS, N)).u)
-        plant.step(us[-1], TS)
+        plant.step(us[-1])
     tau = 0.5 * np.max(np.abs(us), axis=0)
     X0 = plant.X.copy()
     for name in names:
-        form, kw = CONFIGS[name]
-        kw = {k: tau if v == "tau" else 0.2 * tau if v == "delta" else v for k, v in kw.items()}
+        form, kinds, solver = CONFIGS[name]
+        limits = Limits(**{kind: tau if kind == "torque" else 0.2 * tau for kind in kinds})
         model = ReplayModel(ReducedModel(robot))
-        ctl = GPCController(model, TS, Horizons(N), WEIGHTS, form=form, u0=us[-1], **kw)
-        plant = ConstrainedPlant(robot, X0)
+        ctl = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver=solver, limits=limits, u0=us[-1])
+        plant = ConstrainedPlant(robot, X0, Ts=TS)
         rows = []
         for k in range(SAMPLES):
             X, w = plant.X, ref.window((start + k) * TS, TS, N)
             rows.append((X, w, ctl.state))
-            plant.step(ctl.step(X, w).u, TS)
+            plant.step(ctl.step(X, w).u)
         model.record = False
         times = []
         for _ in range(reps):
@@ -129,13 +131,13 @@ def time_steps(robot_name: str, reps: int, names, clock=time.perf_counter) -> No
 def _closed_loop_inputs(robot, ref, form: str, solver: str | None, tau=None, delta=None) -> np.ndarray:
     """(SAMPLES, m) u(k) of a closed loop from the path's initial state (N·m)."""
     limited = tau is not None or delta is not None
-    ctl = GPCController(ReducedModel(robot), TS, Horizons(N), WEIGHTS, form=form, torque_limit=tau,
-                        du_limit=delta, solver=solver if limited else None)
-    plant = ConstrainedPlant(robot, ref.initial_state())
+    ctl = GPCController.build(ReducedModel(robot), TS, Horizons(N), WEIGHTS, form=form,
+                              solver=solver if limited else None, limits=Limits(torque=tau, du=delta))
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
     u = []
     for k in range(SAMPLES):
         u.append(ctl.step(plant.X, ref.window(k * TS, TS, N)).u)
-        plant.step(u[-1], TS)
+        plant.step(u[-1])
     return np.array(u)
 
 

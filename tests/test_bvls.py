@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import lsq_linear
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights
 from parallel_gpc.solvers import BVLSSolver, DAQPBackend, LeastSquaresProblem, make_solver
 
@@ -46,7 +47,7 @@ def test_bvls_matches_daqp_on_the_controllers_limited_problems():
     back end and DAQP alone give the same torques."""
     robot = ParallelRobot.load("planar_4rrr")
     ref, Ts, H, W = SCurve(), 0.005, Horizons(12), Weights(1.0, 1e-3)
-    ctls = {name: GPCController(ReducedModel(robot), Ts, H, W, torque_limit=0.5, solver=name)
+    ctls = {name: GPCController.build(ReducedModel(robot), Ts, H, W, solver=name, limits=Limits(torque=0.5))
             for name in ("bvls", "qr-first:bvls", "daqp-direct")}
     active = 0
     for k in range(8):
@@ -92,6 +93,6 @@ def test_bvls_with_the_incremental_torque_limit_is_refused_at_construction():
 
     robot = ParallelRobot.load("planar_4rrr")
     with pytest.raises(InvalidParameterError, match="box limits only"):
-        GPCController(ReducedModel(robot), 0.005, Horizons(5), form="incremental", torque_limit=1.0, solver="bvls")
-    ctl = GPCController(ReducedModel(robot), 0.005, Horizons(5), form="incremental", du_limit=1.0, solver="bvls")
+        GPCController.build(ReducedModel(robot), 0.005, Horizons(5), form="incremental", solver="bvls", limits=Limits(torque=1.0))
+    ctl = GPCController.build(ReducedModel(robot), 0.005, Horizons(5), form="incremental", solver="bvls", limits=Limits(du=1.0))
     assert ctl.solver == "bvls"  # Δu limits are a box: accepted

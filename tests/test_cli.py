@@ -63,11 +63,11 @@ def test_help_imports_neither_pinocchio_nor_matplotlib():
 
 def test_help_defaults_are_the_library_defaults():
     assert defaults.DEFAULT_ROBOT == DEFAULT_ROBOT and defaults.FORMS == tuple(FORMS)
-    library = TrackingSettings()
-    assert defaults.TRACKING == {k: getattr(library, k) for k in defaults.TRACKING}
+    library = TrackingSettings().flat()
+    assert defaults.TRACKING == {k: library[k] for k in defaults.TRACKING}
     args = build_parser().parse_args(["track"])
     assert (args.robot, args.Ts, args.N, args.No, args.Qy, args.Qu) == (
-        library.robot, library.Ts, library.N, library.No, library.Qy, library.Qu)
+        library["robot"], library["Ts"], library["N"], library["No"], library["Qy"], library["Qu"])
 
 
 def test_one_vocabulary_for_forms_and_references():

@@ -9,6 +9,7 @@ import argparse
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import ReducedModel
 from parallel_gpc.gpc import GPCController, Horizons, SCurve, Weights
 from parallel_gpc.gpc.settings import FORMS
@@ -28,8 +29,8 @@ def test_qu0_every_form_gives_the_one_step_deadbeat_minimum_norm_input(robot4, N
     model = ReducedModel(robot4)
     ref = SCurve()
     forms = ("absolute", "incremental", "nonlinear")
-    ctrls = [GPCController(model, TS, Horizons(N), Weights(1.0, 0.0), form=f, disturbance_gain=0.0) for f in forms]
-    plant = ConstrainedPlant(robot4, np.concatenate([ref.pose(0.0), np.zeros(3)]))
+    ctrls = [GPCController.build(model, TS, Horizons(N), Weights(1.0, 0.0), form=f, disturbance_gain=0.0) for f in forms]
+    plant = ConstrainedPlant(robot4, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=TS)
     worst = dict.fromkeys(forms, 0.0)
     for k in range(40):
         X = plant.X
@@ -40,12 +41,12 @@ def test_qu0_every_form_gives_the_one_step_deadbeat_minimum_norm_input(robot4, N
         us = [c.step(X, w).u for c in ctrls]
         for f, u in zip(forms, us):
             worst[f] = max(worst[f], float(np.max(np.abs(u - u_db))))
-        plant.step(us[0], TS)
+        plant.step(us[0])
     assert max(worst.values()) < 1e-8, worst  # measured ≤ 4.3e-10 N·m on 8 N·m torques
 
 
 def test_deadbeat_check_of_the_demo_agrees_with_its_oracle(robot4):
-    check = deadbeat_check(TrackingSettings(Ts=0.01, N=30), duration=0.2, robot=robot4)
+    check = deadbeat_check(TrackingSettings(Ts=0.01, horizons=Horizons(30)), duration=0.2, robot=robot4)
     assert set(check.max_difference()) == {"absolute", "incremental", "nonlinear"}
     assert max(check.max_difference().values()) < 1e-8  # measured 1.4e-11 N·m
     assert np.max(np.abs(check.u_deadbeat)) > 1.0  # a real move, not zeros
@@ -58,8 +59,8 @@ def test_no_drive_fighting_in_any_form_at_any_Qu(robot4, form, Qu):
     change the incremental and nonlinear forms carried 2.8–3.0 N·m at Qu = 1e-4…1e-3 over the
     S-curve, estimator off)."""
     ref = SCurve()
-    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(20), Weights(1.0, Qu), form=form)
-    plant = ConstrainedPlant(robot4, np.concatenate([ref.pose(0.0), np.zeros(3)]))
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(20), Weights(1.0, Qu), form=form)
+    plant = ConstrainedPlant(robot4, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=TS)
     res = simulate(ctrl, plant, ref, 0.4, progress=False)
     assert np.max(np.abs(res.u)) > 1.0
     assert res.metrics()["max_internal_force_Nm"] < 1e-6
@@ -88,19 +89,19 @@ def test_plant_input_matrix_is_the_one_at_its_configuration(robot4):
     """simulate() reads B_r from the plant (T kept from its projection): it equals Tᵀ Sᵀ of the
     velocity map at the plant's configuration."""
     X0 = np.concatenate([SCurve().pose(0.0), [0.1, -0.2, 0.3]])
-    plant = ConstrainedPlant(robot4, X0, native=False)  # the Python projection: the robot's own T
+    plant = ConstrainedPlant(robot4, X0, Ts=TS, native=False)  # the Python projection: the robot's own T
     for _ in range(3):
-        plant.step(np.array([1.0, -1.0, 0.5, 0.2]), TS)
+        plant.step(np.array([1.0, -1.0, 0.5, 0.2]))
     robot4._ck_cache = robot4._vm_cache = None  # recomputed from q, not read back from the plant
     expected = robot4.velocity_map(plant.q)[0].T @ robot4.drive_selection
     np.testing.assert_array_equal(plant.input_matrix(), expected)
-    reduced = ReducedPlant(robot4, plant.X)
+    reduced = ReducedPlant(robot4, plant.X, Ts=TS)
     np.testing.assert_allclose(reduced.input_matrix(), expected, rtol=1e-9, atol=1e-12)
     # the default plant (compiled projection when built): T from C++ (an LU where the Python uses
     # an SVD), equal to rounding
-    compiled = ConstrainedPlant(robot4, X0)
+    compiled = ConstrainedPlant(robot4, X0, Ts=TS)
     for _ in range(3):
-        compiled.step(np.array([1.0, -1.0, 0.5, 0.2]), TS)
+        compiled.step(np.array([1.0, -1.0, 0.5, 0.2]))
     robot4._ck_cache = robot4._vm_cache = None
     expected = robot4.velocity_map(compiled.q)[0].T @ robot4.drive_selection
     np.testing.assert_allclose(compiled.input_matrix(), expected, rtol=0, atol=1e-12)
@@ -147,7 +148,7 @@ def test_cli_demo_writes_the_comparison(tmp_path, capsys):
     register_demo(parser.add_subparsers())
     args = parser.parse_args(["demo", "--forms", "absolute", "incremental", "--duration", "0.3", "--N", "10",
                               "--deadbeat-duration", "0.05", "--no-progress", "--out", str(tmp_path)])
-    assert args.Ts == DEMO_SETTINGS.Ts and args.Qu == DEMO_SETTINGS.Qu and args.mass_scale == DEMO_SETTINGS.mass_scale
+    assert args.Ts == DEMO_SETTINGS.Ts and args.Qu == DEMO_SETTINGS.weights.Qu and args.mass_scale == DEMO_SETTINGS.mass_scale
     assert args.func(args) == 0
     out = capsys.readouterr().out
     assert "dead-beat" in out and "est. α" in out
@@ -158,7 +159,7 @@ def test_cli_demo_writes_the_comparison(tmp_path, capsys):
 def test_demo_help_defaults_are_the_comparison_defaults():
     from parallel_gpc.cli import defaults
 
-    assert defaults.DEMO == {k: getattr(DEMO_SETTINGS, k) for k in defaults.DEMO}
+    assert defaults.DEMO == {k: DEMO_SETTINGS.flat()[k] for k in defaults.DEMO}
 
 
 @pytest.mark.slow
@@ -169,8 +170,8 @@ def test_with_a_torque_limit_internal_force_only_where_the_limit_needs_it(robot4
     would break the limit (measured: ≤ 9e-12 N·m at every other sample, up to 9.7 N·m at those)."""
     tau = 15.0
     ref = SCurve()
-    ctrl = GPCController(ReducedModel(robot4), 0.01, Horizons(30), Weights(1.0, 1e-3), form=form, torque_limit=tau)
-    plant = ConstrainedPlant(robot4.with_mass_scale(1.2), np.concatenate([ref.pose(0.0), np.zeros(3)]),
+    ctrl = GPCController.build(ReducedModel(robot4), 0.01, Horizons(30), Weights(1.0, 1e-3), form=form, limits=Limits(torque=tau))
+    plant = ConstrainedPlant(robot4.with_mass_scale(1.2), np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=0.01,
                              torque_limit=tau, platform_force=(5.0, -5.0, 0.5))
     res = simulate(ctrl, plant, ref, 1.5, progress=False)
     assert np.max(np.abs(res.u)) <= tau and np.max(res.internal_force) > 1.0  # the limit binds and is used

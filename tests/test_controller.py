@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import (
     ConstrainedPlant,
     ControllerState,
@@ -29,9 +30,9 @@ GRAVITY_IN_PLANE = [0.0, -9.81 * np.sin(TILT), -9.81 * np.cos(TILT)]
 
 
 def _run(robot, form, reference, duration, Qu=0.0, N=20, plant_robot=None, **kw):
-    ctrl = GPCController(ReducedModel(robot), TS, Horizons(N), Weights(1.0, Qu), form=form, **kw)
+    ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(N), Weights(1.0, Qu), form=form, **kw)
     X0 = np.concatenate([reference.pose(0.0), np.zeros(3)])
-    plant = ConstrainedPlant(plant_robot or robot, X0, torque_limit=kw.get("torque_limit"))
+    plant = ConstrainedPlant(plant_robot or robot, X0, Ts=TS, torque_limit=kw.get("limits"))
     return simulate(ctrl, plant, reference, duration, progress=False)
 
 
@@ -66,8 +67,8 @@ def test_incremental_forms_remove_steady_state_error_under_mass_mismatch(robot4,
     start = type(hold)(tuple(robot.home_pose))
     errs = {}
     for form, duration in (("incremental", 3.0), ("nonlinear", 2.0), ("absolute", 1.0)):
-        ctrl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-2), form=form)
-        plant = ConstrainedPlant(plant_robot, np.concatenate([start.pose(0), np.zeros(3)]))
+        ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-2), form=form)
+        plant = ConstrainedPlant(plant_robot, np.concatenate([start.pose(0), np.zeros(3)]), Ts=TS)
         res = simulate(ctrl, plant, hold, duration, progress=False)
         errs[form] = np.linalg.norm(res.error[-1, :2])
     assert errs["incremental"] < 1e-5 and errs["nonlinear"] < 1e-5
@@ -77,7 +78,7 @@ def test_incremental_forms_remove_steady_state_error_under_mass_mismatch(robot4,
 def test_torque_limits_are_never_exceeded_in_closed_loop(robot4):
     ref = SCurve(duration=0.8)
     limit = 8.0
-    res = _run(robot4, "incremental", ref, 1.0, Qu=1e-3, torque_limit=limit, solver="qr-first:proxqp-direct")
+    res = _run(robot4, "incremental", ref, 1.0, Qu=1e-3, solver="qr-first:proxqp-direct", limits=Limits(torque=limit))
     assert np.max(np.abs(res.u)) <= limit * (1 + 1e-7)
     free = _run(robot4, "incremental", ref, 1.0, Qu=1e-3)
     assert np.max(np.abs(free.u)) > 1.5 * limit  # the limit really binds
@@ -97,13 +98,13 @@ def test_result_round_trips_through_npz_and_csv(s_curve_runs, tmp_path):
 
 def test_qr_solver_with_limits_is_rejected(robot4):
     with pytest.raises(InvalidParameterError, match="cannot enforce"):
-        GPCController(ReducedModel(robot4), TS, Horizons(5), solver="qr", torque_limit=10.0)
+        GPCController.build(ReducedModel(robot4), TS, Horizons(5), solver="qr", limits=Limits(torque=10.0))
 
 
 def _closed_loop(ctrl, robot, ref, steps):
-    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]))
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=TS)
     for k in range(steps):
-        plant.step(ctrl.step(plant.X, ref.window(k * TS, TS, ctrl.horizons.N)).u, TS)
+        plant.step(ctrl.step(plant.X, ref.window(k * TS, TS, ctrl.horizons.N)).u)
     return plant
 
 
@@ -113,8 +114,8 @@ def test_state_snapshot_restores_bit_identical_steps(robot4, form):
     back: the replayed step gives the same u, on a fresh controller too (to rounding: the robot
     model's assembly warm start is the model's, not the controller's, state)."""
     ref = SCurve()
-    kw = dict(form=form, torque_limit=12.0, solver="daqp-direct")
-    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
+    kw = dict(form=form, limits=Limits(torque=12.0), solver="daqp-direct")
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
     plant = _closed_loop(ctrl, robot4, ref, 8)
     X, w = plant.X.copy(), ref.window(8 * TS, TS, 10)
     state = ctrl.state
@@ -125,21 +126,21 @@ def test_state_snapshot_restores_bit_identical_steps(robot4, form):
     ctrl.step(X + 1e-3, w)  # move on
     ctrl.restore(state)
     np.testing.assert_allclose(ctrl.step(X, w).u, u, rtol=0, atol=1e-12)
-    other = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
+    other = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), **kw)
     other.restore(state)
     np.testing.assert_allclose(other.step(X, w).u, u, rtol=0, atol=1e-12)
     with pytest.raises(ShapeError, match="plan"):
-        GPCController(ReducedModel(robot4), TS, Horizons(12), form=form).restore(state)
+        GPCController.build(ReducedModel(robot4), TS, Horizons(12), form=form).restore(state)
 
 
 def test_settings_are_frozen_validated_and_equivalent_to_keywords(robot4):
-    settings = GPCSettings(TS, Horizons(10), Weights(1.0, 1e-3), form="incremental", torque_limit=12.0)
+    settings = GPCSettings(TS, Horizons(10), Weights(1.0, 1e-3), form="incremental", limits=Limits(torque=12.0))
     assert settings.solver == "qr-first:daqp-direct" and settings.disturbance_gain == 0.5
     with pytest.raises(dataclasses.FrozenInstanceError):
         settings.Ts = 0.02
-    from_settings = GPCController.from_settings(ReducedModel(robot4), settings)
-    keywords = GPCController(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), form="incremental",
-                             torque_limit=12.0)
+    from_settings = GPCController(ReducedModel(robot4), settings)
+    keywords = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-3), form="incremental",
+                                   limits=Limits(torque=12.0))
     assert from_settings.settings is settings and keywords.solver == settings.solver
     ref = SCurve()
     a, b = _closed_loop(from_settings, robot4, ref, 6), _closed_loop(keywords, robot4, ref, 6)
@@ -149,15 +150,17 @@ def test_settings_are_frozen_validated_and_equivalent_to_keywords(robot4):
 
 
 def test_assigning_a_limit_revalidates_it(robot4):
-    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(5), torque_limit=10.0)
-    ctrl.torque_limit = [5.0, 6.0, 7.0, 8.0]
-    np.testing.assert_array_equal(ctrl.torque_limit, [5.0, 6.0, 7.0, 8.0])
-    assert ctrl.settings.torque_limit.tolist() == [5.0, 6.0, 7.0, 8.0]
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(5), limits=Limits(torque=10.0))
+    ctrl.limits = Limits(torque=[5.0, 6.0, 7.0, 8.0])
+    np.testing.assert_array_equal(ctrl.limits.torque, [5.0, 6.0, 7.0, 8.0])
+    assert ctrl.settings.limits.torque.tolist() == [5.0, 6.0, 7.0, 8.0]
     with pytest.raises(InfeasibleLimitsError, match="-1.0"):
-        ctrl.torque_limit = -1.0
+        ctrl.limits = Limits(torque=-1.0)
     with pytest.raises(ShapeError, match="(3,)"):
-        ctrl.torque_limit = [1.0, 2.0, 3.0]
-    np.testing.assert_array_equal(ctrl.torque_limit, [5.0, 6.0, 7.0, 8.0])  # unchanged by the failures
+        ctrl.limits = Limits(torque=[1.0, 2.0, 3.0])
+    with pytest.raises(InvalidParameterError, match="absolute"):
+        ctrl.limits = Limits(torque=5.0, du=1.0)
+    np.testing.assert_array_equal(ctrl.limits.torque, [5.0, 6.0, 7.0, 8.0])  # unchanged by the failures
 
 
 def test_condition_number_matches_numpy_and_refuses_non_finite_gains():

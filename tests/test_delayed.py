@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.gpc import DiscreteLinearModel, GPCController, Horizons, Weights
 
@@ -44,7 +45,7 @@ def test_delayed_controller_on_a_one_sample_delay_plant_matches_its_own_predicti
     A, B, C, c = _system()
     model = DiscreteLinearModel(A, B, C, c, Ts=TS)
     H = Horizons(12, 0, 12)
-    ctrl = GPCController(model, TS, H, Weights(1.0, 0.05), form="incremental-delayed", disturbance_gain=0.0)
+    ctrl = GPCController.build(model, TS, H, Weights(1.0, 0.05), form="incremental-delayed", disturbance_gain=0.0)
     x0 = np.zeros(4)
     plant = DelayedInputPlant(A, B, c, x0, np.zeros(2))
     w = np.tile([1.0, -0.5], (H.N, 1))
@@ -71,7 +72,7 @@ def test_undelayed_controller_mismatches_a_one_sample_delay_plant():
     """The oracle above can fail: the undelayed form's one-step prediction is wrong on the
     delayed plant (it assumes u(k) acts at once)."""
     A, B, C, c = _system()
-    ctrl = GPCController(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(12), Weights(1.0, 0.05),
+    ctrl = GPCController.build(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(12), Weights(1.0, 0.05),
                          form="incremental", disturbance_gain=0.0)
     plant = DelayedInputPlant(A, B, c, np.zeros(4), np.zeros(2))
     worst = 0.0
@@ -85,15 +86,15 @@ def test_undelayed_controller_mismatches_a_one_sample_delay_plant():
 def test_delayed_form_needs_two_samples_of_horizon():
     A, B, C, c = _system()
     with pytest.raises(InvalidParameterError, match="N ≥ 2"):
-        GPCController(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(1), form="incremental-delayed")
+        GPCController.build(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(1), form="incremental-delayed")
 
 
 def test_delayed_controller_respects_increment_and_torque_limits():
     """|u(k+1) − u(k)| ≤ δ and |u| ≤ τ on the applied sequence, with no fallback (measured: the
     increment limit binds at 0.05 N·m per sample)."""
     A, B, C, c = _system()
-    ctrl = GPCController(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(10), Weights(1.0, 0.01),
-                         form="incremental-delayed", du_limit=0.05, torque_limit=1.0)
+    ctrl = GPCController.build(DiscreteLinearModel(A, B, C, c, Ts=TS), TS, Horizons(10), Weights(1.0, 0.01),
+                         form="incremental-delayed", limits=Limits(du=0.05, torque=1.0))
     x, us = np.zeros(4), []
     for _ in range(30):
         info = ctrl.step(x, np.tile([1.0, -0.5], (10, 1)))

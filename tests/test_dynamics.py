@@ -120,18 +120,18 @@ def test_kinetic_energy_is_conserved_without_input(robot):
 
 def test_constrained_plant_agrees_with_reduced_plant(robot4):
     X0 = np.concatenate([POSE_A, [0.2, 0.1, -0.2]])
-    full, reduced = ConstrainedPlant(robot4, X0), ReducedPlant(robot4, X0, substeps=4)
+    full, reduced = ConstrainedPlant(robot4, X0, Ts=0.002), ReducedPlant(robot4, X0, Ts=0.002, substeps=4)
     u = np.array([2.0, -1.0, 1.5, 0.5])
     for _ in range(50):
-        a, b = full.step(u, 0.002), reduced.step(u, 0.002)
+        a, b = full.step(u), reduced.step(u)
     np.testing.assert_allclose(a, b, atol=1e-8)
     assert np.max(np.abs(robot4.closure_residual(full.q))) < 1e-10
 
 
 def test_plant_saturates_at_its_torque_limit_and_counts_it(robot4):
     X0 = np.concatenate([POSE_A, np.zeros(3)])
-    limited, free = ConstrainedPlant(robot4, X0, torque_limit=5.0), ConstrainedPlant(robot4, X0)
-    limited.step([50.0, 0, 0, 0], 0.002)
-    free.step([5.0, 0, 0, 0], 0.002)
+    limited, free = ConstrainedPlant(robot4, X0, Ts=0.002, torque_limit=5.0), ConstrainedPlant(robot4, X0, Ts=0.002)
+    limited.step([50.0, 0, 0, 0])
+    free.step([5.0, 0, 0, 0])
     np.testing.assert_allclose(limited.X, free.X, atol=1e-14)
     assert limited.saturated == 1

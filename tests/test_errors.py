@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import ParallelRobot, ReducedModel, cli, discretize_zoh, load_description
 from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.errors import (
@@ -71,7 +72,7 @@ def sidecar_edit(old, new):
 def ctl(r4, **kw):
     kw.setdefault("Ts", 0.005)
     kw.setdefault("horizons", Horizons(5))
-    return GPCController(ReducedModel(r4), **kw)
+    return GPCController.build(ReducedModel(r4), **kw)
 
 
 def window(n=5, pose=HOME):
@@ -121,7 +122,7 @@ ROWS = [
     ("unreachable pose", lambda t, r4, r3: r4.assemble([2.5, 0.5, 0.0]), UnreachablePoseError, ["2.5"]),
     ("singular pose (with conditioning)", lambda t, r4, r3: r3.check_pose(SINGULAR_3RRR), SingularPoseError,
      ["0.15022", "cond(B_r)"]),
-    ("controller at a singular pose", lambda t, r4, r3: GPCController(
+    ("controller at a singular pose", lambda t, r4, r3: GPCController.build(
         ReducedModel(r3), 0.005, Horizons(5)).step(np.r_[SINGULAR_3RRR, 0, 0, 0], window(5, SINGULAR_3RRR)),
      SingularPoseError, ["0.15022", "cond(g)"]),
     ("non-finite pose", lambda t, r4, r3: r4.assemble([np.nan, 0.5, 0.0]), NonFiniteError, ["nan"]),
@@ -151,37 +152,37 @@ ROWS = [
     ("inf measured state", lambda t, r4, r3: ctl(r4).step(np.r_[0.5, 0.5, 0, np.inf, 0, 0], window()),
      NonFiniteError, ["inf"]),
     ("wrong-length state", lambda t, r4, r3: ctl(r4).step(np.zeros(5), window()), ShapeError, ["(5,)"]),
-    ("NaN initial plant state", lambda t, r4, r3: ConstrainedPlant(r4, np.r_[0.5, np.nan, 0, 0, 0, 0]),
+    ("NaN initial plant state", lambda t, r4, r3: ConstrainedPlant(r4, np.r_[0.5, np.nan, 0, 0, 0, 0], Ts=0.005),
      NonFiniteError, ["nan"]),
-    ("NaN drive torque", lambda t, r4, r3: ReducedPlant(r4, X_HOME).step([0, np.nan, 0, 0], 0.005),
+    ("NaN drive torque", lambda t, r4, r3: ReducedPlant(r4, X_HOME, Ts=0.005).step([0, np.nan, 0, 0]),
      NonFiniteError, ["nan"]),
-    ("negative measurement noise", lambda t, r4, r3: simulate(ctl(r4), ReducedPlant(r4, X_HOME), Hold(HOME), 0.01,
+    ("negative measurement noise", lambda t, r4, r3: simulate(ctl(r4), ReducedPlant(r4, X_HOME, Ts=0.005), Hold(HOME), 0.01,
                                                               noise_std=-0.1, progress=False),
      InvalidParameterError, ["-0.1"]),
     ("controller and plant of different robots", lambda t, r4, r3: simulate(
-        ctl(r4), ReducedPlant(r3, X_HOME), Hold(HOME), 0.01, progress=False), ShapeError, ["planar_3rrr"]),
+        ctl(r4), ReducedPlant(r3, X_HOME, Ts=0.005), Hold(HOME), 0.01, progress=False), ShapeError, ["planar_3rrr"]),
     # ---- sample time
     ("Ts = 0", lambda t, r4, r3: ctl(r4, Ts=0.0), InvalidParameterError, ["Ts = 0.0"]),
     ("Ts < 0", lambda t, r4, r3: ctl(r4, Ts=-0.001), InvalidParameterError, ["-0.001"]),
     ("Ts NaN in ZOH", lambda t, r4, r3: discretize_zoh(np.zeros((2, 2)), np.ones((2, 1)), None, float("nan")),
      InvalidParameterError, ["nan"]),
-    ("plant step Ts < 0", lambda t, r4, r3: ReducedPlant(r4, X_HOME).step(np.zeros(4), -0.002),
+    ("plant Ts < 0", lambda t, r4, r3: ReducedPlant(r4, X_HOME, Ts=-0.002),
      InvalidParameterError, ["-0.002"]),
     # ---- limits
-    ("negative torque limit", lambda t, r4, r3: ctl(r4, torque_limit=-1.0), InfeasibleLimitsError, ["-1.0"]),
-    ("zero Δu limit", lambda t, r4, r3: ctl(r4, form="incremental", du_limit=[1.0, 0.0, 1.0, 1.0]),
+    ("negative torque limit", lambda t, r4, r3: ctl(r4, limits=Limits(torque=-1.0)), InfeasibleLimitsError, ["-1.0"]),
+    ("zero Δu limit", lambda t, r4, r3: ctl(r4, form="incremental", limits=Limits(du=[1.0, 0.0, 1.0, 1.0])),
      InfeasibleLimitsError, ["0.0"]),
-    ("torque limit of the wrong size", lambda t, r4, r3: ctl(r4, torque_limit=[10.0, 10.0, 10.0]), ShapeError,
+    ("torque limit of the wrong size", lambda t, r4, r3: ctl(r4, limits=Limits(torque=[10.0, 10.0, 10.0])), ShapeError,
      ["(3,)"]),
     ("u(k−1) beyond torque + Δu limits", lambda t, r4, r3: ctl(
-        r4, form="incremental", torque_limit=10.0, du_limit=0.5, u0=[20.0, 0, 0, 0]), InfeasibleLimitsError,
+        r4, form="incremental", u0=[20.0, 0, 0, 0], limits=Limits(torque=10.0, du=0.5)), InfeasibleLimitsError,
      ["20.0", "10.0", "0.5"]),
-    ("Δu limit on the absolute form", lambda t, r4, r3: ctl(r4, du_limit=1.0), InvalidParameterError,
+    ("Δu limit on the absolute form", lambda t, r4, r3: ctl(r4, limits=Limits(du=1.0)), InvalidParameterError,
      ["absolute"]),
     # ---- solvers and forms
     ("unavailable solver", lambda t, r4, r3: make_solver("gurobi"), SolverNotFoundError,
      ["gurobi", "osqp-direct", "daqp-direct"]),
-    ("unavailable solver in a controller", lambda t, r4, r3: ctl(r4, solver="qpsolvers:nosuch", torque_limit=10.0),
+    ("unavailable solver in a controller", lambda t, r4, r3: ctl(r4, solver="qpsolvers:nosuch", limits=Limits(torque=10.0)),
      SolverNotFoundError, ["nosuch", "qpsolvers:osqp"]),
     ("unknown form", lambda t, r4, r3: ctl(r4, form="relative"), InvalidParameterError, ["relative"]),
     ("robustness: unknown form", lambda t, r4, r3: robustness_study(forms=("bogus",)), InvalidParameterError,
@@ -254,10 +255,10 @@ def test_cli_robustness_bad_input_exits_2(cli_with_robustness, capsys, tmp_path,
 def test_infeasible_limits_fall_back_visibly(r4, solver):
     """A torque limit lowered below the held u(k−1) − δ admits no Δu: the QP reports it, the
     controller applies the projected QR solution with status 'fallback', no exception."""
-    c = ctl(r4, form="incremental", solver=solver, torque_limit=10.0, du_limit=0.5, u0=[9.8, 0.0, 0.0, 0.0])
+    c = ctl(r4, form="incremental", solver=solver, u0=[9.8, 0.0, 0.0, 0.0], limits=Limits(torque=10.0, du=0.5))
     first = c.step(X_HOME, window())
     assert not first.fallback and first.result.ok
-    c.torque_limit = 5.0  # drive derated while it holds ~9.8 N·m: |u| ≤ 5 needs Δu ≈ −4.8, but |Δu| ≤ 0.5
+    c.limits = Limits(torque=5.0, du=0.5)  # drive derated while it holds ~9.8 N·m: |u| ≤ 5 needs Δu ≈ −4.8, but |Δu| ≤ 0.5
     u_prev = c.u_prev.copy()
     info = c.step(X_HOME, window())
     assert info.fallback and info.result.status == "fallback"
@@ -270,9 +271,9 @@ def test_infeasible_limits_fall_back_visibly(r4, solver):
 
 
 def test_fallbacks_are_counted_in_the_closed_loop(r4):
-    c = ctl(r4, form="incremental", solver="daqp-direct", torque_limit=10.0, du_limit=0.5, u0=[9.8, 0, 0, 0])
-    c.torque_limit = 5.0
-    res = simulate(c, ReducedPlant(r4, X_HOME), Hold(HOME), 0.05, progress=False)
+    c = ctl(r4, form="incremental", solver="daqp-direct", u0=[9.8, 0, 0, 0], limits=Limits(torque=10.0, du=0.5))
+    c.limits = Limits(torque=5.0, du=0.5)
+    res = simulate(c, ReducedPlant(r4, X_HOME, Ts=0.005), Hold(HOME), 0.05, progress=False)
     assert res.metrics()["fallbacks"] == 1 and res.fallback[0] and res.status[0] == "fallback"
 
 
@@ -283,7 +284,7 @@ def test_solver_exception_becomes_a_reported_fallback(r4):
         def solve(self, problem, warm_start=None):
             raise RuntimeError("segfault-free explosion")
 
-    c = ctl(r4, form="absolute", solver="daqp-direct", torque_limit=5.0)
+    c = ctl(r4, form="absolute", solver="daqp-direct", limits=Limits(torque=5.0))
     c._backend = Exploding()
     info = c.step(X_HOME, window(5, HOME + [0.05, 0, 0]))
     assert info.fallback and info.result.status == "fallback"
@@ -297,12 +298,12 @@ def _through_singularity(r3, max_condition, torques: list) -> None:
     end = 2 * SINGULAR_3RRR - start
     t = np.linspace(0.0, 1.0, 101)
     ref = SampledTrajectory(t, start + np.outer(np.clip(t / 0.8, 0, 1), end - start))
-    c = GPCController(ReducedModel(r3), 0.005, Horizons(10), Weights(1.0, 1e-4), max_condition=max_condition)
-    plant = ConstrainedPlant(r3, np.r_[start, 0, 0, 0])
+    c = GPCController.build(ReducedModel(r3), 0.005, Horizons(10), Weights(1.0, 1e-4), max_condition=max_condition)
+    plant = ConstrainedPlant(r3, np.r_[start, 0, 0, 0], Ts=0.005)
     for k in range(200):
         info = c.step(plant.X, ref.window(k * 0.005, 0.005, 10))
         torques.append(np.max(np.abs(info.u)))
-        plant.step(info.u, 0.005)
+        plant.step(info.u)
 
 
 def test_controller_stops_at_a_singular_pose_before_torques_blow_up(r3):
@@ -334,7 +335,7 @@ class InterruptAfter(Hold):
 
 
 def test_ctrl_c_keeps_and_saves_the_partial_run(r4, tmp_path):
-    res = simulate(ctl(r4), ReducedPlant(r4, X_HOME), InterruptAfter(HOME, 7), 1.0, progress=False)
+    res = simulate(ctl(r4), ReducedPlant(r4, X_HOME, Ts=0.005), InterruptAfter(HOME, 7), 1.0, progress=False)
     assert res.interrupted and len(res.t) == 7
     path = res.save(tmp_path / "partial.npz")
     with np.load(path) as data:

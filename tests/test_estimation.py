@@ -26,9 +26,9 @@ def loop(robot, form, sensors, duration=1.0, computation_delay=False, plant=None
     ref = path_for(kind, robot.home_pose, robot.output_angular, 2.0)
     X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
     encoders = sensors.kind == "encoders"
-    ctrl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
+    ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
                          disturbance_gain=0.0 if encoders else None)
-    plant = plant or SensedPlant(ConstrainedPlant(robot, X0), TS, sensors)
+    plant = plant or SensedPlant(ConstrainedPlant(robot, X0, Ts=TS), sensors)
     est = StateEstimator(ReducedModel(robot), TS, sensors, X0) if encoders else None
     return run_loop(ctrl, plant, ref, duration, estimator=est, computation_delay=computation_delay)
 
@@ -77,7 +77,7 @@ def test_deadline_overruns_are_the_steps_longer_than_ts(robot4):
 def test_quantized_readings_are_multiples_of_the_resolution(robot4):
     sensors = Sensors("encoders", counts_per_rev=4096, rates=True)
     X0 = np.concatenate([robot4.home_pose + 0.01, np.zeros(3)])
-    plant = SensedPlant(ConstrainedPlant(robot4, X0), TS, sensors)
+    plant = SensedPlant(ConstrainedPlant(robot4, X0, Ts=TS), sensors)
     m = plant.measure()
     counts = m.drives / (2 * np.pi / 4096)
     np.testing.assert_allclose(counts, np.round(counts), atol=1e-6)
@@ -87,7 +87,7 @@ def test_quantized_readings_are_multiples_of_the_resolution(robot4):
 
 def test_one_sample_sensor_delay(robot4):
     X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
-    plant = SensedPlant(ConstrainedPlant(robot4, X0), TS, Sensors("encoders", delay=1))
+    plant = SensedPlant(ConstrainedPlant(robot4, X0, Ts=TS), Sensors("encoders", delay=1))
     first = plant.measure()
     plant.apply(np.full(4, 5.0))
     np.testing.assert_array_equal(plant.measure().drives, first.drives)  # the reading of one sample ago
@@ -127,9 +127,9 @@ def test_two_disturbance_estimators_are_refused(robot4):
     ref = path_for("s-curve", robot4.home_pose, robot4.output_angular, 2.0)
     X0 = np.concatenate([ref.pose(0.0), np.zeros(3)])
     sensors = Sensors("encoders")
-    ctrl = GPCController(ReducedModel(robot4), TS, Horizons(20), Weights(1.0, 1e-4), form="incremental")
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(20), Weights(1.0, 1e-4), form="incremental")
     with pytest.raises(InvalidParameterError, match="disturbance_gain=0"):
-        run_loop(ctrl, SensedPlant(ConstrainedPlant(robot4, X0), TS, sensors), ref, 0.01,
+        run_loop(ctrl, SensedPlant(ConstrainedPlant(robot4, X0, Ts=TS), sensors), ref, 0.01,
                  estimator=StateEstimator(ReducedModel(robot4), TS, sensors, X0))
 
 

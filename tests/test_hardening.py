@@ -11,6 +11,7 @@ import shutil
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import ParallelRobot, ReducedModel, cli
 from parallel_gpc.errors import (
     InvalidParameterError,
@@ -245,7 +246,7 @@ def test_api_wrong_types_raise_package_errors(call, error, needles):
 def test_a_huge_velocity_is_named_not_called_a_singular_pose(robot4):
     """At home (cond(g) ≈ 10 at rest) a measured velocity of 1e5 m/s blows up the one-sample
     model: the error names the velocity, not a near-singular pose."""
-    c = GPCController(ReducedModel(robot4), 0.005, Horizons(5))
+    c = GPCController.build(ReducedModel(robot4), 0.005, Horizons(5))
     with pytest.raises(InvalidParameterError, match=r"measured velocity \[100000.0, 0.0, 0.0\]") as info:
         c.step(np.r_[0.5, 0.5, 0.0, 1e5, 0.0, 0.0], np.tile([0.5, 0.5, 0.0], (5, 1)))
     assert "at rest" in str(info.value) and "singular" not in str(info.value)
@@ -264,7 +265,7 @@ def test_urdfdom_output_goes_into_our_message_not_the_console(tmp_path, capfd):
 
 @pytest.mark.parametrize("solver", ["osqp-direct", "qpsolvers:osqp"])
 def test_osqp_prints_nothing(robot4, capfd, solver):
-    c = GPCController(ReducedModel(robot4), 0.005, Horizons(5), solver=solver, torque_limit=50.0)
+    c = GPCController.build(ReducedModel(robot4), 0.005, Horizons(5), solver=solver, limits=Limits(torque=50.0))
     capfd.readouterr()
     for _ in range(3):  # limits inactive at rest: OSQP's polish finds no active set
         c.step(np.r_[0.5, 0.5, 0.0, 0.0, 0.0, 0.0], np.tile([0.5, 0.5, 0.0], (5, 1)))

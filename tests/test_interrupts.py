@@ -11,6 +11,7 @@ import urllib.request
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import ReducedModel, cli, load_result
 from parallel_gpc.gpc.controller import APPLIED_LIMIT_RTOL, GPCController
 from parallel_gpc.gpc.criterion import Weights
@@ -32,11 +33,11 @@ def ctrl_c_after(monkeypatch):
         calls = {"n": 0}
         original = ConstrainedPlant.step
 
-        def step(self, u, Ts):
+        def step(self, u):
             calls["n"] += 1
             if calls["n"] > n:
                 raise KeyboardInterrupt
-            return original(self, u, Ts)
+            return original(self, u)
 
         monkeypatch.setattr(ConstrainedPlant, "step", step)
 
@@ -101,8 +102,7 @@ def test_no_applied_input_exceeds_the_torque_limit_with_a_loose_qp(robot4, form,
     applies only |u| ≤ τ·(1 + APPLIED_LIMIT_RTOL)."""
     Ts, N, tau = 0.005, 10, 5.0
     ref = SCurve()
-    c = GPCController(ReducedModel(robot4), Ts, Horizons(N), Weights(1.0, 0.0), form=form, solver="osqp-direct",
-                      torque_limit=tau, du_limit=du_limit)
+    c = GPCController.build(ReducedModel(robot4), Ts, Horizons(N), Weights(1.0, 0.0), form=form, solver="osqp-direct", limits=Limits(torque=tau, du=du_limit))
     loose = OSQPBackend(eps=1e-2, max_iter=50)
     over = []
 
@@ -120,15 +120,15 @@ def test_no_applied_input_exceeds_the_torque_limit_with_a_loose_qp(robot4, form,
         return c._last_pred
 
     c.predict, c._backend = predict, type("Loose", (), {"name": "osqp-loose", "solve": staticmethod(spy)})()
-    plant = ConstrainedPlant(robot4, np.r_[ref.pose(0.0), 0, 0, 0], torque_limit=tau)
+    plant = ConstrainedPlant(robot4, np.r_[ref.pose(0.0), 0, 0, 0], Ts=Ts, torque_limit=tau)
     applied, fallbacks = [], 0
     for k in range(120):
         info = c.step(plant.X, ref.window(k * Ts, Ts, N))
         applied.append(np.max(np.abs(info.u)))
         fallbacks += info.fallback
         if info.fallback and info.result.message.startswith("limits violated"):
-            assert "torque_limit" in info.result.message or "du_limit" in info.result.message
-        plant.step(info.u, Ts)
+            assert "torque limit" in info.result.message or "du limit" in info.result.message
+        plant.step(info.u)
     assert sum(over) > 0, "the loose QP never exceeded the limit: the test would prove nothing"
     assert max(applied) <= tau * (1 + APPLIED_LIMIT_RTOL)
     assert fallbacks >= sum(over)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 from scipy.linalg import block_diag, solve_discrete_are
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import DiscreteLinearModel, GPCController, Horizons, Weights
 from parallel_gpc.errors import InvalidParameterError, ShapeError
 from parallel_gpc.gpc import ControlModel
@@ -52,7 +53,7 @@ def test_closed_loop_equals_finite_horizon_riccati(form):
         Ba = np.vstack([B, np.eye(2)])
         K = _riccati_first_gain(Aa, Ba, block_diag(Q, np.zeros((2, 2))), R, N)
     model = DiscreteLinearModel(A, B, C2, Ts=TS)
-    ctl = GPCController(model, TS, Horizons(N), Weights(QY, QU), form=form, disturbance_gain=0.0)
+    ctl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form=form, disturbance_gain=0.0)
     x, u_prev, step = np.array([0.3, -0.2, 0.1, 0.4]), np.zeros(2), _plant(A, B)
     for _ in range(15):
         u = ctl.step(x, np.zeros((N, 2))).u
@@ -98,7 +99,7 @@ def test_first_move_equals_batch_least_squares(form, N, No, Nu):
     c = rng.normal(size=4) * 0.01
     H = Horizons(N, No, Nu)
     model = DiscreteLinearModel(A, B, C2, c, Ts=TS)
-    ctl = GPCController(model, TS, H, Weights(QY, QU), form=form, u0=[0.3, -0.1], disturbance_gain=0.0)
+    ctl = GPCController.build(model, TS, H, Weights(QY, QU), form=form, u0=[0.3, -0.1], disturbance_gain=0.0)
     x0, w = rng.normal(size=4), rng.normal(size=(N, 2))
     u = ctl.step(x0, w).u
     expected = _batch_oracle(form, c, x0, np.array([0.3, -0.1]), w[No:], H, QY, QU)
@@ -113,7 +114,7 @@ def test_long_horizon_full_state_output_equals_dare_lqr_gain():
     P = solve_discrete_are(A, B, Qy.T @ Qy, QU.T @ QU)
     K_lqr = np.linalg.solve(QU.T @ QU + B.T @ P @ B, B.T @ P @ A)
     N = 150
-    ctl = GPCController(model, TS, Horizons(N), Weights(Qy, QU))
+    ctl = GPCController.build(model, TS, Horizons(N), Weights(Qy, QU))
     K_gpc = np.empty((2, 4))
     for i in range(4):  # the law is linear in x: u = −K x
         ctl.reset()
@@ -125,7 +126,7 @@ def test_long_horizon_full_state_output_equals_dare_lqr_gain():
 def test_full_state_output_with_limits_tracks_and_respects_them(form):
     """n_y = n_x (this crashed in the conditioning check before): a QP-limited loop to a set point."""
     model = DiscreteLinearModel(A, B, np.eye(4), Ts=TS)
-    ctl = GPCController(model, TS, Horizons(20), Weights([1.0, 0.1, 1.0, 0.1], 0.05), form=form, torque_limit=2.0)
+    ctl = GPCController.build(model, TS, Horizons(20), Weights([1.0, 0.1, 1.0, 0.1], 0.05), form=form, limits=Limits(torque=2.0))
     target = np.linalg.solve(np.eye(4) - A, B @ [0.3, -0.2])  # an equilibrium, held by u = [0.3, −0.2]
     x, step = np.zeros(4), _plant(A, B)
     for _ in range(200):
@@ -155,10 +156,10 @@ def test_state_dependent_model_from_function():
         np.testing.assert_allclose(X_seq[i + 1], fn(X_seq[i])[0] @ X_seq[i] + B @ np.ones(2), rtol=0, atol=1e-15)
     lti = DiscreteLinearModel(*fn(x0)[:2], C2, Ts=TS)  # the model frozen at x0: same first move
     for form in ("absolute", "incremental"):
-        u_ltv = GPCController(model, TS, Horizons(10), Weights(1.0, 0.1), form=form).step(x0, np.zeros((10, 2))).u
-        u_lti = GPCController(lti, TS, Horizons(10), Weights(1.0, 0.1), form=form).step(x0, np.zeros((10, 2))).u
+        u_ltv = GPCController.build(model, TS, Horizons(10), Weights(1.0, 0.1), form=form).step(x0, np.zeros((10, 2))).u
+        u_lti = GPCController.build(lti, TS, Horizons(10), Weights(1.0, 0.1), form=form).step(x0, np.zeros((10, 2))).u
         np.testing.assert_array_equal(u_ltv, u_lti)
-    ctl = GPCController(model, TS, Horizons(15), Weights(1.0, 0.1), form="nonlinear")
+    ctl = GPCController.build(model, TS, Horizons(15), Weights(1.0, 0.1), form="nonlinear")
     x, u = x0.copy(), None
     for _ in range(150):
         u = ctl.step(x, np.zeros((15, 2))).u
@@ -170,7 +171,7 @@ def test_state_dependent_model_from_function():
 def test_sample_time_mismatch_is_one_clear_error():
     model = DiscreteLinearModel(A, B, C2, Ts=TS)
     with pytest.raises(InvalidParameterError, match=r"0\.05.*0\.1"):
-        GPCController(model, 0.05, Horizons(5))
+        GPCController.build(model, 0.05, Horizons(5))
     with pytest.raises(InvalidParameterError, match=r"0\.2"):
         model.discrete(np.zeros(4), 0.2)
 
@@ -189,7 +190,7 @@ def test_bad_linear_models_are_rejected(args, error):
 
 def test_model_function_returning_wrong_shapes_is_reported():
     model = DiscreteLinearModel.from_function(lambda x: (A[:3, :3], B, None), C2, 2, Ts=TS)
-    ctl = GPCController(model, TS, Horizons(5))
+    ctl = GPCController.build(model, TS, Horizons(5))
     with pytest.raises(ShapeError, match=r"\(3, 3\)"):
         ctl.step(np.zeros(4), np.zeros((5, 2)))
 
@@ -201,8 +202,8 @@ def test_an_object_without_the_protocol_is_rejected():
         def discrete(self, X, Ts):
             return np.eye(2), np.ones((2, 1)), np.zeros(2)
 
-    GPCController(NoSim(), TS, Horizons(3))  # enough for the linear forms
+    GPCController.build(NoSim(), TS, Horizons(3))  # enough for the linear forms
     with pytest.raises(InvalidParameterError, match="simulate_factorized"):
-        GPCController(NoSim(), TS, Horizons(3), form="nonlinear")
+        GPCController.build(NoSim(), TS, Horizons(3), form="nonlinear")
     with pytest.raises(InvalidParameterError, match="'n_x'.*ControlModel"):
-        GPCController(object(), TS, Horizons(3))
+        GPCController.build(object(), TS, Horizons(3))

@@ -54,10 +54,10 @@ def _rms(robot, form, plant_kind, torque_limit, sensors=Sensors("full"), duratio
     ref = path_for("s-curve", robot.home_pose, robot.output_angular, 2.0)
     X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
     encoders = sensors.kind == "encoders"
-    ctrl = GPCController(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
+    ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
                          torque_limit=torque_limit, disturbance_gain=0.0 if encoders else None)
     if plant_kind == "own":
-        plant = SensedPlant(ConstrainedPlant(robot, X0, torque_limit=torque_limit), TS, sensors)
+        plant = SensedPlant(ConstrainedPlant(robot, X0, Ts=TS, torque_limit=torque_limit), sensors)
     else:
         plant = MujocoPlant(robot, TS, X0, sensors, torque_limit=torque_limit)
     est = StateEstimator(ReducedModel(robot), TS, sensors, X0) if encoders else None

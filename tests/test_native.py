@@ -182,14 +182,14 @@ def test_closed_loop_inputs_are_the_same(name, form):
     target = pose0 + 0.01
     runs = []
     for native in (False, True):
-        ctl = GPCController(ReducedModel(robot, native=native), TS, Horizons(20), Weights(1.0, 1e-5), form=form)
-        plant = ConstrainedPlant(robot, np.concatenate([pose0, np.zeros(robot.n_y)]))
+        ctl = GPCController.build(ReducedModel(robot, native=native), TS, Horizons(20), Weights(1.0, 1e-5), form=form)
+        plant = ConstrainedPlant(robot, np.concatenate([pose0, np.zeros(robot.n_y)]), Ts=TS)
         us = []
         for k in range(40):
             window = ref.window(k * TS, TS, 20) if ref is not None else np.tile(target, (20, 1))
             u = ctl.step(plant.X, window).u
             us.append(u)
-            plant.step(u, TS)
+            plant.step(u)
         runs.append(np.array(us))
     scale = np.abs(runs[0]).max()
     np.testing.assert_allclose(runs[1], runs[0], rtol=0, atol=1e-10 * max(scale, 1.0))

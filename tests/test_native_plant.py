@@ -73,11 +73,11 @@ def _relative(a: np.ndarray, b: np.ndarray) -> float:
 
 def test_compiled_and_python_plants_agree_over_50_samples(any_robot):
     X0, u, force = _drive_case(any_robot)
-    ref = ConstrainedPlant(any_robot, X0, platform_force=force, native=False)
-    fast = ConstrainedPlant(any_robot, X0, platform_force=force, native=True)
+    ref = ConstrainedPlant(any_robot, X0, Ts=SAMPLE, platform_force=force, native=False)
+    fast = ConstrainedPlant(any_robot, X0, Ts=SAMPLE, platform_force=force, native=True)
     assert ref.compiled is None and fast.compiled is not None
     for _ in range(STEPS):
-        X_ref, X_fast = ref.step(u, SAMPLE), fast.step(u, SAMPLE)
+        X_ref, X_fast = ref.step(u), fast.step(u)
     moved = np.linalg.norm(X_ref - X0)
     assert moved > 1e-4  # the state changed: the agreement below is not that of two idle plants
     assert _relative(X_fast, X_ref) <= 1e-10
@@ -96,7 +96,7 @@ def test_compiled_accelerations_equal_constraint_dynamics(any_robot):
     constraint models, the plant's default Baumgarte gains) at states off the closures, with the
     task-space force Hᵀ f added by hand."""
     X0, u, force = _drive_case(any_robot, seed=5)
-    plant = ConstrainedPlant(any_robot, X0, platform_force=force, native=True)
+    plant = ConstrainedPlant(any_robot, X0, Ts=SAMPLE, platform_force=force, native=True)
     model = any_robot.model
     cms = mech.closure_constraint_models(any_robot)
     for cm in cms:
@@ -119,37 +119,37 @@ def test_compiled_accelerations_equal_constraint_dynamics(any_robot):
 
 def test_saturation_is_applied_and_counted_on_the_compiled_path(robot4):
     X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
-    limited = ConstrainedPlant(robot4, X0, torque_limit=0.5, native=True)
-    reference = ConstrainedPlant(robot4, X0, torque_limit=0.5, native=False)
+    limited = ConstrainedPlant(robot4, X0, Ts=SAMPLE, torque_limit=0.5, native=True)
+    reference = ConstrainedPlant(robot4, X0, Ts=SAMPLE, torque_limit=0.5, native=False)
     u = np.array([2.0, -0.2, 0.3, -3.0])
     for _ in range(5):
-        a, b = limited.step(u, SAMPLE), reference.step(u, SAMPLE)
+        a, b = limited.step(u), reference.step(u)
     assert limited.saturated == reference.saturated == 5
     assert _relative(a, b) <= 1e-12
 
 
 def test_diverging_compiled_plant_names_the_inputs(robot4):
-    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, np.zeros(3)]),
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, np.zeros(3)]), Ts=SAMPLE,
                              platform_force=[1e300, 0.0, 0.0], native=True)
     with pytest.raises(NonFiniteError, match=r"diverged within one sample Ts = 0\.001 s") as info:
-        plant.step(np.array([1.0, 2.0, 3.0, 4.0]), SAMPLE)
+        plant.step(np.array([1.0, 2.0, 3.0, 4.0]))
     assert "u = [1.0, 2.0, 3.0, 4.0]" in str(info.value)
     assert "platform_force = [1e+300, 0.0, 0.0]" in str(info.value)
 
 
 def test_native_switch(robot4, monkeypatch):
     X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
-    assert ConstrainedPlant(robot4, X0).compiled is not None  # default: used when built
+    assert ConstrainedPlant(robot4, X0, Ts=SAMPLE).compiled is not None  # default: used when built
     with pytest.raises(InvalidParameterError, match=r"native = 'yes'; valid: None \(automatic\), True or False"):
-        ConstrainedPlant(robot4, X0, native="yes")
+        ConstrainedPlant(robot4, X0, Ts=SAMPLE, native="yes")
     monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
-    assert ConstrainedPlant(robot4, X0).compiled is None
+    assert ConstrainedPlant(robot4, X0, Ts=SAMPLE).compiled is None
     with pytest.raises(InvalidParameterError, match=r"native=True asks for the compiled plant.*PARALLEL_GPC_NATIVE=0"):
-        ConstrainedPlant(robot4, X0, native=True)
+        ConstrainedPlant(robot4, X0, Ts=SAMPLE, native=True)
 
 
 def test_compiled_plant_refuses_wrong_sizes(robot4):
-    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, np.zeros(3)]), native=True).compiled
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, np.zeros(3)]), Ts=SAMPLE, native=True).compiled
     nq, nv = robot4.model.nq, robot4.model.nv
     with pytest.raises(ValueError, match=rf"sizes {nq - 1}, {nv}, {nv}; the model needs nq = {nq}"):
         plant.integrate(np.zeros(nq - 1), np.zeros(nv), np.zeros(nv), np.zeros(0), SAMPLE, 2)
@@ -161,7 +161,7 @@ def test_compiled_plant_refuses_wrong_sizes(robot4):
 
 def test_projection_far_from_the_closures_takes_the_validated_path(robot4):
     """A drift too large for the warm Newton (residual > 1e-2) is projected by assemble()."""
-    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), native=True)
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), Ts=SAMPLE, native=True)
     q, v = plant.q.copy(), plant.v + 0.3  # velocities off the closures too
     q[robot4.z_idx] += 0.05  # rad: every dependent joint off its assembled value
     assert robot4.assemble_warm(robot4.platform_pose(q), q, plant._pinv) is None
@@ -179,9 +179,9 @@ def test_compiled_plant_takes_mass_scale_and_gravity_from_the_robot(robot4):
     heavy.model.gravity.linear = np.array([1.0, -4.0, -9.81])
     X0 = np.concatenate([robot4.home_pose, [0.05, -0.02, 0.1]])
     u = np.array([0.5, -0.3, 0.2, 0.4])
-    runs = [ConstrainedPlant(r, X0, native=n) for r, n in ((heavy, True), (heavy, False), (robot4, True))]
+    runs = [ConstrainedPlant(r, X0, Ts=SAMPLE, native=n) for r, n in ((heavy, True), (heavy, False), (robot4, True))]
     for _ in range(20):
-        fast, ref, nominal = (p.step(u, SAMPLE) for p in runs)
+        fast, ref, nominal = (p.step(u) for p in runs)
     assert _relative(fast, ref) <= 1e-10
     assert _relative(nominal, ref) > 1e-4
 
@@ -194,9 +194,9 @@ def test_compiled_plants_in_threads_give_the_sequential_states(robot4):
     inputs = [np.array([0.5, -0.3, 0.2, 0.4]) * s for s in (1.0, -2.0, 3.0)]
 
     def run(u):
-        plant = ConstrainedPlant(robot4.with_mass_scale(1.0), X0, native=True)  # one robot per thread
+        plant = ConstrainedPlant(robot4.with_mass_scale(1.0), X0, Ts=SAMPLE, native=True)  # one robot per thread
         for _ in range(30):
-            X = plant.step(u, SAMPLE)
+            X = plant.step(u)
         return X
 
     sequential = [run(u) for u in inputs]
@@ -211,8 +211,8 @@ def test_compiled_projection_equals_the_python_projection(any_robot):
     (``native=False``) from the same drifted states: q, v and T to ≤ 1e-12, sample after sample
     (each projection preconditioned by the previous one's K⁺)."""
     X0, _, _ = _drive_case(any_robot, seed=7)
-    fast = ConstrainedPlant(any_robot, X0, native=True)
-    ref = ConstrainedPlant(any_robot, X0, native=False)
+    fast = ConstrainedPlant(any_robot, X0, Ts=SAMPLE, native=True)
+    ref = ConstrainedPlant(any_robot, X0, Ts=SAMPLE, native=False)
     assert fast.projector is not None and ref.projector is None
     rng = np.random.default_rng(8)
     nv = any_robot.model.nv
@@ -233,8 +233,8 @@ def test_compiled_projection_equals_the_python_projection(any_robot):
 def test_compiled_projection_goes_on_after_the_validated_path(robot4):
     """After a projection the warm Newton refuses (the Python path takes it), the compiled one
     resumes with that K⁺ as its preconditioner and equals the Python projection."""
-    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), native=True)
-    ref = ConstrainedPlant(robot4, plant.X, native=False)
+    plant = ConstrainedPlant(robot4, np.concatenate([robot4.home_pose, [0.1, -0.1, 0.2]]), Ts=SAMPLE, native=True)
+    ref = ConstrainedPlant(robot4, plant.X, Ts=SAMPLE, native=False)
     q = plant.q.copy()
     q[robot4.z_idx] += 0.05  # too far for the warm Newton
     assert plant.projector.project(q, plant.v, plant._pinv) is None

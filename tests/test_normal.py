@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import GPCController, Horizons, ReducedModel, SCurve, Weights, build_problem
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.solvers import LeastSquaresProblem, NormalEquationsSolver, QRSolver, make_solver
@@ -16,7 +17,7 @@ def test_cholesky_equals_qr_on_the_controllers_problems(robot, form, N):
     """Qu = 1e-5 (the benchmark's weight): the absolute form has cond(A) ≈ 1e2 and takes the
     Cholesky path; the incremental form at N = 40 (cumulative sums) may be sent to QR by the guard."""
     ref, Ts, W = SCurve(), 0.002, Weights(1.0, 1e-5)
-    ctl = GPCController(ReducedModel(robot), Ts, Horizons(N), W, form=form)
+    ctl = GPCController.build(ReducedModel(robot), Ts, Horizons(N), W, form=form)
     for t in (0.4, 0.9):
         X = np.concatenate([ref.pose(t), (ref.pose(t + 1e-4) - ref.pose(t)) / 1e-4])
         p = build_problem(ctl.predict(X), ref.window(t, Ts, N), W, robot.n_y, robot.n_u)
@@ -47,4 +48,4 @@ def test_cholesky_falls_back_to_qr_when_ill_conditioned():
 def test_cholesky_is_registered_and_refuses_limits(robot4):
     assert make_solver("cholesky").name == "cholesky"
     with pytest.raises(InvalidParameterError, match="cannot enforce"):
-        GPCController(ReducedModel(robot4), 0.005, Horizons(5), torque_limit=1.0, solver="cholesky")
+        GPCController.build(ReducedModel(robot4), 0.005, Horizons(5), solver="cholesky", limits=Limits(torque=1.0))

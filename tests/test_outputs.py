@@ -82,12 +82,12 @@ def test_factorization_and_linearization_in_task_space(fivebar):
 def test_constrained_plant_in_task_space_agrees_with_reduced_plant(fivebar):
     X0 = np.concatenate([fivebar.home_pose, [0.1, -0.05]])
     force = np.array([0.5, -0.3])  # N on (x, z)
-    full = ConstrainedPlant(fivebar, X0, platform_force=force)
-    reduced = ReducedPlant(fivebar, X0, substeps=4, platform_force=force)
+    full = ConstrainedPlant(fivebar, X0, Ts=0.002, platform_force=force)
+    reduced = ReducedPlant(fivebar, X0, Ts=0.002, substeps=4, platform_force=force)
     np.testing.assert_allclose(full.X, X0, atol=1e-12)
     u = np.array([1.0, -0.5])
     for _ in range(50):
-        a, b = full.step(u, 0.002), reduced.step(u, 0.002)
+        a, b = full.step(u), reduced.step(u)
     np.testing.assert_allclose(a, b, atol=1e-8)
     assert np.max(np.abs(fivebar.closure_residual(full.q))) < 1e-10
 
@@ -119,8 +119,8 @@ def test_gpc_tracks_an_end_effector_circle_on_the_full_constrained_plant(fivebar
     t = np.linspace(0.0, 1.0, 501)
     s = 0.5 - 0.5 * np.cos(np.pi * t)  # 0 → 1 at rest at both ends
     circle = fivebar.home_pose + 0.03 * np.column_stack([np.sin(2 * np.pi * s), 1 - np.cos(2 * np.pi * s)])
-    controller = GPCController(ReducedModel(fivebar), 0.002, Horizons(20, 0, 20), Weights(1.0, 0.0))
-    plant = ConstrainedPlant(fivebar.with_mass_scale(1.2), np.concatenate([fivebar.home_pose, [0.0, 0.0]]))
+    controller = GPCController.build(ReducedModel(fivebar), 0.002, Horizons(20, 0, 20), Weights(1.0, 0.0))
+    plant = ConstrainedPlant(fivebar.with_mass_scale(1.2), np.concatenate([fivebar.home_pose, [0.0, 0.0]]), Ts=0.002)
     result = simulate(controller, plant, SampledTrajectory(t, circle), 1.0, progress=False)
     error = np.linalg.norm(result.pose - result.reference, axis=1)
     assert error.max() < 2e-5  # m, with 20 % more mass in the plant (measured 5.1e-6)

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import (
     ConstrainedPlant,
     GPCController,
@@ -47,16 +48,16 @@ class FrozenDoubleIntegrator:
 class ExactDoubleIntegratorPlant:
     """Exact zero-order-hold step of ÿ = g u in closed form (no matrix exponential)."""
 
-    def __init__(self, g: np.ndarray, X0):
-        self.g = g
+    def __init__(self, g: np.ndarray, X0, Ts: float):
+        self.g, self.Ts = g, Ts
         self._X = np.asarray(X0, dtype=float).copy()
 
     @property
     def X(self) -> np.ndarray:
         return self._X.copy()
 
-    def step(self, u, Ts: float) -> np.ndarray:
-        n = self.g.shape[0]
+    def step(self, u) -> np.ndarray:
+        n, Ts = self.g.shape[0], self.Ts
         a = self.g @ np.asarray(u, dtype=float)
         y, yd = self._X[:n], self._X[n:]
         self._X = np.concatenate([y + Ts * yd + 0.5 * Ts**2 * a, yd + Ts * a])
@@ -81,13 +82,13 @@ def g_frozen(robot4) -> np.ndarray:
 
 
 def _linear_plan(g, settings, mode):
-    plant = ExactDoubleIntegratorPlant(g, np.concatenate([POSE_A, REST]))
+    plant = ExactDoubleIntegratorPlant(g, np.concatenate([POSE_A, REST]), settings.Ts)
     return plan_point_to_point(None, POSE_A, POSE_B, settings, mode=mode, plant=plant,
                                model=FrozenDoubleIntegrator(g))
 
 
 def test_linear_once_reaches_B_with_the_minimum_energy_inputs(g_frozen):
-    s = PlanSettings(Nmax=80, Nmin=10, Ts=0.01, Qy=1.0, Qu=0.0)
+    s = PlanSettings(Nmax=80, Nmin=10, Ts=0.01, weights=Weights(1.0, 0.0))
     res = _linear_plan(g_frozen, s, "once")
     G = end_rows_of_G(g_frozen, s.Nmax, s.k, s.Ts)
     u_star = np.linalg.pinv(G, rcond=1e-12) @ np.tile(POSE_B - POSE_A, s.k)  # minimum ‖u‖ reaching B
@@ -103,17 +104,17 @@ def test_linear_once_reaches_B_with_the_minimum_energy_inputs(g_frozen):
 
 
 def test_linear_once_with_input_weight_is_the_regularized_least_squares(g_frozen):
-    s = PlanSettings(Nmax=40, Nmin=10, Ts=0.02, Qy=1.0, Qu=1e-4)
+    s = PlanSettings(Nmax=40, Nmin=10, Ts=0.02, weights=Weights(1.0, 1e-4))
     res = _linear_plan(g_frozen, s, "once")
     G = end_rows_of_G(g_frozen, s.Nmax, s.k, s.Ts)
     r = np.tile(POSE_B - POSE_A, s.k)
-    u_ridge = np.linalg.solve(G.T @ G + s.Qu**2 * np.eye(G.shape[1]), G.T @ r)
+    u_ridge = np.linalg.solve(G.T @ G + s.weights.Qu**2 * np.eye(G.shape[1]), G.T @ r)
     np.testing.assert_allclose(res.u.reshape(-1), u_ridge, rtol=0, atol=1e-7 * np.max(np.abs(u_ridge)))
     assert np.max(np.abs(res.poses[-1] - POSE_B)) > 1e-9  # Qu > 0 trades a little end error for energy
 
 
 def test_linear_mode_b_follows_the_single_solve_by_the_principle_of_optimality(g_frozen):
-    s = PlanSettings(Nmax=40, Nmin=8, Ts=0.02, Qu=0.0, settle_steps=60)
+    s = PlanSettings(Nmax=40, Nmin=8, Ts=0.02, weights=Weights(1.0, 0.0), settle_steps=60)
     a = _linear_plan(g_frozen, s, "once")
     b = _linear_plan(g_frozen, s, "b")
     n = s.Nmax - s.Nmin + 1  # re-solving on the optimal path with N − 1 returns the rest of the plan
@@ -127,7 +128,7 @@ def test_linear_mode_b_follows_the_single_solve_by_the_principle_of_optimality(g
 
 
 def test_deadbeat_is_the_minimum_norm_move_in_k_samples(g_frozen):
-    s = PlanSettings(Ts=0.01, Qu=0.0)
+    s = PlanSettings(Ts=0.01, weights=Weights(1.0, 0.0))
     u = deadbeat_inputs(FrozenDoubleIntegrator(g_frozen), np.concatenate([POSE_A, REST]), POSE_B, s)
     G = end_rows_of_G(g_frozen, s.k, s.k, s.Ts)
     np.testing.assert_allclose(u.reshape(-1), np.linalg.pinv(G) @ np.tile(POSE_B - POSE_A, s.k),
@@ -210,7 +211,7 @@ def test_the_plan_spreads_energy_unlike_a_deadbeat_move(robot4, plans):
 @pytest.mark.parametrize("mode", ["a", "b", "once"])
 def test_torque_limits_are_respected(robot4, mode):
     free = PlanSettings(Ts=0.02, Nmax=60, Nmin=10)
-    limited = PlanSettings(Ts=0.02, Nmax=60, Nmin=10, torque_limit=10.0)
+    limited = PlanSettings(Ts=0.02, Nmax=60, Nmin=10, limits=Limits(torque=10.0))
     peak_free = plan_point_to_point(robot4, POSE_A, POSE_B, free, mode=mode).peak_torque
     res = plan_point_to_point(robot4, POSE_A, POSE_B, limited, mode=mode)
     assert peak_free > 11.0  # the limit binds
@@ -228,8 +229,8 @@ def test_planned_trajectory_is_tracked_by_gpc(robot4, plans):
     assert isinstance(traj, SampledTrajectory)
     np.testing.assert_allclose(traj.pose(plan.t[-1]), plan.poses[-1])
     X0 = np.concatenate([POSE_A, REST])
-    ctl = GPCController(ReducedModel(robot4), plan.settings.Ts, Horizons(10), Weights(1.0, 0.0), form="incremental")
-    sim = simulate(ctl, ConstrainedPlant(robot4.with_mass_scale(1.1), X0), traj, plan.t[-1], progress=False)
+    ctl = GPCController.build(ReducedModel(robot4), plan.settings.Ts, Horizons(10), Weights(1.0, 0.0), form="incremental")
+    sim = simulate(ctl, ConstrainedPlant(robot4.with_mass_scale(1.1), X0, Ts=plan.settings.Ts), traj, plan.t[-1], progress=False)
     m = sim.metrics()
     assert m["max_position_error_m"] <= 1e-4
     assert m["max_orientation_error_rad"] <= 1e-3
@@ -250,7 +251,8 @@ def test_plan_file_loads_as_a_sampled_trajectory(plans, tmp_path):
 
 # ---------------------------------------------------------------------------- validation
 @pytest.mark.parametrize("kwargs", [dict(Nmin=2), dict(Nmin=30, Nmax=20), dict(Ts=0.0), dict(k=0),
-                                    dict(torque_limit=10.0, solver="qr"), dict(torque_limit=-1.0),
+                                    dict(limits=Limits(torque=10.0), solver="qr"), dict(limits=10.0),
+                                    dict(limits=Limits(du=1.0)), dict(weights=(1.0, 0.0)),
                                     dict(reach_tolerance=(1e-4,))])
 def test_bad_settings_are_rejected(kwargs):
     with pytest.raises(InvalidParameterError):
@@ -263,7 +265,10 @@ def test_bad_requests_are_rejected(robot4, g_frozen):
     with pytest.raises(UnreachablePoseError):
         plan_point_to_point(robot4, POSE_A, [1.6, 1.6, 0.0])
     with pytest.raises(InvalidParameterError, match="start pose"):
-        plant = ExactDoubleIntegratorPlant(g_frozen, np.concatenate([POSE_B, REST]))
+        plant = ExactDoubleIntegratorPlant(g_frozen, np.concatenate([POSE_B, REST]), PlanSettings().Ts)
+        plan_point_to_point(None, POSE_A, POSE_B, plant=plant, model=FrozenDoubleIntegrator(g_frozen))
+    with pytest.raises(InvalidParameterError, match="sample time"):  # the plant's Ts is checked once
+        plant = ExactDoubleIntegratorPlant(g_frozen, np.concatenate([POSE_A, REST]), 0.5 * PlanSettings().Ts)
         plan_point_to_point(None, POSE_A, POSE_B, plant=plant, model=FrozenDoubleIntegrator(g_frozen))
     with pytest.raises(ParallelGPCError):
         plan_point_to_point(None, POSE_A, POSE_B)

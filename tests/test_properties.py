@@ -13,6 +13,7 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import Horizons, LeastSquaresProblem, Prediction, Weights, build_problem, make_solver
 from parallel_gpc.gpc import condense, incremental_prediction
 from parallel_gpc.solvers import QRSolver
@@ -131,7 +132,7 @@ def test_qr_and_qp_back_ends_agree_when_no_limit_binds(case):
     qr = QRSolver().solve(problem)
     assert np.all(np.isfinite(qr.v))
     u = pred.u_base + pred.u_map @ qr.v
-    loose = build_problem(pred, w, weights, p, m, torque_limit=10.0 * np.max(np.abs(u)) + 1.0)
+    loose = build_problem(pred, w, weights, p, m, limits=Limits(torque=10.0 * np.max(np.abs(u)) + 1.0))
     scale = max(np.linalg.norm(qr.v), 1e-3)
     for name, res in _solve_all(loose).items():
         assert np.linalg.norm(res.v - qr.v) <= 1e-5 * scale, name
@@ -145,7 +146,7 @@ def test_qp_back_ends_respect_binding_limits_and_agree(case, fraction):
     qr = QRSolver().solve(build_problem(pred, w, weights, p, m))
     u_free = pred.u_base + pred.u_map @ qr.v
     tau = max(fraction * np.max(np.abs(u_free)), 1.2 * np.max(np.abs(pred.u_base), initial=0.0), 1e-3)
-    problem = build_problem(pred, w, weights, p, m, torque_limit=tau)
+    problem = build_problem(pred, w, weights, p, m, limits=Limits(torque=tau))
     sols = _solve_all(problem)
     for name, res in sols.items():
         u = pred.u_base + pred.u_map @ res.v
@@ -163,6 +164,6 @@ def test_increment_limits_hold_in_every_back_end(case, fraction):
     pred, w, weights, p, m = case
     qr = QRSolver().solve(build_problem(pred, w, weights, p, m))
     delta = max(fraction * np.max(np.abs(qr.v)), 1e-3)
-    problem = build_problem(pred, w, weights, p, m, du_limit=delta)
+    problem = build_problem(pred, w, weights, p, m, limits=Limits(du=delta))
     for name, res in _solve_all(problem).items():
         assert np.max(np.abs(res.v)) <= delta * (1 + 1e-6) + 1e-9, name

@@ -11,9 +11,9 @@ from parallel_gpc.solvers import DAQPBackend, LeastSquaresProblem, QRSolver, mak
 class _Counting(QRSolver):
     calls = 0
 
-    def solve(self, problem, warm_start=None):
+    def solve_unconstrained(self, problem):
         type(self).calls += 1
-        return super().solve(problem, warm_start)
+        return super().solve_unconstrained(problem)
 
 
 def _problem(rng, limit):
@@ -35,7 +35,7 @@ def test_qr_first_skips_the_qr_while_limits_stay_active():
         assert np.allclose(res.v, DAQPBackend().solve(p).v, atol=1e-9)
     res = solver.solve(free)  # limits inactive: the QP's solution is the unconstrained one ...
     assert _Counting.calls == 1 and not res.active_limits
-    assert np.allclose(res.v, QRSolver().solve(free).v, rtol=1e-6, atol=1e-9)
+    assert np.allclose(res.v, QRSolver().solve_unconstrained(free).v, rtol=1e-6, atol=1e-9)
     res = solver.solve(free)  # ... and the next call is QR first again: the QR result exactly
     assert _Counting.calls == 2
-    assert np.array_equal(res.v, QRSolver().solve(free).v) and res.status == "unconstrained"
+    assert np.array_equal(res.v, QRSolver().solve_unconstrained(free).v) and res.status == "unconstrained"

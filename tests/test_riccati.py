@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import ConstrainedPlant, DiscreteLinearModel, GPCController, Horizons, ParallelRobot, ReducedModel
 from parallel_gpc import SCurve, Weights
 from parallel_gpc.errors import InvalidParameterError, SolverNotFoundError
@@ -62,7 +63,7 @@ def test_riccati_equals_qr_on_the_controllers_problems(robot, form, native):
     rng = np.random.default_rng(3)
     X = np.concatenate([robot.home_pose + 0.002 * rng.standard_normal(robot.n_y), 0.05 * rng.standard_normal(robot.n_y)])
     for N, No, Nu, Qy, Qu in CASES:
-        ctl = GPCController(model, TS, Horizons(N, No, Nu), _weights(robot, Qy, Qu), form=form)
+        ctl = GPCController.build(model, TS, Horizons(N, No, Nu), _weights(robot, Qy, Qu), form=form)
         ctl.u_prev = rng.standard_normal(robot.n_u)
         ctl.plan = rng.standard_normal((N, robot.n_u))
         ctl.disturbance = 1e-4 * rng.standard_normal(model.n_x)
@@ -89,7 +90,7 @@ def test_long_horizon_gain_is_scipys_lqr_gain(native, monkeypatch):
     P = solve_discrete_are(A, B, QY.T @ QY, QU.T @ QU)
     K_lqr = np.linalg.solve(QU.T @ QU + B.T @ P @ B, B.T @ P @ A)
     N = 150
-    ctl = GPCController(DiscreteLinearModel(A, B, np.eye(4), Ts=0.1), 0.1, Horizons(N), Weights(QY, QU),
+    ctl = GPCController.build(DiscreteLinearModel(A, B, np.eye(4), Ts=0.1), 0.1, Horizons(N), Weights(QY, QU),
                         solver="riccati")
     assert ctl._riccati.solver.native is native
     K = np.empty((2, 4))
@@ -109,16 +110,16 @@ def test_closed_loop_inputs_and_plans_match_qr(name, form):
     pose0 = robot.home_pose if ref is None else ref.pose(0.0)
     runs, plans = [], []
     for solver in ("qr", "riccati"):
-        ctl = GPCController(ReducedModel(robot), TS, Horizons(20, 1, 12), Weights(1.0, 1e-5), form=form,
+        ctl = GPCController.build(ReducedModel(robot), TS, Horizons(20, 1, 12), Weights(1.0, 1e-5), form=form,
                             solver=solver)
-        plant = ConstrainedPlant(robot, np.concatenate([pose0, np.zeros(robot.n_y)]))
+        plant = ConstrainedPlant(robot, np.concatenate([pose0, np.zeros(robot.n_y)]), Ts=TS)
         us = []
         for k in range(40):
             window = ref.window(k * TS, TS, 20) if ref is not None else np.tile(pose0 + 0.01, (20, 1))
             info = ctl.step(plant.X, window)
             assert info.result.solver == solver and not info.fallback
             us.append(info.u)
-            plant.step(info.u, TS)
+            plant.step(info.u)
         runs.append(np.array(us))
         plans.append(ctl.state.plan)
     scale = np.abs(runs[0]).max()
@@ -129,16 +130,16 @@ def test_closed_loop_inputs_and_plans_match_qr(name, form):
 def test_uncovered_cases_are_clear_errors():
     model = DiscreteLinearModel(A, B, np.eye(4), Ts=0.1)
     with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati", torque_limit=1.0)
+        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati", limits=Limits(torque=1.0))
     with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.1), form="incremental", solver="riccati", du_limit=1.0)
+        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), form="incremental", solver="riccati", limits=Limits(du=1.0))
     with pytest.raises(InvalidParameterError, match="nonsingular input weight Qu"):
-        GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.0), solver="riccati")  # the paper's Qu = 0
+        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.0), solver="riccati")  # the paper's Qu = 0
     with pytest.raises(InvalidParameterError, match="nonsingular input weight Qu"):
-        GPCController(model, 0.1, Horizons(10), Weights(1.0, [0.1, 0.0]), solver="riccati")
-    ctl = GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati")
+        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, [0.1, 0.0]), solver="riccati")
+    ctl = GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati")
     with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        ctl.torque_limit = 2.0  # a limit added later is refused the same way
+        ctl.limits = Limits(torque=2.0)  # a limit added later is refused the same way
     with pytest.raises(InvalidParameterError, match="form"):
         RiccatiSolver(np.eye(4), np.eye(2), np.eye(4), Horizons(10), "bogus")
     with pytest.raises(SolverNotFoundError, match="path of the GPC controller.*use 'qr' here"):
@@ -147,8 +148,8 @@ def test_uncovered_cases_are_clear_errors():
 
 def test_a_failed_riccati_solve_is_replaced_by_qr_visibly(monkeypatch):
     model = DiscreteLinearModel(A, B, np.eye(4), Ts=0.1)
-    ctl = GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati")
-    qr = GPCController(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="qr")
+    ctl = GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati")
+    qr = GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="qr")
     X, w = np.array([0.1, 0.0, -0.2, 0.05]), np.zeros((10, 4))
     failed = replace(ctl._riccati.solver.solve(A, B, None, X, None, w), v=np.full(20, np.nan), status="failed",
                      message="R + BᵀPB is not positive definite")

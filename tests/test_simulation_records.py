@@ -23,8 +23,8 @@ class PoseByPose(SCurve):
 
 
 def _run(robot, reference, duration):
-    ctrl = GPCController(ReducedModel(robot), TS, Horizons(10), Weights(1.0, 1e-5))
-    plant = ConstrainedPlant(robot, reference.initial_state())
+    ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(10), Weights(1.0, 1e-5))
+    plant = ConstrainedPlant(robot, reference.initial_state(), Ts=TS)
     return simulate(ctrl, plant, reference, duration, progress=False)
 
 
@@ -45,7 +45,7 @@ def test_batched_windows_and_records_equal_the_per_sample_ones(robot4, monkeypat
     # the absolute form's u lies in the range of B_rᵀ: its internal force is rounding, ~1e-13 ‖u‖
     rounding = 1e-11 * np.abs(fast.u).max()
     np.testing.assert_allclose(fast.internal_force, slow.internal_force, rtol=0, atol=rounding)
-    plant = ConstrainedPlant(robot4, SCurve(duration=0.5).initial_state())
+    plant = ConstrainedPlant(robot4, SCurve(duration=0.5).initial_state(), Ts=TS)
     expected = []
     for k in range(len(fast.t)):  # replay the recorded states: B_r at each, with the recorded u
         plant.q, plant.v = fast.q[k], robot4.velocity_map(fast.q[k])[0] @ fast.velocity[k]

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights, build_problem
 from parallel_gpc.gpc import absolute_prediction, incremental_prediction
 from parallel_gpc.solvers import LeastSquaresProblem, MinNormOf, QRSolver, available_solvers, make_solver, qr_least_squares
@@ -26,7 +27,7 @@ def gpc_problems():
     H = Horizons(15, 0, 15)
     out = {}
     for form in ("absolute", "incremental"):
-        ctrl = GPCController(model, 0.005, H, Weights(1.0, 1e-3), form=form)
+        ctrl = GPCController.build(model, 0.005, H, Weights(1.0, 1e-3), form=form)
         t = 0.6
         X = np.concatenate([ref.pose(t), (ref.pose(t + 1e-4) - ref.pose(t)) / 1e-4])
         ctrl.u_prev = np.array([1.0, -2.0, 0.5, 1.5])
@@ -38,14 +39,14 @@ def gpc_problems():
 
 def _problem(gpc_problems, form, torque_limit=None):
     pred, w = gpc_problems[form]
-    return build_problem(pred, w, Weights(1.0, 1e-3), 3, 4, torque_limit=torque_limit)
+    return build_problem(pred, w, Weights(1.0, 1e-3), 3, 4, limits=Limits(torque=torque_limit))
 
 
 @pytest.mark.parametrize("form", ["absolute", "incremental"])
 @pytest.mark.parametrize("backend", QP_BACKENDS)
 def test_qp_backends_equal_qr_when_no_limit_binds(gpc_problems, form, backend):
     problem = _problem(gpc_problems, form, torque_limit=1e4)
-    qr = QRSolver().solve(problem)
+    qr = QRSolver().solve_unconstrained(problem)
     qp = make_solver(backend).solve(problem)
     assert qp.ok and not qp.active_limits
     assert np.linalg.norm(qp.v - qr.v) <= 1e-6 * np.linalg.norm(qr.v)

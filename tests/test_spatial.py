@@ -150,7 +150,7 @@ def test_error_norms_split_translations_and_angles():
 
 # ------------------------------------------------------------------------------ closed loop
 def _track(robot, forms, **kw):
-    settings = TrackingSettings(robot=robot.name, Ts=0.004, N=15, **kw)
+    settings = TrackingSettings.from_flat(robot=robot.name, Ts=0.004, N=15, **kw)
     return run_tracking(settings, forms, progress=False, robot=robot)
 
 

@@ -72,10 +72,10 @@ def test_constrained_plant_with_spherical_joint_stays_on_the_closures(rps_pair):
 
     sph = rps_pair[0]
     X0 = np.concatenate([sph.home_pose, [0.02, 0.05, -0.03]])
-    full, reduced = ConstrainedPlant(sph, X0), ReducedPlant(sph, X0, substeps=4)
+    full, reduced = ConstrainedPlant(sph, X0, Ts=0.002), ReducedPlant(sph, X0, Ts=0.002, substeps=4)
     u = np.array([20.0, 21.0, 19.0])
     for _ in range(25):
-        a, b = full.step(u, 0.002), reduced.step(u, 0.002)
+        a, b = full.step(u), reduced.step(u)
     np.testing.assert_allclose(a, b, atol=1e-8)
     assert np.max(np.abs(sph.closure_residual(full.q))) < 1e-10
 

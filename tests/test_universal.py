@@ -89,9 +89,9 @@ def test_constrained_plant_with_universal_joints_follows_the_reduced_plant(ups_p
 
     uni = ups_pair[0]
     X0 = np.concatenate([uni.home_pose, [0.02, -0.03, 0.05, 0.1, -0.05, 0.08]])
-    full, reduced = ConstrainedPlant(uni, X0), ReducedPlant(uni, X0, substeps=4)
+    full, reduced = ConstrainedPlant(uni, X0, Ts=0.002), ReducedPlant(uni, X0, Ts=0.002, substeps=4)
     u = np.array([40.0, 42.0, 38.0, 41.0, 39.0, 40.0])  # N, about the weight of the platform
     for _ in range(20):
-        a, b = full.step(u, 0.002), reduced.step(u, 0.002)
+        a, b = full.step(u), reduced.step(u)
     np.testing.assert_allclose(a, b, atol=1e-8)
     assert np.max(np.abs(uni.closure_residual(full.q))) < 1e-10

@@ -15,6 +15,7 @@ import pinocchio as pin
 import psutil
 import pytest
 
+from parallel_gpc.limits import Limits
 from parallel_gpc import load_result, save_result, viz
 from parallel_gpc.cli import main as cli_main
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, ShapeError, ViewerError
@@ -188,7 +189,9 @@ def test_animate_checks_shapes(robot4):
 
 def test_saturation_flags():
     u = np.array([[10.0, -60.0], [59.0, 60.0]])
-    assert viz.saturation_flags(u, 60.0).tolist() == [[False, True], [False, True]]
+    assert viz.saturation_flags(u, Limits(torque=60.0)).tolist() == [[False, True], [False, True]]
+    assert viz.saturation_flags(u, Limits(torque=[70.0, 60.0])).tolist() == [[False, True], [False, True]]
+    assert viz.saturation_flags(u, Limits()) is None  # no torque limit: nothing to flag
 
 
 # ------------------------------------------------------------------------- offline HTML

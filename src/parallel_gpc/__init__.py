@@ -11,7 +11,8 @@ reduced dynamics, plants) → ``solvers`` (least squares, QP back ends) → ``gp
 predictions, controller, planning, references) → ``studies`` (simulation, tracking, the forms
 compared) → ``sweeps`` (sweeps and the robustness study on Dask) → ``plots`` (figures) →
 ``bench`` (the benchmark harness) → ``viz`` (meshcat) → ``cli``. ``results`` (the one result file
-format) and ``errors`` sit beside them and import only NumPy and the robot description.
+format), ``limits`` (the one input-limits type, :class:`~parallel_gpc.limits.Limits`) and ``errors``
+sit beside them and import only NumPy and the robot description.
 """
 
 from __future__ import annotations
@@ -47,6 +48,8 @@ _PUBLIC = {
     "robustness_study": "sweeps", "load_spec": "sweeps", "run_sweep": "sweeps", "load_results": "sweeps",
     # plots
     "save_figure": "plots",
+    # limits
+    "Limits": "limits",
     # result files
     "save_result": "results", "load_result": "results", "ResultFile": "results",
 }

@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .limits import Limits, as_limits
 from .errors import InvalidParameterError, ResultFormatError, ShapeError
 from .model.description import embedded_robots, urdf_dir
 from .validation import finite_matrix, finite_vector, regular_file
@@ -101,17 +102,21 @@ def robot_reference(robot) -> str:
     return urdf.stem if embedded else str(urdf)
 
 
-def saturation_flags(u, torque_limit, rtol: float = 1e-6) -> np.ndarray:
-    """(K, n_u) flags: True where a drive torque is at its limit.
+def saturation_flags(u, limits: Limits, rtol: float = 1e-6) -> np.ndarray | None:
+    """(K, n_u) flags: True where a drive torque is at its limit; None without a torque limit.
 
     Args:
         u: (K, n_u) drive torques, N·m.
-        torque_limit: (n_u,) or scalar symmetric limits, N·m.
+        limits: the input :class:`~parallel_gpc.limits.Limits` (its torque limit, a scalar or (n_u,)).
         rtol: relative tolerance below the limit that still counts as saturated.
+
+    Raises:
+        InvalidParameterError: limits that are not a Limits. ShapeError: per-drive limits not n_u long.
     """
+    if as_limits(limits).torque is None:
+        return None
     u = finite_matrix("drive torques u", u, (None, None))
-    limit = finite_vector("torque_limit", np.broadcast_to(torque_limit, (u.shape[1],)), u.shape[1])
-    return np.abs(u) >= limit * (1.0 - rtol)
+    return np.abs(u) >= limits.for_drives(u.shape[1]).torque * (1.0 - rtol)
 
 
 def check_times(t) -> np.ndarray:

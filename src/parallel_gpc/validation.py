@@ -5,6 +5,7 @@ Each helper raises one error of :mod:`parallel_gpc.errors` naming the value and 
 
 from __future__ import annotations
 
+import math
 import os
 import stat
 
@@ -68,6 +69,30 @@ def number(name: str, value) -> float:
         return float(value)
     except (TypeError, ValueError):
         raise InvalidParameterError(f"{name} = {value!r} ({type(value).__name__}) must be a real number") from None
+
+
+def check_sample_time(owner, Ts: float, what: str, whose: str, required: bool = True) -> None:
+    """Refuse ``owner`` (a plant, a discrete model) whose own sample time ``owner.Ts`` differs from
+    ``Ts`` (relative 1e-12); checked once, where a loop or a controller starts, never per sample.
+
+    Args:
+        owner: the object with a ``Ts`` attribute (s). Ts: the sample time it must have (s).
+        what: the owner, for the message (``"plant"``, ``"model"``). whose: the other owner
+            (``"the controller's"``).
+        required: an owner without ``Ts`` (or with Ts None) is refused; False lets it pass.
+
+    Raises:
+        InvalidParameterError: naming both sample times and the fix.
+    """
+    own = getattr(owner, "Ts", None)
+    if own is None:
+        if required:
+            raise InvalidParameterError(f"the {what} {type(owner).__name__} has no sample time Ts; build it with "
+                                        f"{whose} Ts = {Ts!r} s")
+        return
+    if not math.isclose(float(own), float(Ts), rel_tol=1e-12, abs_tol=0.0):
+        raise InvalidParameterError(f"{whose} Ts = {Ts!r} s differs from the {what}'s own sample time Ts = {own!r} s; "
+                                    "give both the same Ts (one sample time per loop)")
 
 
 #: Largest estimated memory (bytes) of the dense arrays one problem or one run allocates.

@@ -44,6 +44,7 @@ from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons, Prediction, condense
 from ..gpc.references import SCurve, path_for
+from ..limits import Limits
 from ..model.robot import ParallelRobot
 from .report import evaluate_targets, machine_info, markdown_report, ratios
 from ..plots.bench import plot_results
@@ -75,15 +76,16 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
     H = Horizons(N)
     stretches = list(stretches.values())
     # ---- the absolute controller's own closed loop: its problems, and the torque limit τ
-    seq_abs = replay(GPCController(ReducedModel(robot), Ts, H, W, form="absolute"), robot, stretches, ref, N)
-    abs_ctl = GPCController(ReducedModel(robot), Ts, H, W, form="absolute")
+    seq_abs = replay(GPCController.build(ReducedModel(robot), Ts, H, W, form="absolute"), robot, stretches, ref, N)
+    abs_ctl = GPCController.build(ReducedModel(robot), Ts, H, W, form="absolute")
     problems = [[(pred := abs_ctl.predict(X), build_problem(pred, w, W, robot.n_y, m)) for X, w, _ in rows]
                 for rows in seq_abs]
     qr = QRSolver()
     u_all = np.concatenate([np.abs(qr.solve(p).v) for rows in problems for _, p in rows])
     tau = float(np.quantile(u_all, cfg.limit_quantile))
     run.limits[(name, N)] = tau
-    limited = [[build_problem(pred, w, W, robot.n_y, m, torque_limit=tau) for (pred, _), (_, w, _) in zip(rows, seq)]
+    limits = Limits(torque=tau)
+    limited = [[build_problem(pred, w, W, robot.n_y, m, limits) for (pred, _), (_, w, _) in zip(rows, seq)]
                for rows, seq in zip(problems, seq_abs)]
     # references: QR (unconstrained), a fresh DAQP active-set solve (limited)
     ref_free = [[qr.solve(p).v for _, p in rows] for rows in problems]
@@ -116,7 +118,7 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
                              for j in range(N)])
             f, G = condense(A_seq, B_seq, c_seq, robot_C(robot), X, H, hold_inputs=True)
             pred = Prediction(f, G, np.zeros(N * m), np.eye(N * m), H, "absolute")
-            v_ref = DAQPBackend().solve(build_problem(pred, w, W, robot.n_y, m, torque_limit=tau)).v
+            v_ref = DAQPBackend().solve(build_problem(pred, w, W, robot.n_y, m, limits)).v
             out.append((A_seq, B_seq, c_seq, X, w, wdot, v_ref))
             if not ltv and not out[1:]:  # the cost scale a qpmpc user would pick, once
                 kappa = 1.0 / float(np.max(np.einsum("ij,ij->j", G, G)))
@@ -169,7 +171,7 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
                     t0 = time.perf_counter()
                     f, G = condense(A_seq, B_seq, c_seq, robot_C(robot), X, H, hold_inputs=True)
                     pred = Prediction(f, G, np.zeros(N * m), cached_identity(N * m), H, "absolute")
-                    p = build_problem(pred, w, W, robot.n_y, m, torque_limit=tau)
+                    p = build_problem(pred, w, W, robot.n_y, m, limits)
                     res = solver.solve(p, warm.get(("ltv", mname)))
                     dt = time.perf_counter() - t0
                     warm[("ltv", mname)] = _shift(res.v, m) if res.ok else None
@@ -238,8 +240,8 @@ def closed_loop_wall_time(robot_name: str, seconds: float, N: int = 20, Ts: floa
     robot = ParallelRobot.load(robot_name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     model = ReducedModel(robot, native=native)
-    ctl = GPCController(model, Ts, Horizons(N), Weights(1.0, 1e-5), solver=solver)
-    plant = ConstrainedPlant(robot, ref.initial_state(), native=native)
+    ctl = GPCController.build(model, Ts, Horizons(N), Weights(1.0, 1e-5), solver=solver)
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=Ts, native=native)
     t0 = time.perf_counter()
     res = simulate(ctl, plant, ref, seconds, progress=False)
     wall = time.perf_counter() - t0

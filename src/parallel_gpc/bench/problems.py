@@ -18,6 +18,7 @@ from ..gpc.controller import GPCController
 from ..gpc.criterion import Weights
 from ..gpc.prediction import Horizons
 from ..gpc.references import SCurve
+from ..limits import Limits
 from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..model.robot import ParallelRobot
@@ -93,8 +94,8 @@ def closed_loop_states(robot: ParallelRobot, cfg: BenchConfig, ref: SCurve) -> d
     """States of a closed-loop run (absolute GPC, N = 20, full constrained plant) on the S-curve,
     cut into the configured stretches of consecutive samples."""
     Ts = cfg.Ts
-    ctl = GPCController(ReducedModel(robot), Ts, Horizons(20), Weights(1.0, cfg.qu), form="absolute")
-    plant = ConstrainedPlant(robot, ref.initial_state())
+    ctl = GPCController.build(ReducedModel(robot), Ts, Horizons(20), Weights(1.0, cfg.qu), form="absolute")
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=Ts)
     plans = [ctl.plan.copy()]
     step = ctl.step
 
@@ -129,20 +130,23 @@ def replay_controllers(model_factory, cfg: BenchConfig, N: int, tau):
     pure-Python reference, timed in the same run for the speed-up rows."""
     H = Horizons(N)
     W = Weights(1.0, cfg.qu)
+    limits = Limits(torque=tau)
     out = []
     for form in ("absolute", "incremental", "nonlinear"):
-        out.append((f"{form}", GPCController(model_factory(None), cfg.Ts, H, W, form=form)))
-        out.append((f"{form}{PYTHON_REFERENCE}", GPCController(model_factory(False), cfg.Ts, H, W, form=form)))
-        out.append((f"{form} +limits", GPCController(model_factory(None), cfg.Ts, H, W, form=form, torque_limit=tau)))
+        out.append((f"{form}", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form)))
+        out.append((f"{form}{PYTHON_REFERENCE}", GPCController.build(model_factory(False), cfg.Ts, H, W, form=form)))
+        out.append((f"{form} +limits", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form,
+                                                           limits=limits)))
     for form in ("absolute", "incremental"):  # the paper's Fig. 2 weights: Qu = 0, minimum-norm QR
-        out.append((f"{form} Qu=0", GPCController(model_factory(None), cfg.Ts, H, Weights(1.0, 0.0), form=form)))
+        out.append((f"{form} Qu=0", GPCController.build(model_factory(None), cfg.Ts, H, Weights(1.0, 0.0), form=form)))
     for form in ("absolute", "incremental"):  # limits through DAQP alone (no QR first)
-        out.append((f"{form} +limits daqp-direct", GPCController(model_factory(None), cfg.Ts, H, W, form=form,
-                                                                 torque_limit=tau, solver="daqp-direct")))
-    out.append(("absolute +limits bvls", GPCController(model_factory(None), cfg.Ts, H, W, torque_limit=tau, solver="bvls")))
-    out.append(("absolute cholesky", GPCController(model_factory(None), cfg.Ts, H, W, solver="cholesky")))
+        out.append((f"{form} +limits daqp-direct", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form,
+                                                                       solver="daqp-direct", limits=limits)))
+    out.append(("absolute +limits bvls", GPCController.build(model_factory(None), cfg.Ts, H, W, solver="bvls",
+                                                             limits=limits)))
+    out.append(("absolute cholesky", GPCController.build(model_factory(None), cfg.Ts, H, W, solver="cholesky")))
     for form in ("absolute", "incremental", "nonlinear"):  # the Riccati recursion: no condensing
-        out.append((f"{form} riccati", GPCController(model_factory(None), cfg.Ts, H, W, form=form, solver="riccati")))
+        out.append((f"{form} riccati", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form, solver="riccati")))
     return out
 
 
@@ -157,7 +161,7 @@ def replay(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: 
     out = []
     for stretch in stretches:
         _start_at(ctl, stretch[0])
-        plant = ConstrainedPlant(robot, stretch[0].X)
+        plant = ConstrainedPlant(robot, stretch[0].X, Ts=Ts)
         rows = []
         for k, smp in enumerate(stretch):
             X, w = plant.X, ref.window(smp.t, Ts, N)
@@ -168,7 +172,7 @@ def replay(ctl: GPCController, robot: ParallelRobot, stretches, ref: SCurve, N: 
             if entry is not None and k >= warmup:
                 entry.times.append(dt)
                 entry.failures += int(info.fallback)
-            plant.step(info.u, Ts)
+            plant.step(info.u)
         out.append(rows)
     return out
 

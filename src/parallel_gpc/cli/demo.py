@@ -33,25 +33,26 @@ def cmd_demo(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     check = deadbeat_check(settings, duration=args.deadbeat_duration, robot=robot)
     diffs = ", ".join(f"{f} {d:.1e}" for f, d in check.max_difference().items())
-    print(f"1) Qu = 0 (the paper's Fig. 2 setting), exact plant, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}: "
+    print(f"1) Qu = 0 (the paper's Fig. 2 setting), exact plant, Ts = {1e3 * settings.Ts:g} ms, N = {settings.horizons.N}: "
           f"the stacked G has full row rank, so every form is the one-step dead-beat law "
           f"u(k) = (C B_d)⁺ (w(k+1) − C(A_d X + c_d)).\n   max |u_form − u_dead-beat| over "
           f"{len(check.t)} samples [N·m]: {diffs} — the forms are indistinguishable at Qu = 0.")
     forms = selected_forms(args.forms)
     runs = run_comparison(settings, forms, gains=(0.0, settings.disturbance_gain), progress=not args.no_progress,
                           robot=robot)
-    print(f"2) Qu = {settings.Qu:g} (the horizon matters), Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, "
+    print(f"2) Qu = {settings.weights.Qu:g} (the horizon matters), Ts = {1e3 * settings.Ts:g} ms, "
+          f"N = {settings.horizons.N}, "
           f"plant mass × {settings.mass_scale:g}, steady load {list(settings.platform_force)} (N, N, N·m), "
-          f"torque limit {settings.torque_limit}; each form with the disturbance estimate off and on (est. α):")
+          f"torque limit {settings.limits.to_dict()['torque']}; each form with the disturbance estimate off and on (est. α):")
     print(comparison_table(runs))
     print("   steady = mean position error over the last 0.3 s (S-curve ends at 2 s); int. f = largest "
           "drive-torque component in null(B_r) (drive fighting)"
-          + ("; with an active torque limit it may be used to respect the limit" if settings.torque_limit else ""))
+          + ("; with an active torque limit it may be used to respect the limit" if settings.limits.torque is not None else ""))
     for (form, gain), res in runs.items():
         res.save(out / f"demo_{form}_a{gain:g}.npz")
     on = {form: res for (form, gain), res in runs.items() if gain == settings.disturbance_gain}
-    title = f"Qu = {settings.Qu:g}, mass × {settings.mass_scale:g}, load {list(settings.platform_force)}"
-    written = [save_figure(plot_comparison(runs, settings.torque_limit, f"GPC forms compared ({title})"),
+    title = f"Qu = {settings.weights.Qu:g}, mass × {settings.mass_scale:g}, load {list(settings.platform_force)}"
+    written = [save_figure(plot_comparison(runs, settings.limits, f"GPC forms compared ({title})"),
                            out / "demo_compare.png"),
                save_figure(plot_paths(on, f"platform path, estimator on ({title})"), out / "demo_path.png")]
     _animations(args, robot, on, settings, out)
@@ -71,11 +72,11 @@ def _animations(args, robot, results, settings, out: Path) -> None:
 
     for i, (form, res) in enumerate(results.items()):
         html = str(out / f"demo_{form}.html")
-        flags = None if settings.torque_limit is None else saturation_flags(res.u, settings.torque_limit, rtol=1e-5)
+        flags = saturation_flags(res.u, settings.limits, rtol=1e-5)
         view = Namespace(html=html, html_optional=True, serve=bool(args.serve) and i == len(results) - 1)
         show_trajectory(view, robot, res.t, res.q,
                         reference=res.reference, saturated=flags,
-                        title=f"{form} GPC, disturbance estimate α = {settings.disturbance_gain:g}, Qu = {settings.Qu:g}")
+                        title=f"{form} GPC, disturbance estimate α = {settings.disturbance_gain:g}, Qu = {settings.weights.Qu:g}")
 
 
 def register_demo(sub) -> None:

@@ -52,7 +52,8 @@ def _pose_rad(robot, values, default, name: str) -> np.ndarray:
 def cmd_plan(args) -> int:
     import numpy as np
 
-    from ..gpc import MODES, PlanSettings, plan_modes, plan_table
+    from ..gpc import MODES, PlanSettings, Weights, plan_modes, plan_table
+    from ..limits import Limits
     from ..model import ParallelRobot
     from ..plots import plot_fig3, plot_fig4, save_figure
 
@@ -61,12 +62,12 @@ def cmd_plan(args) -> int:
     robot = ParallelRobot.load(args.robot)
     A, B = (_pose_rad(robot, values, default, name)
             for values, default, name in zip((args.A, args.B), default_poses(robot), "AB"))
-    settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, Qy=args.Qy, Qu=args.Qu,
-                            torque_limit=args.torque_limit, solver=args.solver, settle_steps=args.settle)
+    settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, weights=Weights(args.Qy, args.Qu),
+                            limits=Limits(torque=args.torque_limit), solver=args.solver, settle_steps=args.settle)
     print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, rad); "
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
-          f"(move {settings.duration:g} s), Qy = {settings.Qy}, Qu = {settings.Qu}, "
-          f"torque limit = {settings.torque_limit}, solver = {settings.solver_name}")
+          f"(move {settings.duration:g} s), Qy = {settings.weights.Qy}, Qu = {settings.weights.Qu}, "
+          f"torque limit = {settings.limits.to_dict()['torque']}, solver = {settings.solver}")
     comparison = plan_modes(robot, A, B, settings, progress=not args.no_progress)
     results = comparison.results
     for res in results:

@@ -61,7 +61,7 @@ def settings_from_args(args):
     """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments."""
     from ..studies import TrackingSettings
 
-    return TrackingSettings(
+    return TrackingSettings.from_flat(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
         disturbance_gain=args.disturbance_gain,
@@ -83,8 +83,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     check_view_outputs(args)
     robot = ParallelRobot.load(settings.robot)
     results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
-    print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {settings.N}, No = {settings.No}, "
-          f"Nu = {settings.Nu or settings.N}, Qy = {settings.Qy:g}, Qu = {settings.Qu:g}, "
+    H, W = settings.horizons, settings.weights
+    print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {H.N}, No = {H.No}, "
+          f"Nu = {H.Nu}, Qy = {W.Qy:g}, Qu = {W.Qu:g}, "
           f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
@@ -95,7 +96,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
              save_figure(plot_time_histories(results, f"{title}: error, velocity, torque"), out / "track_time.png")]
     print("wrote " + ", ".join(str(p) for p in paths) + f" and track_<form>.npz in {out}")
     last = results[list(results)[-1]]
-    flags = None if settings.torque_limit is None else saturation_flags(last.u, settings.torque_limit, rtol=1e-5)
+    flags = saturation_flags(last.u, settings.limits, rtol=1e-5)
     show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
     if any(r.interrupted for r in results.values()):
         print("interrupted: partial results saved")

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError, NonFiniteError, RobotFormatError
 from ..model.mjcf_export import export_mjcf
+from ..model.plant import saturation_limit
 from ..validation import finite_vector, positive
 from .sensors import Measurement, Sensors, encoder_readings
 
@@ -42,7 +43,8 @@ class MujocoPlant:
         sensors: what :meth:`measure` returns (default: encoders).
         mjcf: path of the user's MJCF (or its text), or None to export ``robot``.
         timestep: MuJoCo step of the exported model (s); default Ts / 20.
-        torque_limit: drive saturation (N·m, N) of the exported motors, or None.
+        torque_limit: drive saturation (N·m, N) of the exported motors: a number, (n_u,) values or a
+            :class:`~parallel_gpc.limits.Limits` (torque only), or None.
         seed: seed of the reading noise.
 
     Attributes:
@@ -60,7 +62,7 @@ class MujocoPlant:
         X0 = finite_vector("X0", X0, 2 * n_y)
         if mjcf is None:
             timestep = self.Ts / 20 if timestep is None else positive("timestep", timestep, " s")
-            self.xml = export_mjcf(robot, timestep, torque_limit=torque_limit)
+            self.xml = export_mjcf(robot, timestep, torque_limit=saturation_limit(torque_limit, robot.n_u))
         else:
             path = Path(mjcf) if not str(mjcf).lstrip().startswith("<") else None
             self.xml = path.read_text() if path is not None else str(mjcf)

@@ -21,7 +21,6 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from ..errors import InvalidParameterError, SensorError, ShapeError
-from ..validation import positive
 from .sensors import Measurement, Sensors, encoder_readings
 
 
@@ -63,19 +62,18 @@ class SensedPlant:
     """A :class:`~parallel_gpc.model.ConstrainedPlant` (or ReducedPlant) behind simulated sensors.
 
     Args:
-        plant: the simulated machine.
-        Ts: sample time (s) of :meth:`apply`.
+        plant: the simulated machine; its sample time ``plant.Ts`` (s) is the one of :meth:`apply`.
         sensors: what is measured; encoder readings are quantized to the resolution (after
             ``noise_counts`` of white noise) and arrive ``delay`` samples late.
         seed: seed of the reading noise.
     """
 
-    def __init__(self, plant, Ts: float, sensors: Sensors = Sensors(), seed: int = 0):
+    def __init__(self, plant, sensors: Sensors = Sensors(), seed: int = 0):
         if not isinstance(sensors, Sensors):
             raise InvalidParameterError(f"sensors must be a Sensors, got {type(sensors).__name__}")
         self.plant = plant
         self.robot = plant.robot
-        self.Ts = positive("Ts", Ts, " s")
+        self.Ts = plant.Ts
         self.sensors = sensors
         self._rng = np.random.default_rng(seed)
         self._resolution = sensors.resolution(self.robot)
@@ -118,4 +116,4 @@ class SensedPlant:
 
     def apply(self, u) -> None:
         """Hold u for one sample Ts."""
-        self.plant.step(u, self.Ts)
+        self.plant.step(u)

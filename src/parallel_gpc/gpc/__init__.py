@@ -4,6 +4,7 @@ from .prediction import Horizons, Prediction, absolute_prediction, condense, inc
 from .criterion import Criterion, Weights, build_problem
 from .protocol import ControlModel
 from .linear_model import DiscreteLinearModel
+from ..limits import Limits
 from .settings import ControllerState, GPCSettings
 from .controller import FORMS, GPCController, StepInfo
 from .references import Hold, Reference, SampledTrajectory, SCurve, path_for
@@ -12,7 +13,7 @@ from .plan_result import plan_table
 
 __all__ = [
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
-    "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings",
+    "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
     "FORMS", "GPCController", "StepInfo", "Hold", "Reference", "SampledTrajectory", "SCurve", "path_for", "PlanResult",
     "PlanSettings", "deadbeat_inputs", "plan_point_to_point", "MODES", "PlanComparison", "plan_modes", "plan_table",
 ]

@@ -22,7 +22,6 @@ Only the first move is applied; the rest of the plan warm-starts the next step.
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass, replace
 
@@ -31,10 +30,11 @@ import numpy as np
 from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError
 from ..solvers import QRSolver, SolveResult, make_solver
 from ..solvers.problem import from_cumulative
-from ..validation import all_finite, finite_vector
-from .criterion import Criterion, Weights, _limit_vector
-from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits, tightened
-from .prediction import Horizons, Prediction, absolute_prediction, incremental_prediction, simulative_prediction
+from ..validation import all_finite, check_sample_time, finite_vector
+from ..limits import Limits
+from .criterion import Criterion
+from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
+from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
 from .riccati import RiccatiPath
@@ -75,55 +75,33 @@ class GPCController:
 
     Args:
         model: the controller's model (may differ from the plant: mismatch studies).
-        Ts: sample time in s.
-        horizons: N, No, Nu.
-        weights: square-root weights Qy, Qu.
-        form: ``"absolute"``, ``"incremental"``, ``"incremental-delayed"`` or ``"nonlinear"``.
-        solver: back-end name (see :func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``
-            (the unconstrained problem by the Riccati recursion of :mod:`parallel_gpc.gpc.riccati`,
-            no condensing; Qu nonsingular, no limits; the same plan as ``"qr"``); default ``"qr"``
-            without limits; with limits ``"qr-first:bvls"`` (absolute form) or
-            ``"qr-first:daqp-direct"`` (incremental forms).
-        torque_limit: symmetric drive torque limit (N·m), scalar or (m,), or None.
-        du_limit: symmetric increment limit (N·m per sample), incremental forms only.
+        settings: the frozen, validated :class:`~parallel_gpc.gpc.GPCSettings` (sample time,
+            horizons, weights, form, solver, limits, disturbance gain, max_condition).
         u0: (m,) input applied before the first step, u(−1) (N·m); default zero.
-        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
-            d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the
-            horizon. It makes the prediction unbiased under model mismatch with a steady load
-            (gravity, a constant force), which the incremental forms need to reach zero
-            steady-state error. Default: 0.5 for the incremental forms, 0 for the absolute form.
-        max_condition: largest accepted condition number of the model's input gain
-            g = M_r⁻¹ B_r (discretized) at the measured state; beyond it the step raises
-            :class:`~parallel_gpc.errors.SingularPoseError` instead of commanding the unbounded
-            torques a (near-)singular pose calls for. Default 1e3: cond(g) is 10–20 along the paper's
-            S-curve and A→B on both embedded robots, 1e3 is about 1 cm from a planar_3rrr direct
-            singularity. Which gain is checked for other models: :class:`~parallel_gpc.gpc.ControlModel`
-            (a :class:`~parallel_gpc.gpc.DiscreteLinearModel` is not checked).
 
-    The same settings as one frozen object: :meth:`from_settings`, :attr:`settings`.
+    :meth:`build` makes the settings from keywords: ``GPCController.build(model, Ts=0.002,
+    horizons=Horizons(20), form="nonlinear", limits=Limits(torque=60.0))``.
 
     Raises:
-        InvalidParameterError: bad Ts (or one that differs from the model's own Ts), form,
-            horizons, weights or limits.
-        InfeasibleLimitsError: limits that admit no input (≤ 0, or u0 outside ±(τ + δ) in the
-            incremental forms: no Δu within ±δ brings it within ±τ).
+        InvalidParameterError: settings that are not a GPCSettings, a model that is not a
+            :class:`~parallel_gpc.gpc.ControlModel`, or whose own Ts differs from the settings'.
+        ShapeError: weights or per-drive limits that do not fit the model's sizes.
+        InfeasibleLimitsError: u0 outside ±(τ + δ) in the incremental forms (no Δu within ±δ
+            brings it within ±τ).
     """
 
-    def __init__(self, model: ControlModel, Ts: float, horizons: Horizons, weights: Weights | None = None,
-                 form: str = "absolute", solver: str | None = None, torque_limit=None, du_limit=None, u0=None,
-                 disturbance_gain: float | None = None, max_condition: float = 1e3):
-        settings = GPCSettings(Ts, horizons, Weights() if weights is None else weights, form, solver, torque_limit,
-                               du_limit, disturbance_gain, max_condition)
+    def __init__(self, model: ControlModel, settings: GPCSettings, u0=None):
+        if not isinstance(settings, GPCSettings):
+            raise InvalidParameterError(f"settings must be a GPCSettings, got {type(settings).__name__}; "
+                                        "GPCController.build(model, Ts, horizons, ...) takes keywords")
         self._setup(model, settings, u0)
 
     @classmethod
-    def from_settings(cls, model: ControlModel, settings: GPCSettings, u0=None) -> "GPCController":
-        """A controller of ``model`` with validated ``settings``; u0 as in the constructor."""
-        if not isinstance(settings, GPCSettings):
-            raise InvalidParameterError(f"settings must be a GPCSettings, got {type(settings).__name__}")
-        self = cls.__new__(cls)
-        self._setup(model, settings, u0)
-        return self
+    def build(cls, model: ControlModel, *args, u0=None, **kwargs) -> "GPCController":
+        """A controller of ``model`` with ``GPCSettings(*args, **kwargs)`` (the fields of
+        :class:`~parallel_gpc.gpc.GPCSettings`: Ts, horizons, weights, form, solver, limits,
+        disturbance_gain, max_condition) and u(−1) = ``u0``."""
+        return cls(model, GPCSettings(*args, **kwargs), u0)
 
     def _setup(self, model: ControlModel, settings: GPCSettings, u0) -> None:
         needed = ("n_x", "n_y", "n_u", "C", "discrete") + (("simulate_factorized",) if settings.form == "nonlinear" else ())
@@ -133,11 +111,7 @@ class GPCController:
                                             f"implements parallel_gpc.gpc.ControlModel")
         self.model = model
         self.n_y, self.n_u, self.n_x = model.n_y, model.n_u, model.n_x
-        model_Ts = getattr(model, "Ts", None)
-        if model_Ts is not None and not math.isclose(float(model_Ts), settings.Ts, rel_tol=1e-12, abs_tol=0.0):
-            raise InvalidParameterError(
-                f"controller Ts = {settings.Ts!r} s differs from the model's sample time Ts = {model_Ts!r} s; "
-                f"use Ts = {model_Ts!r} s (a discrete model holds at its own sample time only)")
+        check_sample_time(model, settings.Ts, "model", "the controller's", required=False)  # once, here
         self._apply(settings)
         self._gain = conditioning_rule(model)
         self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
@@ -145,13 +119,11 @@ class GPCController:
 
     def _apply(self, settings: GPCSettings) -> None:
         """Check ``settings`` against the model's sizes and make them current."""
-        self._criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
-        tau = None if settings.torque_limit is None else _limit_vector("torque_limit", settings.torque_limit, self.n_u)
-        delta = None if settings.du_limit is None else _limit_vector("du_limit", settings.du_limit, self.n_u)
-        self._limits = (tau, delta, tightened(tau), tightened(delta))
-        self._riccati = None if settings.solver != "riccati" else RiccatiPath(self._criterion, self.model.C,
-                                                                              settings.form)
-        self._settings = settings
+        criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
+        limits = settings.limits.for_drives(self.n_u)
+        self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
+        self._criterion, self._settings = criterion, settings
+        self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -168,33 +140,25 @@ class GPCController:
     max_condition = property(lambda self: self._settings.max_condition, doc="Largest accepted cond(input gain).")
 
     @property
-    def torque_limit(self) -> np.ndarray | None:
-        """(m,) symmetric drive torque limit (N·m) or None. Assigning a new value (a drive derated
-        while running) re-validates it; the plan and estimates are kept."""
-        return self._limits[0]
+    def limits(self) -> Limits:
+        """The input :class:`~parallel_gpc.limits.Limits`, every value (m,). Assigning new
+        limits (a drive derated while running) checks them against the form, the solver and the
+        drive count like the settings; the plan and estimates are kept."""
+        return self._limits
 
-    @torque_limit.setter
-    def torque_limit(self, value) -> None:
-        self._apply(replace(self._settings, torque_limit=value))
-
-    @property
-    def du_limit(self) -> np.ndarray | None:
-        """(m,) symmetric increment limit (N·m per sample) or None; assignable like :attr:`torque_limit`."""
-        return self._limits[1]
-
-    @du_limit.setter
-    def du_limit(self, value) -> None:
-        self._apply(replace(self._settings, du_limit=value))
+    @limits.setter
+    def limits(self, value: Limits) -> None:
+        self._apply(replace(self._settings, limits=value))
 
     # ------------------------------------------------------------------ state
     def reset(self, u_prev=None) -> None:
         """Forget the plan; set u(k−1) (N·m, default zero)."""
         self.u_prev = np.zeros(self.n_u) if u_prev is None else finite_vector("u_prev", u_prev, self.n_u)
-        tau, delta = self._limits[:2]
+        tau, delta = self._limits.torque, self._limits.du
         if self.form != "absolute" and tau is not None and delta is not None and np.any(np.abs(self.u_prev) > tau + delta):
             raise InfeasibleLimitsError(
-                f"u(k−1) = {self.u_prev.tolist()} N·m cannot be brought within torque_limit {tau.tolist()} by one "
-                f"increment within du_limit {delta.tolist()}; valid: |u(k−1)| ≤ torque_limit + du_limit"
+                f"u(k−1) = {self.u_prev.tolist()} N·m cannot be brought within the torque limit {tau.tolist()} by "
+                f"one increment within the du limit {delta.tolist()}; valid: |u(k−1)| ≤ torque + du"
             )
         self.plan = np.tile(self.u_prev, (self.horizons.N, 1))
         self._v_prev = None
@@ -270,7 +234,7 @@ class GPCController:
         at any Qu: the removed part moves nothing in the model), or u itself with a Δu limit
         (removing it would change u(k) − u(k−1) by more than Δu). B_d is this step's one-step
         model (:meth:`predict`); its null basis is computed once per step."""
-        if self.du_limit is not None:
+        if self._limits.du is not None:
             return u
         if self._null is False:
             self._null = null_basis(np.asarray(self._one_step[1], dtype=float))
@@ -278,7 +242,7 @@ class GPCController:
 
     def _applicable(self, projected: np.ndarray, decided: np.ndarray) -> np.ndarray:
         """The input without its null(B_d) part if it respects the torque limit, else as decided."""
-        tau = self._limits[2]
+        tau = self._qp_limits.torque
         if tau is None or np.all(np.abs(projected) <= tau):
             return projected
         return decided
@@ -341,15 +305,15 @@ class GPCController:
             pred, t2 = self._riccati.input_map(self, stages), t1
         else:  # the dense path (and a failed Riccati solve's visible replacement: QR, with its reason)
             pred = self.predict(X) if pred is None else pred
-            problem = self._criterion.problem(pred, w, self._limits[2], self._limits[3])
+            problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             t2 = time.perf_counter()
             result = self._dense_solve(problem, pred, result)
-        violation = limit_violation(pred, result.v, self.form, self.u_prev, *self._limits[:2]) if result.ok else ""
+        violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
         if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
             result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
         fallback = not result.ok
         if fallback:
-            result = project_on_limits(problem, pred, result, self._limits[0], self.n_u)
+            result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
         t3 = time.perf_counter()
         if pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
@@ -362,7 +326,7 @@ class GPCController:
             # without it when that respects the torque limit — the same X̂(k+1)
             u_seq[0] = self._applicable(self._base(u_seq[0]), u_seq[0])
         u = u_seq[0].copy()
-        check_applied(u, self._limits[0])
+        check_applied(u, self._limits.torque)
         N = self.horizons.N
         self.plan = u_seq if len(u_seq) == N else np.vstack([u_seq, np.repeat(u_seq[-1:], N - len(u_seq), axis=0)])
         self._v_prev = result.v

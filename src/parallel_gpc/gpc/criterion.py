@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 from dataclasses import dataclass
 
-from ..errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
+from ..errors import InvalidParameterError, ShapeError
+from ..limits import Limits, as_limits
 from ..solvers import LeastSquaresProblem, MinNormOf
 from ..validation import check_allocation
 from .prediction import Horizons, Prediction, _cumulative_map
@@ -91,15 +92,6 @@ def check_problem_size(horizons: Horizons, p: int, m: int) -> None:
 
 
 
-def _limit_vector(name: str, value, m: int) -> np.ndarray:
-    arr = np.broadcast_to(np.asarray(value, dtype=float), (m,)).copy() if np.ndim(value) == 0 else np.asarray(value, dtype=float)
-    if arr.shape != (m,):
-        raise ShapeError(f"{name} has shape {arr.shape}; expected a scalar or ({m},)")
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InfeasibleLimitsError(f"{name} = {arr.tolist()} must be finite and > 0 (symmetric limits ±value)")
-    return arr
-
-
 @dataclass(frozen=True, eq=False)
 class Criterion:
     """The criterion (5) stacked for one controller: the weights validated and tiled over the
@@ -141,18 +133,25 @@ class Criterion:
         object.__setattr__(self, "qu_zero", not np.any(Wu))
         object.__setattr__(self, "qu_positive", qu_diag is not None and bool(np.all(qu_diag > 0)))
 
-    def problem(self, pred: Prediction, w: np.ndarray, torque_limit=None, du_limit=None) -> LeastSquaresProblem:
+    def problem(self, pred: Prediction, w: np.ndarray, limits: Limits | None = None,
+                u_prev: np.ndarray | None = None) -> LeastSquaresProblem:
         """Stack the square-root system (15)–(16) and the limits for one step.
 
         Args:
             pred: the prediction ŷ = f + G v (with these horizons).
             w: reference outputs over the penalized rows, (n_rows, p) or (n_rows·p,) (m, rad).
-            torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
-            du_limit: symmetric increment limit |Δu| ≤ δ (N·m per sample), incremental forms only.
+            limits: input :class:`~parallel_gpc.limits.Limits` sized to the m drives
+                (:meth:`~parallel_gpc.limits.Limits.for_drives`), or None. The torque limit
+                bounds u(k..k+Nu−1) (nonlinear form: every pre-simulated input u(k..k+N−1)); the
+                increment limit bounds u(k+i) − u(k+i−1), i < Nu (delayed form: u(k+1+i) − u(k+i)).
+            u_prev: (m,) u(k−1) (N·m); needed by the nonlinear form's increment limit, whose
+                pre-simulated inputs u_sim move by themselves: its box on v is shifted by
+                u_sim(i) − u_sim(i−1), u_sim(−1) = u(k−1).
 
         Raises:
-            ShapeError: w has the wrong shape. InvalidParameterError: Δu limits on the absolute
-                form, or a prediction with other horizons.
+            ShapeError: w has the wrong shape, or limits not sized to m drives.
+            InvalidParameterError: an increment limit on the absolute form, the nonlinear form's
+                increment limit without u_prev, or a prediction with other horizons.
         """
         p, m, H = self.n_outputs, self.n_inputs, self.horizons
         if pred.horizons is not H and pred.horizons != H:
@@ -174,25 +173,38 @@ class Criterion:
         b[r:] = 0.0
         prob = LeastSquaresProblem(A, b, nonzero_rows=r if self.qu_zero else r + n, tail_diag=self.qu_diag,
                                    tail_positive=self.qu_positive)
-        if torque_limit is not None:
-            tau = np.tile(_limit_vector("torque_limit", torque_limit, m), len(pred.u_base) // m)
+        if pred.kind != "absolute":
+            block = m if _is_cumulative_map(pred.u_map, H.Nu, m) else None
+            prob.min_norm_of = MinNormOf(pred.u_map[:n], pred.u_base[:n], block)
+        if limits is None:
+            return prob
+        tau, delta = limits.torque, limits.du
+        if (tau is not None and tau.shape != (m,)) or (delta is not None and delta.shape != (m,)):
+            raise ShapeError(f"limits {limits!r} are not sized to the {m} drives; pass limits.for_drives({m})")
+        if tau is not None:
+            tau = np.tile(tau, len(pred.u_base) // m)
             if pred.kind == "absolute":
                 prob.lb, prob.ub = -tau, tau
             else:
                 prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
-        if pred.kind != "absolute":
-            block = m if _is_cumulative_map(pred.u_map, H.Nu, m) else None
-            prob.min_norm_of = MinNormOf(pred.u_map[:n], pred.u_base[:n], block)
-        if du_limit is not None:
+        if delta is not None:
             if pred.kind == "absolute":
-                raise InvalidParameterError("du_limit applies to the incremental forms (v = Δu); the absolute form has v = u")
-            d = np.tile(_limit_vector("du_limit", du_limit, m), H.Nu)
-            prob.lb, prob.ub = -d, d
+                raise InvalidParameterError("the du limit applies to the incremental forms (v = Δu); the absolute "
+                                            "form has v = u")
+            d = np.tile(delta, H.Nu)
+            if pred.kind == "simulative":  # u(k+i) − u(k+i−1) = u_sim(i) − u_sim(i−1) + Δu(i)
+                if u_prev is None:
+                    raise InvalidParameterError("the nonlinear form's du limit is measured from u(k−1): pass u_prev")
+                drift = np.diff(np.concatenate([np.asarray(u_prev, dtype=float), pred.u_base[:n]]).reshape(-1, m),
+                                axis=0).reshape(-1)
+                prob.lb, prob.ub = -d - drift, d - drift
+            else:  # the increments add to u(k−1) (delayed: u(k)) itself: a box on v
+                prob.lb, prob.ub = -d, d
         return prob
 
 
 def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: int, n_inputs: int,
-                  torque_limit=None, du_limit=None) -> LeastSquaresProblem:
+                  limits: Limits | None = None, u_prev: np.ndarray | None = None) -> LeastSquaresProblem:
     """Stack the square-root system (15)–(16) and the limits (one-off; a controller keeps a
     :class:`Criterion` and calls :meth:`Criterion.problem` every step instead).
 
@@ -201,13 +213,15 @@ def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: 
         w: reference outputs over the penalized rows, (n_rows, p) or (n_rows·p,) (m, rad).
         weights: square-root weights Qy, Qu.
         n_outputs, n_inputs: p and m.
-        torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
-        du_limit: symmetric increment limit |Δu| ≤ δ (N·m per sample), incremental forms only.
+        limits: input :class:`~parallel_gpc.limits.Limits` (a scalar value applies to every
+            drive), or None. u_prev: (m,) u(k−1), as in :meth:`Criterion.problem`.
 
     Raises:
-        ShapeError: w has the wrong shape. InvalidParameterError: Δu limits on the absolute form.
+        ShapeError: w has the wrong shape, or per-drive limits not m long.
+        InvalidParameterError: an increment limit on the absolute form.
     """
-    return Criterion(weights, pred.horizons, n_outputs, n_inputs).problem(pred, w, torque_limit, du_limit)
+    sized = None if limits is None else as_limits(limits).for_drives(n_inputs)
+    return Criterion(weights, pred.horizons, n_outputs, n_inputs).problem(pred, w, sized, u_prev)
 
 
 def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:

@@ -11,12 +11,13 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import SolverError
+from ..limits import Limits
 from ..solvers import SolveResult, qr_least_squares
 from .prediction import Prediction
 
-__all__ = ["LIMIT_MARGIN", "APPLIED_LIMIT_RTOL", "tightened", "limit_violation", "check_applied", "project_on_limits"]
+__all__ = ["LIMIT_MARGIN", "APPLIED_LIMIT_RTOL", "limit_violation", "check_applied", "project_on_limits"]
 
-#: the QP is given limits tightened by this relative margin so that a solution within the
+#: the QP is given limits tightened by this relative margin (``limits.scaled(1 − LIMIT_MARGIN)``) so that a solution within the
 #: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
 LIMIT_MARGIN = 1e-6
 #: every applied input is verified: a solution whose first move exceeds a limit by more than this
@@ -24,13 +25,7 @@ LIMIT_MARGIN = 1e-6
 APPLIED_LIMIT_RTOL = 1e-9
 
 
-def tightened(limit: np.ndarray | None) -> np.ndarray | None:
-    """(m,) limit scaled by (1 − :data:`LIMIT_MARGIN`), the bound handed to the QP (None stays None)."""
-    return None if limit is None else np.asarray(limit, dtype=float) * (1.0 - LIMIT_MARGIN)
-
-
-def limit_violation(pred: Prediction, v: np.ndarray, form: str, u_prev: np.ndarray,
-                    tau: np.ndarray | None, delta: np.ndarray | None) -> str:
+def limit_violation(pred: Prediction, v: np.ndarray, form: str, u_prev: np.ndarray, limits: Limits) -> str:
     """Why the first move of solution ``v`` breaks the limits, or "" when it keeps them.
 
     Args:
@@ -38,24 +33,25 @@ def limit_violation(pred: Prediction, v: np.ndarray, form: str, u_prev: np.ndarr
         v: (n,) solution of the QP.
         form: the controller's form (the delayed form's first increment is u(k+1) − u(k)).
         u_prev: (m,) u(k−1) (N·m).
-        tau: (m,) torque limit (N·m) or None. delta: (m,) increment limit (N·m per sample) or None.
+        limits: the controller's :class:`~parallel_gpc.limits.Limits`, sized to the m drives.
 
     Returns:
         A message naming the input and the limit it exceeds (|u(k)| ≤ τ, |Δu(k)| ≤ δ, relative
         tolerance :data:`APPLIED_LIMIT_RTOL`), or "".
     """
+    tau, delta = limits.torque, limits.du
     if tau is None and delta is None:
         return ""
     m = len(u_prev)
     u = pred.u_base[:m] + pred.u_map[:m] @ v
     if tau is not None and np.any(np.abs(u) > tau * (1.0 + APPLIED_LIMIT_RTOL)):
         i = int(np.argmax(np.abs(u) / tau))
-        return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque_limit {tau[i]:.9g} N·m"
+        return f"|u[{i}]| = {abs(u[i]):.9g} N·m > torque limit {tau[i]:.9g} N·m"
     # the increment of the first constrained input: delayed, u(k+1) − u(k) (u(k) is the base)
     du = u - (pred.u_base[:m] if form == "incremental-delayed" else u_prev)
     if delta is not None and form != "absolute" and np.any(np.abs(du) > delta * (1.0 + APPLIED_LIMIT_RTOL)):
         i = int(np.argmax(np.abs(du) / delta))
-        return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du_limit {delta[i]:.9g} N·m"
+        return f"|Δu[{i}]| = {abs(du[i]):.9g} N·m > du limit {delta[i]:.9g} N·m"
     return ""
 
 

@@ -212,7 +212,7 @@ class PlanRecorder:
         """Apply u over one sample; False (and ``stopped`` set) if the plant cannot continue."""
         self.u[i], self.horizon[i], self.status[i] = u, N, status
         try:
-            self.plant.step(u, Ts)
+            self.plant.step(u)
         except (AssemblyError, SingularPoseError) as exc:
             self.stopped = f"plant stopped at t = {(i + 1) * Ts:.3f} s: {exc}"
             return False

@@ -53,7 +53,7 @@ from ..results import robot_reference
 from .prediction import Horizons, Prediction, absolute_prediction
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
 from .criterion import build_problem, check_problem_size
-from ..validation import finite_vector
+from ..validation import check_sample_time, finite_vector
 from .plan_result import PlanRecorder, PlanResult
 from .plan_settings import (  # noqa: F401  (re-exported: the planning API in one place)
     DEFAULT_LIMITED_SOLVER,
@@ -95,7 +95,7 @@ def end_point_problem(model, X, target, N: int, settings: PlanSettings,
     hold = None if u_hold is None else np.tile(u_hold, int(N))
     if hold is not None:  # ŷ = f + G (v + hold)
         pred = replace(pred, f=pred.f + pred.G @ hold, u_base=pred.u_base + hold)
-    problem = build_problem(pred, w, settings.weights, model.n_y, model.n_u, settings.torque_limit)
+    problem = build_problem(pred, w, settings.weights, model.n_y, model.n_u, settings.limits)
     if hold is not None and problem.lb is not None:
         problem.lb, problem.ub = problem.lb - hold, problem.ub - hold
     return problem, pred
@@ -122,7 +122,7 @@ def solve_end_point(model, X, target, N: int, settings: PlanSettings, backend=No
         ``result.ok``).
     """
     problem, _ = end_point_problem(model, X, target, N, settings, u_hold)
-    backend = make_solver(settings.solver_name) if backend is None else backend
+    backend = make_solver(settings.solver) if backend is None else backend
     result = backend.solve(problem, warm_start)
     u = np.asarray(result.v, dtype=float).reshape(int(N), model.n_u)
     return (u if u_hold is None else u + u_hold), result
@@ -137,7 +137,7 @@ def deadbeat_inputs(model, X, target, settings: PlanSettings) -> np.ndarray:
     Returns:
         (k, n_u) drive torques in N·m.
     """
-    free = replace(settings, torque_limit=None, solver="qr")
+    free = replace(settings, limits=None, solver="qr")
     u, result = solve_end_point(model, X, target, settings.k, free)
     if not result.ok:  # pragma: no cover - QR does not fail on finite data
         raise SolverError(f"dead-beat solve failed: {result.status} {result.message}")
@@ -148,7 +148,7 @@ def deadbeat_inputs(model, X, target, settings: PlanSettings) -> np.ndarray:
 def _default_plant(robot, X0, settings: PlanSettings):
     from ..model.plant import ConstrainedPlant
 
-    return ConstrainedPlant(robot, X0, substeps=settings.plant_substeps, torque_limit=robot.torque_limit)
+    return ConstrainedPlant(robot, X0, Ts=settings.Ts, substeps=settings.plant_substeps, torque_limit=robot.limits)
 
 
 def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode: str = "b", plant=None,
@@ -163,8 +163,8 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
         mode: ``"a"`` (re-solved every step with N = Nmax fixed: asymptotic approach),
             ``"b"`` (re-solved every step, N := Nmax, …, Nmin, then held at Nmin: stops at B) or
             ``"once"`` (one solve at Nmax applied open loop: linear systems only).
-        plant: the system the plan is recorded on (``step(u, Ts)``, ``X``, optionally ``q``
-            and ``saturated``); default a fresh
+        plant: the system the plan is recorded on (``Ts`` equal to the settings', ``step(u)``,
+            ``X``, optionally ``q`` and ``saturated``); default a fresh
             :class:`~parallel_gpc.plant.ConstrainedPlant` at A, at rest, with the robot's own
             drive limits. If given, its pose must be A.
         model: the planner's model (default ``ReducedModel(robot)``).
@@ -175,7 +175,8 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
         once (fewer, with ``stopped`` set, if the plant leaves the workspace).
 
     Raises:
-        InvalidParameterError: unknown mode, bad poses or settings, or a plant not at A.
+        InvalidParameterError: unknown mode, bad poses or settings, or a plant not at A or with
+            another sample time.
         UnreachablePoseError, SingularPoseError: A or B is outside the workspace or singular.
         SolverError: a solve failed with no earlier plan to fall back on.
     """
@@ -193,9 +194,7 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     B = finite_vector("end pose B", B, n_y)
     settings.weights.blocks(n_y, n_u)  # validate the weights against the sizes, once
     check_problem_size(Horizons(settings.Nmax, settings.Nmax - settings.k, settings.Nmax), n_y, n_u)
-    if settings.torque_limit is not None and np.size(settings.torque_limit) not in (1, n_u):
-        raise InvalidParameterError(f"torque_limit has {np.size(settings.torque_limit)} entries; expected a "
-                                    f"scalar or ({n_u},) for the {n_u} drives")
+    settings.limits.for_drives(n_u)  # per-drive limits: one per drive
     if robot is not None:
         robot.check_pose(A)
         robot.check_pose(B)
@@ -204,7 +203,8 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     elif np.max(np.abs(np.asarray(plant.X, dtype=float)[:n_y] - A)) > 1e-6:
         raise InvalidParameterError(f"the plant is at pose {np.round(np.asarray(plant.X)[:n_y], 6).tolist()}, "
                                     f"not at the start pose A = {np.round(A, 6).tolist()}")
-    backend = make_solver(settings.solver_name)
+    check_sample_time(plant, settings.Ts, "plant", "the plan's")
+    backend = make_solver(settings.solver)
     sat0 = getattr(plant, "saturated", 0)
     K = settings.Nmax if mode == "once" else settings.Nmax + settings.settle_steps
     rec = PlanRecorder(K, n_y, n_u, plant)

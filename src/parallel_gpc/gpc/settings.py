@@ -7,8 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InfeasibleLimitsError, InvalidParameterError
-from ..validation import positive
+from ..errors import InvalidParameterError
+from ..limits import Limits, as_limits
+from ..validation import number, positive
 from .criterion import Weights
 from .prediction import Horizons
 
@@ -27,28 +28,17 @@ DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
 DEFAULT_BOX_SOLVER = "qr-first:bvls"
 
 
-def _limit(name: str, value) -> np.ndarray | None:
-    """A symmetric limit as a read-only float array (scalar or 1-D), finite and > 0; None stays None."""
-    if value is None:
-        return None
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise InvalidParameterError(f"{name} = {value!r} is not a number or a vector of numbers") from None
-    if arr.ndim > 1:
-        raise InvalidParameterError(f"{name} has shape {arr.shape}; expected a scalar or (m,) (N·m)")
-    if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
-        raise InfeasibleLimitsError(f"{name} = {arr.tolist()} must be finite and > 0 (symmetric limits ±value)")
-    arr.setflags(write=False)
-    return arr
-
-
 @dataclass(frozen=True, eq=False)
 class GPCSettings:
     """Validated, immutable settings of a :class:`~parallel_gpc.gpc.GPCController`.
 
+    The one place these fields are defined: ``GPCController(model, settings)`` takes them whole,
+    ``GPCController.build(model, Ts, horizons, ..., u0=...)`` builds them from keywords.
+
     Attributes:
-        Ts: sample time in s (> 0).
+        Ts: sample time in s (> 0); a model with its own Ts (a
+            :class:`~parallel_gpc.gpc.DiscreteLinearModel`) must agree (checked once, when the
+            controller is built).
         horizons: N, No, Nu.
         weights: square-root weights Qy, Qu.
         form: ``"absolute"`` (7), ``"incremental"`` (8)–(9) with state [X; u(k−1)],
@@ -56,18 +46,27 @@ class GPCSettings:
             increment realized one sample later (needs N ≥ 2), or ``"nonlinear"`` (10)–(12).
         solver: back-end name (:func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``: the
             unconstrained problem by the Riccati recursion, no condensing (needs Qu nonsingular and
-            no limits; :mod:`parallel_gpc.gpc.riccati`); None resolves to
-            ``"qr"`` without limits; with limits ``"qr-first:bvls"`` (absolute form) or
-            ``"qr-first:daqp-direct"`` (incremental forms).
-        torque_limit: symmetric drive torque limit |u| ≤ τ (N·m), scalar or (m,), or None.
-        du_limit: symmetric increment limit |Δu| ≤ δ (N·m per sample), incremental forms only.
-        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate; None resolves to 0 for
-            the absolute form and 0.5 for the incremental forms.
-        max_condition: largest accepted condition number of the model's input gain (> 0).
+            no limits; :mod:`parallel_gpc.gpc.riccati`); None resolves to ``"qr"`` without limits;
+            with limits :data:`DEFAULT_BOX_SOLVER` (absolute form) or
+            :data:`DEFAULT_LIMITED_SOLVER` (incremental forms).
+        limits: the input :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
+            |u(k) − u(k−1)| ≤ δ, incremental forms only); None = ``Limits()``, no limit.
+        disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
+            d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the horizon
+            (unbiased prediction under model mismatch with a steady load, which the incremental
+            forms need to reach zero steady-state error); None resolves to 0 for the absolute
+            form and 0.5 for the incremental forms.
+        max_condition: largest accepted condition number (> 0) of the model's input gain
+            g = M_r⁻¹ B_r (discretized) at the measured state; beyond it a step raises
+            :class:`~parallel_gpc.errors.SingularPoseError` instead of commanding the unbounded
+            torques a (near-)singular pose calls for. Default 1e3: cond(g) is 10–20 along the
+            paper's S-curve and A→B on both embedded robots, 1e3 is about 1 cm from a planar_3rrr
+            direct singularity. Which gain is checked for other models:
+            :class:`~parallel_gpc.gpc.ControlModel`.
 
     Raises:
-        InvalidParameterError: bad Ts, form, horizons, weights type, solver/limits combination,
-            gain or max_condition. InfeasibleLimitsError: limits that are not finite and > 0.
+        InvalidParameterError: bad Ts, form, horizons, weights or limits type, solver/limits
+            combination, gain or max_condition.
     """
 
     Ts: float
@@ -75,8 +74,7 @@ class GPCSettings:
     weights: Weights = field(default_factory=Weights)
     form: str = "absolute"
     solver: str | None = None
-    torque_limit: np.ndarray | None = None
-    du_limit: np.ndarray | None = None
+    limits: Limits = field(default_factory=Limits)
     disturbance_gain: float | None = None
     max_condition: float = 1e3
 
@@ -91,48 +89,66 @@ class GPCSettings:
             raise InvalidParameterError(f"horizons must be a Horizons(N, No, Nu), got {self.horizons!r}")
         if not isinstance(self.weights, Weights):
             raise InvalidParameterError(f"weights must be a Weights(Qy, Qu), got {self.weights!r}")
-        put("torque_limit", _limit("torque_limit", self.torque_limit))
-        put("du_limit", _limit("du_limit", self.du_limit))
+        put("limits", as_limits(self.limits))
         if self.form == "incremental-delayed" and self.horizons.N < 2:
             raise InvalidParameterError(
                 f"form 'incremental-delayed' needs N ≥ 2 (its increment acts from k+2 on); got N = {self.horizons.N}")
-        if self.du_limit is not None and self.form == "absolute":
-            raise InvalidParameterError("du_limit applies to the incremental forms; form is 'absolute'")
-        limited = self.torque_limit is not None or self.du_limit is not None
-        if self.solver is None:
-            put("solver", "qr" if not limited else DEFAULT_BOX_SOLVER if self.form == "absolute"
-                else DEFAULT_LIMITED_SOLVER)
-        if not isinstance(self.solver, str):
-            raise InvalidParameterError(f"solver {self.solver!r} must be a back-end name such as 'qr'")
-        if self.solver in ("qr", "cholesky") and limited:
-            raise InvalidParameterError(
-                f"solver {self.solver!r} cannot enforce torque/Δu limits; use a QP back end such as "
-                f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'"
-            )
-        if self.solver == "riccati" and limited:
-            raise InvalidParameterError(
-                "solver 'riccati' solves the unconstrained problem only; with torque/Δu limits use a QP back end "
-                f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
-        if self.solver.endswith("bvls") and self.form != "absolute" and self.torque_limit is not None:
-            raise InvalidParameterError(
-                f"solver {self.solver!r} handles box limits only; the {self.form} form's torque limit acts on "
-                f"cumulative sums of Δu (linear limits): use {DEFAULT_LIMITED_SOLVER!r} or 'proxqp-direct'"
-            )
+        check_form_limits(self.form, self.limits)
+        put("solver", resolve_solver(self.solver, self.form, self.limits))
         if self.disturbance_gain is None:
             put("disturbance_gain", 0.0 if self.form == "absolute" else 0.5)
-        try:
-            gain = float(self.disturbance_gain)
-        except (TypeError, ValueError):
-            gain = np.nan
-        if not 0.0 <= gain <= 1.0:
-            raise InvalidParameterError(f"disturbance_gain = {self.disturbance_gain!r} must lie in [0, 1]")
-        put("disturbance_gain", gain)
+        put("disturbance_gain", unit_interval("disturbance_gain", self.disturbance_gain))
         put("max_condition", positive("max_condition", self.max_condition))
 
-    @property
-    def has_limits(self) -> bool:
-        """True when a torque or increment limit is set."""
-        return self.torque_limit is not None or self.du_limit is not None
+
+def check_form_limits(form: str, limits: Limits) -> None:
+    """Refuse an increment limit on the absolute form (v = u has no increments)."""
+    if limits.du is not None and form == "absolute":
+        raise InvalidParameterError(f"the du limit {limits.du.tolist()} applies to the incremental forms (v = Δu); "
+                                    "form is 'absolute'")
+
+
+def resolve_solver(solver: str | None, form: str, limits: Limits) -> str:
+    """The back end of a form with these limits: None resolves to the default; a back end that
+    cannot enforce the limits is refused.
+
+    Raises:
+        InvalidParameterError: not a name, or a name that cannot enforce ``limits`` (qr, cholesky,
+            riccati with any input limit; bvls with the incremental forms' torque limit).
+    """
+    limited = limits.has_input_limits
+    if solver is None:
+        return "qr" if not limited else DEFAULT_BOX_SOLVER if form == "absolute" else DEFAULT_LIMITED_SOLVER
+    if not isinstance(solver, str):
+        raise InvalidParameterError(f"solver {solver!r} must be a back-end name such as 'qr'")
+    if solver in ("qr", "cholesky") and limited:
+        raise InvalidParameterError(
+            f"solver {solver!r} cannot enforce the limits {limits!r}; use a QP back end such as "
+            f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'")
+    if solver == "riccati" and limited:
+        raise InvalidParameterError(
+            f"solver 'riccati' solves the unconstrained problem only; with the limits {limits!r} use a QP back end "
+            f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
+    if solver.endswith("bvls") and form != "absolute" and limits.torque is not None:
+        raise InvalidParameterError(
+            f"solver {solver!r} handles box limits only; the {form} form's torque limit acts on cumulative sums "
+            f"of Δu (linear limits): use {DEFAULT_LIMITED_SOLVER!r} or 'proxqp-direct'")
+    return solver
+
+
+def unit_interval(name: str, value) -> float:
+    """``value`` as a float in [0, 1].
+
+    Raises:
+        InvalidParameterError: not a number in [0, 1].
+    """
+    try:
+        x = number(name, value)
+    except InvalidParameterError:
+        x = np.nan
+    if not 0.0 <= x <= 1.0:
+        raise InvalidParameterError(f"{name} = {value!r} must lie in [0, 1]")
+    return x
 
 
 def _frozen(value):

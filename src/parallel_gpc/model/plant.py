@@ -6,9 +6,11 @@
   ``parallel_gpc._native`` when it is built), then projects q and v back onto the closures.
 * :class:`ReducedPlant` integrates the reduced ODE ``ÿ = f + g u`` with RK4 sub-steps.
 
-Both hold the input constant over a sample (zero-order hold), accept a constant external force
-on the platform, saturate the drives at the plant's own torque limits (recorded, not hidden),
-and are separate objects from the controller's model.
+Both are built with their sample time Ts (``step(u)`` advances one sample; a closed loop checks
+once that it equals the controller's), hold the input constant over a sample (zero-order hold),
+accept a constant external force on the platform, saturate the drives at the plant's own torque
+limit (validated when the plant is built; saturated samples are counted, not hidden), and are
+separate objects from the controller's model.
 """
 
 from __future__ import annotations
@@ -21,7 +23,8 @@ from .dynamics import ReducedModel
 from .native_plant import compiled_plant
 from .native_update import compiled_model_update, use_native
 from .robot import ParallelRobot
-from ..errors import NonFiniteError
+from ..errors import InvalidParameterError, NonFiniteError
+from ..limits import Limits, symmetric_limit
 from ..validation import all_finite, finite_vector, positive
 
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
@@ -30,14 +33,34 @@ _PROXIMAL = (1e-12, 1e-10, 50)
 _NO_FORCE = np.zeros(0)
 
 
-class _PlantBase:
-    """Shared state handling: X = [y, ẏ], external platform force, drive saturation."""
+def saturation_limit(torque_limit, n_u: int) -> np.ndarray | None:
+    """(n_u,) drive saturation of a plant (N·m), or None.
 
-    def __init__(self, robot: ParallelRobot, torque_limit=None, platform_force=None):
+    Args:
+        torque_limit: None, a number or (n_u,) values > 0, or a
+            :class:`~parallel_gpc.limits.Limits` (its torque limit; a plant saturates torques only).
+        n_u: drive count.
+
+    Raises:
+        InvalidParameterError: a Limits with an increment limit, or a value that is not a number.
+        ShapeError: not a scalar or (n_u,). InfeasibleLimitsError: a value ≤ 0, NaN or infinite.
+    """
+    if isinstance(torque_limit, Limits):
+        if torque_limit.du is not None:
+            raise InvalidParameterError(f"a plant saturates drive torques only; its limits {torque_limit!r} hold a "
+                                        "du limit")
+        return None if torque_limit.torque is None else torque_limit.for_drives(n_u).torque
+    return symmetric_limit("plant torque", torque_limit, n_u)
+
+
+class _PlantBase:
+    """Shared state handling: X = [y, ẏ], sample time, external platform force, drive saturation."""
+
+    def __init__(self, robot: ParallelRobot, Ts: float, torque_limit=None, platform_force=None):
         self.robot = robot
         self.n_y, self.n_u = robot.n_y, robot.n_u
-        self.torque_limit = None if torque_limit is None else finite_vector(
-            "plant torque_limit", np.broadcast_to(torque_limit, (robot.n_u,)), robot.n_u)
+        self.Ts = positive("plant Ts", Ts, " s")
+        self.torque_limit = saturation_limit(torque_limit, robot.n_u)
         self.platform_force = np.zeros(robot.n_y) if platform_force is None else finite_vector(
             "platform_force", platform_force, robot.n_y)
         self.saturated = 0
@@ -56,11 +79,11 @@ class _PlantBase:
             self.saturated += 1
         return clipped
 
-    def _check_finite(self, state, u: np.ndarray, Ts: float) -> None:
+    def _check_finite(self, state, u: np.ndarray) -> None:
         """Refuse a state that became NaN/inf within one sample, naming the inputs that drove it."""
         if not all(all_finite(x) for x in state):
             raise NonFiniteError(
-                f"the plant diverged within one sample Ts = {Ts:g} s (its state is no longer finite) under drive "
+                f"the plant diverged within one sample Ts = {self.Ts:g} s (its state is no longer finite) under drive "
                 f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; check the "
                 "forces and torques applied")
 
@@ -71,9 +94,11 @@ class ConstrainedPlant(_PlantBase):
     Args:
         robot: the plant's robot (may differ from the controller's: mass scale, gravity).
         X0: (2 n_y,) initial state [y, ẏ].
+        Ts: sample time in s (> 0): each :meth:`step` advances one sample.
         substeps: RK4 steps per sample.
         baumgarte: (Kp in 1/s², Kd in 1/s) closure stabilization gains.
-        torque_limit: drive saturation (N·m), scalar or (n_u,), or None.
+        torque_limit: drive saturation (N·m): a number > 0, (n_u,) values > 0, a
+            :class:`~parallel_gpc.limits.Limits` (its torque limit), or None.
         platform_force: (n_y,) constant external generalized force on the platform coordinates
             (N, N, N·m), e.g. a disturbance.
         native: integrate each sample with the compiled core (``parallel_gpc._native.Plant``, the
@@ -89,9 +114,9 @@ class ConstrainedPlant(_PlantBase):
         projector: the compiled projection (a ``_native.ModelUpdate`` of the robot), or None.
     """
 
-    def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, baumgarte=(100.0, 20.0),
+    def __init__(self, robot: ParallelRobot, X0, *, Ts: float, substeps: int = 2, baumgarte=(100.0, 20.0),
                  torque_limit=None, platform_force=None, native: bool | None = None):
-        super().__init__(robot, torque_limit, platform_force)
+        super().__init__(robot, Ts, torque_limit, platform_force)
         model = robot.model
         self.data = model.createData()
         self.substeps = int(substeps)
@@ -141,10 +166,9 @@ class ConstrainedPlant(_PlantBase):
             return self.compiled.contact_forces()
         return np.concatenate([np.asarray(cd.contact_force.linear) for cd in self.cds])
 
-    def step(self, u, Ts: float) -> np.ndarray:
-        """Advance one sample with u held; returns the new state X."""
-        Ts = positive("Ts", Ts, " s")
-        u = self._saturate(u)
+    def step(self, u) -> np.ndarray:
+        """Advance one sample Ts with the drive torques u (N·m) held; returns the new state X."""
+        u, Ts = self._saturate(u), self.Ts
         if self.compiled is None:
             q, v = self.q, self.v
             h = Ts / self.substeps
@@ -153,7 +177,7 @@ class ConstrainedPlant(_PlantBase):
             self._forces = self.cds
         else:
             q, v = self._compiled_sample(u, Ts)
-        self._check_finite((q, v), u, Ts)
+        self._check_finite((q, v), u)
         self._project(q, v)
         return self.X
 
@@ -216,9 +240,9 @@ class ReducedPlant(_PlantBase):
     Args: as :class:`ConstrainedPlant` (no Baumgarte gains: the reduced model has no drift).
     """
 
-    def __init__(self, robot: ParallelRobot, X0, substeps: int = 2, torque_limit=None,
+    def __init__(self, robot: ParallelRobot, X0, *, Ts: float, substeps: int = 2, torque_limit=None,
                  platform_force=None):
-        super().__init__(robot, torque_limit, platform_force)
+        super().__init__(robot, Ts, torque_limit, platform_force)
         self.model = ReducedModel(robot)
         self.substeps = int(substeps)
         self._X = finite_vector("X0", X0, 2 * self.n_y).copy()
@@ -237,10 +261,10 @@ class ReducedPlant(_PlantBase):
         ydd = np.linalg.solve(terms.M_r, terms.B_r @ u + self.platform_force - terms.h_r)
         return np.concatenate([X[self.n_y:], ydd])
 
-    def step(self, u, Ts: float) -> np.ndarray:
-        Ts = positive("Ts", Ts, " s")
+    def step(self, u) -> np.ndarray:
+        """Advance one sample Ts with the drive torques u (N·m) held; returns the new state X."""
         u = self._saturate(u)
-        X = rk4_step(self.derivative, self._X, u, Ts, self.substeps)
-        self._check_finite((X,), u, Ts)
+        X = rk4_step(self.derivative, self._X, u, self.Ts, self.substeps)
+        self._check_finite((X,), u)
         self._X = X
         return self.X

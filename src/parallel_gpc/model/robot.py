@@ -26,6 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import AssemblyError, RobotFormatError, UnreachablePoseError
+from ..limits import Limits
 from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
 from .builder import build_model
@@ -245,6 +246,12 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     @property
     def name(self) -> str:
         return self.description.name
+
+    @property
+    def limits(self) -> Limits:
+        """The robot file's own input :class:`~parallel_gpc.limits.Limits` (its drive torque limits,
+        (n_u,) N·m or N; ``Limits()`` when the file gives none)."""
+        return Limits(torque=self.torque_limit).for_drives(self.n_u)
 
     @property
     def output_angular(self) -> np.ndarray:

@@ -189,8 +189,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
         ax[3].set_ylabel("angular velocity [deg/s]")
         for j in range(res.u.shape[1]):
             ax[4].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")
-        if s.torque_limit is not None:
-            lim = np.max(np.asarray(s.torque_limit, dtype=float))
+        if s.limits.torque is not None:
+            lim = np.max(s.limits.torque)
             for sign in (1, -1):
                 ax[4].axhline(sign * lim, color="k", ls=":", lw=1, label="torque limit" if sign > 0 else None)
         ax[4].set_ylabel("drive torque [N·m]")

@@ -79,7 +79,7 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
     return fig
 
 
-def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compared"):
+def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     """The forms side by side on shared axes: position and orientation error norms (mm and
     mrad, log scale) with the disturbance estimate off (dashed) and on (solid), drive torques
     (N·m) with the estimate on, and the torque limit lines if one is set.
@@ -87,7 +87,7 @@ def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compa
     Args:
         runs: results keyed by (form, estimator gain α), as from
             :func:`~parallel_gpc.studies.comparison.run_comparison`.
-        torque_limit: N·m (scalar or per drive) or None.
+        limits: the runs' :class:`~parallel_gpc.limits.Limits` (its torque limit is drawn), or None.
         title: figure title.
 
     Returns:
@@ -111,8 +111,8 @@ def plot_comparison(runs: dict, torque_limit=None, title: str = "GPC forms compa
             if gain == gains[-1]:
                 for j in range(res.u.shape[1]):
                     ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
-        if torque_limit is not None:
-            lim = float(np.max(np.asarray(torque_limit, dtype=float)))
+        if limits is not None and limits.torque is not None:
+            lim = float(np.max(limits.torque))
             for sign in (1, -1):
                 ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="torque limit" if sign > 0 else None)
         ax_p.set_title(form)

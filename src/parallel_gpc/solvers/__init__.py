@@ -113,7 +113,7 @@ def make_solver(name: str):
         return QRFirst(inner)
     if name == "riccati":
         raise SolverNotFoundError(
-            "'riccati' is a path of the GPC controller (GPCController(..., solver='riccati'), track --solver riccati): "
+            "'riccati' is a path of the GPC controller (GPCController.build(..., solver='riccati'), track --solver riccati): "
             "it solves the unconstrained problem from the model without condensing, it is not a back end of a "
             f"condensed least-squares problem; use 'qr' here (available: {available_solvers()})")
     if name in DIRECT_BACKENDS:

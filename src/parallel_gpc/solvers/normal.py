@@ -8,7 +8,7 @@ positive diagonal regularization block is present, else estimated by ``pocon``: 
 :data:`NORMAL_RCOND` (a relative error bound ε/rcond above ~1e-8) the problem goes to the QR
 back end instead. Rank-deficient problems (Qu = 0 with redundant drives) always take QR.
 
-Warm start: none (a direct method). Enforces no limits.
+Warm start: none (a direct method). Enforces no limits: a problem with limits is refused.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import time
 import numpy as np
 from scipy.linalg import blas, lapack
 
-from .problem import LeastSquaresProblem, SolveResult
+from .problem import LeastSquaresProblem, SolveResult, refuse_limits
 from .qr import QRSolver
 
 #: smallest accepted reciprocal condition number (1-norm estimate) of AᵀA: the forward error
@@ -38,6 +38,12 @@ class NormalEquationsSolver:
         self._qr = QRSolver()
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        """The minimizer of ‖A v − b‖² (status ``unconstrained``).
+
+        Raises:
+            InvalidParameterError: the problem has limits (this back end cannot enforce them).
+        """
+        refuse_limits(self.name, problem)
         t0 = time.perf_counter()
         v = normal_equations(problem)
         if v is None:

@@ -8,6 +8,8 @@ import io
 import numpy as np
 from dataclasses import dataclass, field
 
+from ..errors import InvalidParameterError
+
 #: relative pivot size below which a column of A counts as dependent (rank-revealing QR).
 RANK_RTOL = 1e-10
 #: relative Tikhonov term added to the scaled QP Hessian (approximates the min-norm solution).
@@ -107,6 +109,19 @@ class LeastSquaresProblem:
             return bool(np.any(Lv - self.lo <= tol * (1 + np.abs(self.lo))) or
                         np.any(self.hi - Lv <= tol * (1 + np.abs(self.hi))))
         return False
+
+
+def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
+    """Raise when an unconstrained back end (``qr``, ``cholesky``) is handed a problem with limits:
+    its answer would be "unconstrained" while breaking them.
+
+    Raises:
+        InvalidParameterError: naming the back end and what enforces limits instead.
+    """
+    if problem.constrained:
+        raise InvalidParameterError(
+            f"solver {solver!r} cannot enforce the problem's limits (it would ignore them); use a QP back end such "
+            "as 'qr-first:daqp-direct', 'daqp-direct' or 'bvls' (box limits), or drop the limits")
 
 
 def cumulative_block(problem: LeastSquaresProblem) -> int | None:

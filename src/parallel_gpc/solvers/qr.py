@@ -1,7 +1,8 @@
 """QR back end: square-root least squares by Householder QR, eq. (17)–(19).
 
 Warm start: none (a direct method; the ``warm_start`` argument is accepted and ignored).
-Enforces no limits: use a QP back end, or :class:`~parallel_gpc.solvers.QRFirst`, when limits are given.
+Enforces no limits (a problem with limits is refused): use a QP back end, or
+:class:`~parallel_gpc.solvers.QRFirst`, when limits are given.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from ..errors import InvalidParameterError
-from .problem import FAST_QR_RCOND, RANK_RTOL, LeastSquaresProblem, MinNormOf, SolveResult
+from .problem import FAST_QR_RCOND, RANK_RTOL, LeastSquaresProblem, MinNormOf, SolveResult, refuse_limits
 
 def qr_least_squares(A: np.ndarray, b: np.ndarray, method: str = "lapack") -> tuple[np.ndarray, float, int]:
     """Minimum-norm least-squares solution of A v ≈ b by QR, eq. (17)–(19).
@@ -171,7 +172,11 @@ def _min_norm_of(A: np.ndarray, b: np.ndarray, mn: MinNormOf, method: str) -> tu
 
 
 class QRSolver:
-    """Unconstrained square-root solve by QR (the reference back end). Ignores limits.
+    """Unconstrained square-root solve by QR (the reference back end).
+
+    :meth:`solve` refuses a problem with limits (it cannot enforce them: a QP back end or
+    :class:`~parallel_gpc.solvers.QRFirst` can); :meth:`solve_unconstrained` gives the
+    minimizer without them (what QR-first tries first).
 
     Args:
         method: QR implementation, see :func:`qr_least_squares` (default ``"lapack"``).
@@ -187,6 +192,16 @@ class QRSolver:
             self.name = f"qr-{method}"
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
+        """The minimizer of ‖A v − b‖² (status ``unconstrained``).
+
+        Raises:
+            InvalidParameterError: the problem has limits.
+        """
+        refuse_limits(self.name, problem)
+        return self.solve_unconstrained(problem)
+
+    def solve_unconstrained(self, problem: LeastSquaresProblem) -> SolveResult:
+        """The minimizer of ‖A v − b‖² without the problem's limits (they are not looked at)."""
         t0 = time.perf_counter()
         A, b = problem.leading_rows()  # drops the zero regularization rows (Qu = 0)
         out = None

@@ -29,7 +29,7 @@ class QRFirst:
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         qr_time = 0.0
         if not (self._limits_active and problem.constrained):
-            res = self.qr.solve(problem)
+            res = self.qr.solve_unconstrained(problem)
             if not problem.constrained or problem.feasible(res.v):
                 self._limits_active = False
                 res.solver = self.name

@@ -34,8 +34,8 @@ from .tracking import TrackingSettings, run_tracking
 #: The comparison's default setting: Ts = 10 ms and N = 30 (a 0.3 s horizon), Qu = 1e-3 so
 #: that the horizon and the form matter, a plant 20 % heavier than the model with a steady
 #: load of (5 N, −5 N, 0.5 N·m) on the platform; 2 s S-curve, then 1 s holding its end pose.
-DEMO_SETTINGS = TrackingSettings(Ts=0.01, N=30, Qy=1.0, Qu=1e-3, mass_scale=1.2, platform_force=(5.0, -5.0, 0.5),
-                                 duration=3.0, disturbance_gain=0.5)
+DEMO_SETTINGS = TrackingSettings(Ts=0.01, horizons=Horizons(30), weights=Weights(1.0, 1e-3), mass_scale=1.2,
+                                 platform_force=(5.0, -5.0, 0.5), duration=3.0, disturbance_gain=0.5)
 #: Gains α of the state-disturbance estimate compared: off and on.
 ESTIMATOR_GAINS = (0.0, 0.5)
 #: Length (s) of the window at the end of a run over which the steady-state error is averaged.
@@ -86,7 +86,7 @@ def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float =
     measured state, and the one-step dead-beat law is evaluated there too.
 
     Args:
-        settings: robot, Ts, horizons, Qy (Qu, mismatch, load and estimator are overridden).
+        settings: robot, Ts, horizons, Qy, solver (Qu, limits, mismatch, load and estimator are overridden).
         duration: s of the S-curve run.
         forms: forms to compare (not ``"incremental-delayed"``: its u(k) is decided at k−1).
         robot: the loaded robot (default: load ``settings.robot``).
@@ -96,25 +96,24 @@ def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float =
         raise InvalidParameterError(f"forms {list(forms)} must be a non-empty subset of "
                                     f"{[f for f in FORMS if f != 'incremental-delayed']}")
     robot = robot or ParallelRobot.load(settings.robot)
-    s = replace(settings, Qu=0.0, mass_scale=1.0, platform_force=(0.0, 0.0, 0.0), disturbance_gain=0.0,
-                duration=duration)
+    s = replace(settings, weights=Weights(settings.weights.Qy, 0.0), mass_scale=1.0, platform_force=(0.0, 0.0, 0.0),
+                disturbance_gain=0.0, duration=duration, limits=None)
     reference = s.make_reference(robot)
     model = ReducedModel(robot)
-    ctrls = [GPCController(model, s.Ts, Horizons(s.N, s.No, s.Nu), Weights(s.Qy, 0.0), form=f, solver=s.solver,
-                           disturbance_gain=0.0) for f in forms]
-    plant = ConstrainedPlant(robot, reference.initial_state())
-    K = int(round(duration / s.Ts))
+    ctrls = [GPCController(model, s.controller_settings(f)) for f in forms]
+    plant = ConstrainedPlant(robot, reference.initial_state(), Ts=s.Ts)
+    K, N = int(round(duration / s.Ts)), s.horizons.N
     u = np.empty((K, len(forms), robot.n_u))
     u_db = np.empty((K, robot.n_u))
     error = np.empty((K, robot.n_y))
     for k in range(K):
         X = plant.X
-        window = reference.window(k * s.Ts, s.Ts, s.N)
+        window = reference.window(k * s.Ts, s.Ts, N)
         for i, ctrl in enumerate(ctrls):
             u[k, i] = ctrl.step(X, window).u
         u_db[k] = one_step_deadbeat_input(model, X, window[0], s.Ts)
         error[k] = X[:robot.n_y] - reference.pose(k * s.Ts)
-        plant.step(u[k, 0], s.Ts)
+        plant.step(u[k, 0])
     return DeadbeatCheck(tuple(forms), u, u_db, s.Ts * np.arange(K), error)
 
 

@@ -20,7 +20,8 @@ from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
 from ..results import robot_reference, save_result, saturation_flags
-from ..validation import check_allocation, finite_vector, positive
+from ..limits import Limits
+from ..validation import check_allocation, check_sample_time, finite_vector, positive
 
 
 @dataclass
@@ -37,6 +38,8 @@ class SimulationResult:
         status: (K,) solver status strings. fallback: (K,) bool. saturated: (K,) bool.
         meta: settings of the run (robot, form, solver, horizons, weights, Ts, …).
         interrupted: True if the run was stopped early (Ctrl-C).
+        limits: the controller's input :class:`~parallel_gpc.limits.Limits` (the result file's
+            per-drive saturation flags mark where |u| reached its torque limit).
         angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
             convention [x, y, ψ] (see :func:`~parallel_gpc.gpc.references.pose_error_norms`).
         estimate_error: (K, 2 n_y) state estimate − true state, or None (no estimator, or a
@@ -60,6 +63,7 @@ class SimulationResult:
     meta: dict = field(default_factory=dict)
     interrupted: bool = False
     angular: np.ndarray | None = None
+    limits: Limits = field(default_factory=Limits)
     estimate_error: np.ndarray | None = None
     overruns: int = 0
 
@@ -112,13 +116,12 @@ class SimulationResult:
                                  self.internal_force[k], self.step_time[k], self.solve_time[k],
                                  self.status[k], int(self.fallback[k])])
             return path
-        limit = self.meta.get("torque_limit")
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
                                                "solve_time", "iterations", "status", "fallback")}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
         extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted))
         save_result(path, self.meta.get("robot_file") or None, self.t, self.q, reference=self.reference,
-                    saturated=None if limit is None else saturation_flags(self.u, limit, rtol=1e-5),
+                    saturated=saturation_flags(self.u, self.limits, rtol=1e-5),
                     kind="tracking", meta=self.meta, arrays=extra)
         return path
 
@@ -173,8 +176,9 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
 
     Args:
         controller: the GPC controller (its model is the controller's, not the plant's).
-        plant: a :class:`~parallel_gpc.plant.ConstrainedPlant` or ``ReducedPlant`` (with redundant
-            drives, its ``input_matrix()`` gives B_r for the internal-force record).
+        plant: a :class:`~parallel_gpc.plant.ConstrainedPlant` or ``ReducedPlant`` built with the
+            controller's Ts (checked once, here; with redundant drives, its ``input_matrix()``
+            gives B_r for the internal-force record).
         reference: the reference motion w(t).
         duration: s.
         noise_std: measurement noise standard deviation on [y, ẏ] (scalar or (2·n_y,)).
@@ -193,6 +197,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     n_y, n_u = robot.n_y, robot.n_u
     check_allocation(f"the record of {K} samples (duration {duration:g} s / Ts {Ts:g} s)",
                      K * (robot.model.nq + 3 * n_y + 2 * n_u + 16), "shorten the run or increase Ts")
+    check_sample_time(plant, Ts, "plant", "the controller's")
     if (controller.n_y, controller.n_u) != (n_y, n_u):
         raise ShapeError(f"controller has {controller.n_y} outputs and {controller.n_u} drives, the plant "
                          f"{robot.name!r} has {n_y} and {n_u}; they must describe the same robot")
@@ -226,7 +231,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             if n_u > n_y:
                 B_rs.append(plant.input_matrix())  # at the state u was computed for
             sat_before = plant.saturated
-            plant.step(info.u, Ts)
+            plant.step(info.u)
             rec["t"].append(t)
             rec["reference"].append(pose_t)
             rec["pose"].append(X[:n_y])
@@ -251,5 +256,6 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form, "solver": controller.solver,
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
-                 "torque_limit": controller.torque_limit, **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular)
+                 "limits": controller.limits.to_dict(), **(meta or {})}
+    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular,
+                            limits=controller.limits)

@@ -1,23 +1,28 @@
 """Tracking experiments: the paper's Fig. 2 comparison as one library call.
 
-``run_tracking(TrackingSettings(...), forms)`` builds the controller's model and the plant
+``run_tracking(TrackingSettings(...), forms)`` (or ``TrackingSettings.from_flat(N=..., Qu=..., ...)``) builds the controller's model and the plant
 (with optional mass mismatch, noise, disturbance force, drive saturation), runs each GPC form on
 the reference and returns the results; ``metrics_table`` formats them.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import os
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from ..gpc.controller import FORMS, GPCController
-from ..model.dynamics import ReducedModel
 from ..errors import InvalidParameterError
-from ..model.plant import ConstrainedPlant
+from ..gpc.controller import FORMS, GPCController
+from ..gpc.criterion import Weights
 from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, hold_pose_for, path_for
+from ..gpc.settings import GPCSettings, unit_interval
+from ..limits import Limits, as_limits, symmetric_limit
+from ..model.dynamics import ReducedModel
+from ..model.plant import ConstrainedPlant
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..validation import finite_vector, positive
 from ..estimation.kalman import StateEstimator
 from ..estimation.plant import SensedPlant
 from ..estimation.sensors import Sensors
@@ -26,67 +31,146 @@ from .simulation import SimulationResult, simulate
 
 #: plants a tracking run can drive
 PLANTS = ("own", "mujoco")
-from ..gpc.criterion import Weights
 
 
-@dataclass(frozen=True)
+#: The flat keywords of :meth:`TrackingSettings.from_flat` that stand for the embedded
+#: Horizons, Weights and Limits (the CLI's options and a sweep's parameters are flat).
+EMBEDDED_KEYS = ("N", "No", "Nu", "Qy", "Qu", "torque_limit", "du_limit")
+#: What ``plant_torque_limit`` may name besides a limit: the controller's or the robot file's.
+PLANT_LIMIT_SOURCES = ("controller", "robot")
+
+
+@dataclass(frozen=True, eq=False)
 class TrackingSettings:
-    """Settings of a tracking run (SI units).
+    """Settings of a tracking run (SI units), validated when built.
+
+    :meth:`from_flat` builds one from flat keywords (N, No, Nu, Qy, Qu, torque_limit, du_limit
+    and the other fields); :meth:`flat` gives them back.
 
     Attributes:
         robot: embedded robot name or path.
-        Ts: sample time in s (default 2 ms).
-        N, No, Nu: horizons in samples (Nu None = N).
-        Qy, Qu: square-root weights (paper Fig. 2: Qy = 1, Qu = 0).
-        solver: back-end name or None (QR without limits, QR-first + ProxQP with limits).
-        torque_limit: drive torque limit in N·m for the controller and the plant, or None.
-        plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (= torque_limit),
-            ``"robot"`` (the limits in the robot file), a value in N·m, or None (no saturation).
-        du_limit: increment limit in N·m per sample (incremental forms), or None.
+        Ts: sample time in s (default 2 ms), of the controllers and the plant.
+        horizons: N, No, Nu (default ``Horizons(20)``).
+        weights: square-root weights (default ``Weights(1.0, 0.0)``: paper Fig. 2, Qy = 1, Qu = 0).
+        limits: the controllers' input :class:`~parallel_gpc.limits.Limits` (a du limit: incremental
+            forms only); default none.
+        solver: back-end name or None (each form's default: QR without limits).
         disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate, the same for every form
             (so that form and estimator effects are never confounded); 0 = no estimator;
             None (default): each controller's own default (0 absolute, 0.5 incremental forms),
             shown in the table's ``est. α`` column.
-        mass_scale: plant masses / model masses (model mismatch), 1 = exact model.
-        noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
+        mass_scale: plant masses / model masses (model mismatch, > 0), 1 = exact model.
+        noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s; a number or 2·n_y values ≥ 0), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
             all zeros = none).
         reference: "auto" (the S-curve for planar [x, y, ψ] outputs, else the helix), "s-curve",
-            "helix", "hold" or a Reference object; duration: run length in s (default: motion + 0.2 s).
-        s_curve_duration: time of the path's motion (S-curve or helix) in s.
+            "helix", "hold" or a Reference object; duration: run length in s (> 0; default:
+            motion + 0.2 s).
+        s_curve_duration: time of the path's motion (S-curve or helix) in s (> 0).
         hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
             (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
-        seed: seed of the measurement noise.
+        seed: seed of the measurement noise (an integer ≥ 0).
+        plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (the torque
+            limit of ``limits``), ``"robot"`` (the limits in the robot file), a value in N·m
+            (scalar or per drive, > 0) or a Limits, or None (no saturation).
         sensors: what the controller sees: ``"full"`` (the state [y, ẏ]) or ``"encoders"`` /
             ``"encoders:COUNTS_PER_REV"`` (quantized drive readings through a Kalman filter,
             :mod:`parallel_gpc.estimation`; the controller then runs without its own
             disturbance estimate).
         plant: ``"own"`` (our constrained plant) or ``"mujoco"`` (the robot exported to MuJoCo).
+
+    Raises:
+        InvalidParameterError: a field out of range or of the wrong type (the message names it);
+            InfeasibleLimitsError for a plant limit ≤ 0.
     """
 
     robot: str = DEFAULT_ROBOT
     Ts: float = 0.002
-    N: int = 20
-    No: int = 0
-    Nu: int | None = None
-    Qy: float = 1.0
-    Qu: float = 0.0
+    horizons: Horizons = field(default_factory=lambda: Horizons(20))
+    weights: Weights = field(default_factory=lambda: Weights(1.0, 0.0))
+    limits: Limits = field(default_factory=Limits)
     solver: str | None = None
-    torque_limit: float | None = None
-    du_limit: float | None = None
     disturbance_gain: float | None = None
     mass_scale: float = 1.0
-    noise_std: float = 0.0
+    noise_std: float | tuple[float, ...] = 0.0
     platform_force: tuple[float, ...] = (0.0, 0.0, 0.0)
-    reference: str = "auto"
+    reference: str | Reference = "auto"
     duration: float | None = None
     s_curve_duration: float = 2.0
     hold_pose: tuple[float, ...] | None = None
     seed: int = 0
-    plant_torque_limit: float | str | None = "controller"
+    plant_torque_limit: str | Limits | None = "controller"
     sensors: str = "full"
     plant: str = "own"
     extra: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        if not isinstance(self.robot, (str, os.PathLike)):
+            raise InvalidParameterError(f"robot = {self.robot!r} must be an embedded robot name or a path")
+        put("Ts", positive("Ts", self.Ts, " s"))
+        if not isinstance(self.horizons, Horizons):
+            raise InvalidParameterError(f"horizons must be a Horizons(N, No, Nu), got {self.horizons!r}")
+        if not isinstance(self.weights, Weights):
+            raise InvalidParameterError(f"weights must be a Weights(Qy, Qu), got {self.weights!r}")
+        put("limits", as_limits(self.limits))
+        if self.solver is not None and not isinstance(self.solver, str):
+            raise InvalidParameterError(f"solver {self.solver!r} must be a back-end name such as 'qr', or None")
+        if self.disturbance_gain is not None:
+            put("disturbance_gain", unit_interval("disturbance_gain", self.disturbance_gain))
+        put("mass_scale", positive("mass_scale", self.mass_scale))
+        try:
+            noise = None if isinstance(self.noise_std, (str, bytes, bool)) else np.asarray(self.noise_std, dtype=float)
+        except (TypeError, ValueError):
+            noise = None
+        if noise is None or noise.ndim > 1 or noise.size == 0 or not np.all(np.isfinite(noise)) or np.any(noise < 0):
+            raise InvalidParameterError(f"noise_std = {self.noise_std!r} must be a number or a vector of numbers, "
+                                        "finite and ≥ 0 (m, rad, m/s, rad/s)")
+        put("platform_force", tuple(finite_vector("platform_force", self.platform_force).tolist()))
+        if not isinstance(self.reference, Reference) and self.reference not in (*PATH_KINDS, "hold"):
+            raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']} "
+                                        "or a Reference")
+        if self.duration is not None:
+            put("duration", positive("duration", self.duration, " s"))
+        put("s_curve_duration", positive("s_curve_duration", self.s_curve_duration, " s"))
+        if self.hold_pose is not None:
+            put("hold_pose", tuple(finite_vector("hold_pose", self.hold_pose).tolist()))
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise InvalidParameterError(f"seed = {self.seed!r} must be an integer ≥ 0")
+        plant = self.plant_torque_limit
+        if isinstance(plant, str):
+            if plant not in PLANT_LIMIT_SOURCES:
+                raise InvalidParameterError(f"plant_torque_limit {plant!r} is not one of {PLANT_LIMIT_SOURCES}, "
+                                            "a value in N·m, a Limits or None")
+        elif plant is not None and not isinstance(plant, Limits):
+            put("plant_torque_limit", Limits(torque=symmetric_limit("plant torque", plant)))
+        if not isinstance(self.extra, dict):
+            raise InvalidParameterError(f"extra = {self.extra!r} must be a dict")
+        if self.plant not in PLANTS:
+            raise InvalidParameterError(f"plant {self.plant!r} is not one of {list(PLANTS)}")
+        Sensors.parse(self.sensors)  # refuses an unknown sensor spec here, once
+
+    @classmethod
+    def from_flat(cls, *, N: int | None = None, No: int | None = None, Nu: int | None = None, Qy=None, Qu=None,
+                  torque_limit=None, du_limit=None, **fields) -> "TrackingSettings":
+        """Settings from flat keywords: N, No, Nu make the horizons, Qy, Qu the weights, torque_limit,
+        du_limit the limits (each unset one: the default's); ``fields`` are the other fields."""
+        default = cls()
+        H, W = default.horizons, default.weights
+        horizons = Horizons(H.N if N is None else N, H.No if No is None else No, Nu)
+        weights = Weights(W.Qy if Qy is None else Qy, W.Qu if Qu is None else Qu)
+        return cls(horizons=horizons, weights=weights, limits=Limits(torque=torque_limit, du=du_limit), **fields)
+
+    def flat(self) -> dict:
+        """The settings as the flat keywords of :meth:`from_flat` (limits as numbers or lists)."""
+        H, W = self.horizons, self.weights
+        out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu, "torque_limit": self.limits.to_dict()["torque"],
+               "du_limit": self.limits.to_dict()["du"]}
+        out.update({f.name: getattr(self, f.name) for f in fields(self)
+                    if f.name not in ("horizons", "weights", "limits", "extra")})
+        return out
 
     def make_reference(self, robot: ParallelRobot) -> Reference:
         if isinstance(self.reference, Reference):
@@ -94,18 +178,21 @@ class TrackingSettings:
         if self.reference == "hold":
             pose = hold_pose_for(robot.home_pose, robot.output_angular) if self.hold_pose is None else self.hold_pose
             return Hold(tuple(pose))
-        if self.reference not in PATH_KINDS:
-            raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']}")
         return path_for(self.reference, robot.home_pose, robot.output_angular, self.s_curve_duration)
 
-    def plant_limit(self, robot: ParallelRobot):
-        """The plant's drive saturation: None, a value in N·m or the robot's (n_u,) limits."""
-        if isinstance(self.plant_torque_limit, str):
-            if self.plant_torque_limit not in ("controller", "robot"):
-                raise InvalidParameterError(f"plant_torque_limit {self.plant_torque_limit!r} is not 'controller', "
-                                            f"'robot', a value in N·m or None")
-            return self.torque_limit if self.plant_torque_limit == "controller" else robot.torque_limit
+    def plant_limit(self, robot: ParallelRobot) -> Limits | None:
+        """The plant's drive saturation: the controllers' torque limit, the robot file's, the
+        given one, or None."""
+        if self.plant_torque_limit == "controller":
+            return Limits(torque=self.limits.torque)
+        if self.plant_torque_limit == "robot":
+            return robot.limits
         return self.plant_torque_limit
+
+    def controller_settings(self, form: str) -> GPCSettings:
+        """The validated :class:`~parallel_gpc.gpc.GPCSettings` of ``form`` in this run."""
+        return GPCSettings(self.Ts, self.horizons, self.weights, form, self.solver, self.limits,
+                           self.disturbance_gain)
 
     @property
     def run_duration(self) -> float:
@@ -114,16 +201,27 @@ class TrackingSettings:
         return 2.0 if self.reference == "hold" else self.s_curve_duration + 0.2
 
 
+#: Every flat keyword of :meth:`TrackingSettings.from_flat` (a sweep's parameter names).
+FLAT_KEYS = EMBEDDED_KEYS + tuple(f.name for f in fields(TrackingSettings)
+                                  if f.name not in ("horizons", "weights", "limits", "extra"))
+
+
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
                  robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
-    """Run each GPC form on the reference with the plant of ``settings``; returns results by form."""
+    """Run each GPC form on the reference with the plant of ``settings``; returns results by form.
+
+    Raises:
+        InvalidParameterError: an unknown form, or settings a form refuses (a du limit with the
+            absolute form, a solver that cannot enforce the limits), before any run.
+    """
     for form in forms:
         if form not in FORMS:
             raise InvalidParameterError(f"form {form!r} is not one of {FORMS}")
-    if settings.du_limit is not None and "absolute" in forms:
+    if settings.limits.du is not None and "absolute" in forms:
         raise InvalidParameterError(
-            f"du_limit = {settings.du_limit!r} N·m per sample applies to the incremental forms only; the absolute "
-            f"form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
+            f"du_limit = {settings.limits.to_dict()['du']!r} N·m per sample applies to the incremental forms only; "
+            f"the absolute form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
+    per_form = {form: settings.controller_settings(form) for form in forms}  # every form checked first
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
     reference = settings.make_reference(robot)
@@ -136,7 +234,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     for form in forms:
         if machine:
             try:
-                res = _run_machine(settings, sensors, form, robot, plant_robot, reference, start)
+                res = _run_machine(settings, sensors, per_form[form], robot, plant_robot, reference, start)
             except KeyboardInterrupt:
                 if not results:
                     raise
@@ -145,13 +243,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             if res.interrupted:
                 break
             continue
-        ctrl = GPCController(
-            ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
-            Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
-            torque_limit=settings.torque_limit, du_limit=settings.du_limit,
-            disturbance_gain=settings.disturbance_gain,
-        )
-        plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
+        ctrl = GPCController(ReducedModel(robot), per_form[form])
+        plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]), Ts=settings.Ts,
                                  torque_limit=settings.plant_limit(robot),
                                  platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
@@ -174,8 +267,6 @@ def check_machine(settings: TrackingSettings) -> Sensors:
     """The sensors of a run through :func:`~parallel_gpc.studies.loop.run_loop` (encoder sensors or
     the MuJoCo plant), refusing the options that loop does not model."""
     sensors = Sensors.parse(settings.sensors)
-    if settings.plant not in PLANTS:
-        raise InvalidParameterError(f"plant {settings.plant!r} is not one of {list(PLANTS)}")
     if settings.noise_std:
         raise InvalidParameterError(f"noise_std = {settings.noise_std!r} is state noise of full-state runs on our own "
                                     "plant; encoder noise is Sensors(noise_counts=...)")
@@ -184,22 +275,22 @@ def check_machine(settings: TrackingSettings) -> Sensors:
     return sensors
 
 
-def _run_machine(settings: TrackingSettings, sensors: Sensors, form: str, robot, plant_robot, reference, start):
+def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GPCSettings, robot, plant_robot,
+                 reference, start):
     """One form through run_loop: our plant behind sensors, or MuJoCo; an estimator for encoders."""
     Ts, encoders = settings.Ts, sensors.kind == "encoders"
     X0 = np.concatenate([start, np.zeros(robot.n_y)])
-    ctrl = GPCController(
-        ReducedModel(robot), Ts, Horizons(settings.N, settings.No, settings.Nu), Weights(settings.Qy, settings.Qu),
-        form=form, solver=settings.solver, torque_limit=settings.torque_limit, du_limit=settings.du_limit,
-        disturbance_gain=0.0 if encoders else settings.disturbance_gain)
+    if encoders:  # the Kalman filter estimates the disturbance: the controller's own estimate is off
+        ctrl_settings = replace(ctrl_settings, disturbance_gain=0.0)
+    ctrl = GPCController(ReducedModel(robot), ctrl_settings)
     if settings.plant == "mujoco":
         from ..estimation.mujoco_plant import MujocoPlant
 
         plant = MujocoPlant(plant_robot, Ts, X0, sensors, torque_limit=settings.plant_limit(robot), seed=settings.seed)
     else:
-        plant = SensedPlant(ConstrainedPlant(plant_robot, X0, torque_limit=settings.plant_limit(robot),
+        plant = SensedPlant(ConstrainedPlant(plant_robot, X0, Ts=Ts, torque_limit=settings.plant_limit(robot),
                                              platform_force=settings.platform_force if any(settings.platform_force)
-                                             else None), Ts, sensors, seed=settings.seed)
+                                             else None), sensors, seed=settings.seed)
     estimator = StateEstimator(ReducedModel(robot), Ts, sensors, X0) if encoders else None
     return run_loop(ctrl, plant, reference, settings.run_duration, estimator=estimator,
                     meta={"mass_scale": settings.mass_scale, "plant": settings.plant, "sensors_spec": settings.sensors,

@@ -257,7 +257,7 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
     robot = ParallelRobot.load(robot_name)
     ref = _reference(reference, robot, duration)
     for form in forms:  # validate the controller settings once, before any run
-        GPCController(ReducedModel(robot), Ts, horizons, weights, form=form)
+        GPCController.build(ReducedModel(robot), Ts, horizons, weights, form=form)
     result = RobustnessResult(settings={
         "robot": robot.name, "forms": list(forms), "Ts": Ts, "N": N, "duration": duration,
         "Qy": weights.Qy, "Qu": weights.Qu, "reference": reference if isinstance(reference, str) else repr(reference),

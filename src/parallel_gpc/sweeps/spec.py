@@ -22,7 +22,6 @@ their parameters, so a rerun of the same spec finds the cells it already has.
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import itertools
 import json
@@ -37,7 +36,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..gpc.references import pose_error_norms
-from ..studies.tracking import TrackingSettings
+from ..studies.tracking import FLAT_KEYS, TrackingSettings
 
 #: Fraction of the run at its end over which the steady-state error is averaged.
 SETTLE_FRACTION = 0.1
@@ -54,7 +53,7 @@ RECORD_COLUMNS = ("key", "index", "status", "error", "wall_time_s")
 EXTRA_PARAMS = ("form", "velocity_noise_std")
 #: Random distributions of the [random] table and their argument counts.
 DISTRIBUTIONS = {"uniform": 2, "loguniform": 2, "normal": 2, "integers": 2, "choice": None}
-_SETTINGS_FIELDS = tuple(f.name for f in dataclasses.fields(TrackingSettings) if f.name != "extra")
+_SETTINGS_FIELDS = FLAT_KEYS
 _INDEXED = re.compile(r"^([A-Za-z_]\w*)\[(\d+)\]$")
 _KEY_VERSION = 1
 
@@ -235,7 +234,7 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
     form = params.pop("form", "nonlinear")
     velocity_noise = params.pop("velocity_noise_std", None)
     kwargs = {}
-    defaults = TrackingSettings()
+    defaults = TrackingSettings().flat()
     for name, value in params.items():
         match = _INDEXED.match(name)
         if match is None:
@@ -244,7 +243,7 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
         base, i = match.group(1), int(match.group(2))
         if base in params:
             raise InvalidParameterError(f"{base!r} is set whole and as {name!r}; give one of them")
-        current = kwargs.get(base, (0.0,) * n_y if base == "platform_force" else getattr(defaults, base))
+        current = kwargs.get(base, (0.0,) * n_y if base == "platform_force" else defaults[base])
         if not isinstance(current, tuple):
             raise InvalidParameterError(f"{name!r}: {base} is not a vector setting (it is {current!r})")
         vector = list(current)
@@ -256,7 +255,7 @@ def cell_settings(params: dict, n_y: int = 3) -> tuple[TrackingSettings, str]:
         pose_noise = kwargs.get("noise_std", 0.0)
         if pose_noise or velocity_noise:
             kwargs["noise_std"] = (float(pose_noise),) * n_y + (float(velocity_noise),) * n_y
-    return TrackingSettings(**kwargs), form
+    return TrackingSettings.from_flat(**kwargs), form
 
 
 def drive_q_indices(robot) -> np.ndarray:
