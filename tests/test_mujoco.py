@@ -8,7 +8,7 @@ import sys
 import numpy as np
 import pytest
 
-from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, Weights
+from parallel_gpc import ConstrainedPlant, GPCController, Horizons, Limits, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.estimation import Sensors, SensedPlant, StateEstimator
 from parallel_gpc.gpc.references import path_for
@@ -55,7 +55,7 @@ def _rms(robot, form, plant_kind, torque_limit, sensors=Sensors("full"), duratio
     X0 = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
     encoders = sensors.kind == "encoders"
     ctrl = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, 1e-4), form=form,
-                         torque_limit=torque_limit, disturbance_gain=0.0 if encoders else None)
+                               limits=Limits(torque=torque_limit), disturbance_gain=0.0 if encoders else None)
     if plant_kind == "own":
         plant = SensedPlant(ConstrainedPlant(robot, X0, Ts=TS, torque_limit=torque_limit), sensors)
     else:

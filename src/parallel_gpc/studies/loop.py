@@ -148,7 +148,7 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
     info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form,
                  "solver": controller.solver, "N": controller.horizons.N, "No": controller.horizons.No,
                  "Nu": controller.horizons.Nu, "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
-                 "torque_limit": controller.torque_limit, "sensors": sensors.kind,
+                 "limits": controller.limits.to_dict(), "sensors": sensors.kind,
                  "computation_delay": bool(computation_delay), "deadline_overruns": int(overruns), **(meta or {})}
     return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular,
-                            estimate_error=estimate_error, overruns=int(overruns))
+                            limits=controller.limits, estimate_error=estimate_error, overruns=int(overruns))
