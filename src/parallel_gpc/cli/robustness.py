@@ -10,7 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InvalidParameterError
-from .defaults import DEFAULT_ROBOT
+from .defaults import DEFAULT_ROBOT, REFERENCE_HELP, REFERENCE_METAVAR, reference_argument
 
 #: Exit code of a run stopped by Ctrl-C (after saving what it computed).
 EXIT_INTERRUPTED = 130
@@ -95,9 +95,9 @@ def register_robustness(sub) -> None:
     p.add_argument("--mass-scales", default=None, help="comma-separated plant mass scales (default 0.7,0.85,1.15,1.3)")
     p.add_argument("--noise", default=None, help="comma-separated pose noise σ in m (default 1e-5,1e-4)")
     p.add_argument("--disturbances", default=None, help="comma-separated platform forces along x in N (default 10,20)")
-    p.add_argument("--reference", choices=("path", "scurve", "helix", "hold"), default="path",
-                   help="the robot's path (then a hold): the paper's S-curve for planar robots, the helix "
-                        "for spatial ones; or a hold of the home pose")
+    p.add_argument("--reference", type=reference_argument, default="auto", metavar=REFERENCE_METAVAR,
+                   help=REFERENCE_HELP + "; built-in paths take 80 %% of the run, then a hold; hold = the home pose "
+                        "(default auto; 'path' and 'scurve' are the older names of auto and s-curve)")
     p.add_argument("--out", default="out/robustness", help="output folder (default out/robustness)")
     p.add_argument("--quick", action="store_true", help="fewer cases: ±30 %% mass, noise 1e-4 m, 20 N (about half the time)")
     p.add_argument("--workers", type=int, default=0,

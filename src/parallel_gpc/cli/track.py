@@ -1,4 +1,5 @@
-"""``parallel-gpc track``: S-curve (or hold) tracking with each GPC form on the nonlinear plant.
+"""``parallel-gpc track``: tracking of a reference (a built-in path in the robot's outputs, a hold
+or a CSV file) with each GPC form on the nonlinear plant.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
 and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .defaults import DEFAULT_ROBOT, FORMS, TRACKING
+from .defaults import DEFAULT_ROBOT, FORMS, REFERENCE_HELP, REFERENCE_METAVAR, TRACKING, reference_argument
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 
@@ -30,8 +31,9 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
-    p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
-    p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
+    p.add_argument("--torque-limit", type=float, default=None, help="drive limit in N·m (N for prismatic drives)")
+    p.add_argument("--du-limit", type=float, default=None,
+                   help="drive increment limit in N·m (N) per sample (incremental forms only)")
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
                    help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
                         + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
@@ -42,8 +44,8 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--force", type=float, nargs="+", default=d["platform_force"], metavar="F",
                    help="constant disturbance on the platform, one value per coordinate (N, N·m), e.g. FX FY MZ "
                         f"(default {' '.join(f'{v:g}' for v in d['platform_force'])})")
-    p.add_argument("--reference", choices=["auto", "s-curve", "helix", "hold"], default="auto",
-                   help="auto: the S-curve for planar robots, the 3-D helix for spatial ones")
+    p.add_argument("--reference", type=reference_argument, default="auto", metavar=REFERENCE_METAVAR,
+                   help=REFERENCE_HELP + " (default auto)")
     p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
                    + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
@@ -84,8 +86,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
-    paths = [save_figure(plot_paths(results, f"{title}: platform path"), out / "track_path.png"),
-             save_figure(plot_time_histories(results, f"{title}: error, velocity, torque"), out / "track_time.png")]
+    paths = [save_figure(plot_paths(results, f"{title}: path"), out / "track_path.png"),
+             save_figure(plot_time_histories(results, f"{title}: error, velocity, drive effort"),
+                         out / "track_time.png")]
     print("wrote " + ", ".join(str(p) for p in paths) + f" and track_<form>.npz in {out}")
     last = results[list(results)[-1]]
     flags = None if settings.torque_limit is None else saturation_flags(last.u, settings.torque_limit, rtol=1e-5)
@@ -98,13 +101,13 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
 
 def cmd_track(args) -> int:
     forms = list(FORMS) if args.form == "all" else [args.form]
-    title = f"Tracking ({args.reference} reference)"
+    title = f"Tracking ({Path(args.reference).name} reference)"
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", help="track the S-curve (or a hold pose) with GPC on the nonlinear plant")
+    p = sub.add_parser("track", help="track a reference (built-in path, hold or CSV file) with GPC on the nonlinear plant")
     p.add_argument("--form", choices=[*FORMS, "all"], default="all", help="GPC form (default all)")
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)

@@ -16,7 +16,8 @@ from ..model.dynamics import ReducedModel
 from ..errors import InvalidParameterError
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
-from ..gpc.references import PATH_KINDS, Hold, Reference, hold_pose_for, path_for
+from ..gpc.references import Hold, Reference, SampledTrajectory
+from ..gpc.robot_references import check_reference, check_times, is_file_reference, reference_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from .simulation import SimulationResult, simulate
 from ..gpc.criterion import Weights
@@ -44,11 +45,19 @@ class TrackingSettings:
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
             all zeros = none).
-        reference: "auto" (the S-curve for planar [x, y, ψ] outputs, else the helix), "s-curve",
-            "helix", "hold" or a Reference object; duration: run length in s (default: motion + 0.2 s).
-        s_curve_duration: time of the path's motion (S-curve or helix) in s.
+        reference: a built-in path in the robot's output space — "auto" (the paper's S-curve
+            for planar [x, y, ψ] outputs, the helix for three translational outputs, an S-curve
+            in the plane of two, a line for one), "s-curve", "circle", "line", "helix" —, "hold",
+            a reference file (".csv": a column t and one per output label, SI units; ".npz": a
+            plan or saved reference) or a Reference object
+            (:func:`~parallel_gpc.gpc.robot_references.reference_for`); duration: run length in s
+            (default: motion + 0.2 s; a file's last time + 0.2 s; 2 s for a hold).
+        s_curve_duration: time of a built-in path's motion in s.
         hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
             (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
+        check_reference: assemble the reference at the run's sample poses before the run and
+            refuse it, naming the first bad pose, if one is unreachable or near-singular
+            (:func:`~parallel_gpc.gpc.robot_references.check_reference`).
         seed: seed of the measurement noise.
     """
 
@@ -71,18 +80,14 @@ class TrackingSettings:
     s_curve_duration: float = 2.0
     hold_pose: tuple[float, ...] | None = None
     seed: int = 0
+    check_reference: bool = True
     plant_torque_limit: float | str | None = "controller"
     extra: dict = field(default_factory=dict)
 
-    def make_reference(self, robot: ParallelRobot) -> Reference:
-        if isinstance(self.reference, Reference):
-            return self.reference
-        if self.reference == "hold":
-            pose = hold_pose_for(robot.home_pose, robot.output_angular) if self.hold_pose is None else self.hold_pose
-            return Hold(tuple(pose))
-        if self.reference not in PATH_KINDS:
-            raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']}")
-        return path_for(self.reference, robot.home_pose, robot.output_angular, self.s_curve_duration)
+    def make_reference(self, robot: ParallelRobot, max_condition: float = 1e3) -> Reference:
+        """The run's reference on ``robot`` (built-in paths sized to its workspace, whose probe
+        stops where cond(M_r⁻¹ B_r) exceeds ``max_condition``)."""
+        return reference_for(self.reference, robot, self.s_curve_duration, max_condition, self.hold_pose)
 
     def plant_limit(self, robot: ParallelRobot):
         """The plant's drive saturation: None, a value in N·m or the robot's (n_u,) limits."""
@@ -95,9 +100,17 @@ class TrackingSettings:
 
     @property
     def run_duration(self) -> float:
+        """Run length in s for a built-in path or hold (see :meth:`duration_for`)."""
         if self.duration is not None:
             return float(self.duration)
         return 2.0 if self.reference == "hold" else self.s_curve_duration + 0.2
+
+    def duration_for(self, reference: Reference) -> float:
+        """Run length in s: ``duration`` if set; else a sampled reference's last time + 0.2 s
+        (a reference file), or :attr:`run_duration`."""
+        if self.duration is None and is_file_reference(self.reference) and isinstance(reference, SampledTrajectory):
+            return float(reference.t[-1]) + 0.2
+        return self.run_duration
 
 
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
@@ -112,23 +125,26 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             f"form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
-    reference = settings.make_reference(robot)
+    controllers = {form: GPCController(
+        ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
+        Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
+        torque_limit=settings.torque_limit, du_limit=settings.du_limit,
+        disturbance_gain=settings.disturbance_gain) for form in forms}
+    max_condition = min((c.max_condition for c in controllers.values()), default=1e3)
+    reference = settings.make_reference(robot, max_condition)
+    duration = settings.duration_for(reference)
+    if settings.check_reference:
+        check_reference(robot, reference, check_times(reference, duration, settings.Ts), max_condition)
     start = reference.pose(0.0)
     if settings.reference == "hold":
         start = robot.home_pose
     results = {}
-    for form in forms:
-        ctrl = GPCController(
-            ReducedModel(robot), settings.Ts, Horizons(settings.N, settings.No, settings.Nu),
-            Weights(settings.Qy, settings.Qu), form=form, solver=settings.solver,
-            torque_limit=settings.torque_limit, du_limit=settings.du_limit,
-            disturbance_gain=settings.disturbance_gain,
-        )
+    for form, ctrl in controllers.items():
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]),
                                  torque_limit=settings.plant_limit(robot),
                                  platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
-            res = simulate(ctrl, plant, reference, settings.run_duration, seed=settings.seed,
+            res = simulate(ctrl, plant, reference, duration, seed=settings.seed,
                            noise_std=settings.noise_std or None, progress=progress,
                            meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
                                  "disturbance_gain": ctrl.disturbance_gain,
@@ -143,30 +159,36 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     return results
 
 
-def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m") -> str:
-    """A text table of the tracking metrics by form (position error in mm, orientation error in
-    mrad — the norm of the angular output errors, ψ on a planar robot —, drive effort in
-    ``drive_unit``, step times in ms), with the gain α of the disturbance estimate each form ran with.
+def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None = None) -> str:
+    """A text table of the tracking metrics by form: position error in mm (the norm of the
+    translational output errors), orientation error in mrad (the norm of the angular ones, ψ
+    on a planar robot; columns only when the robot has angular outputs), drive effort in the
+    drive unit, step times in ms, and the gain α of the disturbance estimate each form ran with.
 
     Args:
         results: simulation results by form name.
-        drive_unit: unit of the drive efforts u (``ParallelRobot.drive_unit``: "N·m" for revolute
-            drives, "N" for prismatic ones).
+        drive_unit: unit of the drive efforts u ("N·m" for revolute drives, "N" for prismatic
+            ones); None: the results' own (``SimulationResult.outputs``, N·m without).
     """
-    unit = f"[{drive_unit}]"
-    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'rms ang':>9} {'max ang':>9} {'peak u':>8} "
-            f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
-    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {unit:>8} "
-             f"{unit:>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
-    lines = [head, units]
+    first = next(iter(results.values()), None)
+    space = None if first is None else first.output_space
+    unit = f"[{drive_unit or (space.drive_unit if space else 'N·m')}]"
+    angles = space is None or space.has_angles
+    cols = [("est. α", 6, "", lambda res, m: f"{res.meta.get('disturbance_gain', float('nan')):6.2f}"),
+            ("rms pos", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_position_error_m']:9.2e}"),
+            ("max pos", 9, "[mm]", lambda res, m: f"{1e3 * m['max_position_error_m']:9.2e}")]
+    if angles:
+        cols += [("rms ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['rms_orientation_error_rad']:9.2e}"),
+                 ("max ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['max_orientation_error_rad']:9.2e}")]
+    cols += [("peak u", 8, unit, lambda res, m: f"{m['peak_torque_Nm']:8.2f}"),
+             ("int. f", 8, unit, lambda res, m: f"{m['max_internal_force_Nm']:8.1e}"),
+             ("mean step", 9, "[ms]", lambda res, m: f"{1e3 * m['mean_step_time_s']:9.3f}"),
+             ("p99 step", 9, "[ms]", lambda res, m: f"{1e3 * m['p99_step_time_s']:9.3f}"),
+             ("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}")]
+    lines = [f"{'form':<20} " + " ".join(f"{name:>{w}}" for name, w, _, _ in cols),
+             f"{'':<20} " + " ".join(f"{u:>{w}}" for _, w, u, _ in cols)]
     for form, res in results.items():
         m = res.metrics()
-        lines.append(
-            f"{form:<20} {res.meta.get('disturbance_gain', float('nan')):6.2f} "
-            f"{1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
-            f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
-            f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
-            f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
-            + ("  (interrupted)" if res.interrupted else "")
-        )
+        lines.append(f"{form:<20} " + " ".join(get(res, m) for _, _, _, get in cols)
+                     + ("  (interrupted)" if res.interrupted else ""))
     return "\n".join(lines)
