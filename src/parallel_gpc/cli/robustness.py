@@ -27,7 +27,7 @@ def _floats(text: str) -> tuple[float, ...]:
 
 
 def cmd_robustness(args) -> int:
-    from ..sweeps import (
+    from ..sweeps.robustness import (  # the defaults are not in the package exports
         DEFAULT_DISTURBANCES,
         DEFAULT_MASS_SCALES,
         DEFAULT_NOISE_LEVELS,
@@ -94,7 +94,7 @@ def register_robustness(sub) -> None:
     p.add_argument("--Qu", type=float, default=None, help="input/increment weight (square root, default 1e-4)")
     p.add_argument("--mass-scales", default=None, help="comma-separated plant mass scales (default 0.7,0.85,1.15,1.3)")
     p.add_argument("--noise", default=None, help="comma-separated pose noise σ in m (default 1e-5,1e-4)")
-    p.add_argument("--disturbances", default=None, help="comma-separated platform forces along x in N (default 10,20)")
+    p.add_argument("--disturbances", default=None, help="comma-separated constant loads on the first output: N (N·m for an angle) (default 10,20)")
     p.add_argument("--reference", type=reference_argument, default="auto", metavar=REFERENCE_METAVAR,
                    help=REFERENCE_HELP + "; built-in paths take 80 %% of the run, then a hold; hold = the home pose "
                         "(default auto; 'path' and 'scurve' are the older names of auto and s-curve)")

@@ -11,46 +11,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..gpc.references import pose_error_norms
-from ..model.output_space import OutputSpace
+from .paths import draw_path, path_axes
 from ..studies.simulation import SimulationResult
-
-def path_columns(space: OutputSpace) -> list[int]:
-    """Outputs a path view draws: the translational ones (m), or every output when all are
-    angles (rad)."""
-    return space.translational or list(range(space.n_y))
-
-
-def path_axes(fig: Figure, space: OutputSpace, position=111):
-    """An axes for the path in the plane or space of the outputs of :func:`path_columns`:
-    3-D for three or more (the first three), a plane for two, the coordinate over time for one;
-    labelled with the output names and units. Returns (axes, columns drawn: 3, 2, or the one
-    drawn over time)."""
-    cols = path_columns(space)
-    if len(cols) >= 3:
-        ax = fig.add_subplot(position, projection="3d")
-        cols = cols[:3]
-        ax.set_xlabel(space.axis_label(cols[0]))
-        ax.set_ylabel(space.axis_label(cols[1]))
-        ax.set_zlabel(space.axis_label(cols[2]))
-        return ax, cols
-    ax = fig.add_subplot(position)
-    if len(cols) == 2:
-        ax.set_aspect("equal", adjustable="datalim")
-        ax.set_xlabel(space.axis_label(cols[0]))
-        ax.set_ylabel(space.axis_label(cols[1]))
-        return ax, cols
-    ax.set_xlabel("t [s]")
-    ax.set_ylabel(space.axis_label(cols[0]))
-    return ax, cols[:1]
-
-
-def draw_path(ax, cols: list[int], t: np.ndarray, poses: np.ndarray, *args, **kwargs):
-    """Plot poses (K, n_y) on an axes of :func:`path_axes`: columns ``cols`` against each other,
-    or the one column over the times t (s)."""
-    if len(cols) == 1:
-        return ax.plot(t, poses[:, cols[0]], *args, **kwargs)
-    return ax.plot(*(poses[:, c] for c in cols), *args, **kwargs)
-
 
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
     """Reference and tracked paths in the plane or space of the translational outputs (axes
@@ -66,7 +28,7 @@ def plot_paths(results: dict[str, SimulationResult], title: str = "platform path
         draw_path(ax, cols, res.t, res.pose, lw=1.2, label=name)
         if len(cols) == 2 and len(angles) == 1:  # planar: the platform's orientation along the path
             step = max(1, len(res.t) // 12)
-            size = 0.1 * max(float(np.ptp(first.reference[:, cols], axis=0).max()), 0.05)
+            size = 0.05 * max(float(np.ptp(first.reference[:, cols], axis=0).max()), 0.05)
             for k in range(0, len(res.t), step):
                 (x, y), psi = res.pose[k, cols], res.pose[k, angles[0]]
                 ax.plot([x, x + size * np.cos(psi)], [y, y + size * np.sin(psi)], color="0.4", lw=0.8)
