@@ -16,7 +16,7 @@ from ..model.dynamics import ReducedModel
 from ..errors import InvalidParameterError
 from ..model.plant import ConstrainedPlant
 from ..gpc.prediction import Horizons
-from ..gpc.references import Hold, Reference, SampledTrajectory
+from ..gpc.references import Reference, SampledTrajectory
 from ..gpc.robot_references import check_reference, check_times, is_file_reference, reference_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from .simulation import SimulationResult, simulate
