@@ -65,6 +65,9 @@ def test_help_defaults_are_the_library_defaults():
     assert defaults.DEFAULT_ROBOT == DEFAULT_ROBOT and defaults.FORMS == tuple(FORMS)
     library = TrackingSettings().flat()
     assert defaults.TRACKING == {k: library[k] for k in defaults.TRACKING}
+    from parallel_gpc.gpc.robot_references import REFERENCE_KINDS
+
+    assert defaults.REFERENCES == REFERENCE_KINDS
     args = build_parser().parse_args(["track"])
     assert (args.robot, args.Ts, args.N, args.No, args.Qy, args.Qu) == (
         library["robot"], library["Ts"], library["N"], library["No"], library["Qy"], library["Qu"])

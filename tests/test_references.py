@@ -63,3 +63,125 @@ def test_quintic_array_equals_quintic():
     tau = np.linspace(-0.5, 1.5, 401)
     # x**3 of numpy and of Python may round differently in the last bit
     np.testing.assert_allclose(quintic_array(tau), [quintic(float(x)) for x in tau], rtol=0, atol=1e-15)
+
+
+# ------------------------------------------------------------------ references in any output space
+from pathlib import Path  # noqa: E402
+
+from parallel_gpc import ParallelRobot  # noqa: E402
+from parallel_gpc.errors import InvalidParameterError, SingularPoseError, UnreachablePoseError  # noqa: E402
+from parallel_gpc.gpc.references import OutputPath  # noqa: E402
+from parallel_gpc.gpc.robot_references import (  # noqa: E402
+    WORKSPACE_FRACTION, check_reference, check_times, ray_reach, reference_for, sized_path)
+from parallel_gpc.model.output_space import OutputSpace  # noqa: E402
+
+FIVEBAR = Path(__file__).resolve().parents[1] / "docs" / "your-robot" / "fivebar.urdf"
+T = np.linspace(-0.1, 2.1, 301)
+
+
+@pytest.fixture(scope="module")
+def fivebar():
+    return ParallelRobot.load(FIVEBAR)
+
+
+def test_circle_poses_lie_on_the_circle_and_other_outputs_swing_back():
+    ref = path_for("circle", [0.1, 0.2, 0.3, 0.0], [False, True, False, True], 2.0, size=0.05)
+    assert ref.columns == (0, 2)
+    p = ref.sample(T)
+    np.testing.assert_allclose(np.hypot(p[:, 0] - 0.1, p[:, 2] - 0.3), 0.05, rtol=1e-13)
+    np.testing.assert_allclose(p[[0, -1]][:, [0, 2]], [[0.15, 0.3]] * 2, atol=1e-15)  # one full turn from +x
+    s = quintic_array(T / 2.0)
+    np.testing.assert_allclose(p[:, [1, 3]], np.column_stack([0.2 + 0.05 * np.sin(2 * np.pi * s),
+                                                              0.05 * np.sin(2 * np.pi * s)]), atol=1e-15)
+
+
+def test_generic_s_curve_is_the_papers_shape_about_home():
+    """The output-space S-curve against the paper's SCurve (an independent formula) moved to start
+    2·size below home."""
+    ref = OutputPath("s-curve", (0.3, 0.7), 0.04, (0, 1), duration=1.5)
+    paper = SCurve(start=(0.3, 0.7 - 0.08), radius=0.04, duration=1.5)
+    np.testing.assert_allclose(ref.sample(T), paper.sample(T)[:, :2], atol=1e-15)
+
+
+def test_line_is_straight_through_home():
+    ref = path_for("line", [1.0, 2.0, 3.0], [False] * 3, 1.0, size=0.3)
+    p = ref.sample(np.linspace(0.0, 1.0, 51)) - [1.0, 2.0, 3.0]
+    np.testing.assert_allclose(p[[0, -1]], [[-0.3 / np.sqrt(3)] * 3, [0.3 / np.sqrt(3)] * 3], atol=1e-15)
+    assert np.linalg.matrix_rank(p, tol=1e-12) == 1
+
+
+def test_paths_refuse_what_the_outputs_cannot_do():
+    with pytest.raises(InvalidParameterError, match=r"circle needs 2 translational outputs; this robot's outputs are "
+                                                    r"\[z m, yaw rad\]"):
+        path_for("circle", [0.5, 0.0], [False, True], 1.0, labels=("z", "yaw"))
+    with pytest.raises(InvalidParameterError, match="is not one of"):
+        path_for("spiral", [0.5, 0.0], [False, True], 1.0)
+    ref = path_for("auto", [0.5, 0.0], [False, True], 1.0)  # one translation: a line, the angle swings
+    assert ref.kind == "line" and ref.columns == (0,) and ref.swing == (0.05,)
+
+
+def test_embedded_robots_keep_their_paths():
+    planar = ParallelRobot.load("planar_3rrr")
+    assert sized_path("auto", planar, 2.0, 1e3) == SCurve(duration=2.0)
+    delta = ParallelRobot.load("delta_3rus")
+    assert sized_path("auto", delta, 2.0, 1e3) == path_for("helix", delta.home_pose, delta.output_angular, 2.0)
+
+
+def test_workspace_probe_and_scaling_on_the_five_bar(fivebar):
+    """Up from home the legs (0.25 + 0.30 m on pivots at x = ±0.1 m) stretch at z = √(0.55² − 0.1²):
+    the probe must stop before; the S-curve is scaled to half the reach found, and passes the check."""
+    stretched = np.sqrt(0.55**2 - 0.1**2) - 0.4
+    up = ray_reach(fivebar, [0, 1], [0.0, 1.0], 0.3, 1e3, steps=30)
+    assert 0.05 < up <= stretched
+    ref = sized_path("s-curve", fivebar, 2.0, 1e3)
+    assert ref.size < 0.05  # smaller than the default
+    assert np.max(ref.sample(T)[:, 1]) - 0.4 <= WORKSPACE_FRACTION * stretched + 1e-12
+    check_reference(fivebar, ref, check_times(ref, 2.2, 0.002), 1e3)
+
+
+def test_check_names_the_first_bad_pose(fivebar):
+    far = SampledTrajectory([0.0, 1.0], [[0.0, 0.4], [0.0, 0.9]])
+    with pytest.raises(UnreachablePoseError, match=r"reference pose \[0.0, 0.5\d*\] \(x, z\) at t = 0.\d+ s is outside"):
+        check_reference(fivebar, far, np.linspace(0.0, 1.0, 11), 1e3)
+    with pytest.raises(SingularPoseError, match="cond"):  # a tiny limit: every pose is 'near-singular'
+        check_reference(fivebar, Hold((0.0, 0.4)), [0.0], 1.0)
+
+
+def test_csv_round_trip_equals_the_trajectory(fivebar, tmp_path):
+    t = np.linspace(0.0, 0.5, 9)
+    traj = SampledTrajectory(t, np.column_stack([0.02 * np.sin(6 * t), 0.4 + 0.01 * t]))
+    traj.to_csv(tmp_path / "a.csv", ["x", "z"])
+    back = reference_for(str(tmp_path / "a.csv"), fivebar, 1.0)
+    times = np.linspace(-0.1, 0.7, 97)
+    np.testing.assert_array_equal(back.sample(times), traj.sample(times))
+    (tmp_path / "b.csv").write_text("z, t ,x\n0.4,0,0.01\n0.41,0.5,0.02\n")  # any column order, spaces
+    np.testing.assert_allclose(reference_for(str(tmp_path / "b.csv"), fivebar, 1.0).sample([0.25]), [[0.015, 0.405]])
+
+
+@pytest.mark.parametrize("text, match", [
+    ("t,x\n0,0\n1,0\n", r"missing \['z'\]"),
+    ("t,x,z,z\n0,0,0.4,0.4\n1,0,0.4,0.4\n", r"duplicated \['z'\]"),
+    ("t,x,z,psi\n0,0,0.4,0\n1,0,0.4,0\n", r"unknown \['psi'\]"),
+    ("t,x,z\n0,0,0.4\n", "at least 2"),
+    ("t,x,z\n0,0,0.4\n0,0,0.41\n", "strictly increasing"),
+    ("t,x,z\n0,0,0.4\n1,nan,0.41\n", "line 3, column 'x' is nan"),
+    ("t,x,z\n0,0,0.4\n1,a,0.41\n", "line 3, column 'x': 'a' is not a number"),
+    ("t,x,z\n0,0,0.4\n1,0\n", "line 3 has 2 values"),
+    ("", "is empty"),
+])
+def test_bad_csv_is_one_clear_error(fivebar, tmp_path, text, match):
+    (tmp_path / "r.csv").write_text(text)
+    with pytest.raises(InvalidParameterError, match=match):
+        reference_for(str(tmp_path / "r.csv"), fivebar, 1.0)
+
+
+def test_output_space_labels_and_units(fivebar):
+    space = fivebar.output_space
+    assert (space.labels, space.units, space.drive_unit) == (("x", "z"), ("m", "m"), "N·m")
+    assert space.translational == [0, 1] and not space.has_angles
+    hexapod = ParallelRobot.load("hexapod_6ups").output_space
+    assert hexapod.drive_unit == "N" and hexapod.effort_unit == "N²·s" and hexapod.rotational == [3, 4, 5]
+    planar = OutputSpace.from_angular(None, 3)
+    assert planar.labels == ("x", "y", "ψ") and planar.units == ("m", "m", "rad")
+    with pytest.raises(InvalidParameterError, match="distinct"):
+        OutputSpace(("x", "x"), (False, False))

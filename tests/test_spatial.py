@@ -134,10 +134,13 @@ def test_default_path_depends_on_the_outputs(robot4):
         xy = np.array([ref.pose(t)[:2] for t in np.linspace(0.0, 2.0, 41)])
         np.testing.assert_allclose(np.hypot(*(xy - r.home_pose[:2]).T), ref.radius, atol=1e-12)  # about home
         np.testing.assert_allclose(ref.pose(1.0)[2:3], r.home_pose[2:3], atol=1e-12)  # mid-height at home
-    with pytest.raises(InvalidParameterError, match="S-curve is a path of planar"):
-        path_for("s-curve", hexapod.home_pose, hexapod.output_angular, 2.0)
-    with pytest.raises(InvalidParameterError, match="helix needs 3 translational"):
-        path_for("helix", robot4.home_pose, robot4.output_angular, 2.0)
+    s_curve = path_for("s-curve", hexapod.home_pose, hexapod.output_angular, 2.0)  # in the x-y plane about home
+    assert s_curve.columns == (0, 1)
+    np.testing.assert_allclose(s_curve.sample([0.0, 1.0, 2.0])[:, :2] - hexapod.home_pose[:2],
+                               [[0.0, -2 * s_curve.size], [0.0, 0.0], [0.0, 2 * s_curve.size]], atol=1e-15)
+    with pytest.raises(InvalidParameterError, match=r"helix needs 3 translational outputs; this robot's outputs are "
+                                                    r"\[x m, y m, psi rad\]"):
+        path_for("helix", robot4.home_pose, robot4.output_angular, 2.0, labels=("x", "y", "psi"))
 
 
 def test_error_norms_split_translations_and_angles():

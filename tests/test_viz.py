@@ -16,7 +16,7 @@ import psutil
 import pytest
 
 from parallel_gpc.limits import Limits
-from parallel_gpc import load_result, save_result, viz
+from parallel_gpc import ParallelRobot, load_result, save_result, viz
 from parallel_gpc.cli import main as cli_main
 from parallel_gpc.errors import InvalidParameterError, ParallelGPCError, ShapeError, ViewerError
 
@@ -141,6 +141,39 @@ def test_placements_follow_the_legs_and_closures_close(robot4):
     gap = np.linalg.norm(T_open["robot/closures/leg_1_a"][:3, 3] - T_open["robot/closures/leg_1_b"][:3, 3])
     assert gap > 0.05
     assert not np.allclose(T_open["robot/distal_1_0"], T["robot/distal_1_0"])  # legs follow q
+
+
+def test_a_robot_without_visuals_is_drawn_as_a_stick_figure(robot4):
+    """The five-bar of docs/your-robot has no <visual>: a sphere on every joint origin, a rod from
+    each joint to its child joint and to the closure/output frames on its link (rods keep their
+    length as q changes: each lies on one link), the output marked; the planar robot, whose links
+    all have visuals, gets only its output marker."""
+    robot = ParallelRobot.load(FsPath(__file__).resolve().parents[1] / "docs" / "your-robot" / "fivebar.urdf")
+    scene = viz.RobotScene(SimpleNamespace(path=MeshcatPath(("meshcat",))), robot)
+    assert scene.geom_model.ngeoms == 0
+    joints = list(robot.model.names)[1:]
+    assert {f"robot/stick/joint_{n}" for n in joints} | {"robot/output", "robot/closures/close_a",
+                                                        "robot/closures/close_b"} <= set(scene.paths)
+    rods = [p for p in scene.paths if p.startswith("robot/stick/rod_")]
+    assert len(rods) == 2 + 2  # a→e on each leg, e→ee and e→tip2 (closure frames; ee is the output too)
+    lengths = []
+    for pose in ([0.0, 0.4], [0.03, 0.37]):
+        q = robot.assemble(pose)
+        T = dict(zip(scene.paths, scene.placements(q)))
+        data = robot.model.createData()
+        pin.framesForwardKinematics(robot.model, data, q)
+        for n in joints:
+            np.testing.assert_allclose(T[f"robot/stick/joint_{n}"][:3, 3], data.oMi[robot.model.getJointId(n)].translation,
+                                       atol=1e-12)
+        np.testing.assert_allclose(T["robot/output"][:3, 3][[0, 2]], pose, atol=1e-9)
+        ends = scene.stick.ends(data)
+        for path, (a, b) in zip(rods, ends):  # the cylinder's axis (y) runs from a to b
+            np.testing.assert_allclose(T[path][:3, 3], (a + b) / 2, atol=1e-12)
+            np.testing.assert_allclose(T[path][:3, 1] * np.linalg.norm(b - a), b - a, atol=1e-12)
+        lengths.append([np.linalg.norm(b - a) for a, b in ends])
+    np.testing.assert_allclose(lengths[0], lengths[1], atol=1e-12)
+    planar = viz.RobotScene(SimpleNamespace(path=MeshcatPath(("meshcat",))), robot4)
+    assert [p for p in planar.paths if p.startswith("robot/stick") or p == "robot/output"] == ["robot/output"]
 
 
 def test_animation_keyframes_match_configurations(robot4):

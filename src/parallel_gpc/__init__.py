@@ -28,6 +28,7 @@ _PUBLIC = {
     "ParallelRobot": "model", "RobotDescription": "model", "load_description": "model",
     "embedded_robots": "model", "DEFAULT_ROBOT": "model", "ReducedModel": "model",
     "discretize_zoh": "model", "rk4_step": "model", "ConstrainedPlant": "model", "ReducedPlant": "model",
+    "OutputSpace": "model",
     # solvers
     "LeastSquaresProblem": "solvers", "SolveResult": "solvers", "make_solver": "solvers",
     "available_solvers": "solvers", "MinNormOf": "solvers",
@@ -35,7 +36,8 @@ _PUBLIC = {
     "Horizons": "gpc", "Weights": "gpc", "GPCController": "gpc", "FORMS": "gpc", "StepInfo": "gpc",
     "Prediction": "gpc", "build_problem": "gpc", "PlanSettings": "gpc", "PlanResult": "gpc",
     "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
-    "SampledTrajectory": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
+    "SampledTrajectory": "gpc", "Helix": "gpc", "OutputPath": "gpc", "reference_for": "gpc",
+    "check_reference": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
     "ControlModel": "gpc", "Criterion": "gpc",
     "plan_modes": "gpc", "plan_table": "gpc",
     "path_for": "gpc",

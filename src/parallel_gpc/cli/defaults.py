@@ -13,5 +13,5 @@ DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platfor
         "duration": 3.0, "disturbance_gain": 0.5}
 #: = :data:`parallel_gpc.gpc.settings.PAPER_FORMS`, the forms the paper compares.
 PAPER_FORMS = ("absolute", "incremental", "nonlinear")
-#: = ``parallel_gpc.gpc.references.PATH_KINDS`` and ``"hold"``: what ``--reference`` names.
-REFERENCES = ("auto", "s-curve", "helix", "hold")
+#: = :data:`parallel_gpc.gpc.robot_references.REFERENCE_KINDS`: the built-in references.
+REFERENCES = ("auto", "s-curve", "circle", "line", "helix", "hold")

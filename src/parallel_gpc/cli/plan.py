@@ -116,7 +116,7 @@ def register_plan(sub) -> None:
     p.add_argument("--Qu", type=float, default=1e-6,
                    help="square-root input weight over the horizon (default 1e-6; larger values shorten the move)")
     p.add_argument("--torque-limit", type=float, default=None, metavar="NM",
-                   help="drive torque limit |u| ≤ NM in N·m, enforced by the QP back end (default none)")
+                   help="drive limit |u| ≤ NM in N·m (N for prismatic drives), enforced by the QP back end (default none)")
     p.add_argument("--solver", default=None,
                    help="back end: qr (default without limits), qr-first:daqp-direct (default with limits), "
                         "osqp-direct, proxqp-direct, qpsolvers:<name>, …")

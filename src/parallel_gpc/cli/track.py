@@ -1,5 +1,5 @@
-"""``parallel-gpc track``: tracking with each GPC form on the full constrained plant: the paper's
-S-curve (planar robots), the helix (spatial robots) or a hold.
+"""``parallel-gpc track``: tracking of a reference (a built-in path in the robot's outputs, a hold
+or a CSV file) with each GPC form on the nonlinear plant.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
 and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
@@ -32,8 +32,9 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
-    p.add_argument("--torque-limit", type=float, default=None, help="drive torque limit in N·m")
-    p.add_argument("--du-limit", type=float, default=None, help="torque increment limit in N·m per sample (incremental forms only)")
+    p.add_argument("--torque-limit", type=float, default=None, help="drive limit in N·m (N for prismatic drives)")
+    p.add_argument("--du-limit", type=float, default=None,
+                   help="drive increment limit in N·m (N) per sample (incremental forms only)")
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
                    help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
                         + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
@@ -92,8 +93,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
-    paths = [save_figure(plot_paths(results, f"{title}: platform path"), out / "track_path.png"),
-             save_figure(plot_time_histories(results, f"{title}: error, velocity, torque"), out / "track_time.png")]
+    paths = [save_figure(plot_paths(results, f"{title}: path"), out / "track_path.png"),
+             save_figure(plot_time_histories(results, f"{title}: error, velocity, drive effort"),
+                         out / "track_time.png")]
     print("wrote " + ", ".join(str(p) for p in paths) + f" and track_<form>.npz in {out}")
     last = results[list(results)[-1]]
     flags = saturation_flags(last.u, settings.limits, rtol=1e-5)
@@ -106,14 +108,14 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
 
 def cmd_track(args) -> int:
     forms = selected_forms(args.forms)
-    title = f"Tracking ({args.reference} reference)"
+    title = f"Tracking ({Path(args.reference).name} reference)"
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", help="track a reference (the S-curve on planar robots, the helix on spatial ones, or "
-                                     "a hold) with each GPC form on the full constrained plant")
+    p = sub.add_parser("track", help="track a reference (a built-in path in the robot's outputs, a hold or a CSV "
+                                     "file) with each GPC form on the full constrained plant")
     add_forms_argument(p, None, "--form")  # --form: the earlier spelling, still accepted
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)

@@ -24,8 +24,26 @@ def selected_forms(names: list[str]) -> list[str]:
     return list(FORMS) if "all" in names else list(dict.fromkeys(names))
 
 
-def add_reference_argument(p, hold: str) -> None:
-    """``--reference {auto,s-curve,helix,hold}`` (default auto); ``hold`` says what the hold is."""
-    p.add_argument("--reference", choices=REFERENCES, default="auto",
-                   help="auto: the paper's S-curve for planar robots, the 3-D helix (one turn) for spatial ones; "
-                        f"s-curve; helix; hold: {hold} (default auto)")
+#: How ``--reference`` shows its values: a built-in name or a reference file.
+REFERENCE_METAVAR = "{" + ",".join(REFERENCES) + ",FILE.csv,FILE.npz}"
+
+
+def reference_argument(text: str) -> str:
+    """``--reference`` value: a name of :data:`REFERENCES` or a ``.csv`` / ``.npz`` path (the file
+    is read, and its columns checked, when the robot is known)."""
+    import argparse
+
+    if text in REFERENCES or text.lower().endswith((".csv", ".npz")):
+        return text
+    raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(REFERENCES)}, nor a .csv or .npz file")
+
+
+def add_reference_argument(p, hold: str, extra: str = "") -> None:
+    """``--reference {auto,s-curve,circle,line,helix,hold,FILE.csv,FILE.npz}`` (default auto);
+    ``hold`` says what the hold is, ``extra`` adds a command's own remark."""
+    p.add_argument("--reference", type=reference_argument, default="auto", metavar=REFERENCE_METAVAR,
+                   help="a path in the robot's own outputs, sized to its workspace around home and checked before "
+                        "the run: auto (the paper's S-curve for planar x, y, psi robots, the helix for 3 "
+                        "translations, an S-curve in the plane of 2, a line for 1), s-curve, circle, line, helix; "
+                        f"hold: {hold}; or a file: FILE.csv (a column t and one column per output label, SI units: "
+                        f"s, m, rad) or a plan/reference FILE.npz{extra} (default auto)")

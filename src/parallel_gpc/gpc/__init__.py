@@ -7,13 +7,15 @@ from .linear_model import DiscreteLinearModel
 from ..limits import Limits
 from .settings import ControllerState, GPCSettings
 from .controller import FORMS, GPCController, StepInfo
-from .references import Hold, Reference, SampledTrajectory, SCurve, path_for
+from .references import Helix, Hold, OutputPath, Reference, SampledTrajectory, SCurve, path_for
+from .robot_references import REFERENCE_KINDS, check_reference, reference_for, workspace_radius
 from .planning import MODES, PlanComparison, PlanResult, PlanSettings, deadbeat_inputs, plan_modes, plan_point_to_point
 from .plan_result import plan_table
 
 __all__ = [
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
     "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
-    "FORMS", "GPCController", "StepInfo", "Hold", "Reference", "SampledTrajectory", "SCurve", "path_for", "PlanResult",
+    "FORMS", "GPCController", "StepInfo", "Helix", "Hold", "OutputPath", "Reference", "SampledTrajectory", "SCurve",
+    "path_for", "REFERENCE_KINDS", "check_reference", "reference_for", "workspace_radius", "PlanResult",
     "PlanSettings", "deadbeat_inputs", "plan_point_to_point", "MODES", "PlanComparison", "plan_modes", "plan_table",
 ]

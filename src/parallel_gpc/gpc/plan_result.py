@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import AssemblyError, SingularPoseError
+from ..model.output_space import OutputSpace
 from ..results import save_result
 from .references import SampledTrajectory, pose_error_norms
 from .plan_settings import INTERRUPTED, MODE_LABELS, PlanSettings
@@ -36,8 +37,9 @@ class PlanResult:
             (e.g. the open-loop plant of mode once left the workspace, or :data:`INTERRUPTED`: Ctrl-C),
             the arrays then end there.
         robot: how the result file names the robot (embedded name or absolute URDF path; "" for none).
-        angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
-            convention [x, y, ψ].
+        outputs: names and units of the outputs and the drives' unit
+            (:class:`~parallel_gpc.model.output_space.OutputSpace`), or None for the planar
+            convention [x m, y m, ψ rad] driven in N·m.
     """
 
     mode: str
@@ -55,7 +57,12 @@ class PlanResult:
     saturated: int = 0
     stopped: str = ""
     robot: str = ""
-    angular: np.ndarray | None = None
+    outputs: OutputSpace | None = None
+
+    @property
+    def angular(self) -> np.ndarray | None:
+        """(n_y,) bool, the angular output coordinates (rad), or None for the planar convention."""
+        return None if self.outputs is None else np.array(self.outputs.angular)
 
     @property
     def interrupted(self) -> bool:
@@ -68,8 +75,9 @@ class PlanResult:
 
     def __repr__(self) -> str:
         pos, ang = self.end_error if len(self.t) else (math.nan, math.nan)
+        space = self.output_space
         return (f"PlanResult(mode={self.mode!r}, steps={len(self.u)}, end_error=({pos:.3g} m, {ang:.3g} rad), "
-                f"peak_torque={self.peak_torque:.4g} N·m, energy={self.energy:.4g} N²·m²·s"
+                f"peak_torque={self.peak_torque:.4g} {space.drive_unit}, energy={self.energy:.4g} {space.effort_unit}"
                 + (f", stopped={self.stopped!r}" if self.stopped else "") + ")")
 
     # ------------------------------------------------------------ errors
@@ -114,33 +122,42 @@ class PlanResult:
         return float(self.t[0 if outside.size == 0 else outside[-1] + 1])
 
     @property
+    def output_space(self) -> OutputSpace:
+        """:attr:`outputs`, or the planar convention's when the plan has none."""
+        return self.outputs or OutputSpace.from_angular(None, self.poses.shape[1])
+
+    @property
     def overshoot(self) -> float:
-        """Largest distance (m) the platform went past B along the direction A → B (0 if never)."""
-        d = (self.target - self.start)[:2]
+        """Largest distance (m) the platform went past B along the direction A → B in the
+        translational outputs (0 if never)."""
+        lin = self.output_space.translational
+        d = (self.target - self.start)[lin]
         norm = float(np.linalg.norm(d))
         if norm == 0.0:
             return 0.0
-        return float(max(0.0, np.max((self.poses[:, :2] - self.target[:2]) @ (d / norm))))
+        return float(max(0.0, np.max((self.poses[:, lin] - self.target[lin]) @ (d / norm))))
 
     @property
     def orientation_excursion(self) -> float:
-        """Largest orientation (rad) outside the interval between ψ_A and ψ_B: 0 for a move that
-        turns the platform only as far as it must; about 2π for a full spin."""
-        if self.poses.shape[1] < 3:
-            return 0.0
-        lo, hi = sorted((float(self.start[2]), float(self.target[2])))
-        psi = self.poses[:, 2]
-        return float(max(0.0, np.max(psi - hi), np.max(lo - psi)))
+        """Largest excursion (rad) of an angular output outside the interval between its values
+        at A and B: 0 for a move that turns the platform only as far as it must; about 2π for a
+        full spin; 0 without angular outputs."""
+        excursion = 0.0
+        for i in self.output_space.rotational:
+            lo, hi = sorted((float(self.start[i]), float(self.target[i])))
+            psi = self.poses[:, i]
+            excursion = max(excursion, float(np.max(psi - hi)), float(np.max(lo - psi)))
+        return excursion
 
     # ------------------------------------------------------------ effort
     @property
     def energy(self) -> float:
-        """Drive energy measure Σ‖u‖²·Ts in N²·m²·s."""
+        """Drive energy measure Σ‖u‖²·Ts in N²·m²·s (N²·s for prismatic drives)."""
         return float(np.sum(self.u**2) * self.settings.Ts)
 
     @property
     def peak_torque(self) -> float:
-        """max |u| over drives and samples in N·m."""
+        """max |u| over drives and samples in N·m (N for prismatic drives)."""
         return float(np.max(np.abs(self.u))) if self.u.size else 0.0
 
     def metrics(self) -> dict:

@@ -223,7 +223,7 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
                       rec.status[:n].astype(str), rec.solve_time[:n].copy(),
                       None if rec.q is None else rec.q[: n + 1].copy(), settings,
                       int(getattr(plant, "saturated", 0) - sat0), rec.stopped, robot_reference(robot),
-                      None if robot is None else robot.output_angular)
+                      None if robot is None else robot.output_space)
 
 
 

@@ -6,6 +6,7 @@ t + Ts, …, t + N·Ts that the controller compares its predictions with.
 
 from __future__ import annotations
 
+import csv
 import math
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -15,6 +16,10 @@ import numpy as np
 from ..errors import InvalidParameterError, NonFiniteError, ResultFormatError, ShapeError
 from ..results import load_result, save_result
 from ..validation import finite_vector, positive
+
+
+#: Largest CSV reference file read (bytes).
+MAX_CSV_BYTES = 64 * 2**20
 
 
 class Reference:
@@ -249,6 +254,80 @@ class SampledTrajectory(Reference):
         extra = {} if self.velocities is None else {"velocities": self.velocities}
         return save_result(path, None, self.t, reference=self.poses, kind="reference", arrays=extra)
 
+    def to_csv(self, path, labels) -> Path:
+        """Write the poses as CSV: a column ``t`` (s) and one column per output label (SI: m, rad),
+        the format :meth:`from_csv` reads (``--reference FILE.csv`` on the command line)."""
+        labels = [str(x) for x in labels]
+        if len(labels) != self.poses.shape[1]:
+            raise ShapeError(f"{len(labels)} labels {labels} for poses with {self.poses.shape[1]} columns")
+        path = Path(path)
+        with path.open("w", newline="") as fh:
+            wr = csv.writer(fh)
+            wr.writerow(["t", *labels])
+            wr.writerows([[repr(float(t)), *(repr(float(v)) for v in row)] for t, row in zip(self.t, self.poses)])
+        return path
+
+    @classmethod
+    def from_csv(cls, path, labels) -> "SampledTrajectory":
+        """Read a CSV reference: a header row with ``t`` and each output label once (any order),
+        then one row per sample in SI units (s, m, rad); times strictly increasing, at least 2
+        rows, every value finite. The columns are returned in the order of ``labels``.
+
+        Args:
+            path: the CSV file (at most :data:`MAX_CSV_BYTES`).
+            labels: (n_y,) the robot's output labels (``robot.description.output_labels``).
+
+        Raises:
+            InvalidParameterError: a missing, duplicated or unknown column, a value that is not
+                a number, fewer than 2 rows, times not strictly increasing, NaN or inf — one
+                message naming the file, the line and what is valid.
+            OSError: the file cannot be read.
+        """
+        path = Path(path)
+        labels = [str(x) for x in labels]
+        where = f"reference file {str(path)!r}"
+        expected = f"a header row 't,{','.join(labels)}' (SI units: s, m, rad)"
+        if path.stat().st_size > MAX_CSV_BYTES:
+            raise InvalidParameterError(f"{where} is {path.stat().st_size} bytes; at most {MAX_CSV_BYTES} are read")
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = [row for row in csv.reader(fh) if row and any(c.strip() for c in row)]
+        if not rows:
+            raise InvalidParameterError(f"{where} is empty; expected {expected}")
+        header = [c.strip() for c in rows[0]]
+        seen = {name: header.count(name) for name in header}
+        twice = sorted(name for name, n in seen.items() if n > 1)
+        missing = [name for name in ["t", *labels] if name not in seen]
+        unknown = [name for name in header if name not in ["t", *labels]]
+        if twice or missing or unknown:
+            parts = ([f"duplicated {twice}"] if twice else []) + ([f"missing {missing}"] if missing else []) \
+                + ([f"unknown {unknown}"] if unknown else [])
+            raise InvalidParameterError(f"{where} has columns {header}: {', '.join(parts)}; expected {expected}")
+        order = [header.index(name) for name in ["t", *labels]]
+        data = np.empty((len(rows) - 1, len(order)))
+        for k, row in enumerate(rows[1:]):
+            if len(row) != len(header):
+                raise InvalidParameterError(f"{where} line {k + 2} has {len(row)} values; the header has "
+                                            f"{len(header)}")
+            for j, col in enumerate(order):
+                try:
+                    data[k, j] = float(row[col])
+                except ValueError:
+                    raise InvalidParameterError(f"{where} line {k + 2}, column {header[col]!r}: {row[col]!r} is "
+                                                "not a number") from None
+        if data.shape[0] < 2:
+            raise InvalidParameterError(f"{where} has {data.shape[0]} data rows; at least 2 are needed")
+        bad = np.argwhere(~np.isfinite(data))
+        if bad.size:
+            k, j = bad[0]
+            raise InvalidParameterError(f"{where} line {k + 2}, column {(['t', *labels])[j]!r} is {data[k, j]}; "
+                                        "every value must be finite")
+        steps = np.flatnonzero(np.diff(data[:, 0]) <= 0)
+        if steps.size:
+            k = int(steps[0])
+            raise InvalidParameterError(f"{where}: t = {data[k + 1, 0]!r} s on line {k + 3} does not follow "
+                                        f"t = {data[k, 0]!r} s; times must be strictly increasing")
+        return cls(data[:, 0], data[:, 1:])
+
     @classmethod
     def load(cls, path) -> "SampledTrajectory":
         """Read the poses of a result file: a plan's (``parallel-gpc plan``), a saved reference's,
@@ -264,49 +343,186 @@ class SampledTrajectory(Reference):
         return cls(result.t, poses, result.arrays.get("velocities"))
 
 
-#: Reference kinds that :func:`path_for` builds.
-PATH_KINDS = ("auto", "s-curve", "helix")
+@dataclass(frozen=True)
+class OutputPath(Reference):
+    """A built-in path in any robot's output space: a unit curve scaled by ``size`` about ``centre``.
+
+    The curve moves the output columns ``columns`` (usually the translational outputs, m):
+
+    * ``"s-curve"`` (2 columns): the shape of the paper's Fig. 2, two half circles of radius
+      ``size`` joined, from ``centre − 2·size`` to ``centre + 2·size`` along the second column;
+    * ``"circle"`` (2 columns): one counter-clockwise turn of radius ``size`` about ``centre``,
+      starting at ``centre + size`` along the first column;
+    * ``"line"`` (any number of columns): the straight segment from ``centre − size·e`` to
+      ``centre + size·e``, e = (1, …, 1)/√d along the d columns.
+
+    Every other column follows ``centre + swing·sin(2π s)`` (leaving and returning to its
+    centre value; zeros hold it). The path parameter s follows a quintic time scaling over
+    ``duration`` after ``t_start``; before and after, the pose is held.
+
+    Attributes:
+        kind: ``"s-curve"``, ``"circle"`` or ``"line"``. centre: (n_y,) pose (m, rad).
+        size: in the unit of the moved columns (m, or rad for angular ones), > 0.
+        columns: indices of the moved outputs. swing: one amplitude per other column (in its
+        unit), or () for none. duration, t_start: in s.
+    """
+
+    kind: str
+    centre: tuple[float, ...]
+    size: float
+    columns: tuple[int, ...]
+    swing: tuple[float, ...] = ()
+    duration: float = 2.0
+    t_start: float = 0.0
+
+    #: columns each kind moves (None: any number ≥ 1)
+    DIMENSIONS = {"s-curve": 2, "circle": 2, "line": None}
+    #: largest distance of the unit curve from its centre (size = 1)
+    EXTENT = {"s-curve": 2.0, "circle": 1.0, "line": 1.0}
+
+    def __post_init__(self):
+        if self.kind not in self.DIMENSIONS:
+            raise InvalidParameterError(f"path kind {self.kind!r} is not one of {list(self.DIMENSIONS)}")
+        centre = finite_vector("path centre", self.centre)
+        cols = tuple(int(c) for c in self.columns)
+        need = self.DIMENSIONS[self.kind]
+        if (need is not None and len(cols) != need) or not cols or len(set(cols)) != len(cols) \
+                or not all(0 <= c < centre.size for c in cols):
+            raise InvalidParameterError(f"{self.kind} columns {list(self.columns)} must be "
+                                        f"{need or '≥ 1'} distinct indices into the {centre.size} outputs")
+        n_other = centre.size - len(cols)
+        swing = tuple(self.swing) or (0.0,) * n_other
+        object.__setattr__(self, "swing", tuple(finite_vector(f"{self.kind} swing", swing, n_other)))
+        object.__setattr__(self, "centre", tuple(centre))
+        object.__setattr__(self, "columns", cols)
+        positive(f"{self.kind} size", self.size, "")
+        positive(f"{self.kind} duration", self.duration, " s")
+
+    @property
+    def extent(self) -> float:
+        """Largest distance of the moved columns from the centre (size × the unit curve's)."""
+        return self.EXTENT[self.kind] * self.size
+
+    def unit_curve(self, s: np.ndarray) -> np.ndarray:
+        """(K, d) points of the curve of size 1 about 0 at path parameters s ∈ [0, 1]."""
+        s = np.asarray(s, dtype=float)
+        if self.kind == "circle":
+            phi = 2 * math.pi * s
+            return np.column_stack([np.cos(phi), np.sin(phi)])
+        if self.kind == "line":
+            d = len(self.columns)
+            return np.multiply.outer(2.0 * s - 1.0, np.full(d, 1.0 / math.sqrt(d)))
+        first = s <= 0.5
+        theta = np.where(first, -math.pi / 2 + 2 * math.pi * s, -math.pi / 2 - 2 * math.pi * (s - 0.5))
+        return np.column_stack([np.cos(theta), np.where(first, -1.0, 1.0) + np.sin(theta)])
+
+    def pose(self, t: float) -> np.ndarray:
+        return self.sample([t])[0]
+
+    def sample(self, times) -> np.ndarray:
+        """(K, n_y) poses at the given times (s)."""
+        s = quintic_array((np.atleast_1d(np.asarray(times, dtype=float)) - self.t_start) / self.duration)
+        poses = np.tile(np.array(self.centre), (s.size, 1))
+        cols = list(self.columns)
+        poses[:, cols] += self.size * self.unit_curve(s)
+        others = [i for i in range(poses.shape[1]) if i not in self.columns]
+        poses[:, others] += np.multiply.outer(np.sin(2 * math.pi * s), np.asarray(self.swing))
+        return poses
+
+
+#: Built-in paths :func:`path_for` builds ("auto": the robot's default path).
+PATH_KINDS = ("auto", "s-curve", "circle", "line", "helix")
+#: Default size of the generic paths (m for translational outputs, rad for angular ones): the
+#: S-curve's and circle's radius, the line's half length.
+DEFAULT_PATH_SIZE = {"s-curve": 0.05, "circle": 0.08, "line": 0.1}
+#: Swing (rad) of the angular outputs a path does not move (and of the helix's angles).
+ANGLE_SWING = 0.05
 
 
 def _is_planar(angular: np.ndarray) -> bool:
     return angular.tolist() == [False, False, True]
 
 
-def path_for(kind: str, home_pose, angular, duration: float) -> Reference:
-    """A tracking path for a robot with the given outputs.
+def moving_columns(angular) -> list[int]:
+    """Outputs a built-in path moves: the translational ones (m), or every output when all are
+    angles (rad)."""
+    angular = np.asarray(angular, dtype=bool)
+    lin = np.flatnonzero(~angular)
+    return [int(i) for i in (lin if lin.size else np.arange(angular.size))]
+
+
+def _describe(angular, labels) -> str:
+    angular = np.asarray(angular, dtype=bool)
+    labels = list(labels) if labels is not None else [f"y{i + 1}" for i in range(angular.size)]
+    return "[" + ", ".join(f"{name} {'rad' if a else 'm'}" for name, a in zip(labels, angular)) + "]"
+
+
+def default_path_kind(angular) -> str:
+    """What ``"auto"`` means for these outputs: the paper's S-curve for planar [x, y, ψ]
+    outputs, the helix for three translational outputs, an S-curve for two, a line for one."""
+    angular = np.asarray(angular, dtype=bool)
+    if _is_planar(angular):
+        return "s-curve"
+    d = len(moving_columns(angular))
+    return "helix" if d == 3 else "s-curve" if d == 2 else "line"
+
+
+def path_for(kind: str, home_pose, angular, duration: float, size: float | None = None,
+             labels=None) -> Reference:
+    """A built-in path in the output space of a robot (sized by ``size``; no workspace check:
+    :func:`~parallel_gpc.gpc.robot_references.reference_for` sizes and checks it for a robot).
 
     Args:
-        kind: ``"s-curve"`` (the paper's planar S-curve, for [x m, y m, ψ rad] outputs),
-            ``"helix"`` (one turn of radius 0.08 m rising 0.12 m, centred on the home pose, the
-            angles swinging by ±0.05 rad and back; for three translational outputs plus any
-            angles) or ``"auto"`` (the S-curve for planar outputs, else the helix).
+        kind: ``"s-curve"`` (planar [x m, y m, ψ rad] outputs: the paper's S-curve
+            :class:`SCurve`, unchanged; else an :class:`OutputPath` S-curve in the plane of the
+            first two translational outputs, centred on home), ``"circle"`` (ditto, a circle about
+            home), ``"line"`` (a segment through home along the diagonal of the translational
+            outputs), ``"helix"`` (three translational outputs: one turn of radius 0.08 m rising
+            0.12 m, centred on the home pose) or ``"auto"`` (:func:`default_path_kind`). Angular
+            outputs a path does not move swing by ±:data:`ANGLE_SWING` rad and back; other
+            translational outputs are held. Without translational outputs the paths move the angles.
         home_pose: (n_y,) home pose of the robot (m, rad).
         angular: (n_y,) bool, True for angular outputs (``ParallelRobot.output_angular``).
         duration: s, time of the motion.
+        size: the path's size (m; rad when it moves angles): the radius of the S-curve's half
+            circles or of the circle, the line's half length; for the helix a scale of its
+            radius and rise (1 = 0.08 m, 0.12 m). None: :data:`DEFAULT_PATH_SIZE` (helix 1).
+            Ignored by the planar S-curve.
+        labels: (n_y,) output names for the error messages.
 
     Raises:
-        InvalidParameterError: an unknown kind, or a path that does not fit the outputs.
+        InvalidParameterError: an unknown kind, or a path that needs more outputs than there are.
     """
     angular = np.asarray(angular, dtype=bool)
     home = finite_vector("home pose", home_pose, angular.size)
     if kind not in PATH_KINDS:
         raise InvalidParameterError(f"reference {kind!r} is not one of {list(PATH_KINDS)}")
     if kind == "auto":
-        kind = "s-curve" if _is_planar(angular) else "helix"
-    if kind == "s-curve":
-        if not _is_planar(angular):
-            raise InvalidParameterError(f"the S-curve is a path of planar [x m, y m, psi rad] outputs; this robot's "
-                                        f"outputs have angular flags {angular.tolist()} (use 'helix' or 'hold')")
+        kind = default_path_kind(angular)
+    if kind == "s-curve" and _is_planar(angular):
         return SCurve(duration=duration)
-    lin = np.flatnonzero(~angular)
-    if lin.size != 3:
-        raise InvalidParameterError(f"the helix needs 3 translational outputs (x, y, z in m); this robot has "
-                                    f"{lin.size} (angular flags {angular.tolist()}); use 'hold'")
-    helix = Helix(tuple(home), duration=duration, position_columns=tuple(int(i) for i in lin),
-                  angle_amplitude=(0.05,) * int(angular.sum()))
-    start = home.copy()
-    start[lin] += [helix.radius, 0.0, -helix.rise / 2]  # centre the helix on the home pose
-    return replace(helix, start=tuple(start))
+    cols = moving_columns(angular)
+    outputs = _describe(angular, labels)
+    if kind == "helix":
+        if len(cols) != 3 or angular[cols].any():
+            raise InvalidParameterError(f"the helix needs 3 translational outputs; this robot's outputs are {outputs} "
+                                        "(use s-curve, circle, line, hold or a CSV file)")
+        scale = 1.0 if size is None else positive("helix size", size, "")
+        helix = Helix(tuple(home), radius=0.08 * scale, rise=0.12 * scale, duration=duration,
+                      position_columns=tuple(cols), angle_amplitude=(ANGLE_SWING,) * int(angular.sum()))
+        start = home.copy()
+        start[cols] += [helix.radius, 0.0, -helix.rise / 2]  # centre the helix on the home pose
+        return replace(helix, start=tuple(start))
+    need = OutputPath.DIMENSIONS[kind]
+    if need is not None:
+        if len(cols) < need:
+            raise InvalidParameterError(f"the {kind} needs {need} translational outputs; this robot's outputs are "
+                                        f"{outputs} (use line, hold or a CSV file)")
+        cols = cols[:need]
+    others = [i for i in range(angular.size) if i not in cols]
+    return OutputPath(kind, tuple(home), DEFAULT_PATH_SIZE[kind] if size is None else size, tuple(cols),
+                      tuple(ANGLE_SWING if angular[i] and not angular[cols].any() else 0.0 for i in others),
+                      duration=duration)
 
 
 def hold_pose_for(home_pose, angular) -> np.ndarray:

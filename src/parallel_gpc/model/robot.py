@@ -44,6 +44,7 @@ from .description import (  # noqa: F401  (re-exported for the robot's users)
     urdf_dir,
 )
 from .linalg import fast_index
+from .output_space import OutputSpace
 from .outputs import TaskOutput
 from .universal import UniversalJoints
 
@@ -266,6 +267,11 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         kinds = {"Prismatic" in (short := self.model.joints[self.model.getJointId(n)].shortname())
                  or short.startswith("JointModelP") for n in self.description.drive_joints}
         return {frozenset({False}): "N·m", frozenset({True}): "N"}.get(frozenset(kinds), "N·m | N")
+
+    @property
+    def output_space(self) -> OutputSpace:
+        """Names and units of the outputs and the drives' unit (:class:`OutputSpace`), for tables and figures."""
+        return OutputSpace.of(self)
 
     @property
     def drive_selection(self) -> np.ndarray:

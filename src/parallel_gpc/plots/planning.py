@@ -1,10 +1,10 @@
 """Figures of the planner (the paper's Fig. 3 and Fig. 4), returned as matplotlib figures.
 
-* :func:`plot_fig3` — the platform path in the x-y plane for each mode, with small platform
-  markers along it showing the orientation ψ, the start A and end B, and the robot sketched at
-  A and at the last planned pose.
-* :func:`plot_fig4` — time histories for each mode: position, orientation, velocities and
-  drive torques.
+* :func:`plot_fig3` — the path in the plane or space of the translational outputs for each
+  mode (planar robots: with small platform markers showing the orientation ψ), the start A and
+  end B, and the robot sketched from its joint frames at A and at the last planned pose.
+* :func:`plot_fig4` — time histories for each mode: translational and angular outputs (rows
+  only for those present), velocities and drive efforts in the robot's drive unit.
 
 The figures are built with :class:`matplotlib.figure.Figure` (no pyplot state, no GUI), so they
 work headless and do not change the caller's matplotlib backend.
@@ -19,63 +19,40 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
 from ..gpc.planning import PlanResult
+from ..model.skeleton import output_world_axes, skeleton
+from .paths import draw_path, path_axes
 
 #: Colors of the modes (and of anything else the figures draw per mode).
 MODE_COLORS = {"a": "tab:red", "b": "tab:blue", "once": "tab:gray"}
 _DRIVE_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
 
-def _columns(res: PlanResult) -> tuple[list[tuple[int, str]], list[tuple[int, str]], int | None]:
-    """(translational, angular, yaw) outputs of a plan: (index, TeX name) pairs, x, y[, z] and
-    ψ (planar) or φ, θ, ψ (roll, pitch, yaw); yaw is the index of the rotation about z or None."""
-    n = res.poses.shape[1]
-    angular = np.arange(n) >= 2 if res.angular is None else np.asarray(res.angular, dtype=bool)
-    lin = [(int(i), name) for i, name in zip(np.flatnonzero(~angular), ("x", "y", "z"))]
-    names = (r"\psi",) if angular.sum() == 1 else (r"\phi", r"\theta", r"\psi")
-    ang = [(int(i), name) for i, name in zip(np.flatnonzero(angular), names)]
-    return lin, ang, (ang[-1][0] if ang else None)
-
-
-def robot_outline(robot, q: np.ndarray) -> tuple[list[np.ndarray], np.ndarray]:
-    """Planar sketch of a robot at configuration q: legs and platform in the x-y plane.
+def robot_outline(robot, q: np.ndarray, axes=(0, 1)) -> tuple[list[np.ndarray], np.ndarray]:
+    """Sketch of a robot at configuration q from its joint frames
+    (:func:`~parallel_gpc.model.skeleton.skeleton`), projected on world axes ``axes``.
 
     For each closure, the side whose joint chain does not pass through the platform (output)
     joints is a leg, drawn through its joint origins to the closure frame; the other side's
     closure frames are the platform corners.
 
+    Args:
+        robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
+        q: (nq,) configuration.
+        axes: world axes kept (0 = x, 1 = y, 2 = z): two for a plane, three for space.
+
     Returns:
-        (legs, platform): a list of (n_i, 2) polylines and the (n, 2) platform polygon (m).
+        (legs, platform): a list of (n_i, len(axes)) polylines and the (n, len(axes)) platform
+        polygon (m).
     """
-    import pinocchio as pin
+    sk = skeleton(robot, q)
+    axes = list(axes)
+    return [leg[:, axes] for leg in sk.legs], sk.platform[:, axes]
 
-    model = robot.model
-    data = model.createData()
-    pin.framesForwardKinematics(model, data, np.asarray(q, dtype=float))
-    output_v = set(np.asarray(robot.y_idx).tolist())
-    output_joints = {j for j in range(1, model.njoints) if model.joints[j].idx_v in output_v}
 
-    def chain(frame_id: int) -> list[int]:
-        joints, j = [], model.frames[frame_id].parentJoint
-        while j != 0:
-            joints.append(j)
-            j = model.parents[j]
-        return joints[::-1]
-
-    legs, corners = [], []
-    for closure in robot.description.closures:
-        for name in closure.frames:
-            fid = model.getFrameId(name)
-            joints = chain(fid)
-            tip = np.asarray(data.oMf[fid].translation)[:2]
-            if output_joints.intersection(joints):
-                corners.append(tip)
-            else:
-                legs.append(np.array([np.asarray(data.oMi[j].translation)[:2] for j in joints] + [tip]))
-    platform = np.array(corners) if corners else np.zeros((0, 2))
-    if len(platform) > 2:  # order the corners around their centre
-        centre = platform.mean(axis=0)
-        platform = platform[np.argsort(np.arctan2(*(platform - centre).T[::-1]))]
-    return legs, platform
+def _world_axes(robot, cols: list[int]) -> list[int] | None:
+    """World axes of the drawn output columns, or None when one has none (no robot drawn)."""
+    axes = [output_world_axes(robot)[c] for c in cols]
+    return None if None in axes or len(set(axes)) != len(axes) else axes
 
 
 def _pose_marker(x: float, y: float, psi: float, size: float) -> np.ndarray:
@@ -85,14 +62,15 @@ def _pose_marker(x: float, y: float, psi: float, size: float) -> np.ndarray:
     return shape @ np.array([[c, s], [-s, c]]) + [x, y]
 
 
-def _draw_robot(ax, robot, q, color: str, alpha: float, linestyle: str = "-", label: str | None = None) -> None:
-    legs, platform = robot_outline(robot, q)
+def _draw_robot(ax, robot, q, axes: list[int], color: str, alpha: float, label: str | None = None) -> None:
+    """The robot's legs (joint origins, drives as squares) and platform at q on a path axes whose
+    columns are the world axes ``axes``."""
+    legs, platform = robot_outline(robot, q, axes)
     for i, leg in enumerate(legs):
-        ax.plot(leg[:, 0], leg[:, 1], linestyle, color=color, alpha=alpha, lw=1.2, marker="o", ms=2.5,
-                label=label if i == 0 else None)
+        ax.plot(*leg.T, "-", color=color, alpha=alpha, lw=1.2, marker="o", ms=2.5, label=label if i == 0 else None)
         ax.plot(*leg[0], "s", color=color, alpha=alpha, ms=5)  # base / drive
     if len(platform) > 2:
-        ax.add_patch(Polygon(platform, closed=True, fill=False, ec=color, alpha=alpha, ls=linestyle, lw=1.2))
+        ax.plot(*np.vstack([platform, platform[:1]]).T, "-", color=color, alpha=alpha, lw=1.2)
 
 
 def _angle_text(rad: float) -> str:
@@ -101,110 +79,123 @@ def _angle_text(rad: float) -> str:
 
 
 def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
-              marker_size: float = 0.04) -> Figure:
-    """Fig. 3: the planned platform paths in the x-y plane, one panel per mode.
+              marker_size: float | None = None) -> Figure:
+    """Fig. 3: the planned paths in the plane or space of the translational outputs (axes named
+    by the output labels), one panel per mode, with the start A and end B.
 
     Args:
         results: plans to draw (usually modes a, b and once, same A and B).
-        robot: draw the robot at A and the platform at the last pose (needs the results' ``q``).
-        n_markers: number of orientation markers along each path.
-        marker_size: marker length in m.
+        robot: draw the robot at A (legs from its joint frames) and its platform at the last pose
+            (needs the results' ``q``; only where the drawn outputs move along world axes).
+        n_markers: number of orientation markers along each path (planar [x, y, ψ] outputs).
+        marker_size: marker length in m (default 7 % of the path's span, at least 1 cm).
 
     Returns:
         The figure.
     """
+    space = results[0].output_space
     fig = Figure(figsize=(5.6 * len(results), 6.2))
-    axes = fig.subplots(1, len(results), squeeze=False, sharex=True, sharey=True)[0]
-    for ax, res in zip(axes, results):
+    for k, res in enumerate(results):
+        ax, cols = path_axes(fig, space, (1, len(results), k + 1))
+        over_time = len(cols) == 1
         color = MODE_COLORS.get(res.mode, "tab:green")
-        if robot is not None and res.q is not None:
-            _draw_robot(ax, robot, res.q[0], "0.6", 0.7, label="robot at A")
-            _, platform = robot_outline(robot, res.q[-1])
+        world = None if robot is None or res.q is None or over_time else _world_axes(robot, cols)
+        if world is not None:
+            _draw_robot(ax, robot, res.q[0], world, "0.6", 0.7, label="robot at A")
+            _, platform = robot_outline(robot, res.q[-1], world)
             if len(platform) > 2:
-                ax.add_patch(Polygon(platform, closed=True, fill=False, ec=color, lw=1.5, ls="--",
-                                     label=f"platform at t = {res.t[-1]:.2f} s"))
-        ax.plot(res.poses[:, 0], res.poses[:, 1], "-", color=color, lw=2, label="platform path")
-        lin, ang, yaw = _columns(res)
-        idx = np.unique(np.linspace(0, len(res.t) - 1, n_markers if yaw is not None else 0).round().astype(int))
-        for j, i in enumerate(idx):
-            x, y, psi = res.poses[i, 0], res.poses[i, 1], res.poses[i, yaw]
-            ax.add_patch(Polygon(_pose_marker(x, y, psi, marker_size), closed=True, fc=color, ec="k", lw=0.5,
-                                 alpha=0.85, label=rf"orientation $\psi$ every {res.t[idx[1]] - res.t[idx[0]]:.2f} s"
-                                 if j == 0 and len(idx) > 1 else None))
-        for pose, name, mk in ((res.start, "A", "o"), (res.target, "B", "*")):
-            ax.plot(pose[0], pose[1], mk, color="k", ms=11 if mk == "*" else 8, zorder=5)
-            if yaw is not None:
-                ax.add_patch(Polygon(_pose_marker(pose[0], pose[1], pose[yaw], 2 * marker_size), closed=True,
+                ax.plot(*np.vstack([platform, platform[:1]]).T, "--", color=color, lw=1.5,
+                        label=f"platform at t = {res.t[-1]:.2f} s")
+        draw_path(ax, cols, res.t, res.poses, "-", color=color, lw=2, label="path")
+        angles = space.rotational
+        if len(cols) == 2 and len(angles) == 1:  # planar: orientation markers along the path
+            yaw = angles[0]
+            size = marker_size or max(0.07 * float(np.ptp(res.poses[:, cols], axis=0).max()), 0.01)
+            idx = np.unique(np.linspace(0, len(res.t) - 1, n_markers).round().astype(int))
+            for j, i in enumerate(idx):
+                ax.add_patch(Polygon(_pose_marker(*res.poses[i, cols], res.poses[i, yaw], size), closed=True,
+                                     fc=color, ec="k", lw=0.5, alpha=0.85,
+                                     label=rf"orientation ${space.name(yaw)}$ every {res.t[idx[1]] - res.t[idx[0]]:.2f} s"
+                                     if j == 0 and len(idx) > 1 else None))
+            for pose in (res.start, res.target):
+                ax.add_patch(Polygon(_pose_marker(*pose[cols], pose[yaw], 2 * size), closed=True,
                                      fill=False, ec="k", lw=1.0, ls=":"))
-            text = ", ".join([f"{pose[i]:.2f} m" for i, _ in lin] + [f"{math.degrees(pose[i]):.0f}°" for i, _ in ang])
-            ax.annotate(f"{name} [{text}]", pose[:2],
-                        xytext=(10, -16) if name == "A" else (-10, 14), textcoords="offset points", fontsize=9,
-                        ha="left" if name == "A" else "right")
+        for pose, name, mk in ((res.start, "A", "o"), (res.target, "B", "*")):
+            text = ", ".join(f"{space.name(i)} {pose[i]:.3g} m" if not space.angular[i]
+                             else f"{space.name(i)} {math.degrees(pose[i]):.0f}°" for i in range(space.n_y))
+            where = ([res.t[0] if name == "A" else res.t[-1]] if over_time else []) + [pose[c] for c in cols]
+            ax.plot(*([v] for v in where), mk, color="k", ms=11 if mk == "*" else 8, zorder=5)
+            if len(where) == 2:
+                ax.annotate(f"{name} [{text}]", where, xytext=(10, -16) if name == "A" else (-10, 14),
+                            textcoords="offset points", fontsize=9, ha="left" if name == "A" else "right")
+            else:
+                ax.text(*where, f" {name}", fontsize=9)
         pos, ang = res.end_error
         reach = res.time_to_reach
-        ax.set_title(f"{res.label}\nend error {pos:.2g} m, {_angle_text(ang)}; "
-                     + ("not within tolerance" if math.isnan(reach) else f"reached at {reach:.2f} s"), fontsize=10)
-        ax.set_xlabel("x [m]")
-        ax.set_ylabel("y [m]")
-        ax.set_aspect("equal", adjustable="box")
+        error = f"end error {pos:.2g} m" + (f", {_angle_text(ang)}" if space.has_angles else "")
+        ax.set_title(f"{res.label}\n{error}; " + ("not within tolerance" if math.isnan(reach)
+                                                  else f"reached at {reach:.2f} s"), fontsize=10)
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper left", fontsize=8)
     s = results[0].settings
     fig.suptitle(f"Quadratically-optimal planning A → B (Nmax = {s.Nmax}, Nmin = {s.Nmin}, k = {s.k}, "
                  f"Ts = {1000 * s.Ts:g} ms)", fontsize=11, y=0.98)
-    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08, top=0.86, wspace=0.12)
+    fig.subplots_adjust(left=0.07, right=0.98, bottom=0.08, top=0.86, wspace=0.25)
     return fig
 
 
 def plot_fig4(results: list[PlanResult]) -> Figure:
     """Fig. 4: time histories of the plans, one column per mode.
 
-    Rows: platform position x, y (m); orientation ψ (deg); linear velocity (m/s); angular
-    velocity (deg/s); drive torques (N·m). Dashed vertical lines mark the planned arrival
-    t = Nmax·Ts and, in mode (b), the step where the horizon reaches Nmin; dotted lines the
-    end pose B and the torque limits.
+    Rows: translational outputs (m); angular outputs (deg; only if the robot has them);
+    their velocities (m/s, and deg/s if angular); drive efforts (the robot's drive unit: N·m
+    revolute, N prismatic). Dashed vertical lines mark the planned arrival t = Nmax·Ts and, in
+    mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
+    limits. Curves are labelled with the output labels.
 
     Returns:
         The figure.
     """
-    fig = Figure(figsize=(6.0 * len(results), 12.0), layout="constrained")
-    axes = fig.subplots(5, len(results), squeeze=False, sharex="all", sharey="row")  # comparable columns
+    space = results[0].output_space
+    lin, ang = space.translational, space.rotational
+    rows = [("position [m]", lin, "pose", 1.0), ("orientation [deg]", ang, "pose", math.degrees(1.0)),
+            ("velocity [m/s]", lin, "velocity", 1.0), ("angular velocity [deg/s]", ang, "velocity", math.degrees(1.0))]
+    rows = [r for r in rows if r[1]]
+    fig = Figure(figsize=(6.0 * len(results), 2.4 * (len(rows) + 1)), layout="constrained")
+    axes = fig.subplots(len(rows) + 1, len(results), squeeze=False, sharex="all", sharey="row")  # comparable columns
     for col, res in enumerate(results):
         s = res.settings
         ax = axes[:, col]
         t, tu = res.t, res.t[:-1]
-        lin, ang = _columns(res)[:2]
-        for k, (i, lab) in enumerate(lin):
-            ax[0].plot(t, res.poses[:, i], color=_DRIVE_COLORS[k], label=f"${lab}$")
-            ax[0].axhline(res.target[i], color=_DRIVE_COLORS[k], ls=":", lw=1)
-            ax[2].plot(t, res.velocities[:, i], color=_DRIVE_COLORS[k], label=rf"$\dot {lab}$")
-        ax[0].set_ylabel("position [m]")
-        for k, (i, lab) in enumerate(ang):
-            color = "tab:green" if len(ang) == 1 else _DRIVE_COLORS[3 + k]
-            ax[1].plot(t, np.degrees(res.poses[:, i]), color=color, label=f"${lab}$")
-            ax[1].axhline(math.degrees(res.target[i]), color=color, ls=":", lw=1, label=f"${lab}$ of B")
-            ax[3].plot(t, np.degrees(res.velocities[:, i]), color=color, label=rf"$\dot{lab}$")
-        ax[1].set_ylabel("orientation [deg]")
-        ax[2].set_ylabel("velocity [m/s]")
-        ax[3].set_ylabel("angular velocity [deg/s]")
+        for a, (ylabel, idx, what, factor) in zip(ax, rows):
+            for k, i in enumerate(idx):
+                color = _DRIVE_COLORS[i % len(_DRIVE_COLORS)]
+                name = space.name(i)
+                if what == "pose":
+                    a.plot(t, factor * res.poses[:, i], color=color, label=name)
+                    a.axhline(factor * res.target[i], color=color, ls=":", lw=1, label="B (dotted)" if k == 0 else None)
+                else:
+                    a.plot(t, factor * res.velocities[:, i], color=color, label=f"d{name}/dt")
+            a.set_ylabel(ylabel)
         for j in range(res.u.shape[1]):
-            ax[4].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")
+            ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")
         if s.limits.torque is not None:
             lim = np.max(s.limits.torque)
             for sign in (1, -1):
-                ax[4].axhline(sign * lim, color="k", ls=":", lw=1, label="torque limit" if sign > 0 else None)
-        ax[4].set_ylabel("drive torque [N·m]")
+                ax[-1].axhline(sign * lim, color="k", ls=":", lw=1, label="drive limit" if sign > 0 else None)
+        ax[-1].set_ylabel(f"drive effort [{space.drive_unit}]")
         for a in ax:
             a.axvline(s.duration, color="0.3", ls="--", lw=1)
             if res.mode == "b" and s.Nmax > s.Nmin:
                 a.axvline((s.Nmax - s.Nmin) * s.Ts, color="0.6", ls="-.", lw=1)
             a.grid(True, alpha=0.3)
-            if a.get_legend_handles_labels()[0]:  # no orientation rows' legend for a translational robot
+            if a.get_legend_handles_labels()[0]:
                 a.legend(loc="best", fontsize=8)
-        pos, ang = res.end_error
-        ax[0].set_title(f"{res.label}\nend error {pos:.2g} m, {_angle_text(ang)}, energy "
-                        f"{res.energy:.3g} N²m²s, peak {res.peak_torque:.3g} N·m", fontsize=10)
+        pos, angle = res.end_error
+        error = f"end error {pos:.2g} m" + (f", {_angle_text(angle)}" if ang else "")
+        ax[0].set_title(f"{res.label}\n{error}, energy {res.energy:.3g} {space.effort_unit}, "
+                        f"peak {res.peak_torque:.3g} {space.drive_unit}", fontsize=10)
         note = "dashed: planned arrival Nmax·Ts" + ("; dash-dot: N reaches Nmin" if res.mode == "b" else "")
-        ax[4].set_xlabel(f"t [s]    ({note})")
+        ax[-1].set_xlabel(f"t [s]    ({note})")
     fig.suptitle("Time histories of the planned moves", fontsize=11)
     return fig

@@ -10,13 +10,15 @@ from ..sweeps.robustness import RobustnessResult
 
 
 def plot_robustness(result: RobustnessResult) -> Figure:
-    """Three panels: RMS position error vs mass change, vs noise level, and
-    steady-state error vs disturbance force, one line per form. Diverged runs are left out."""
+    """Three panels: RMS position error vs mass change, vs noise level, and steady-state error vs
+    the constant load on the first output (a force in N, a moment in N·m for an angle; named by
+    the output label), one line per form. Diverged runs are left out."""
     forms = list(dict.fromkeys(r["form"] for r in result.rows))
+    labels, angular = result.settings.get("outputs", ["x"]), result.settings.get("angular", [False])
+    force = f"{'moment' if angular[0] else 'force'} on output {labels[0]} [{'N·m' if angular[0] else 'N'}]"
     panels = (("mass", "plant mass / inertia change [%]", "rms_position_error_mm", "RMS position error [mm]"),
-              ("noise", "pose noise σ [m]", "rms_position_error_mm", "RMS position error [mm]"),
-              ("disturbance", "force on the platform along x [N]", "steady_state_error_mm",
-               "steady-state position error [mm]"))
+              ("noise", "pose noise σ [m, rad]", "rms_position_error_mm", "RMS position error [mm]"),
+              ("disturbance", force, "steady_state_error_mm", "steady-state position error [mm]"))
     fig = Figure(figsize=(14, 4.2), layout="constrained")
     axes = fig.subplots(1, 3)
     for ax, (study, xlabel, key, ylabel) in zip(axes, panels):

@@ -1,4 +1,5 @@
-"""Figures of closed-loop runs (paper Fig. 2): path in the plane and time histories.
+"""Figures of closed-loop runs (paper Fig. 2): the path in the plane or space of the robot's
+translational outputs, and time histories; axes named by the output labels, in their units.
 
 Each function returns a :class:`matplotlib.figure.Figure`; save it with
 :func:`~parallel_gpc.plots.common.save_figure` or ``fig.savefig``.
@@ -10,37 +11,27 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..gpc.references import pose_error_norms
+from .paths import draw_path, path_axes
 from ..studies.simulation import SimulationResult
 
-_DOTTED = {"x": "ẋ", "y": "ẏ", "z": "ż", "ψ": "ψ̇"}
-
-
-def _channels(res: SimulationResult) -> list[tuple[str, bool]]:
-    """(name, is angle) of each output: x, y, ψ for planar robots; x, y, z and roll φ, pitch θ,
-    yaw ψ for spatial ones (``res.angular``; None is the planar convention)."""
-    n = res.pose.shape[1]
-    angular = np.arange(n) >= 2 if res.angular is None else np.asarray(res.angular, dtype=bool)
-    lin, ang = iter(("x", "y", "z")), iter(("ψ",) if angular.sum() == 1 else ("φ", "θ", "ψ"))
-    return [(next(ang if a else lin, f"y{i + 1}"), bool(a)) for i, a in enumerate(angular)]
-
-
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
-    """Reference and tracked platform paths in the x–y plane (m), one line per GPC form (with
-    orientation markers for planar robots; a top view for spatial ones)."""
+    """Reference and tracked paths in the plane or space of the translational outputs (axes
+    named by the output labels, in m), one line per GPC form; for planar [x, y, ψ] outputs small
+    orientation markers along the path; with one translational output, that coordinate over time."""
     fig = Figure(figsize=(5.5, 5.5), layout="tight")
-    ax = fig.subplots()
     first = next(iter(results.values()))
-    ax.plot(first.reference[:, 0], first.reference[:, 1], "k--", lw=2, label="reference")
+    space = first.output_space
+    ax, cols = path_axes(fig, space)
+    draw_path(ax, cols, first.t, first.reference, "k--", lw=2, label="reference")
+    angles = space.rotational
     for name, res in results.items():
-        ax.plot(res.pose[:, 0], res.pose[:, 1], lw=1.2, label=name)
-        step = max(1, len(res.t) // 12)
-        planar = [c for c, _ in _channels(res)] == ["x", "y", "ψ"]
-        for k in range(0, len(res.t), step if planar else len(res.t) + 1):  # platform orientation markers
-            x, y, psi = res.pose[k, :3]
-            ax.plot([x, x + 0.03 * np.cos(psi)], [y, y + 0.03 * np.sin(psi)], color="0.4", lw=0.8)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
+        draw_path(ax, cols, res.t, res.pose, lw=1.2, label=name)
+        if len(cols) == 2 and len(angles) == 1:  # planar: the platform's orientation along the path
+            step = max(1, len(res.t) // 12)
+            size = 0.05 * max(float(np.ptp(first.reference[:, cols], axis=0).max()), 0.05)
+            for k in range(0, len(res.t), step):
+                (x, y), psi = res.pose[k, cols], res.pose[k, angles[0]]
+                ax.plot([x, x + size * np.cos(psi)], [y, y + size * np.sin(psi)], color="0.4", lw=0.8)
     ax.set_title(title)
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
@@ -48,32 +39,36 @@ def plot_paths(results: dict[str, SimulationResult], title: str = "platform path
 
 
 def plot_time_histories(results: dict[str, SimulationResult], title: str = "time histories") -> Figure:
-    """Tracking error (mm, mrad), platform velocity and drive torques (N·m) over time (s), one
-    column per GPC form."""
+    """Over time (s), one column per GPC form: the tracking error of each output (one panel
+    each, mm or mrad), the velocities (m/s and rad/s panels for the outputs present) and the
+    drive efforts (in the robot's drive unit: N·m revolute, N prismatic)."""
     names = list(results)
-    fig = Figure(figsize=(5.0 * len(names), 8.0), layout="tight")
-    axes = fig.subplots(3, len(names), sharex=True, squeeze=False)
+    space = results[names[0]].output_space
+    groups = [(idx, unit) for idx, unit in ((space.translational, "m/s"), (space.rotational, "rad/s")) if idx]
+    rows = space.n_y + len(groups) + 1
+    fig = Figure(figsize=(5.0 * len(names), 1.7 * rows + 1.0), layout="tight")
+    axes = fig.subplots(rows, len(names), sharex=True, squeeze=False)
     for col, name in enumerate(names):
         res = results[name]
-        ax_e, ax_v, ax_u = axes[:, col]
         err = res.error
-        channels = _channels(res)
-        for i, (label, angle) in enumerate(channels):
-            ax_e.plot(res.t, 1e3 * err[:, i], label=f"{label} [mrad]" if angle else label)
-        ax_e.set_ylabel("error [mm, mrad]")
-        ax_e.set_title(f"{name}")
-        ax_e.legend(fontsize=7)
-        for i, (label, angle) in enumerate(channels):
-            dotted = _DOTTED.get(label, label + "\u0307")
-            ax_v.plot(res.t, res.velocity[:, i], label=f"{dotted} [rad/s]" if angle else f"{dotted} [m/s]")
-        ax_v.set_ylabel("velocity")
-        ax_v.legend(fontsize=7)
+        for i in range(space.n_y):
+            ax = axes[i, col]
+            ax.plot(res.t, 1e3 * err[:, i], color=f"C{i}")
+            ax.set_ylabel(f"error {space.axis_label(i, 'm')}")
+        axes[0, col].set_title(name)
+        for g, (idx, unit) in enumerate(groups):
+            ax = axes[space.n_y + g, col]
+            for i in idx:
+                ax.plot(res.t, res.velocity[:, i], color=f"C{i}", label=f"d{space.name(i)}/dt")
+            ax.set_ylabel(f"velocity [{unit}]")
+            ax.legend(fontsize=7, ncol=3)
+        ax_u = axes[-1, col]
         for j in range(res.u.shape[1]):
             ax_u.plot(res.t, res.u[:, j], label=f"u{j + 1}")
-        ax_u.set_ylabel("drive torque [N·m]")
+        ax_u.set_ylabel(f"drive effort [{space.drive_unit}]")
         ax_u.set_xlabel("t [s]")
         ax_u.legend(fontsize=7, ncol=2)
-        for ax in (ax_e, ax_v, ax_u):
+        for ax in axes[:, col]:
             ax.grid(True, alpha=0.3)
     fig.suptitle(title)
     return fig
@@ -81,8 +76,9 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
 
 def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     """The forms side by side on shared axes: position and orientation error norms (mm and
-    mrad, log scale) with the disturbance estimate off (dashed) and on (solid), drive torques
-    (N·m) with the estimate on, and the torque limit lines if one is set.
+    mrad, log scale; orientation only for robots with angular outputs) with the disturbance
+    estimate off (dashed) and on (solid), drive efforts (the robot's drive unit) with the
+    estimate on, and the limit lines if one is set.
 
     Args:
         runs: results keyed by (form, estimator gain α), as from
@@ -95,10 +91,12 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     """
     forms = list(dict.fromkeys(form for form, _ in runs))
     gains = sorted({gain for _, gain in runs})
-    fig = Figure(figsize=(4.2 * len(forms), 8.5), layout="constrained")
-    axes = fig.subplots(3, len(forms), sharex="all", sharey="row", squeeze=False)
+    space = next(iter(runs.values())).output_space
+    rows = 3 if space.has_angles else 2  # no orientation row without angular outputs
+    fig = Figure(figsize=(4.2 * len(forms), 2.9 * rows), layout="constrained")
+    axes = fig.subplots(rows, len(forms), sharex="all", sharey="row", squeeze=False)
     for col, form in enumerate(forms):
-        ax_p, ax_a, ax_u = axes[:, col]
+        ax_p, ax_u = axes[0, col], axes[-1, col]
         for gain in gains:
             res = runs.get((form, gain))
             if res is None:
@@ -107,21 +105,23 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
             label = f"estimator α = {gain:g}"
             pos, ang = pose_error_norms(res.error, res.angular)
             ax_p.semilogy(res.t, np.maximum(1e3 * pos, 1e-9), style, label=label)
-            ax_a.semilogy(res.t, np.maximum(1e3 * ang, 1e-9), style, label=label)
+            if rows == 3:
+                axes[1, col].semilogy(res.t, np.maximum(1e3 * ang, 1e-9), style, label=label)
             if gain == gains[-1]:
                 for j in range(res.u.shape[1]):
                     ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
         if limits is not None and limits.torque is not None:
             lim = float(np.max(limits.torque))
             for sign in (1, -1):
-                ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="torque limit" if sign > 0 else None)
+                ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="drive limit" if sign > 0 else None)
         ax_p.set_title(form)
         ax_u.set_xlabel("t [s]")
-        for ax in (ax_p, ax_a, ax_u):
+        for ax in axes[:, col]:
             ax.grid(True, alpha=0.3)
             ax.legend(fontsize=7, loc="best")
     axes[0, 0].set_ylabel("position error [mm]")
-    axes[1, 0].set_ylabel("orientation error [mrad]")
-    axes[2, 0].set_ylabel(f"drive torque [N·m] (α = {gains[-1]:g})")
+    if rows == 3:
+        axes[1, 0].set_ylabel("orientation error [mrad]")
+    axes[-1, 0].set_ylabel(f"drive effort [{space.drive_unit}] (α = {gains[-1]:g})")
     fig.suptitle(title)
     return fig

@@ -150,5 +150,5 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
                  "Nu": controller.horizons.Nu, "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "limits": controller.limits.to_dict(), "sensors": sensors.kind,
                  "computation_delay": bool(computation_delay), "deadline_overruns": int(overruns), **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular,
+    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, outputs=robot.output_space,
                             limits=controller.limits, estimate_error=estimate_error, overruns=int(overruns))

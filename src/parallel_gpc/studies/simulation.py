@@ -19,6 +19,7 @@ from tqdm import tqdm
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
 from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
+from ..model.output_space import OutputSpace
 from ..results import robot_reference, save_result, saturation_flags
 from ..limits import Limits
 from ..validation import check_allocation, check_sample_time, finite_vector, positive
@@ -40,8 +41,9 @@ class SimulationResult:
         interrupted: True if the run was stopped early (Ctrl-C).
         limits: the controller's input :class:`~parallel_gpc.limits.Limits` (the result file's
             per-drive saturation flags mark where |u| reached its torque limit).
-        angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
-            convention [x, y, ψ] (see :func:`~parallel_gpc.gpc.references.pose_error_norms`).
+        outputs: names and units of the outputs and the drives' unit
+            (:class:`~parallel_gpc.model.output_space.OutputSpace`), or None for the planar
+            convention [x m, y m, ψ rad] driven in N·m.
         estimate_error: (K, 2 n_y) state estimate − true state, or None (no estimator, or a
             plant that does not know its true state; :func:`~parallel_gpc.studies.loop.run_loop`).
         overruns: steps whose estimate + control time exceeded Ts (run_loop; 0 otherwise).
@@ -62,10 +64,21 @@ class SimulationResult:
     saturated: np.ndarray
     meta: dict = field(default_factory=dict)
     interrupted: bool = False
-    angular: np.ndarray | None = None
     limits: Limits = field(default_factory=Limits)
     estimate_error: np.ndarray | None = None
     overruns: int = 0
+    outputs: OutputSpace | None = None
+
+    @property
+    def angular(self) -> np.ndarray | None:
+        """(n_y,) bool, the angular output coordinates (rad), or None for the planar convention
+        (see :func:`~parallel_gpc.gpc.references.pose_error_norms`)."""
+        return None if self.outputs is None else np.array(self.outputs.angular)
+
+    @property
+    def output_space(self) -> OutputSpace:
+        """:attr:`outputs`, or the planar convention's when the result has none."""
+        return self.outputs or OutputSpace.from_angular(None, self.pose.shape[1])
 
     @property
     def error(self) -> np.ndarray:
@@ -257,5 +270,5 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "limits": controller.limits.to_dict(), **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular,
+    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, outputs=robot.output_space,
                             limits=controller.limits)

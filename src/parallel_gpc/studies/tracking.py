@@ -16,7 +16,8 @@ from ..errors import InvalidParameterError
 from ..gpc.controller import FORMS, GPCController
 from ..gpc.criterion import Weights
 from ..gpc.prediction import Horizons
-from ..gpc.references import PATH_KINDS, Hold, Reference, hold_pose_for, path_for
+from ..gpc.references import Reference, SampledTrajectory
+from ..gpc.robot_references import REFERENCE_KINDS, check_reference, check_times, is_file_reference, reference_for
 from ..gpc.settings import GPCSettings, unit_interval
 from ..limits import Limits, as_limits, symmetric_limit
 from ..model.dynamics import ReducedModel
@@ -63,12 +64,19 @@ class TrackingSettings:
         noise_std: measurement noise on [y, ẏ] (m, rad, m/s, rad/s; a number or 2·n_y values ≥ 0), 0 = none.
         platform_force: constant disturbance on the platform coordinates (N, N·m; n_y values,
             all zeros = none).
-        reference: "auto" (the S-curve for planar [x, y, ψ] outputs, else the helix), "s-curve",
-            "helix", "hold" or a Reference object; duration: run length in s (> 0; default:
-            motion + 0.2 s).
-        s_curve_duration: time of the path's motion (S-curve or helix) in s (> 0).
+        reference: a built-in path in the robot's output space — "auto" (the paper's S-curve
+            for planar [x, y, ψ] outputs, the helix for three translational outputs, an S-curve
+            in the plane of two, a line for one), "s-curve", "circle", "line", "helix" —, "hold",
+            a reference file (".csv": a column t and one per output label, SI units; ".npz": a
+            plan or saved reference) or a Reference object
+            (:func:`~parallel_gpc.gpc.robot_references.reference_for`); duration: run length in s
+            (default: motion + 0.2 s; a file's last time + 0.2 s; 2 s for a hold).
+        s_curve_duration: time of a built-in path's motion in s.
         hold_pose: (n_y,) target of the "hold" reference (m, rad); None: near home
             (:func:`~parallel_gpc.gpc.references.hold_pose_for`).
+        check_reference: assemble the reference at the run's sample poses before the run and
+            refuse it, naming the first bad pose, if one is unreachable or near-singular
+            (:func:`~parallel_gpc.gpc.robot_references.check_reference`).
         seed: seed of the measurement noise (an integer ≥ 0).
         plant_torque_limit: drive saturation of the plant alone: ``"controller"`` (the torque
             limit of ``limits``), ``"robot"`` (the limits in the robot file), a value in N·m
@@ -99,6 +107,7 @@ class TrackingSettings:
     s_curve_duration: float = 2.0
     hold_pose: tuple[float, ...] | None = None
     seed: int = 0
+    check_reference: bool = True
     plant_torque_limit: str | Limits | None = "controller"
     sensors: str = "full"
     plant: str = "own"
@@ -129,9 +138,10 @@ class TrackingSettings:
             raise InvalidParameterError(f"noise_std = {self.noise_std!r} must be a number or a vector of numbers, "
                                         "finite and ≥ 0 (m, rad, m/s, rad/s)")
         put("platform_force", tuple(finite_vector("platform_force", self.platform_force).tolist()))
-        if not isinstance(self.reference, Reference) and self.reference not in (*PATH_KINDS, "hold"):
-            raise InvalidParameterError(f"reference {self.reference!r} is not one of {[*PATH_KINDS, 'hold']} "
-                                        "or a Reference")
+        if not (isinstance(self.reference, Reference) or self.reference in REFERENCE_KINDS
+                or is_file_reference(self.reference)):
+            raise InvalidParameterError(f"reference {self.reference!r} is not one of {list(REFERENCE_KINDS)}, a .csv "
+                                        "or .npz file, or a Reference")
         if self.duration is not None:
             put("duration", positive("duration", self.duration, " s"))
         put("s_curve_duration", positive("s_curve_duration", self.s_curve_duration, " s"))
@@ -172,13 +182,10 @@ class TrackingSettings:
                     if f.name not in ("horizons", "weights", "limits", "extra")})
         return out
 
-    def make_reference(self, robot: ParallelRobot) -> Reference:
-        if isinstance(self.reference, Reference):
-            return self.reference
-        if self.reference == "hold":
-            pose = hold_pose_for(robot.home_pose, robot.output_angular) if self.hold_pose is None else self.hold_pose
-            return Hold(tuple(pose))
-        return path_for(self.reference, robot.home_pose, robot.output_angular, self.s_curve_duration)
+    def make_reference(self, robot: ParallelRobot, max_condition: float = 1e3) -> Reference:
+        """The run's reference on ``robot`` (built-in paths sized to its workspace, whose probe
+        stops where cond(M_r⁻¹ B_r) exceeds ``max_condition``)."""
+        return reference_for(self.reference, robot, self.s_curve_duration, max_condition, self.hold_pose)
 
     def plant_limit(self, robot: ParallelRobot) -> Limits | None:
         """The plant's drive saturation: the controllers' torque limit, the robot file's, the
@@ -196,9 +203,17 @@ class TrackingSettings:
 
     @property
     def run_duration(self) -> float:
+        """Run length in s for a built-in path or hold (see :meth:`duration_for`)."""
         if self.duration is not None:
             return float(self.duration)
         return 2.0 if self.reference == "hold" else self.s_curve_duration + 0.2
+
+    def duration_for(self, reference: Reference) -> float:
+        """Run length in s: ``duration`` if set; else a sampled reference's last time + 0.2 s
+        (a reference file), or :attr:`run_duration`."""
+        if self.duration is None and is_file_reference(self.reference) and isinstance(reference, SampledTrajectory):
+            return float(reference.t[-1]) + 0.2
+        return self.run_duration
 
 
 #: Every flat keyword of :meth:`TrackingSettings.from_flat` (a sweep's parameter names).
@@ -224,7 +239,12 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     per_form = {form: settings.controller_settings(form) for form in forms}  # every form checked first
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
-    reference = settings.make_reference(robot)
+    controllers = {form: GPCController(ReducedModel(robot), per_form[form]) for form in forms}
+    max_condition = min((c.max_condition for c in controllers.values()), default=1e3)
+    reference = settings.make_reference(robot, max_condition)
+    duration = settings.duration_for(reference)
+    if settings.check_reference:
+        check_reference(robot, reference, check_times(reference, duration, settings.Ts), max_condition)
     start = reference.pose(0.0)
     if settings.reference == "hold":
         start = robot.home_pose
@@ -234,7 +254,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     for form in forms:
         if machine:
             try:
-                res = _run_machine(settings, sensors, per_form[form], robot, plant_robot, reference, start)
+                res = _run_machine(settings, sensors, per_form[form], robot, plant_robot, reference, start, duration)
             except KeyboardInterrupt:
                 if not results:
                     raise
@@ -243,12 +263,12 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
             if res.interrupted:
                 break
             continue
-        ctrl = GPCController(ReducedModel(robot), per_form[form])
+        ctrl = controllers[form]
         plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]), Ts=settings.Ts,
                                  torque_limit=settings.plant_limit(robot),
                                  platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
-            res = simulate(ctrl, plant, reference, settings.run_duration, seed=settings.seed,
+            res = simulate(ctrl, plant, reference, duration, seed=settings.seed,
                            noise_std=settings.noise_std or None, progress=progress,
                            meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
                                  "disturbance_gain": ctrl.disturbance_gain,
@@ -276,7 +296,7 @@ def check_machine(settings: TrackingSettings) -> Sensors:
 
 
 def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GPCSettings, robot, plant_robot,
-                 reference, start):
+                 reference, start, duration: float):
     """One form through run_loop: our plant behind sensors, or MuJoCo; an estimator for encoders."""
     Ts, encoders = settings.Ts, sensors.kind == "encoders"
     X0 = np.concatenate([start, np.zeros(robot.n_y)])
@@ -292,42 +312,43 @@ def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GP
                                              platform_force=settings.platform_force if any(settings.platform_force)
                                              else None), sensors, seed=settings.seed)
     estimator = StateEstimator(ReducedModel(robot), Ts, sensors, X0) if encoders else None
-    return run_loop(ctrl, plant, reference, settings.run_duration, estimator=estimator,
+    return run_loop(ctrl, plant, reference, duration, estimator=estimator,
                     meta={"mass_scale": settings.mass_scale, "plant": settings.plant, "sensors_spec": settings.sensors,
                           "disturbance_gain": ctrl.disturbance_gain, "platform_force": list(settings.platform_force)})
 
 
-def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m") -> str:
+def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None = None) -> str:
     """A text table of the tracking metrics by form (position error in mm, orientation error in
     mrad — the norm of the angular output errors, ψ on a planar robot —, drive effort in
     ``drive_unit``, step times in ms), with the gain α of the disturbance estimate each form ran with.
 
     Args:
         results: simulation results by form name.
-        drive_unit: unit of the drive efforts u (``ParallelRobot.drive_unit``: "N·m" for revolute
-            drives, "N" for prismatic ones).
+        drive_unit: unit of the drive efforts u ("N·m" for revolute drives, "N" for prismatic
+            ones); None: the results' own (``SimulationResult.outputs``, N·m without).
     """
-    unit = f"[{drive_unit}]"
-    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'rms ang':>9} {'max ang':>9} {'peak u':>8} "
-            f"{'int. f':>8} {'mean step':>9} {'p99 step':>9} {'fallb.':>6}")
-    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[mrad]':>9} {unit:>8} "
-             f"{unit:>8} {'[ms]':>9} {'[ms]':>9} {'':>6}")
-    estimated = any(r.estimate_error is not None for r in results.values())
-    if estimated:
-        head, units = head + f" {'est. err':>9}", units + f" {'[mm]':>9}"
-    lines = [head, units]
+    first = next(iter(results.values()), None)
+    space = None if first is None else first.output_space
+    unit = f"[{drive_unit or (space.drive_unit if space else 'N·m')}]"
+    angles = space is None or space.has_angles
+    cols = [("est. α", 6, "", lambda res, m: f"{res.meta.get('disturbance_gain', float('nan')):6.2f}"),
+            ("rms pos", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_position_error_m']:9.2e}"),
+            ("max pos", 9, "[mm]", lambda res, m: f"{1e3 * m['max_position_error_m']:9.2e}")]
+    if angles:
+        cols += [("rms ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['rms_orientation_error_rad']:9.2e}"),
+                 ("max ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['max_orientation_error_rad']:9.2e}")]
+    cols += [("peak u", 8, unit, lambda res, m: f"{m['peak_torque_Nm']:8.2f}"),
+             ("int. f", 8, unit, lambda res, m: f"{m['max_internal_force_Nm']:8.1e}"),
+             ("mean step", 9, "[ms]", lambda res, m: f"{1e3 * m['mean_step_time_s']:9.3f}"),
+             ("p99 step", 9, "[ms]", lambda res, m: f"{1e3 * m['p99_step_time_s']:9.3f}"),
+             ("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}")]
+    if any(res.estimate_error is not None for res in results.values()):
+        cols.append(("est. err", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_estimate_position_error_m']:9.2e}"
+                     if "rms_estimate_position_error_m" in m else f"{'—':>9}"))
+    lines = [f"{'form':<20} " + " ".join(f"{name:>{w}}" for name, w, _, _ in cols),
+             f"{'':<20} " + " ".join(f"{u:>{w}}" for _, w, u, _ in cols)]
     for form, res in results.items():
         m = res.metrics()
-        est = ""
-        if estimated:
-            est = f" {1e3 * m['rms_estimate_position_error_m']:9.2e}" if "rms_estimate_position_error_m" in m \
-                else f" {'—':>9}"
-        lines.append(
-            f"{form:<20} {res.meta.get('disturbance_gain', float('nan')):6.2f} "
-            f"{1e3 * m['rms_position_error_m']:9.2e} {1e3 * m['max_position_error_m']:9.2e} "
-            f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
-            f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
-            f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}" + est
-            + ("  (interrupted)" if res.interrupted else "")
-        )
+        lines.append(f"{form:<20} " + " ".join(get(res, m) for _, _, _, get in cols)
+                     + ("  (interrupted)" if res.interrupted else ""))
     return "\n".join(lines)

@@ -31,7 +31,8 @@ from ..model.dynamics import ReducedModel
 from .. import errors
 from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
 from ..gpc.prediction import Horizons
-from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
+from ..gpc.references import Hold, Reference
+from ..gpc.robot_references import check_reference, check_times, reference_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from ..results import json_default
 from .spec import SETTLE_FRACTION, Cell
@@ -122,16 +123,19 @@ class RobustnessResult:
     interrupted: bool = False
 
     def format_table(self) -> str:
-        """The rows as an aligned text table."""
-        head = ("form", "study", "value", "RMS pos [mm]", "max pos [mm]", "RMS ψ [mrad]", "steady [mm]",
-                "peak τ [N·m]", "sat", "fallb", "status")
+        """The rows as an aligned text table (the orientation column only for a robot with
+        angular outputs; efforts in the robot's drive unit)."""
+        angles = any(self.settings.get("angular", [True]))
+        unit = self.settings.get("drive_unit", "N·m")
+        keys = ("rms_position_error_mm", "max_position_error_mm", "rms_orientation_error_mrad", "steady_state_error_mm")
+        names = ("RMS pos [mm]", "max pos [mm]", "RMS ang [mrad]", "steady [mm]")
+        shown = [i for i in range(4) if angles or i != 2]
+        head = ("form", "study", "value", *(names[i] for i in shown), f"peak u [{unit}]", "sat", "fallb", "status")
         lines = []
         for r in self.rows:
             value = "" if r["study"] == "nominal" else f"{r['value']:g} {r['unit']}"
-            lines.append((r["form"], r["study"], value, *(_fmt(r[k], 4) for k in (
-                "rms_position_error_mm", "max_position_error_mm", "rms_orientation_error_mrad",
-                "steady_state_error_mm")), _fmt(r["peak_torque_Nm"], 1), str(r["saturated_steps"]),
-                str(r["fallbacks"]), r["status"]))
+            lines.append((r["form"], r["study"], value, *(_fmt(r[keys[i]], 4) for i in shown),
+                          _fmt(r["peak_torque_Nm"], 1), str(r["saturated_steps"]), str(r["fallbacks"]), r["status"]))
         widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h) for i, h in enumerate(head)]
         out = ["  ".join(h.ljust(w) for h, w in zip(head, widths))]
         out.append("  ".join("-" * w for w in widths))
@@ -158,16 +162,12 @@ def _fmt(x, digits: int) -> str:
 
 
 
-def _reference(reference, robot: ParallelRobot, duration: float) -> Reference:
-    if isinstance(reference, Reference):
-        return reference
-    if reference == "hold":
+def _reference(reference, robot: ParallelRobot, duration: float, max_condition: float) -> Reference:
+    """The study's reference: a hold of the home pose, or a built-in path over 80 % of the run
+    (the rest is a hold: steady state), a reference file or a Reference object."""
+    if isinstance(reference, str) and reference == "hold":
         return Hold(tuple(robot.home_pose))
-    if reference not in PATH_KINDS:
-        raise InvalidParameterError(f"reference {reference!r} is not one of {[*PATH_KINDS, 'hold']} or a "
-                                    "Reference object")
-    # the path takes 80 % of the run, the rest is a hold (steady state)
-    return path_for(reference, robot.home_pose, robot.output_angular, 0.8 * duration)
+    return reference_for(reference, robot, 0.8 * duration, max_condition)
 
 
 def _status(record: dict) -> str:
@@ -205,7 +205,7 @@ def robustness_cells(robot_name: str, forms, cases, ref: Reference, duration: fl
                 "robot": robot_name, "form": form, "Ts": Ts, "N": N, "Qy": weights.Qy, "Qu": weights.Qu,
                 "reference": ref, "duration": duration, "mass_scale": case.mass_scale, "noise_std": case.noise,
                 "velocity_noise_std": case.noise * math.sqrt(2.0) / Ts, "platform_force[0]": case.force,
-                "plant_torque_limit": "robot", "seed": seed}))
+                "plant_torque_limit": "robot", "seed": seed, "check_reference": False}))
     return cells
 
 
@@ -228,9 +228,12 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
         progress: show a progress bar over the runs.
         weights: square-root weights Qy, Qu, the same for every form.
         reference: ``"auto"`` (the robot's default path: the paper's S-curve for planar
-            outputs, the helix for spatial ones), ``"s-curve"`` or ``"helix"`` (each over 80 % of
-            the run, then a hold), ``"hold"`` (the home pose) or a
-            :class:`~parallel_gpc.references.Reference`.
+            outputs, the helix for spatial ones, an S-curve in the plane of two translational
+            outputs, over 80 % of the run, then a hold), ``"s-curve"``,
+            ``"circle"``, ``"line"``, ``"helix"``, ``"hold"`` (the home pose), a reference file
+            (``.csv``: a column t and one per output label, SI units; ``.npz``) or a
+            :class:`~parallel_gpc.references.Reference`. Checked once at its sample poses
+            before the runs (:func:`~parallel_gpc.gpc.robot_references.check_reference`).
         seed: seed of the measurement noise (the same noise sequence for every form).
         on_row: optional callback receiving each row as soon as its run finishes.
         workers, scheduler: where the runs go (a preset of :func:`~parallel_gpc.sweeps.runner.run_sweep`):
@@ -255,11 +258,13 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
     horizons = Horizons(N)
     cases = robustness_cases(mass_scales, noise_levels, disturbances)
     robot = ParallelRobot.load(robot_name)
-    ref = _reference(reference, robot, duration)
-    for form in forms:  # validate the controller settings once, before any run
-        GPCController.build(ReducedModel(robot), Ts, horizons, weights, form=form)
+    ctrls = [GPCController.build(ReducedModel(robot), Ts, horizons, weights, form=form) for form in forms]  # validated once
+    max_condition = min(c.max_condition for c in ctrls)
+    ref = _reference(reference, robot, duration, max_condition)
+    check_reference(robot, ref, check_times(ref, duration, Ts), max_condition)  # once, not in every cell
     result = RobustnessResult(settings={
-        "robot": robot.name, "forms": list(forms), "Ts": Ts, "N": N, "duration": duration,
+        "robot": robot.name, "outputs": list(robot.description.output_labels),
+        "angular": robot.output_angular.tolist(), "drive_unit": robot.drive_unit, "forms": list(forms), "Ts": Ts, "N": N, "duration": duration,
         "Qy": weights.Qy, "Qu": weights.Qu, "reference": reference if isinstance(reference, str) else repr(reference),
         "plant": "ConstrainedPlant, drive saturation at the robot's torque limits",
         "noise": "pose σ (m, rad); velocity σ·√2/Ts", "disturbance": "constant force along x (N)",

@@ -287,9 +287,10 @@ def result_metrics(res, drive_q, Ts: float) -> dict:
 
 
 def resolve_robot(robot: str) -> str:
-    """The robot to load: an embedded name or an existing path as is; a relative path that is
-    not here but was shipped to this Dask worker (``client.upload_file(path, load=False)``, the
-    URDF and its sidecar) is the worker's copy."""
+    """The robot (or reference file) to load: an embedded name or an existing path as is; a
+    relative path that is not here but was shipped to this Dask worker
+    (``client.upload_file(path, load=False)``: the URDF and its sidecar, a CSV reference) is the
+    worker's copy."""
     from ..model.robot import embedded_robots
 
     if robot in embedded_robots() or Path(robot).exists():
@@ -318,6 +319,7 @@ def run_cell(cell: Cell) -> dict:
     ``"failed"`` (``error`` holds ``"ExceptionType: message"``, metrics are NaN). With
     ``cell.trajectory`` the record also holds ``"trajectory"``: the SimulationResult.
     """
+    from ..gpc.robot_references import is_file_reference
     from ..model.robot import ParallelRobot
     from ..studies.tracking import run_tracking
 
@@ -325,6 +327,8 @@ def run_cell(cell: Cell) -> dict:
     start = time.perf_counter()
     try:
         params = {**cell.params, "robot": resolve_robot(cell.params.get("robot", TrackingSettings.robot))}
+        if is_file_reference(params.get("reference")):  # a CSV/npz reference shipped like a robot file
+            params["reference"] = resolve_robot(params["reference"])
         robot = ParallelRobot.load(params["robot"])
         settings, form = cell_settings(params, robot.n_y)
         res = run_tracking(settings, forms=(form,), progress=False, robot=robot)[form]

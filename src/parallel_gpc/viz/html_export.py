@@ -57,10 +57,13 @@ def export_html(path, robot: ParallelRobot, t, qs, reference=None, planned=None,
     path = Path(path)
     title = title or f"parallel-gpc: {robot.name}"
     with LiveViewer() as viewer:
-        animate(viewer.vis, robot, t, qs, saturated=saturated, reference=reference, planned=planned,
-                fps=fps, max_frames=max_frames)
+        scene = animate(viewer.vis, robot, t, qs, saturated=saturated, reference=reference, planned=planned,
+                        fps=fps, max_frames=max_frames)
         page = viewer.vis.static_html()
-    legend = "drives orange, distal links blue, platform green, closures yellow/black"
+    legend = "links as in the robot file" if scene.geom_model.ngeoms else ""
+    if scene.stick.rods:
+        legend += (", " if legend else "") + "links without visuals: grey rods, blue joints"
+    legend += ", output red, closures yellow/black"
     legend += ", reference grey" if reference is not None else ""
     legend += ", planned magenta" if planned is not None else ""
     legend += ", drive at torque limit red" if saturated is not None else ""

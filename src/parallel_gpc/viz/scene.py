@@ -2,12 +2,16 @@
 
 The robot is drawn from its URDF visual geometry (``pinocchio.buildGeomFromUrdf``) plus a
 ground plate, the base points (drive axes) and small spheres at both frames of every loop
-closure, so a closed loop shows as two coinciding spheres. A trajectory becomes one meshcat
+closure, so a closed loop shows as two coinciding spheres. Links without visual geometry are
+drawn as a stick figure from the joint frames (:mod:`parallel_gpc.model.skeleton`): a sphere at
+each joint origin, a rod from a joint to each child joint and to the closure and output frames
+on its link, so any robot is recognisable; the output frame (or platform joint) is a red sphere. A trajectory becomes one meshcat
 ``Animation`` (the browser interpolates between key frames); every geometry placement comes from
 ``pin.forwardKinematics`` + ``pin.updateGeometryPlacements`` on the full configuration q, so the
 legs follow q, not only the platform.
 
-Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robot/closures/*``,
+Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robot/stick/*``
+(joints ``joint_<name>``, rods ``rod_<k>``), ``robot/output``, ``robot/closures/*``,
 ``robot/saturation/<drive>`` (red overlays, visible while the drive is at its torque limit),
 ``base/*`` (plate, base points) and ``paths/{reference,planned}``.
 """
@@ -22,6 +26,7 @@ import pinocchio as pin
 
 from ..errors import InvalidParameterError, RobotFormatError, ShapeError
 from ..model.robot import ParallelRobot
+from ..model.skeleton import output_joint_ids, output_world_axes, skeleton
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
 from ._meshcat import Animation, meshcat, mg
@@ -33,6 +38,8 @@ CLOSURE_A_COLOR, CLOSURE_B_COLOR = 0xF2C12E, 0x202020
 SATURATION_COLOR = 0xE01010
 REFERENCE_COLOR, PLANNED_COLOR = 0x303030, 0xC000C0
 PLATE_COLOR, BASE_POINT_COLOR = 0xD8D8D8, 0x4D4D4D
+#: Stick figure of links without visuals: joints, rods; the output frame.
+STICK_JOINT_COLOR, STICK_ROD_COLOR, OUTPUT_COLOR = 0x2F5D8A, 0x8A8A8A, 0xD03030
 #: Height (m) of the drawn paths above the plane z = 0 of a planar robot.
 PATH_Z = 0.02
 #: three.js cylinders are along y; URDF/Coal cylinders along z: rotate y onto z.
@@ -52,17 +59,38 @@ def _flags(robot: ParallelRobot, saturated, n: int) -> np.ndarray | None:
     return flags.astype(bool)
 
 
-def _path_points(name: str, points, xyz_columns=None) -> np.ndarray:
-    """(K, 3) points of a path: the columns ``xyz_columns`` (x, y, z in m) of ``points`` for a
-    spatial robot, else the columns x, y (m) of a planar path at height :data:`PATH_Z`."""
+def _path_points(name: str, points, xyz_columns=None, fill=None) -> np.ndarray:
+    """(K, 3) world points of a path.
+
+    Args:
+        points: (K, n) poses.
+        xyz_columns: for each world axis x, y, z the pose column drawn along it, or None for an
+            axis no output moves along (then ``fill`` gives its value, m). None: a planar path,
+            columns x, y (m) at height :data:`PATH_Z`.
+        fill: (3,) values (m) of the axes without a column.
+    """
     arr = np.asarray(points, dtype=float)
     if xyz_columns is not None:
-        return finite_matrix(name, arr, (None, None))[:, list(xyz_columns)]
+        arr = finite_matrix(name, arr, (None, None))
+        fill = np.zeros(3) if fill is None else np.asarray(fill, dtype=float)
+        return np.column_stack([arr[:, c] if c is not None else np.full(arr.shape[0], fill[k])
+                                for k, c in enumerate(xyz_columns)])
     if arr.ndim != 2 or arr.shape[1] < 2 or arr.shape[0] < 2:
         raise ShapeError(f"{name} has shape {arr.shape}; expected (K, 2) or (K, 3) with K >= 2 "
                          "(platform x, y in m; a third column, e.g. psi, is ignored)")
     arr = finite_matrix(name, arr, (None, None))
     return np.column_stack([arr[:, 0], arr[:, 1], np.full(arr.shape[0], PATH_Z)])
+
+
+def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
+    """How a path in ``robot``'s outputs is drawn in the world: for each world axis the output
+    column moving along it (or None), and the (3,) values (m) of the axes no output moves along:
+    the output point's at home, lifted by :data:`PATH_Z` along z (above a planar robot's plane)."""
+    world = output_world_axes(robot)
+    columns = [world.index(k) if k in world else None for k in range(3)]
+    fill = np.array(skeleton(robot).output, dtype=float)
+    fill[2] += PATH_Z
+    return columns, fill
 
 
 def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
@@ -119,6 +147,86 @@ def _translation(p) -> np.ndarray:
     return T
 
 
+def _rod(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """4x4 transform placing a three.js cylinder (along its y axis, centred) from point a to b."""
+    d = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
+    n = float(np.linalg.norm(d))
+    T = _translation((np.asarray(a) + np.asarray(b)) / 2)
+    if n > 0:
+        T[:3, :3] = pin.Quaternion.FromTwoVectors(np.array([0.0, 1.0, 0.0]), d / n).matrix()
+    return T
+
+
+class StickFigure:
+    """The parts of a robot drawn from its joint frames: links without visual geometry.
+
+    A link (the body of joint j) has no visual when no geometry object hangs on j. Joints whose
+    link has none get a sphere at their origin; such a link gets a rod from its joint to each
+    child joint and to each closure or output frame on it. Output joints of joint outputs
+    (virtual platform coordinates) are not drawn. The output frame (task-space outputs) or the
+    last output joint is always marked.
+
+    Attributes:
+        joints: model ids of the joints drawn as spheres.
+        rods: (parent joint id, child joint id or None, frame id or None) of each rod.
+        radius: rod radius in m (spheres 1.7 times larger), from the robot's size at home.
+    """
+
+    def __init__(self, robot: ParallelRobot, geom_model: pin.GeometryModel):
+        model = robot.model
+        dressed = {g.parentJoint for g in geom_model.geometryObjects}
+        skip = output_joint_ids(robot)
+        bare = [j for j in range(1, model.njoints) if j not in dressed and j not in skip]
+        self.joints = bare
+        self.rods = [(model.parents[j], j, None) for j in range(1, model.njoints)
+                     if model.parents[j] in bare and j not in skip]
+        frames = [f for fa, fb, _ in robot.closure_frames for f in (fa, fb)]
+        if robot.output_frame_id is not None:
+            frames.append(robot.output_frame_id)
+        for f in dict.fromkeys(frames):
+            joint = model.frames[f].parentJoint
+            if joint in bare:
+                self.rods.append((joint, None, f))
+        points = skeleton(robot).joints
+        span = float(np.ptp(points, axis=0).max()) if len(points) > 1 else 0.3
+        self.radius = float(np.clip(0.012 * span, 0.003, 0.015))
+        self._robot = robot
+
+    @property
+    def paths(self) -> list[str]:
+        names = self._robot.model.names
+        return ([f"{ROBOT}/stick/joint_{names[j]}" for j in self.joints]
+                + [f"{ROBOT}/stick/rod_{k}" for k in range(len(self.rods))] + [f"{ROBOT}/output"])
+
+    def ends(self, data: pin.Data) -> list[tuple[np.ndarray, np.ndarray]]:
+        """(start, end) world points of each rod (kinematics and frames of ``data`` up to date)."""
+        return [(data.oMi[p].translation, data.oMi[c].translation if c is not None else data.oMf[f].translation)
+                for p, c, f in self.rods]
+
+    def output_point(self, data: pin.Data) -> np.ndarray:
+        robot = self._robot
+        if robot.output_frame_id is not None:
+            return data.oMf[robot.output_frame_id].translation
+        out = output_joint_ids(robot)
+        return data.oMi[max(out)].translation if out else np.zeros(3)
+
+    def draw(self, vis, data: pin.Data) -> None:
+        """Set the meshcat objects (rod lengths from ``data``, e.g. at home: a rod lies on one link)."""
+        joint = _material([1, 1, 1, 1], STICK_JOINT_COLOR)
+        for path in self.paths[:len(self.joints)]:
+            vis[path].set_object(mg.Sphere(1.7 * self.radius), joint)
+        rod = _material([1, 1, 1, 1], STICK_ROD_COLOR)
+        for k, (a, b) in enumerate(self.ends(data)):
+            vis[f"{ROBOT}/stick/rod_{k}"].set_object(mg.Cylinder(max(float(np.linalg.norm(b - a)), 1e-4), self.radius),
+                                                      rod)
+        vis[f"{ROBOT}/output"].set_object(mg.Sphere(2.2 * self.radius), _material([1, 1, 1, 1], OUTPUT_COLOR))
+
+    def placements(self, data: pin.Data) -> list[np.ndarray]:
+        """4x4 world transforms of :attr:`paths` (kinematics and frames of ``data`` up to date)."""
+        return ([_translation(data.oMi[j].translation) for j in self.joints]
+                + [_rod(a, b) for a, b in self.ends(data)] + [_translation(self.output_point(data))])
+
+
 class RobotScene:
     """A robot drawn in a meshcat visualizer, and the placements of its parts at any q.
 
@@ -141,9 +249,10 @@ class RobotScene:
         self._drive_jids = [robot.model.getJointId(n) for n in robot.description.drive_joints]
         self._closure_fids = [(robot.model.getFrameId(c.frames[0]), robot.model.getFrameId(c.frames[1]))
                               for c in robot.description.closures]
+        self.stick = StickFigure(robot, self.geom_model)
         self.paths = ([f"{ROBOT}/{g.name}" for g in self.geom_model.geometryObjects]
                       + [f"{ROBOT}/closures/{c.name}_{s}" for c in robot.description.closures for s in "ab"]
-                      + [self._overlay_path(i, g) for i, g in self._overlays()])
+                      + [self._overlay_path(i, g) for i, g in self._overlays()] + self.stick.paths)
 
     # ------------------------------------------------------------------ drawing
     def _overlays(self) -> list[tuple[int, int]]:
@@ -167,6 +276,8 @@ class RobotScene:
         for i, k in self._overlays():
             shape, _ = _shape(self.geom_model.geometryObjects[k].geometry, scale=1.8)
             self.vis[self._overlay_path(i, k)].set_object(shape, _material([1, 1, 1, 0.85], SATURATION_COLOR))
+        pin.framesForwardKinematics(self.robot.model, self.data, self.robot.q_home)
+        self.stick.draw(self.vis, self.data)
         self.show_saturation(np.zeros(self.robot.n_u, dtype=bool))
         self._draw_base()
         self.show(q)
@@ -208,7 +319,7 @@ class RobotScene:
         links = [M.homogeneous @ intrinsic for M, (_, intrinsic) in zip(self.geom_data.oMg, self._shapes)]
         spheres = [_translation(self.data.oMf[f].translation) for pair in self._closure_fids for f in pair]
         overlays = [links[k] for _, k in self._overlays()]
-        return links + spheres + overlays
+        return links + spheres + overlays + self.stick.placements(self.data)
 
     def show(self, q: np.ndarray) -> None:
         """Place the robot at configuration q (nq,)."""
@@ -273,16 +384,17 @@ def draw_robot(vis: meshcat.Visualizer, robot: ParallelRobot, q: np.ndarray | No
     return scene
 
 
-def draw_path(vis: meshcat.Visualizer, name: str, points, color: int, xyz_columns=None) -> None:
+def draw_path(vis: meshcat.Visualizer, name: str, points, color: int, xyz_columns=None, fill=None) -> None:
     """Draw a path as a meshcat ``Line`` at ``paths/<name>``.
 
     Args:
         points: (K, 2) or (K, 3) planar platform poses, columns x, y in m (a third column is
-            ignored); or (K, n_y) poses of a spatial robot with ``xyz_columns``.
+            ignored); or (K, n_y) poses with ``xyz_columns``.
         color: 0xRRGGBB.
-        xyz_columns: indices of x, y, z (m) in the poses of a spatial robot, or None (planar).
+        xyz_columns: for each world axis the pose column along it, or None for an axis filled
+            with ``fill`` (m) (:func:`path_placement`); None: a planar path.
     """
-    xyz = _path_points(f"{name} path", points, xyz_columns)
+    xyz = _path_points(f"{name} path", points, xyz_columns, fill)
     line = mg.Line(mg.PointsGeometry(xyz.T.astype(np.float32)), mg.LineBasicMaterial(color=color, linewidth=2))
     vis[f"{PATHS}/{name}"].set_object(line)
 
@@ -320,8 +432,8 @@ def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=N
         t: (K,) strictly increasing times, s.
         qs: (K, nq) full assembled configurations (legs included).
         saturated: optional (K, n_u) flags; a drive at its torque limit is drawn red.
-        reference: optional (K_ref, 2 or 3) reference platform poses (x, y in m), drawn as a line;
-            (K_ref, n_y) for a robot with three translational outputs (drawn in 3-D).
+        reference: optional (K_ref, n_y) reference poses, drawn as a line in the world along the
+            axes the translational outputs move along (:func:`path_placement`).
         planned: optional planned platform poses, drawn as a line (shapes as ``reference``).
         fps: key-frame rate, 1/s. max_frames: at most this many key frames.
         play: start playing when a browser shows the scene.
@@ -335,12 +447,13 @@ def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=N
     scene = draw_robot(vis, robot, qs[0])
     if flags is not None:
         scene.show_saturation(flags[0])
-    lin = np.flatnonzero(~robot.output_angular)  # three translational outputs: a spatial path
-    cols = lin if lin.size == 3 else None
-    if reference is not None:
-        draw_path(vis, "reference", reference, REFERENCE_COLOR, cols)
-    if planned is not None:
-        draw_path(vis, "planned", planned, PLANNED_COLOR, cols)
+    cols, fill = path_placement(robot)  # the output columns along world x, y, z
+    for name, points, color in (("reference", reference, REFERENCE_COLOR), ("planned", planned, PLANNED_COLOR)):
+        if points is not None:
+            if np.asarray(points).ndim == 2 and np.asarray(points).shape[1] != robot.n_y:
+                raise ShapeError(f"{name} poses have {np.asarray(points).shape[1]} columns; robot {robot.name!r} "
+                                 f"has {robot.n_y} outputs {list(robot.description.output_labels)}")
+            draw_path(vis, name, points, color, cols, fill)
     if t.size > 1:
         vis.set_animation(scene.animation(t, qs, flags, fps, max_frames), play=play, repetitions=1)
     return scene

@@ -1,0 +1,149 @@
+"""A robot's stick figure from its joint frames: what figures and the 3-D view draw for any robot,
+with or without visual geometry.
+
+:func:`skeleton` places, at a configuration q, the origin of every joint, the bones between a
+joint and its parent joint, the two frames of every loop closure (with the bone to their joint),
+the output frame, the legs (joint chains ending at a closure frame outside the platform) and the
+platform corners (closure frames carried by the output joints). :func:`output_world_axes` says
+which world axis each translational output moves along, so a path in output coordinates can be
+drawn over the robot.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pinocchio as pin
+
+from ..validation import finite_vector
+
+
+@dataclass(frozen=True)
+class Skeleton:
+    """The stick figure of a robot at one configuration (world coordinates, m).
+
+    Attributes:
+        joint_names: (n,) names of the joints (the universe excluded), in model order.
+        joints: (n, 3) joint origins.
+        bones: (b, 2, 3) segments: a joint's parent joint origin to its origin (joints on the
+            universe: none), and a closure or output frame's joint origin to the frame.
+        closures: (c, 2, 3) the two frames of each loop closure (coincide when assembled).
+        closure_names: (c,) closure names.
+        output: (3,) the output frame's origin (task-space outputs) or the last output joint's
+            origin (joint outputs).
+        legs: polylines (k_i, 3) from a leg's first joint through its joints to its closure frame.
+        platform: (m, 3) closure frames carried by the output joints, ordered around their centre
+            in the plane of largest spread (empty for task-space outputs).
+        base: (p, 3) origins of the joints on the universe that are not output joints.
+    """
+
+    joint_names: tuple[str, ...]
+    joints: np.ndarray
+    bones: np.ndarray
+    closures: np.ndarray
+    closure_names: tuple[str, ...]
+    output: np.ndarray
+    legs: list
+    platform: np.ndarray
+    base: np.ndarray
+
+
+def _chain(model: pin.Model, joint: int) -> list[int]:
+    """Joints from the universe to ``joint`` (universe excluded), root first."""
+    joints = []
+    while joint != 0:
+        joints.append(joint)
+        joint = model.parents[joint]
+    return joints[::-1]
+
+
+def _ordered(points: np.ndarray) -> np.ndarray:
+    """Points ordered by angle about their centre in the plane of their two largest spreads."""
+    if len(points) <= 2:
+        return points
+    centre = points.mean(axis=0)
+    axes = np.argsort(np.ptp(points, axis=0))[::-1][:2]
+    rel = (points - centre)[:, np.sort(axes)]
+    return points[np.argsort(np.arctan2(rel[:, 1], rel[:, 0]))]
+
+
+def output_joint_ids(robot) -> set[int]:
+    """Model ids of the output joints (joint outputs; empty for task-space outputs)."""
+    model = robot.model
+    return {model.getJointId(n) for n in robot.description.output_joints} if robot.task_output is None else set()
+
+
+def skeleton(robot, q=None) -> Skeleton:
+    """The stick figure of ``robot`` at configuration q (nq,) (default: home)."""
+    model = robot.model
+    q = robot.q_home if q is None else finite_vector("configuration q", q, model.nq)
+    data = model.createData()
+    pin.framesForwardKinematics(model, data, q)
+    origin = {j: np.array(data.oMi[j].translation) for j in range(model.njoints)}
+    out_joints = output_joint_ids(robot)
+    platform_joints = set().union(*(_chain(model, j) for j in out_joints)) if out_joints else set()
+    bones = [(origin[model.parents[j]], origin[j]) for j in range(1, model.njoints) if model.parents[j] != 0]
+    closures, names, legs, corners = [], [], [], []
+    for fa, fb, closure in robot.closure_frames:
+        pair = []
+        for fid in (fa, fb):
+            point = np.array(data.oMf[fid].translation)
+            joint = model.frames[fid].parentJoint
+            pair.append(point)
+            if joint != 0:
+                bones.append((origin[joint], point))
+            chain = _chain(model, joint)
+            if platform_joints.intersection(chain):
+                corners.append(point)
+            elif chain:
+                legs.append(np.array([origin[j] for j in chain] + [point]))
+        closures.append(pair)
+        names.append(closure.name)
+    if robot.output_frame_id is not None:
+        output = np.array(data.oMf[robot.output_frame_id].translation)
+        joint = model.frames[robot.output_frame_id].parentJoint
+        if joint != 0:
+            bones.append((origin[joint], output))
+    else:
+        output = origin[max(out_joints)] if out_joints else origin[0]
+    base = [origin[j] for j in range(1, model.njoints) if model.parents[j] == 0 and j not in platform_joints]
+    return Skeleton(
+        joint_names=tuple(model.names[1:]),
+        joints=np.array([origin[j] for j in range(1, model.njoints)]).reshape(-1, 3),
+        bones=np.array(bones, dtype=float).reshape(-1, 2, 3),
+        closures=np.array(closures, dtype=float).reshape(-1, 2, 3),
+        closure_names=tuple(names),
+        output=output,
+        legs=legs,
+        platform=_ordered(np.array(corners)).reshape(-1, 3) if corners else np.zeros((0, 3)),
+        base=np.array(base).reshape(-1, 3),
+    )
+
+
+def output_world_axes(robot) -> list[int | None]:
+    """For each output, the world axis (0 = x, 1 = y, 2 = z) it moves along, or None (angles,
+    or a joint whose axis is not along a world axis at home).
+
+    Task-space outputs name their axis; a prismatic output joint moves along the world axis
+    its origin moves along when the joint moves (at home).
+    """
+    if robot.task_output is not None:
+        return [None if axis.startswith("r") else "xyz".index(axis) for axis in robot.description.output_axes]
+    model = robot.model
+    data = model.createData()
+    axes = []
+    for name, angle in zip(robot.description.output_joints, robot.output_angular):
+        if angle:
+            axes.append(None)
+            continue
+        jid = model.getJointId(name)
+        dv = np.zeros(model.nv)
+        dv[model.joints[jid].idx_v] = 1e-3
+        pin.forwardKinematics(model, data, robot.q_home)
+        p0 = np.array(data.oMi[jid].translation)
+        pin.forwardKinematics(model, data, pin.integrate(model, robot.q_home, dv))
+        d = np.array(data.oMi[jid].translation) - p0
+        k = int(np.argmax(np.abs(d)))
+        axes.append(k if abs(d[k]) > 0.99 * np.linalg.norm(d) > 0 else None)
+    return axes
