@@ -15,7 +15,8 @@ import pytest
 import parallel_gpc
 from parallel_gpc import DEFAULT_ROBOT, FORMS, TrackingSettings, embedded_robots, load_description
 from parallel_gpc.cli import REGISTRARS, build_parser, main
-from parallel_gpc.cli import defaults
+from parallel_gpc.cli import defaults, vocabulary
+from parallel_gpc.errors import InvalidParameterError
 
 ROOT = Path(__file__).resolve().parents[1]
 COMMANDS = ["robots", "info", "demo", "track", "plan", "robustness", "sweep", "bench", "view", "gallery"]
@@ -76,23 +77,28 @@ def test_help_defaults_are_the_library_defaults():
 def test_one_vocabulary_for_forms_and_references():
     """--forms (space-separated, or all) and --reference take the same words in every command,
     the library's words, and the help names every form and every reference."""
-    from parallel_gpc.gpc.references import PATH_KINDS
+    from parallel_gpc.gpc.robot_references import REFERENCE_KINDS
     from parallel_gpc.gpc.settings import PAPER_FORMS
 
-    assert defaults.PAPER_FORMS == PAPER_FORMS and defaults.REFERENCES == (*PATH_KINDS, "hold")
+    assert defaults.PAPER_FORMS == PAPER_FORMS and defaults.REFERENCES == REFERENCE_KINDS
     parser = build_parser()
     sub = next(a for a in parser._actions if a.dest == "command").choices
     for command in ("track", "demo", "robustness"):
         options = {a.dest: a for a in sub[command]._actions}
         assert options["forms"].choices == [*FORMS, "all"] and options["forms"].nargs == "+"
-        assert options["reference"].choices == defaults.REFERENCES and options["reference"].default == "auto"
+        assert options["reference"].type is vocabulary.reference_argument and options["reference"].default == "auto"
         assert all(form in options["forms"].help for form in FORMS)
         assert all(name in options["reference"].help for name in defaults.REFERENCES)
         args = parser.parse_args([command, "--forms", "nonlinear", "absolute"])
         assert args.forms == ["nonlinear", "absolute"]
     assert parser.parse_args(["robustness"]).forms == list(PAPER_FORMS)
     assert parser.parse_args(["track", "--form", "absolute"]).forms == ["absolute"]  # the earlier spelling
-    assert "the helix on spatial ones" in " ".join(parser.format_help().split())  # track's one-line help
+    for command in ("track", "robustness"):  # the built-in names and files; anything else is refused
+        for name in (*defaults.REFERENCES, "my_path.csv", "plan_b.npz"):
+            assert parser.parse_args([command, "--reference", name]).reference == name
+        for bad in ("path", "scurve", "spiral", "my_path.txt"):
+            with pytest.raises(InvalidParameterError, match="is not one of"):
+                parser.parse_args([command, "--reference", bad])
 
 
 def test_robots_lists_every_embedded_robot(capsys):

@@ -81,8 +81,14 @@ def blocks(*langs: str) -> list[Block]:
     return found
 
 
+#: Pages whose blocks build on each other (a walk-through): tests/test_your_robot.py runs them in
+#: order, so the block-by-block test leaves them out.
+SEQUENTIAL_PAGES = ("your-robot.md",)
+
+
 def params(*langs: str):
-    return [pytest.param(b, id=b.name) for b in blocks(*langs)]
+    return [pytest.param(b, id=b.name) for b in blocks(*langs)
+            if not (b.lang == "python" and b.page.name in SEQUENTIAL_PAGES)]
 
 
 def example_files(folder: Path) -> None:

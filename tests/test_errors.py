@@ -240,7 +240,7 @@ def test_cli_debug_shows_the_exception(capsys):
     (["robustness", "--forms", "absolute", "bogus"], "'bogus' (choose from 'absolute', 'incremental', "
                                                      "'incremental-delayed', 'nonlinear', 'all')"),
     (["robustness", "--forms", "absolute,incremental"], "'absolute,incremental'"),  # the earlier comma spelling
-    (["robustness", "--reference", "path"], "'path' (choose from 'auto', 's-curve', 'helix', 'hold')"),
+    (["robustness", "--reference", "path"], "'path' is not one of auto, s-curve, circle, line, helix, hold, nor a .csv"),
     (["robustness", "--mass-scales", "0.7", "x"], "'x'"),
     (["robustness", "--robot", "nosuch_robot"], "nosuch_robot"),
 ])
