@@ -11,3 +11,11 @@ TRACKING = {"Ts": 0.002, "N": 20, "No": 0, "Qy": 1.0, "Qu": 0.0, "disturbance_ga
 #: = the same fields of ``parallel_gpc.studies.DEMO_SETTINGS`` (the ``demo`` command).
 DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platform_force": (5.0, -5.0, 0.5),
         "duration": 3.0, "disturbance_gain": 0.5}
+
+#: Exit code of a command whose input was refused (one-line error on stderr).
+EXIT_BAD_INPUT = 2
+#: Exit code of ``track`` / ``demo`` when a closed loop diverged: the run was valid input, its
+#: samples up to the divergence are saved and the message says where and why.
+EXIT_DIVERGED = 3
+#: Exit code of a command stopped by Ctrl-C (after saving what it computed).
+EXIT_INTERRUPTED = 130

@@ -10,10 +10,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import InvalidParameterError
-from .defaults import DEFAULT_ROBOT
-
-#: Exit code of a run stopped by Ctrl-C (after saving what it computed).
-EXIT_INTERRUPTED = 130
+from .defaults import DEFAULT_ROBOT, EXIT_INTERRUPTED
 
 #: ``--quick``: fewer cases (nominal, ±30 % mass, one noise level, one force), same runs.
 QUICK = dict(mass_scales=(0.7, 1.3), noise_levels=(1e-4,), disturbances=(20.0,))

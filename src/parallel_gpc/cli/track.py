@@ -1,15 +1,18 @@
 """``parallel-gpc track``: S-curve (or hold) tracking with each GPC form on the nonlinear plant.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
-and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
+and ``track_time.png``. A form whose closed loop diverges keeps its samples up to there (its
+file's ``meta["stopped"]`` says where and why), the other forms run; the command then prints the
+divergence and exits with :data:`~parallel_gpc.cli.defaults.EXIT_DIVERGED` (3). ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
 comparison's defaults.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-from .defaults import DEFAULT_ROBOT, FORMS, TRACKING
+from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, FORMS, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 
@@ -90,10 +93,20 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     last = results[list(results)[-1]]
     flags = None if settings.torque_limit is None else saturation_flags(last.u, settings.torque_limit, rtol=1e-5)
     show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
-    if any(r.interrupted for r in results.values()):
+    return outcome_code(results.values())
+
+
+def outcome_code(results) -> int:
+    """Print why runs stopped early; the exit code: 130 if Ctrl-C stopped one, else 3 if a closed
+    loop diverged, else 0. ``results``: SimulationResults, already saved."""
+    for res in results:
+        if res.diverged:
+            print(f"parallel-gpc: {res.meta.get('form', '')} GPC: {res.stopped}; its samples up to there are saved",
+                  file=sys.stderr)
+    if any(r.interrupted for r in results):
         print("interrupted: partial results saved")
-        return 130
-    return 0
+        return EXIT_INTERRUPTED
+    return EXIT_DIVERGED if any(r.diverged for r in results) else 0
 
 
 def cmd_track(args) -> int:
@@ -102,9 +115,16 @@ def cmd_track(args) -> int:
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
+#: The exit codes, in ``track --help`` and ``demo --help``.
+EXIT_CODES = (f"exit codes: 0 done; 2 bad input (one-line error, nothing run); {EXIT_DIVERGED} a closed loop "
+              f"diverged (its samples up to there and the other forms are saved; the message gives t, the "
+              f"position error and the cause); {EXIT_INTERRUPTED} Ctrl-C (partial results saved)")
+
+
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", help="track the S-curve (or a hold pose) with GPC on the nonlinear plant")
+    p = sub.add_parser("track", help="track the S-curve (or a hold pose) with GPC on the nonlinear plant",
+                       epilog=EXIT_CODES)
     p.add_argument("--form", choices=[*FORMS, "all"], default="all", help="GPC form (default all)")
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)

@@ -3,8 +3,11 @@
 ``simulate`` runs the controller against a plant (full constrained model by default), with
 optional measurement noise; the plant may carry model mismatch, drive saturation and a
 disturbance force. The result holds the time histories, per-step solver statistics and the
-metrics table, and saves to ``.npz`` or ``.csv``. Ctrl-C ends the run early and keeps what was
-computed (``result.interrupted``).
+metrics table, and saves to ``.npz`` or ``.csv``. A run that ends early keeps what it computed,
+with the reason in ``result.stopped``: Ctrl-C (``result.interrupted``), or a closed loop that
+diverged (``result.diverged``: the plant or the controller raised one of
+:data:`DIVERGENCE_ERRORS` after the first sample, e.g. the platform left the workspace). A
+reference that leaves the workspace is refused before the run (:func:`check_reference`).
 """
 
 from __future__ import annotations
@@ -17,10 +20,20 @@ import numpy as np
 from tqdm import tqdm
 
 from ..gpc.controller import GPCController
+from ..gpc.plan_settings import INTERRUPTED
 from ..gpc.references import Reference, pose_error_norms
-from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
+from ..errors import (AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError,
+                      SolverError, UnreachablePoseError)
 from ..results import robot_reference, save_result, saturation_flags
-from ..validation import check_allocation, finite_vector, positive
+from ..validation import all_finite, check_allocation, finite_vector, positive
+
+#: Errors of the plant or the controller that mean "this closed loop diverged" once it has run:
+#: the run stops there and keeps its samples (before the first sample they are raised).
+DIVERGENCE_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError, SolverError)
+#: How :attr:`SimulationResult.stopped` starts when the closed loop diverged.
+DIVERGED = "closed loop diverged"
+#: Most reference poses :func:`check_reference` assembles before a run.
+REFERENCE_CHECKS = 50
 
 
 @dataclass
@@ -36,7 +49,9 @@ class SimulationResult:
         step_time, solve_time: (K,) s. iterations: (K,) (−1 if not reported).
         status: (K,) solver status strings. fallback: (K,) bool. saturated: (K,) bool.
         meta: settings of the run (robot, form, solver, horizons, weights, Ts, …).
-        interrupted: True if the run was stopped early (Ctrl-C).
+        stopped: empty if the run reached its end; otherwise why it stopped early, the arrays
+            ending there: ``"interrupted (Ctrl-C) after k of K samples"`` or
+            ``"closed loop diverged at t = … s …: position error … m … (cause: Error: message)"``.
         angular: (n_y,) bool, the angular output coordinates (rad), or None for the planar
             convention [x, y, ψ] (see :func:`~parallel_gpc.gpc.references.pose_error_norms`).
     """
@@ -55,8 +70,23 @@ class SimulationResult:
     fallback: np.ndarray
     saturated: np.ndarray
     meta: dict = field(default_factory=dict)
-    interrupted: bool = False
+    stopped: str = ""
     angular: np.ndarray | None = None
+
+    @property
+    def interrupted(self) -> bool:
+        """True if Ctrl-C stopped the run (the arrays hold the samples before)."""
+        return self.stopped.startswith(INTERRUPTED)
+
+    @property
+    def diverged(self) -> bool:
+        """True if the closed loop diverged (the arrays hold the samples up to there)."""
+        return self.stopped.startswith(DIVERGED)
+
+    @property
+    def outcome(self) -> str:
+        """``"ok"`` (ran to its end), ``"interrupted"`` or ``"diverged"``."""
+        return "interrupted" if self.interrupted else "diverged" if self.diverged else "ok"
 
     @property
     def error(self) -> np.ndarray:
@@ -105,10 +135,11 @@ class SimulationResult:
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
                                                "solve_time", "iterations", "status", "fallback")}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
-        extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted))
+        extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted),
+                     diverged=np.array(self.diverged))
         save_result(path, self.meta.get("robot_file") or None, self.t, self.q, reference=self.reference,
                     saturated=None if limit is None else saturation_flags(self.u, limit, rtol=1e-5),
-                    kind="tracking", meta=self.meta, arrays=extra)
+                    kind="tracking", meta={**self.meta, "stopped": self.stopped}, arrays=extra)
         return path
 
 
@@ -156,6 +187,43 @@ def _step(controller: GPCController, X: np.ndarray, meas: np.ndarray, w: np.ndar
                         f"controller's model fails: {exc}") from None
 
 
+def _divergence(exc: Exception, t: float, rec: dict, K: int, angular) -> str:
+    """The :attr:`SimulationResult.stopped` text of a run that raised ``exc`` in the step from t_k = ``t``."""
+    n = len(rec["t"])
+    last = np.asarray(rec["pose"][-1]) - np.asarray(rec["reference"][-1])
+    position = float(pose_error_norms(last[None, :], angular)[0][0])
+    return (f"{DIVERGED} at t = {t:.6g} s after {n} of {K} samples: position error {position:.3g} m at "
+            f"t = {rec['t'][-1]:.6g} s (cause: {type(exc).__name__}: {' '.join(str(exc).split())})")
+
+
+def check_reference(robot, reference: Reference, K: int, Ts: float) -> None:
+    """Refuse, before a run of K samples, a reference that leaves the robot's workspace.
+
+    The reference poses at up to :data:`REFERENCE_CHECKS` sample times spread over the run (the
+    first and the last included) are assembled, each from the configuration of the one before
+    (cheap: a few Newton steps each). Cheap, not exhaustive: a brief excursion between two
+    checked times shows as a diverged run instead.
+
+    Args:
+        robot: the plant's :class:`~parallel_gpc.model.robot.ParallelRobot`.
+        reference: the reference motion. K: samples of the run. Ts: sample time in s.
+
+    Raises:
+        NonFiniteError: a checked reference pose is NaN or infinite.
+        UnreachablePoseError: a checked reference pose is outside the workspace (naming its time).
+    """
+    ks = np.unique(np.linspace(0, K - 1, min(K, REFERENCE_CHECKS)).round().astype(int))
+    q = None
+    for t, pose in zip(ks * Ts, reference.sample(ks * Ts)):
+        if not all_finite(pose):
+            raise NonFiniteError(f"the reference pose at t = {t:.6g} s is {pose.tolist()}; poses must be finite")
+        try:
+            q = robot.assemble(pose, q)
+        except UnreachablePoseError as exc:
+            raise UnreachablePoseError(f"the reference pose at t = {t:.6g} s is outside the workspace of "
+                                       f"{robot.name!r}: {exc}") from None
+
+
 def simulate(controller: GPCController, plant, reference: Reference, duration: float,
              noise_std=None, seed: int = 0, progress: bool = True, meta: dict | None = None) -> SimulationResult:
     """Run the closed loop for ``duration`` s at the controller's Ts.
@@ -170,6 +238,18 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         seed: random seed of the noise.
         progress: show a progress bar.
         meta: extra settings stored in the result.
+
+    Returns:
+        The :class:`SimulationResult`; ``stopped`` says why it ended early, if it did. Ctrl-C, or
+        one of :data:`DIVERGENCE_ERRORS` raised by the controller or the plant once a sample is
+        recorded, ends the run and keeps the samples so far (a step whose plant integration
+        fails still records its state and input).
+
+    Raises:
+        UnreachablePoseError: the reference leaves the workspace (:func:`check_reference`).
+        KeyboardInterrupt: Ctrl-C before the first sample.
+        AssemblyError, SingularPoseError, NonFiniteError, SolverError: the controller fails at
+            the initial state (no sample to keep).
     """
     Ts = controller.Ts
     duration = positive("duration", duration, " s")
@@ -191,13 +271,14 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         if not np.all(np.isfinite(noise_std)) or np.any(noise_std < 0):
             raise InvalidParameterError(f"noise_std = {np.asarray(noise_std).tolist()} must be finite and ≥ 0 "
                                         f"(a scalar or {2 * n_y} values for [y, ẏ])")
+    check_reference(robot, reference, K, Ts)
     rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time",
                            "solve_time", "iterations", "status", "fallback", "saturated")}
     B_rs = []  # (n_y, n_u) B_r per sample with redundant drives: internal force after the loop
     N = controller.horizons.N
     batched = type(reference).window is Reference.window  # else the subclass's own window()
     windows = None
-    interrupted = False
+    stopped = ""
     try:
         for k in tqdm(range(K), disable=not progress, desc=f"{controller.form} GPC", unit="step", leave=False):
             t = k * Ts
@@ -210,12 +291,23 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                 w, pose_t = rows[1:], rows[0]
             else:
                 w, pose_t = reference.window(t, Ts, N), reference.pose(t)
-            info = _step(controller, X, meas, w, noise_std)
-            q = np.array(plant.q)
-            if n_u > n_y:
-                B_rs.append(plant.input_matrix())  # at the state u was computed for
+            try:
+                info = _step(controller, X, meas, w, noise_std)
+                q = np.array(plant.q)
+                B_r = plant.input_matrix() if n_u > n_y else None  # at the state u was computed for
+            except DIVERGENCE_ERRORS as exc:  # no input for t_k: the samples before t_k are the run
+                if not rec["t"]:
+                    raise
+                stopped = _divergence(exc, t, rec, K, robot.output_angular)
+                break
             sat_before = plant.saturated
-            plant.step(info.u, Ts)
+            failure = None
+            try:
+                plant.step(info.u, Ts)
+            except DIVERGENCE_ERRORS as exc:  # the state at t_k and the input applied from it are a sample
+                failure = exc
+            if B_r is not None:
+                B_rs.append(B_r)
             rec["t"].append(t)
             rec["reference"].append(pose_t)
             rec["pose"].append(X[:n_y])
@@ -228,8 +320,11 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             rec["status"].append(info.result.status)
             rec["fallback"].append(info.fallback)
             rec["saturated"].append(plant.saturated > sat_before)
+            if failure is not None:
+                stopped = _divergence(failure, t, rec, K, robot.output_angular)
+                break
     except KeyboardInterrupt:
-        interrupted = True
+        stopped = f"{INTERRUPTED} after {min(len(v) for v in rec.values())} of {K} samples"
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
@@ -241,4 +336,4 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "torque_limit": controller.torque_limit, **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, angular=robot.output_angular)
+    return SimulationResult(**arrays, meta=info_meta, stopped=stopped, angular=robot.output_angular)

@@ -102,7 +102,12 @@ class TrackingSettings:
 
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
                  robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
-    """Run each GPC form on the reference with the plant of ``settings``; returns results by form."""
+    """Run each GPC form on the reference with the plant of ``settings``; returns results by form.
+
+    A form whose closed loop diverges keeps its samples up to there (``result.diverged``) and the
+    next form runs (each form is an independent run); Ctrl-C keeps the forms finished so far and
+    the samples of the current one, and stops.
+    """
     for form in forms:
         if form not in FORMS:
             raise InvalidParameterError(f"form {form!r} is not one of {FORMS}")
@@ -167,6 +172,6 @@ def metrics_table(results: dict[str, SimulationResult], drive_unit: str = "N·m"
             f"{1e3 * m['rms_orientation_error_rad']:9.2e} {1e3 * m['max_orientation_error_rad']:9.2e} "
             f"{m['peak_torque_Nm']:8.2f} {m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:9.3f} "
             f"{1e3 * m['p99_step_time_s']:9.3f} {m['fallbacks']:6d}"
-            + ("  (interrupted)" if res.interrupted else "")
+            + ("" if res.outcome == "ok" else f"  ({res.outcome})")
         )
     return "\n".join(lines)
