@@ -202,3 +202,10 @@ def test_robustness_rows_of_diverged_runs_name_cause_and_time(monkeypatch):
                               duration=0.05, reference="hold")
     status = [r["status"] for r in result.rows]
     assert status[0] == "ok" and status[1].startswith("diverged (") and " at t = " in status[1], status
+
+
+def test_a_plant_failing_within_the_first_sample_is_raised(r4):
+    with pytest.raises(UnreachablePoseError, match=r"\(test\)"):
+        simulate(controller(r4), PlantFailingAt(r4, X_HOME, 1), TARGET, 0.1, progress=False)
+    res = simulate(controller(r4), PlantFailingAt(r4, X_HOME, 2), TARGET, 0.1, progress=False)
+    assert res.diverged and len(res.t) == 2

@@ -241,15 +241,16 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
 
     Returns:
         The :class:`SimulationResult`; ``stopped`` says why it ended early, if it did. Ctrl-C, or
-        one of :data:`DIVERGENCE_ERRORS` raised by the controller or the plant once a sample is
-        recorded, ends the run and keeps the samples so far (a step whose plant integration
-        fails still records its state and input).
+        one of :data:`DIVERGENCE_ERRORS` raised by the controller or the plant after the first
+        sample, ends the run and keeps the samples so far (a step whose plant integration fails
+        still records its state and input).
 
     Raises:
         UnreachablePoseError: the reference leaves the workspace (:func:`check_reference`).
         KeyboardInterrupt: Ctrl-C before the first sample.
         AssemblyError, SingularPoseError, NonFiniteError, SolverError: the controller fails at
-            the initial state (no sample to keep).
+            the initial state, or the plant within the first sample (no run to keep: the
+            settings, e.g. a force or Ts, are at fault).
     """
     Ts = controller.Ts
     duration = positive("duration", duration, " s")
@@ -305,6 +306,8 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             try:
                 plant.step(info.u, Ts)
             except DIVERGENCE_ERRORS as exc:  # the state at t_k and the input applied from it are a sample
+                if k == 0:  # within the first sample: the input (e.g. a force) is at fault, not a run
+                    raise
                 failure = exc
             if B_r is not None:
                 B_rs.append(B_r)
