@@ -377,3 +377,208 @@ def test_local_cluster_gives_the_serial_metrics_records_failures_and_keeps_cells
     assert own.records[0]["status"] == "ok", own.records[0]["error"]
     assert own.records[0]["rms_position_error_m"] == run_cell(Cell(0, dict(TINY)))["rms_position_error_m"]
     assert run_cell(Cell(0, {**TINY, "robot": "shipped_3rrr.toml"}))["status"] == "failed"  # not here
+
+
+# ---------------------------------------------------------------- hardening: journal, lock, spec bounds
+def _journal_lines(folder):
+    return (Path(folder) / "records.jsonl").read_bytes().split(b"\n")
+
+
+def test_a_journal_line_cut_mid_write_loses_no_other_record(tmp_path):
+    spec = tiny_spec(N=[3, 4, 5])
+    run_sweep(tiny_spec(N=[3, 4]), workers=0, store=tmp_path, progress=False)
+    journal = tmp_path / "records.jsonl"
+    whole = journal.read_bytes()
+    journal.write_bytes(whole + b'{"key": "0123456789abcdef", "index": 2, "status": "ok", "rms_pos')  # the crash
+    resumed = run_sweep(spec, workers=0, store=tmp_path, progress=False)
+    assert (resumed.ran, resumed.skipped) == (1, 2)
+    store = SweepStore(tmp_path)
+    assert set(store.finished()) == {c.key for c in spec.cells()} and store.skipped_lines == 0
+    assert journal.read_bytes().startswith(whole) and journal.read_bytes().endswith(b"\n")
+    # a whole last record that only lost its newline is kept, and the next one starts its own line
+    journal.write_bytes(journal.read_bytes()[:-1])
+    wider = run_sweep(tiny_spec(N=[3, 4, 5, 6]), workers=0, store=tmp_path, progress=False)
+    assert (wider.ran, wider.skipped) == (1, 3)
+    assert len(SweepStore(tmp_path).finished()) == 4 and _journal_lines(tmp_path)[-1] == b""
+
+
+def test_lines_that_are_not_records_are_skipped_and_counted(tmp_path, capsys):
+    from parallel_gpc.cli import main
+
+    spec = tiny_spec(N=[3, 4])
+    run_sweep(spec, workers=0, store=tmp_path, progress=False)
+    journal = tmp_path / "records.jsonl"
+    journal.write_bytes(b'[1, 2]\n"x"\n{"status": "ok"}\n\xff\xfe{}\n' + journal.read_bytes() + b"{}\n")
+    store = SweepStore(tmp_path)
+    assert set(store.finished()) == {c.key for c in spec.cells()} and store.skipped_lines == 5
+    again = run_sweep(spec, workers=0, store=tmp_path, progress=False)
+    assert (again.ran, again.skipped_lines) == (0, 5)
+    toml = tmp_path / "s.toml"
+    toml.write_text('[base]\nrobot = "planar_3rrr"\nreference = "hold"\nduration = 0.1\nTs = 0.005\nN = 3\nQu = 1e-4\n')
+    assert main(["sweep", str(toml), "--workers", "0", "--out", str(tmp_path), "--no-progress"]) == 0
+    assert "skipped 5 lines that are not records" in capsys.readouterr().err
+
+
+def test_two_sweeps_into_one_folder_the_second_is_refused(tmp_path, capsys):
+    from parallel_gpc.cli import main
+
+    holder = SweepStore(tmp_path)
+    with holder.locked():
+        with holder.locked():  # re-entrant in its holder
+            pass
+        with pytest.raises(InvalidParameterError, match=f"is in use by another sweep \\(pid {os.getpid()}\\)"):
+            run_sweep(tiny_spec(), workers=0, store=tmp_path, progress=False)
+        toml = tmp_path / "s.toml"
+        toml.write_text('[base]\nreference = "hold"\nduration = 0.1\n')
+        assert main(["sweep", str(toml), "--workers", "0", "--out", str(tmp_path)]) == 2
+        error = capsys.readouterr().err.splitlines()[-1]  # after the line counting the cells
+        assert error.startswith("parallel-gpc: error: sweep folder ") and str(tmp_path) in error
+        assert "in use by another sweep" in error
+        assert not (tmp_path / "records.jsonl").exists()  # nothing ran
+    assert run_sweep(tiny_spec(), workers=0, store=tmp_path, progress=False).ran == 2  # released
+
+
+BAD_SPECS = [
+    ("[sweep]\nseed = -1\n", "seed = -1"),
+    ('[sweep]\nseed = "x"\n', "seed = 'x'"),
+    ("[sweep]\nseed = 1.5\n", "seed = 1.5"),
+    ('[sweep]\nsamples = 2\n[random]\nQu = {normal = [0, "x"]}\n', "normal takes two finite numbers"),
+    ('[sweep]\nsamples = 2\n[random]\nQu = {uniform = ["a", "b"]}\n', "uniform takes two finite numbers"),
+    ("[sweep]\nsamples = 2\n[random]\nQu = {uniform = [0, inf]}\n", "uniform takes two finite numbers"),
+    ("[sweep]\nsamples = 2\n[random]\nN = {integers = [0, 1e30]}\n", "integers takes two integers"),
+    ("[sweep]\nsamples = 2\n[random]\nN = {integers = [1.5, 7]}\n", "integers takes two integers"),
+    ('[sweep]\ntrajectories = "no"\n', "trajectories = 'no' must be true or false"),
+    ('[sweep]\nname = "../../x"\n', "one folder name"),
+    ('[sweep]\nname = "/tmp/abs"\n', "one folder name"),
+    ("[sweep]\nname = 5\n", "name = 5"),
+    ("[sweep]\nsamples = 1000000000\n", "the limit is 100000"),
+    ("[grid]\n" + "".join(f"{n} = {list(range(1, 101))}\n" for n in ("N", "Qu", "Qy", "Ts", "No")),
+     "10000000000 cells (100 × 100 × 100 × 100 × 100)"),
+    ("a = " + "[" * 3000 + "]" * 3000 + "\n", "too deeply"),
+    ("[base]\nplatform_force = " + "[" * 40 + "1" + "]" * 40 + "\n", "more than 32 deep"),
+    ('[sweep]\nname = "x"\n[plots]\nheatmap = {x = "N", y = "Qu"}\n', "['N', 'Qu'] not among"),
+    ('[grid]\nN = [3]\n[plots]\nheatmap = {x = "N", y = "form", agg = "sum"}\n', "not among"),
+    ('[grid]\nN = [3]\nform = ["absolute"]\n[plots]\nheatmap = {x = "N", y = "form", agg = "sum"}\n', "agg 'sum'"),
+    ('[grid]\nN = [3]\n[plots]\npareto = {colour = "red"}\n', "colour"),
+]
+
+
+@pytest.mark.parametrize("text, words", BAD_SPECS)
+def test_bad_spec_values_are_one_line_errors_before_anything_runs(tmp_path, capsys, text, words):
+    from parallel_gpc.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text(text)
+    out = tmp_path / "out"
+    assert main(["sweep", str(spec), "--workers", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("parallel-gpc: error: ") and words in err, err
+    assert not out.exists()  # refused before any cell ran (and before the folder was made)
+
+
+def test_spec_files_are_bounded_regular_utf8_files(tmp_path):
+    import threading
+
+    from parallel_gpc.sweeps import SPEC_MAX_BYTES
+
+    fifo = tmp_path / "spec.toml"
+    os.mkfifo(fifo)
+    outcome = []
+
+    def load():
+        try:
+            load_spec(fifo)
+        except InvalidParameterError as exc:
+            outcome.append(str(exc))
+
+    thread = threading.Thread(target=load, daemon=True)  # a blocked open would hang the thread, not the suite
+    thread.start()
+    thread.join(20.0)
+    assert outcome and "is not a regular file" in outcome[0]
+    if os.path.exists("/dev/zero"):
+        with pytest.raises(InvalidParameterError, match="not a regular file"):
+            load_spec("/dev/zero")
+    big = tmp_path / "big.toml"
+    big.write_text("# " + "x" * SPEC_MAX_BYTES + "\n")
+    with pytest.raises(InvalidParameterError, match=f"the limit is {SPEC_MAX_BYTES} bytes"):
+        load_spec(big)
+    latin = tmp_path / "latin.toml"
+    latin.write_bytes(b'[sweep]\nname = "caf\xe9"\n')
+    with pytest.raises(InvalidParameterError, match="not UTF-8 text: byte 0xe9 at offset 19"):
+        load_spec(latin)
+    with pytest.raises(InvalidParameterError, match="does not exist"):
+        load_spec(tmp_path / "missing.toml")
+
+
+def test_the_cell_count_is_refused_before_expansion(monkeypatch):
+    from parallel_gpc.sweeps import MAX_CELLS, SweepSpec
+
+    def no_expansion(self):
+        raise AssertionError("cells() was called")
+
+    small = load_spec({"sweep": {"samples": 3}, "grid": {"N": [3, 4], "Qu": [1e-4, 1e-3, 1e-2]},
+                       "random": {"Qy": {"uniform": [0.5, 1.0]}}})
+    assert small.count == len(small.cells()) == 18  # the count is the expansion's length
+    monkeypatch.setattr(SweepSpec, "cells", no_expansion)
+    with pytest.raises(InvalidParameterError, match=f"the limit is {MAX_CELLS}"):
+        load_spec({"grid": {n: list(range(100)) for n in ("N", "Qu", "Qy", "Ts", "No")}})
+    with pytest.raises(InvalidParameterError, match=f"the limit is {MAX_CELLS}"):
+        load_spec({"sweep": {"samples": 10**9}})
+    assert load_spec({"sweep": {"samples": MAX_CELLS}}).count == MAX_CELLS
+
+
+def test_dry_run_counts_must_be_non_negative_and_print_exactly_k_cells(tmp_path, capsys):
+    from parallel_gpc.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[grid]\nN = [3, 4, 5]\n')
+    assert main(["sweep", str(spec), "--dry-run", "-1"]) == 2
+    assert "--dry-run -1" in capsys.readouterr().err
+    for k, shown in ((0, 0), (2, 2), (9, 3)):
+        assert main(["sweep", str(spec), "--dry-run", str(k), "--out", str(tmp_path / "o")]) == 0
+        assert len(capsys.readouterr().out.splitlines()) == shown
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", ["sweep", "robustness"])
+def test_a_bad_scheduler_address_is_one_line(tmp_path, capsys, command):
+    from parallel_gpc.cli import main
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[grid]\nN = [3]\n')
+    argv = [command, *([str(spec)] if command == "sweep" else []), "--scheduler", "bogus", "--out", str(tmp_path / "o")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "scheduler = 'bogus'" in err and "tcp://" in err
+    with pytest.raises(InvalidParameterError, match="not the address"):
+        run_sweep(tiny_spec(), scheduler="localhost:8786", progress=False)
+
+
+@pytest.mark.slow
+def test_ctrl_c_during_a_dask_sweep_is_quiet_and_keeps_the_cells(tmp_path):
+    """Ctrl-C as a terminal sends it: SIGINT to the whole process group (the sweep and its workers)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[base]\nrobot = "planar_3rrr"\nreference = "hold"\nduration = 3.0\nTs = 0.005\nQu = 1e-4\n'
+                    f'[grid]\nN = {list(range(3, 13))}\nform = ["absolute", "nonlinear"]\n')
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1] / "src"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    proc = subprocess.Popen([sys.executable, "-m", "parallel_gpc", "sweep", str(spec), "--workers", "2", "--out",
+                             str(out), "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env, start_new_session=True)
+    journal = out / "records.jsonl"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and not (journal.exists() and journal.read_text().count("\n") >= 2):
+        time.sleep(0.5)
+    os.killpg(proc.pid, signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    assert "Traceback" not in stderr and "WARNING" not in stderr, stderr
+    assert len(stderr.splitlines()) <= 3, stderr
+    kept = len(SweepStore(out).finished())
+    assert kept >= 2 and f"{kept} finished cells are saved" in stderr

@@ -15,3 +15,11 @@ DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platfor
 PAPER_FORMS = ("absolute", "incremental", "nonlinear")
 #: = :data:`parallel_gpc.gpc.robot_references.REFERENCE_KINDS`: the built-in references.
 REFERENCES = ("auto", "s-curve", "circle", "line", "helix", "hold")
+
+#: Exit code of a command whose input was refused (one-line error on stderr).
+EXIT_BAD_INPUT = 2
+#: Exit code of ``track`` / ``demo`` when a closed loop diverged: the run was valid input, its
+#: samples up to the divergence are saved and the message says where and why.
+EXIT_DIVERGED = 3
+#: Exit code of a command stopped by Ctrl-C (after saving what it computed).
+EXIT_INTERRUPTED = 130

@@ -17,7 +17,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .defaults import DEMO
-from .track import add_tracking_arguments, settings_from_args
+from .track import EXIT_CODES, add_tracking_arguments, outcome_code, settings_from_args
 from .vocabulary import add_forms_argument, selected_forms
 
 
@@ -57,10 +57,7 @@ def cmd_demo(args) -> int:
                save_figure(plot_paths(on, f"platform path, estimator on ({title})"), out / "demo_path.png")]
     _animations(args, robot, on, settings, out)
     print("wrote " + ", ".join(str(p) for p in written) + f" and demo_<form>_a<α>.npz in {out}")
-    if any(r.interrupted for r in runs.values()):
-        print("interrupted: partial results saved")
-        return 130
-    return 0
+    return outcome_code(runs.values())
 
 
 def _animations(args, robot, results, settings, out: Path) -> None:
@@ -83,7 +80,7 @@ def register_demo(sub) -> None:
     """Add the ``demo`` sub-command."""
     p = sub.add_parser("demo", help="the main job: the paper's Fig. 2 comparison of the GPC forms on the default robot",
                        description=__doc__.split("\n\n")[0] + " Qu = 0 (dead-beat, form-independent) and Qu > 0 "
-                       "on a mismatched, loaded plant with the disturbance estimate off and on.")
+                       "on a mismatched, loaded plant with the disturbance estimate off and on.", epilog=EXIT_CODES)
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     add_forms_argument(p)
     p.add_argument("--deadbeat-duration", type=float, default=1.0, help="s of the Qu = 0 lockstep check (default 1)")

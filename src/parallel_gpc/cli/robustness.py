@@ -9,11 +9,8 @@ from __future__ import annotations
 
 import sys
 
-from .defaults import DEFAULT_ROBOT, PAPER_FORMS
+from .defaults import DEFAULT_ROBOT, EXIT_INTERRUPTED, PAPER_FORMS
 from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
-
-#: Exit code of a run stopped by Ctrl-C (after saving what it computed).
-EXIT_INTERRUPTED = 130
 
 #: ``--quick``: fewer cases (nominal, ±30 % mass, one noise level, one force), same runs.
 QUICK = dict(mass_scales=(0.7, 1.3), noise_levels=(1e-4,), disturbances=(20.0,))

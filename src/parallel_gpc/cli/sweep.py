@@ -3,8 +3,10 @@
 A thin layer over :func:`parallel_gpc.sweeps.runner.run_sweep`: expands the spec, runs
 the cells not yet in ``--out`` (a local cluster by default, ``--workers 0`` serial,
 ``--scheduler tcp://HOST:PORT`` an existing cluster), writes ``results.parquet``/``results.csv``
-and the plots of the spec's ``[plots]`` table, and prints a summary. Ctrl-C keeps the finished
-cells (a rerun resumes) and exits with code 130.
+and the plots of the spec's ``[plots]`` table (validated before any cell runs), and prints a
+summary. Cells whose closed loop diverged are results (status ``diverged``, metrics of the part
+run), counted in the summary and marked in the plots. ``--out`` is locked while the sweep runs.
+Ctrl-C keeps the finished cells (a rerun resumes) and exits with code 130.
 """
 
 from __future__ import annotations
@@ -13,8 +15,8 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-#: Exit code of a sweep stopped by Ctrl-C (after saving what it computed).
-EXIT_INTERRUPTED = 130
+from ..errors import InvalidParameterError
+from .defaults import EXIT_INTERRUPTED
 HELP = "grid / Monte-Carlo sweep of closed-loop runs on Dask (resumable, Parquet + CSV)"
 DESCRIPTION = ("Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) into cells, run them as independent "
                "tasks on a local or remote Dask cluster, and write a tidy table. A rerun skips the cells already "
@@ -22,33 +24,41 @@ DESCRIPTION = ("Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) 
 
 
 def cmd_sweep(args) -> int:
-    from ..plots import plot_sweep
-    from ..sweeps import load_spec
-    from ..sweeps import run_sweep
-    from ..sweeps import SweepStore
+    from ..plots import check_plots, plot_sweep
+    from ..sweeps import SweepStore, check_scheduler, load_spec, run_sweep
 
+    if args.dry_run is not None and args.dry_run < 0:
+        raise InvalidParameterError(f"--dry-run {args.dry_run}: the number of cells to print must be ≥ 0")
+    check_scheduler(args.scheduler)
     spec = load_spec(args.spec)
+    check_plots(spec.plots, spec.columns)
+    print(f"sweep {spec.name!r}: {spec.count} cells over {list(spec.axes) or 'no axes'}", file=sys.stderr)
     cells = spec.cells()
     if args.trajectories:
         cells = [type(c)(c.index, c.params, True) for c in cells]
-    print(f"sweep {spec.name!r}: {len(cells)} cells over {list(spec.axes) or 'no axes'}", file=sys.stderr)
-    if args.dry_run:
+    if args.dry_run is not None:
         for cell in cells[: args.dry_run]:
             print(f"  {cell.index:>5} {cell.key} {cell.params}")
         return 0
     out = Path(args.out or Path("out/sweep") / spec.name)
     store = SweepStore(out)
-    store.save_spec(spec)
-    result = run_sweep(cells, workers=args.workers, scheduler=args.scheduler, store=store,
-                       progress=not args.no_progress, retry_failed=args.retry_failed)
+    with store.locked():
+        store.save_spec(spec)
+        result = run_sweep(cells, workers=args.workers, scheduler=args.scheduler, store=store,
+                           progress=not args.no_progress, retry_failed=args.retry_failed)
+    if result.skipped_lines:
+        print(f"parallel-gpc: {store.journal}: skipped {result.skipped_lines} lines that are not records (their "
+              "cells ran again)", file=sys.stderr)
     frame = result.frame()
     ok = int((frame["status"] == "ok").sum()) if len(frame) else 0
     print(f"{len(frame)} of {result.total} cells finished ({result.ran} run now, {result.skipped} reused): "
-          f"{ok} ok, {result.failed} failed")
-    errors = [r["error"] for r in result.records if r["status"] == "failed"]
-    for kind, count in Counter(e.split(":", 1)[0] for e in errors).most_common():
-        example = next(e for e in errors if e.startswith(kind))
-        print(f"  failed x{count}: {kind}, e.g. {example[len(kind) + 2:][:150]}")
+          f"{ok} ok, {result.diverged} diverged, {result.failed} failed")
+    for status in ("diverged", "failed"):
+        errors = [r["error"] for r in result.records if r["status"] == status]
+        kinds = Counter(_kind(e) for e in errors)
+        for kind, count in kinds.most_common():
+            example = next(e for e in errors if _kind(e) == kind)
+            print(f"  {status} x{count}: {kind}, e.g. {example[:200]}")
     paths = [out / "results.parquet", out / "results.csv"]
     if ok and spec.plots:
         paths += plot_sweep(frame, spec.plots, out)
@@ -57,6 +67,12 @@ def cmd_sweep(args) -> int:
         return 0
     print(f"parallel-gpc: interrupted; {len(frame)} finished cells are saved, rerun to resume", file=sys.stderr)
     return EXIT_INTERRUPTED
+
+
+def _kind(error: str) -> str:
+    """The exception type of a record's error: ``"Name: …"`` (failed) or ``"… (cause: Name: …)"`` (diverged)."""
+    cause = error.partition("(cause: ")[2]
+    return (cause or error).split(":", 1)[0]
 
 
 def register_sweep(sub) -> None:
@@ -69,7 +85,7 @@ def register_sweep(sub) -> None:
     p.add_argument("--scheduler", default=None, help="address tcp://HOST:PORT of a running Dask scheduler")
     p.add_argument("--retry-failed", action="store_true", help="run the cells recorded as failed again")
     p.add_argument("--trajectories", action="store_true", help="also save each cell's time histories (.npz)")
-    p.add_argument("--dry-run", type=int, nargs="?", const=10, default=0, metavar="K",
+    p.add_argument("--dry-run", type=int, nargs="?", const=10, default=None, metavar="K",
                    help="only expand the spec: print the cell count and the first K cells (default 10)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_sweep)

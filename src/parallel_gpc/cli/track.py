@@ -2,15 +2,18 @@
 or a CSV file) with each GPC form on the nonlinear plant.
 
 Writes ``track_<form>.npz`` (result files that ``parallel-gpc view`` opens), ``track_path.png``
-and ``track_time.png``. ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
+and ``track_time.png``. A form whose closed loop diverges keeps its samples up to there (its
+file's ``meta["stopped"]`` says where and why), the other forms run; the command then prints the
+divergence and exits with :data:`~parallel_gpc.cli.defaults.EXIT_DIVERGED` (3). ``demo`` (:mod:`~parallel_gpc.cli.demo`) shares the options, with the
 comparison's defaults.
 """
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
-from .defaults import DEFAULT_ROBOT, TRACKING
+from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
@@ -100,10 +103,20 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     last = results[list(results)[-1]]
     flags = saturation_flags(last.u, settings.limits, rtol=1e-5)
     show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
-    if any(r.interrupted for r in results.values()):
+    return outcome_code(results.values())
+
+
+def outcome_code(results) -> int:
+    """Print why runs stopped early; the exit code: 130 if Ctrl-C stopped one, else 3 if a closed
+    loop diverged, else 0. ``results``: SimulationResults, already saved."""
+    for res in results:
+        if res.diverged:
+            print(f"parallel-gpc: {res.meta.get('form', '')} GPC: {res.stopped}; its samples up to there are saved",
+                  file=sys.stderr)
+    if any(r.interrupted for r in results):
         print("interrupted: partial results saved")
-        return 130
-    return 0
+        return EXIT_INTERRUPTED
+    return EXIT_DIVERGED if any(r.diverged for r in results) else 0
 
 
 def cmd_track(args) -> int:
@@ -112,10 +125,16 @@ def cmd_track(args) -> int:
     return run_and_report(settings_from_args(args), forms, Path(args.out), args, title)
 
 
+#: The exit codes, in ``track --help`` and ``demo --help``.
+EXIT_CODES = (f"exit codes: 0 done; 2 bad input (one-line error, nothing run); {EXIT_DIVERGED} a closed loop "
+              f"diverged (its samples up to there and the other forms are saved; the message gives t, the "
+              f"position error and the cause); {EXIT_INTERRUPTED} Ctrl-C (partial results saved)")
+
+
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
     p = sub.add_parser("track", help="track a reference (a built-in path in the robot's outputs, a hold or a CSV "
-                                     "file) with each GPC form on the full constrained plant")
+                                     "file) with each GPC form on the full constrained plant", epilog=EXIT_CODES)
     add_forms_argument(p, None, "--form")  # --form: the earlier spelling, still accepted
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)

@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import AssemblyError, InvalidParameterError, ShapeError, SingularPoseError, UnreachablePoseError
+from ..errors import (AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError,
+                      UnreachablePoseError)
 from ..model.dynamics import ReducedModel
 from ..validation import positive
 from .protocol import condition_number
@@ -198,13 +199,15 @@ def check_times(reference: Reference, duration: float, Ts: float) -> np.ndarray:
     return times
 
 
-def check_reference(robot, reference: Reference, times, max_condition: float,
+def check_reference(robot, reference: Reference, times, max_condition: float | None,
                     model: ReducedModel | None = None) -> None:
     """Assemble ``reference`` at ``times`` (s) on ``robot``'s home branch, warm-started along
-    the path, and check cond(M_r⁻¹ B_r) ≤ ``max_condition`` (the controller's limit) at each pose.
+    the path, and check cond(M_r⁻¹ B_r) ≤ ``max_condition`` (the controller's limit) at each pose
+    (None: assembly only, the cheap check).
 
     Raises:
         ShapeError: the reference has another number of outputs than the robot.
+        NonFiniteError: a pose is NaN or infinite.
         UnreachablePoseError: a pose cannot be assembled (outside the workspace).
         SingularPoseError: a pose is near-singular.
         Both name the first bad pose and its time in one line.
@@ -215,15 +218,20 @@ def check_reference(robot, reference: Reference, times, max_condition: float,
     if poses.shape[1] != robot.n_y:
         raise ShapeError(f"the reference has {poses.shape[1]} outputs; robot {robot.name!r} has {robot.n_y}: "
                          f"{space.describe()}")
-    model = ReducedModel(robot) if model is None else model
+    if max_condition is not None:
+        model = ReducedModel(robot) if model is None else model
     q = None
     for t, pose in zip(times, poses):
         where = (f"reference pose {np.round(pose, 6).tolist()} ({', '.join(space.labels)}) at t = {t:.4g} s")
+        if not np.all(np.isfinite(pose)):
+            raise NonFiniteError(f"the {where} is not finite; poses must be finite")
         try:
             q = robot.assemble(pose, q)
         except AssemblyError:
             raise UnreachablePoseError(f"{where} is outside the workspace of {robot.name!r} (it cannot be "
                                        "assembled on the home branch); use a smaller or shifted reference") from None
+        if max_condition is None:
+            continue
         cond = gain_condition(model, q)
         if cond > max_condition:
             raise SingularPoseError(f"{where} is near-singular on {robot.name!r}: cond(M_r⁻¹ B_r) = {cond:.3g} > "

@@ -39,31 +39,35 @@ INERTIA_RTOL = 1e-9
 
 
 # ---------------------------------------------------------------------------- bounded reads
-def read_bounded(path, limit: int, what: str) -> bytes:
+def read_bounded(path, limit: int, what: str, error=RobotFormatError) -> bytes:
     """The bytes of a regular file of at most ``limit`` bytes (size checked before reading).
 
+    Args:
+        path: the file. limit: bytes. what: its role, for the message. error: the package error
+            class to raise (a robot file's by default; the sweep spec gives InvalidParameterError).
+
     Raises:
-        RobotFormatError: missing, not a regular file (folder, device, FIFO), or too large.
+        error: missing, not a regular file (folder, device, FIFO), or too large.
     """
     path = Path(path)
-    size = regular_file(path, what, RobotFormatError)
+    size = regular_file(path, what, error)
     if size > limit:
-        raise RobotFormatError(f"{what} {str(path)!r} has {size} bytes; the limit is {limit} bytes")
+        raise error(f"{what} {str(path)!r} has {size} bytes; the limit is {limit} bytes")
     with open(path, "rb") as f:
         data = f.read(limit + 1)
     if len(data) > limit:  # grew while we looked
-        raise RobotFormatError(f"{what} {str(path)!r} has more than {limit} bytes; the limit is {limit} bytes")
+        raise error(f"{what} {str(path)!r} has more than {limit} bytes; the limit is {limit} bytes")
     return data
 
 
-def read_text_bounded(path, limit: int, what: str) -> str:
+def read_text_bounded(path, limit: int, what: str, error=RobotFormatError) -> str:
     """:func:`read_bounded`, decoded as UTF-8 (an error names the first bad byte's offset)."""
-    data = read_bounded(path, limit, what)
+    data = read_bounded(path, limit, what, error)
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as exc:
-        raise RobotFormatError(f"{what} {str(path)!r} is not UTF-8 text: byte {data[exc.start]:#04x} at offset "
-                               f"{exc.start}") from None
+        raise error(f"{what} {str(path)!r} is not UTF-8 text: byte {data[exc.start]:#04x} at offset "
+                    f"{exc.start}") from None
 
 
 def check_robot_argument(name_or_path) -> None:

@@ -17,7 +17,7 @@ _PUBLIC = {
     "plot_fig3": "planning", "plot_fig4": "planning", "robot_outline": "planning",
     "plot_robustness": "robustness",
     "heatmap": "sweep", "pareto_front": "sweep", "pareto_mask": "sweep", "robustness_bands": "sweep",
-    "plot_sweep": "sweep",
+    "plot_sweep": "sweep", "check_plots": "sweep",
     "plot_results": "bench",
 }
 

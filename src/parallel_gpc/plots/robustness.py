@@ -25,7 +25,7 @@ def plot_robustness(result: RobustnessResult) -> Figure:
         for form in forms:
             nominal = [r for r in result.rows if r["form"] == form and r["study"] == "nominal"]
             rows = nominal + [r for r in result.rows if r["form"] == form and r["study"] == study]
-            pts = sorted((r["value"], r[key]) for r in rows if r["status"] != "interrupted")
+            pts = sorted((r["value"], r[key]) for r in rows if r["status"] == "ok")
             pts = [(x, y) for x, y in pts if not math.isnan(y)]
             if pts:
                 xs, ys = zip(*pts)

@@ -3,12 +3,15 @@
 Every function takes the tidy table (a pandas DataFrame from
 :func:`~parallel_gpc.sweeps.store.load_results` or ``SweepResult.frame()``) and returns a
 matplotlib :class:`~matplotlib.figure.Figure` (no pyplot, the caller's backend is untouched);
-save it with ``fig.savefig(path)``. Only cells with status ``"ok"`` enter the statistics; failed
-cells are shown as such (grey "failed" cells in a heatmap, a count in the titles).
+save it with ``fig.savefig(path)``. Only cells with status ``"ok"`` enter the statistics; the
+others are shown as such: a heatmap square with no ok run is grey and labelled "diverged" (its
+closed loops diverged) or "failed", a value marked ``*`` also had diverged runs, and the titles
+count the cells left out. :func:`check_plots` validates a ``[plots]`` table before any cell runs.
 """
 
 from __future__ import annotations
 
+import inspect
 import math
 from pathlib import Path
 
@@ -52,6 +55,14 @@ def _ok(frame):
     return frame[frame["status"] == "ok"] if "status" in frame else frame
 
 
+def _left_out(frame) -> str:
+    """Title note counting the cells that are not ok: ``", 2 diverged, 1 failed"``."""
+    if "status" not in frame:
+        return ""
+    counts = frame["status"].value_counts()
+    return "".join(f", {int(counts[s])} {s}" for s in ("diverged", "failed", "interrupted") if s in counts)
+
+
 def _select(frame, where: dict | None):
     """The rows whose columns equal the values of ``where`` (e.g. ``{"form": "nonlinear"}``)."""
     for column, value in (where or {}).items():
@@ -92,6 +103,10 @@ def heatmap(frame, x: str, y: str, metric: str = "rms_position_error_m", agg: st
         values = group[metric].astype(float).dropna()
         if len(values):
             grid[ys.index(yv), xs.index(xv)] = factor * getattr(values, agg)()
+    diverged = np.zeros(grid.shape, dtype=bool)
+    if "status" in frame:
+        for (xv, yv), group in frame[frame["status"] == "diverged"].groupby([x, y]):
+            diverged[ys.index(yv), xs.index(xv)] = True
     fig = _figure((1.6 + 0.9 * len(xs), 1.4 + 0.55 * len(ys)))
     ax = fig.add_subplot()
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.8")
@@ -99,13 +114,15 @@ def heatmap(frame, x: str, y: str, metric: str = "rms_position_error_m", agg: st
     finite = grid[np.isfinite(grid)]
     middle = np.nanmedian(finite) if finite.size else 0.0
     for (i, j), value in np.ndenumerate(grid):
-        text = "failed" if np.isnan(value) else f"{value:.3g}"
+        text = ("diverged" if diverged[i, j] else "failed") if np.isnan(value) \
+            else f"{value:.3g}" + ("*" if diverged[i, j] else "")
         ax.text(j, i, text, ha="center", va="center", fontsize=7, color="k" if np.isnan(value) or value > middle else "w")
     ax.set_xticks(range(len(xs)), [_tick(v) for v in xs])
     ax.set_yticks(range(len(ys)), [_tick(v) for v in ys])
     ax.set_xlabel(x)
     ax.set_ylabel(y)
-    ax.set_title(f"{agg} {label}" + "".join(f", {k} = {v}" for k, v in (where or {}).items()), fontsize=10)
+    ax.set_title(f"{agg} {label}" + "".join(f", {k} = {v}" for k, v in (where or {}).items())
+                 + (" (* some runs diverged)" if np.any(diverged & np.isfinite(grid)) else ""), fontsize=10)
     fig.colorbar(image, ax=ax, label=label)
     return fig
 
@@ -161,9 +178,7 @@ def pareto_front(frame, error: str = "rms_position_error_m", cost: str = "drive_
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
-    failed = len(frame) - len(ok)
-    ax.set_title(f"{front.sum()} of {len(ok)} cells on the front" + (f", {failed} not ok" if failed else ""),
-                 fontsize=10)
+    ax.set_title(f"{front.sum()} of {len(ok)} ok cells on the front" + _left_out(frame), fontsize=10)
     ax.legend(fontsize=8)
     return fig
 
@@ -192,13 +207,63 @@ def robustness_bands(frame, x: str = "mass_scale", metric: str = "rms_position_e
     ax.set_xlabel(x)
     ax.set_ylabel(label)
     ax.grid(True, alpha=0.3)
-    ax.set_title(f"median and {lo:.0%}–{hi:.0%} band", fontsize=10)
+    ax.set_title(f"median and {lo:.0%}–{hi:.0%} band of the ok cells" + _left_out(frame), fontsize=10)
     ax.legend(fontsize=8)
     return fig
 
 
 #: Plot kinds of a spec's [plots] table and the function drawing each.
 PLOT_KINDS = {"heatmap": heatmap, "pareto": pareto_front, "bands": robustness_bands}
+
+
+#: Arguments of the plot functions that name one column of the table.
+_COLUMN_ARGUMENTS = ("x", "y", "metric", "error", "cost", "group")
+
+
+def check_plots(plots, columns) -> None:
+    """Validate a spec's ``[plots]`` table before any cell runs: known kinds, arguments the plot
+    function takes, column names the table will have (``columns``), ``agg`` and ``quantiles``.
+    (Whether a ``where`` selects any row is known only from the results.)
+
+    Args:
+        plots: the ``[plots]`` table. columns: the columns of the sweep's table
+            (:attr:`~parallel_gpc.sweeps.spec.SweepSpec.columns`).
+
+    Raises:
+        InvalidParameterError: naming the plot, the argument and what is valid.
+    """
+    if not isinstance(plots, dict):
+        raise InvalidParameterError(f"[plots] must be a table of plot kinds, got {plots!r}")
+    columns = list(columns)
+    for kind, requests in plots.items():
+        if kind not in PLOT_KINDS:
+            raise InvalidParameterError(f"[plots] {kind!r} is not one of {list(PLOT_KINDS)}")
+        for kwargs in requests if isinstance(requests, list) else [requests]:
+            if not isinstance(kwargs, dict):
+                raise InvalidParameterError(f"[plots] {kind}: each plot is a table of arguments, got {kwargs!r}")
+            try:
+                bound = inspect.signature(PLOT_KINDS[kind]).bind(None, **kwargs)
+            except TypeError as exc:
+                raise InvalidParameterError(f"[plots] {kind} {kwargs}: {exc}") from None
+            bound.apply_defaults()
+            args = bound.arguments
+            named = [args[k] for k in _COLUMN_ARGUMENTS if args.get(k) is not None]
+            labels, where = args.get("labels", ()), args.get("where") or {}
+            if not isinstance(labels, (list, tuple)) or not isinstance(where, dict):
+                raise InvalidParameterError(f"[plots] {kind} {kwargs}: labels must be a list of columns and where "
+                                            "a table {column = value}")
+            bad = [c for c in [*named, *labels, *where] if not isinstance(c, str) or c not in columns]
+            if bad:
+                raise InvalidParameterError(f"[plots] {kind} {kwargs}: {bad} not among the sweep table's columns "
+                                            f"{columns}")
+            if args.get("agg", "mean") not in ("mean", "median", "max", "min"):
+                raise InvalidParameterError(f"[plots] {kind}: agg {args['agg']!r} is not one of mean, median, max, min")
+            q = args.get("quantiles", (0.05, 0.95))
+            if not (isinstance(q, (list, tuple)) and len(q) == 2 and all(isinstance(v, (int, float))
+                                                                       and not isinstance(v, bool) for v in q)
+                    and 0.0 <= q[0] < q[1] <= 1.0):
+                raise InvalidParameterError(f"[plots] {kind}: quantiles {q!r} must be [low, high] with "
+                                            "0 ≤ low < high ≤ 1")
 
 
 def plot_sweep(frame, plots: dict, directory) -> list:

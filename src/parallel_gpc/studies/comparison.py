@@ -146,5 +146,5 @@ def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
                      f"{1e3 * m['max_position_error_m']:9.3g} {1e3 * steady_state_error(res):9.2e} "
                      f"{1e3 * m['rms_orientation_error_rad']:9.3g} {m['peak_torque_Nm']:7.2f} "
                      f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}"
-                     + ("  (interrupted)" if res.interrupted else ""))
+                     + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
     return "\n".join(lines)

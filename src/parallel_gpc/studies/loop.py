@@ -21,11 +21,27 @@ from ..estimation.plant import check_measurement
 from ..estimation.sensors import Sensors
 from ..results import robot_reference
 from ..validation import check_allocation, positive
-from .simulation import SimulationResult, null_space_components
+from ..gpc.plan_settings import INTERRUPTED
+from .simulation import DIVERGENCE_ERRORS, SimulationResult, divergence_message, null_space_components
 
 
 def _window(reference, t: float, Ts: float, N: int) -> np.ndarray:
     return reference.window(t, Ts, N)
+
+
+def _control(controller, estimator, reference, X_hat, u_pending, t: float, Ts: float, N: int, delay: bool):
+    """One controller step from the estimate: (step info, input applied now, input pending); with a
+    one-sample computation delay u(k) is computed from x̂(k+1|k) and applied one sample later."""
+    if not delay:
+        info = controller.step(X_hat, _window(reference, t, Ts, N))
+        return info, info.u, u_pending
+    if estimator is not None:
+        X_ctrl = estimator.ahead(u_pending)
+    else:
+        Ad, Bd, cd = controller.discrete_model(X_hat)
+        X_ctrl = Ad @ X_hat + Bd @ u_pending + cd
+    info = controller.step(X_ctrl, _window(reference, t + Ts, Ts, N))
+    return info, u_pending, info.u
 
 
 def run_loop(controller, plant, reference, duration: float, sensors: Sensors | None = None,
@@ -87,7 +103,7 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
                            "iterations", "status", "fallback", "saturated", "estimate", "truth", "B_r")}
     u_pending = controller.u_prev.copy()
     overruns = 0
-    interrupted = False
+    stopped = ""
     try:
         for k in range(K):
             t = k * Ts
@@ -98,17 +114,14 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
             else:
                 X_hat = estimator.update(meas)
                 controller.disturbance = estimator.disturbance
-            if computation_delay:
-                if estimator is not None:
-                    X_ctrl = estimator.ahead(u_pending)
-                else:
-                    Ad, Bd, cd = controller.discrete_model(X_hat)
-                    X_ctrl = Ad @ X_hat + Bd @ u_pending + cd
-                info = controller.step(X_ctrl, _window(reference, t + Ts, Ts, N))
-                u_applied, u_pending = u_pending, info.u
-            else:
-                info = controller.step(X_hat, _window(reference, t, Ts, N))
-                u_applied = info.u
+            try:
+                info, u_applied, u_pending = _control(controller, estimator, reference, X_hat, u_pending, t, Ts, N,
+                                                      computation_delay)
+            except DIVERGENCE_ERRORS as exc:  # no input for t_k: the samples before t_k are the run
+                if not rec["t"]:
+                    raise
+                stopped = divergence_message(exc, t, rec, K, robot.output_angular)
+                break
             elapsed = time.perf_counter() - t0
             overruns += elapsed > Ts
             X_true = None if truth is None else np.asarray(truth(), dtype=float)
@@ -136,7 +149,7 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
             rec["estimate"].append(X_hat)
             rec["truth"].append(X_rec)
     except KeyboardInterrupt:
-        interrupted = True
+        stopped = f"{INTERRUPTED} after {min(len(v) for k, v in rec.items() if k != 'B_r')} of {K} samples"
     done = min(len(v) for k, v in rec.items() if k != "B_r")
     if not done:
         raise KeyboardInterrupt
@@ -150,5 +163,5 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
                  "Nu": controller.horizons.Nu, "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "limits": controller.limits.to_dict(), "sensors": sensors.kind,
                  "computation_delay": bool(computation_delay), "deadline_overruns": int(overruns), **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, outputs=robot.output_space,
+    return SimulationResult(**arrays, meta=info_meta, stopped=stopped, outputs=robot.output_space,
                             limits=controller.limits, estimate_error=estimate_error, overruns=int(overruns))

@@ -3,8 +3,11 @@
 ``simulate`` runs the controller against a plant (full constrained model by default), with
 optional measurement noise; the plant may carry model mismatch, drive saturation and a
 disturbance force. The result holds the time histories, per-step solver statistics and the
-metrics table, and saves to ``.npz`` or ``.csv``. Ctrl-C ends the run early and keeps what was
-computed (``result.interrupted``).
+metrics table, and saves to ``.npz`` or ``.csv``. A run that ends early keeps what it computed,
+with the reason in ``result.stopped``: Ctrl-C (``result.interrupted``), or a closed loop that
+diverged (``result.diverged``: the plant or the controller raised one of
+:data:`DIVERGENCE_ERRORS` after the first sample, e.g. the platform left the workspace). A
+reference that leaves the workspace is refused before the run (:func:`check_reference`).
 """
 
 from __future__ import annotations
@@ -17,12 +20,22 @@ import numpy as np
 from tqdm import tqdm
 
 from ..gpc.controller import GPCController
+from ..gpc.plan_settings import INTERRUPTED
 from ..gpc.references import Reference, pose_error_norms
-from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
+from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError
+from ..gpc.robot_references import check_reference
+from ..limits import Limits
 from ..model.output_space import OutputSpace
 from ..results import robot_reference, save_result, saturation_flags
-from ..limits import Limits
 from ..validation import check_allocation, check_sample_time, finite_vector, positive
+
+#: Errors of the plant or the controller that mean "this closed loop diverged" once it has run:
+#: the run stops there and keeps its samples (before the first sample they are raised).
+DIVERGENCE_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError, SolverError)
+#: How :attr:`SimulationResult.stopped` starts when the closed loop diverged.
+DIVERGED = "closed loop diverged"
+#: Most reference poses :func:`simulate` assembles before a run (the cheap check).
+REFERENCE_CHECKS = 50
 
 
 @dataclass
@@ -38,7 +51,9 @@ class SimulationResult:
         step_time, solve_time: (K,) s. iterations: (K,) (−1 if not reported).
         status: (K,) solver status strings. fallback: (K,) bool. saturated: (K,) bool.
         meta: settings of the run (robot, form, solver, horizons, weights, Ts, …).
-        interrupted: True if the run was stopped early (Ctrl-C).
+        stopped: empty if the run reached its end; otherwise why it stopped early, the arrays
+            ending there: ``"interrupted (Ctrl-C) after k of K samples"`` or
+            ``"closed loop diverged at t = … s …: position error … m … (cause: Error: message)"``.
         limits: the controller's input :class:`~parallel_gpc.limits.Limits` (the result file's
             per-drive saturation flags mark where |u| reached its torque limit).
         outputs: names and units of the outputs and the drives' unit
@@ -63,7 +78,7 @@ class SimulationResult:
     fallback: np.ndarray
     saturated: np.ndarray
     meta: dict = field(default_factory=dict)
-    interrupted: bool = False
+    stopped: str = ""
     limits: Limits = field(default_factory=Limits)
     estimate_error: np.ndarray | None = None
     overruns: int = 0
@@ -79,6 +94,21 @@ class SimulationResult:
     def output_space(self) -> OutputSpace:
         """:attr:`outputs`, or the planar convention's when the result has none."""
         return self.outputs or OutputSpace.from_angular(None, self.pose.shape[1])
+
+    @property
+    def interrupted(self) -> bool:
+        """True if Ctrl-C stopped the run (the arrays hold the samples before)."""
+        return self.stopped.startswith(INTERRUPTED)
+
+    @property
+    def diverged(self) -> bool:
+        """True if the closed loop diverged (the arrays hold the samples up to there)."""
+        return self.stopped.startswith(DIVERGED)
+
+    @property
+    def outcome(self) -> str:
+        """``"ok"`` (ran to its end), ``"interrupted"`` or ``"diverged"``."""
+        return "interrupted" if self.interrupted else "diverged" if self.diverged else "ok"
 
     @property
     def error(self) -> np.ndarray:
@@ -132,10 +162,11 @@ class SimulationResult:
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
                                                "solve_time", "iterations", "status", "fallback")}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
-        extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted))
+        extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted),
+                     diverged=np.array(self.diverged))
         save_result(path, self.meta.get("robot_file") or None, self.t, self.q, reference=self.reference,
                     saturated=saturation_flags(self.u, self.limits, rtol=1e-5),
-                    kind="tracking", meta=self.meta, arrays=extra)
+                    kind="tracking", meta={**self.meta, "stopped": self.stopped}, arrays=extra)
         return path
 
 
@@ -183,8 +214,18 @@ def _step(controller: GPCController, X: np.ndarray, meas: np.ndarray, w: np.ndar
                         f"controller's model fails: {exc}") from None
 
 
+def divergence_message(exc: Exception, t: float, rec: dict, K: int, angular) -> str:
+    """The :attr:`SimulationResult.stopped` text of a run that raised ``exc`` in the step from t_k = ``t``."""
+    n = len(rec["t"])
+    last = np.asarray(rec["pose"][-1]) - np.asarray(rec["reference"][-1])
+    position = float(pose_error_norms(last[None, :], angular)[0][0])
+    return (f"{DIVERGED} at t = {t:.6g} s after {n} of {K} samples: position error {position:.3g} m at "
+            f"t = {rec['t'][-1]:.6g} s (cause: {type(exc).__name__}: {' '.join(str(exc).split())})")
+
+
 def simulate(controller: GPCController, plant, reference: Reference, duration: float,
-             noise_std=None, seed: int = 0, progress: bool = True, meta: dict | None = None) -> SimulationResult:
+             noise_std=None, seed: int = 0, progress: bool = True, meta: dict | None = None,
+             check: bool = True) -> SimulationResult:
     """Run the closed loop for ``duration`` s at the controller's Ts.
 
     Args:
@@ -198,6 +239,22 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         seed: random seed of the noise.
         progress: show a progress bar.
         meta: extra settings stored in the result.
+        check: assemble the reference at up to :data:`REFERENCE_CHECKS` sample times before the
+            run (:func:`~parallel_gpc.gpc.robot_references.check_reference`, assembly only);
+            False when the caller checked it already (``run_tracking`` checks conditioning too).
+
+    Returns:
+        The :class:`SimulationResult`; ``stopped`` says why it ended early, if it did. Ctrl-C, or
+        one of :data:`DIVERGENCE_ERRORS` raised by the controller or the plant after the first
+        sample, ends the run and keeps the samples so far (a step whose plant integration fails
+        still records its state and input).
+
+    Raises:
+        UnreachablePoseError: the reference leaves the workspace (``check``).
+        KeyboardInterrupt: Ctrl-C before the first sample.
+        AssemblyError, SingularPoseError, NonFiniteError, SolverError: the controller fails at
+            the initial state, or the plant within the first sample (no run to keep: the
+            settings, e.g. a force or Ts, are at fault).
     """
     Ts = controller.Ts
     duration = positive("duration", duration, " s")
@@ -220,13 +277,16 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
         if not np.all(np.isfinite(noise_std)) or np.any(noise_std < 0):
             raise InvalidParameterError(f"noise_std = {np.asarray(noise_std).tolist()} must be finite and ≥ 0 "
                                         f"(a scalar or {2 * n_y} values for [y, ẏ])")
+    if check:
+        ks = np.unique(np.linspace(0, K - 1, min(K, REFERENCE_CHECKS)).round())
+        check_reference(robot, reference, ks * Ts, None)
     rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time",
                            "solve_time", "iterations", "status", "fallback", "saturated")}
     B_rs = []  # (n_y, n_u) B_r per sample with redundant drives: internal force after the loop
     N = controller.horizons.N
     batched = type(reference).window is Reference.window  # else the subclass's own window()
     windows = None
-    interrupted = False
+    stopped = ""
     try:
         for k in tqdm(range(K), disable=not progress, desc=f"{controller.form} GPC", unit="step", leave=False):
             t = k * Ts
@@ -239,12 +299,25 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                 w, pose_t = rows[1:], rows[0]
             else:
                 w, pose_t = reference.window(t, Ts, N), reference.pose(t)
-            info = _step(controller, X, meas, w, noise_std)
-            q = np.array(plant.q)
-            if n_u > n_y:
-                B_rs.append(plant.input_matrix())  # at the state u was computed for
+            try:
+                info = _step(controller, X, meas, w, noise_std)
+                q = np.array(plant.q)
+                B_r = plant.input_matrix() if n_u > n_y else None  # at the state u was computed for
+            except DIVERGENCE_ERRORS as exc:  # no input for t_k: the samples before t_k are the run
+                if not rec["t"]:
+                    raise
+                stopped = divergence_message(exc, t, rec, K, robot.output_angular)
+                break
             sat_before = plant.saturated
-            plant.step(info.u)
+            failure = None
+            try:
+                plant.step(info.u)
+            except DIVERGENCE_ERRORS as exc:  # the state at t_k and the input applied from it are a sample
+                if k == 0:  # within the first sample: the input (e.g. a force) is at fault, not a run
+                    raise
+                failure = exc
+            if B_r is not None:
+                B_rs.append(B_r)
             rec["t"].append(t)
             rec["reference"].append(pose_t)
             rec["pose"].append(X[:n_y])
@@ -257,8 +330,11 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             rec["status"].append(info.result.status)
             rec["fallback"].append(info.fallback)
             rec["saturated"].append(plant.saturated > sat_before)
+            if failure is not None:
+                stopped = divergence_message(failure, t, rec, K, robot.output_angular)
+                break
     except KeyboardInterrupt:
-        interrupted = True
+        stopped = f"{INTERRUPTED} after {min(len(v) for v in rec.values())} of {K} samples"
     if not rec["t"]:
         raise KeyboardInterrupt
     arrays = {k: np.asarray(v) for k, v in rec.items()}
@@ -270,5 +346,5 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
                  "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
                  "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
                  "limits": controller.limits.to_dict(), **(meta or {})}
-    return SimulationResult(**arrays, meta=info_meta, interrupted=interrupted, outputs=robot.output_space,
+    return SimulationResult(**arrays, meta=info_meta, stopped=stopped, outputs=robot.output_space,
                             limits=controller.limits)

@@ -225,6 +225,10 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
                  robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
     """Run each GPC form on the reference with the plant of ``settings``; returns results by form.
 
+    A form whose closed loop diverges keeps its samples up to there (``result.diverged``) and the
+    next form runs (each form is an independent run); Ctrl-C keeps the forms finished so far and
+    the samples of the current one, and stops.
+
     Raises:
         InvalidParameterError: an unknown form, or settings a form refuses (a du limit with the
             absolute form, a solver that cannot enforce the limits), before any run.
@@ -269,7 +273,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
                                  platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
             res = simulate(ctrl, plant, reference, duration, seed=settings.seed,
-                           noise_std=settings.noise_std or None, progress=progress,
+                           noise_std=settings.noise_std or None, progress=progress, check=False,
                            meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
                                  "disturbance_gain": ctrl.disturbance_gain,
                                  "platform_force": list(settings.platform_force)})
@@ -350,5 +354,5 @@ def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None =
     for form, res in results.items():
         m = res.metrics()
         lines.append(f"{form:<20} " + " ".join(get(res, m) for _, _, _, get in cols)
-                     + ("  (interrupted)" if res.interrupted else ""))
+                     + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
     return "\n".join(lines)

@@ -14,12 +14,15 @@ _PUBLIC = {
     "Cell": "spec", "SweepSpec": "spec", "load_spec": "spec", "run_cell": "spec", "failed_record": "spec",
     "cell_settings": "spec", "drive_q_indices": "spec", "drive_work": "spec", "result_metrics": "spec",
     "METRIC_COLUMNS": "spec", "TIMING_COLUMNS": "spec", "RECORD_COLUMNS": "spec", "SETTLE_FRACTION": "spec",
-    "SweepResult": "runner", "run_sweep": "runner",
+    "SweepResult": "runner", "run_sweep": "runner", "check_scheduler": "runner", "MAX_CELLS": "spec",
+    "SPEC_MAX_BYTES": "spec",
     "SweepStore": "store", "load_results": "store", "records_frame": "store",
     "COLUMNS": "robustness", "RobustnessCase": "robustness", "RobustnessResult": "robustness",
     "DEFAULT_DISTURBANCES": "robustness", "DEFAULT_MASS_SCALES": "robustness", "DEFAULT_NOISE_LEVELS": "robustness",
     "DEFAULT_WEIGHTS": "robustness",
     "robustness_cases": "robustness", "robustness_cells": "robustness", "robustness_study": "robustness",
+    "DEFAULT_MASS_SCALES": "robustness", "DEFAULT_NOISE_LEVELS": "robustness", "DEFAULT_DISTURBANCES": "robustness",
+    "DEFAULT_WEIGHTS": "robustness",
 }
 
 __all__ = list(_PUBLIC)

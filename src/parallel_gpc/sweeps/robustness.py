@@ -12,8 +12,10 @@ changes one thing at a time:
 Each case is one closed-loop run of :func:`~parallel_gpc.simulation.simulate` along the
 paper's S-curve (or a hold of the home pose); the table reports RMS/max position error,
 orientation error, the steady-state error (mean over the last 10 % of the run), peak torque,
-saturated steps and solver fallbacks. A run that leaves the workspace or meets a singular pose
-is kept as a row with status ``diverged (…)``; Ctrl-C stops the study and keeps the rows so far.
+saturated steps and solver fallbacks. A run whose closed loop diverges (the platform leaves the
+workspace, meets a singular pose …) is kept as a row with status ``diverged (Cause at t = … s)``
+and the metrics of the part run (left out of the figure); Ctrl-C stops the study and keeps the
+rows so far.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,14 +32,15 @@ from ..gpc.controller import FORMS, GPCController
 from ..gpc.settings import PAPER_FORMS
 from ..model.dynamics import ReducedModel
 from .. import errors
-from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
+from ..errors import InvalidParameterError
+from ..studies.simulation import DIVERGENCE_ERRORS
 from ..gpc.prediction import Horizons
 from ..gpc.references import Hold, Reference
 from ..gpc.robot_references import check_reference, check_times, reference_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from ..results import json_default
 from .spec import SETTLE_FRACTION, Cell
-from .runner import run_sweep
+from .runner import check_scheduler, run_sweep
 from ..gpc.criterion import Weights
 from ..validation import finite_vector, positive
 
@@ -50,7 +54,9 @@ DEFAULT_DISTURBANCES = (10.0, 20.0)
 #: (Qu = 0, the paper's tracking setting, is dead-beat and diverges under noise or a lighter plant.)
 DEFAULT_WEIGHTS = Weights(1.0, 1e-4)
 #: Errors that mean "this closed loop diverged", recorded as a row instead of ending the study.
-_DIVERGED = (AssemblyError, SingularPoseError, SolverError, NonFiniteError)
+_DIVERGED = DIVERGENCE_ERRORS
+#: The time and the cause in the message of a diverged run (SimulationResult.stopped).
+_STOPPED = re.compile(r"at t = (\S+) s.*\(cause: (\w+):")
 
 COLUMNS = ("form", "study", "value", "unit", "rms_position_error_mm", "max_position_error_mm",
            "rms_orientation_error_mrad", "steady_state_error_mm", "peak_torque_Nm", "saturated_steps",
@@ -171,7 +177,11 @@ def _reference(reference, robot: ParallelRobot, duration: float, max_condition: 
 
 
 def _status(record: dict) -> str:
-    """Row status of a sweep record: ok, interrupted, diverged (Error) or failed (Error: message)."""
+    """Row status of a sweep record: ok, interrupted, diverged (Error at t = … s: the run's part
+    up to there measured; Error: raised before the first sample) or failed (Error: message)."""
+    if record["status"] == "diverged":
+        match = _STOPPED.search(record["error"])
+        return f"diverged ({match.group(2)} at t = {match.group(1)} s)" if match else "diverged"
     if record["status"] != "failed":
         return record["status"]
     name = record["error"].split(":", 1)[0]
@@ -188,7 +198,7 @@ def _row(form: str, case: RobustnessCase, record: dict) -> dict:
         ("rms_position_error", "m", "mm"), ("max_position_error", "m", "mm"),
         ("rms_orientation_error", "rad", "mrad"), ("steady_state_error", "m", "mm"))})
     row["peak_torque_Nm"] = record["peak_torque_Nm"]
-    ok = record["status"] != "failed"
+    ok = record["status"] != "failed"  # diverged: the counts of the part run
     row.update({k: int(record[k]) if ok else 0 for k in ("saturated_steps", "fallbacks", "steps")})
     row["status"] = _status(record)
     return row
@@ -247,6 +257,7 @@ def robustness_study(robot_name: str = DEFAULT_ROBOT, forms=PAPER_FORMS, mass_sc
         InvalidParameterError: an unknown form, a bad Ts, N, duration, scale or noise level.
         RobotFormatError: the robot cannot be loaded.
     """
+    check_scheduler(scheduler)
     forms = tuple(forms)
     bad = [f for f in forms if f not in FORMS]
     if bad or not forms:

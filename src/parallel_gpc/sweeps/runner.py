@@ -11,14 +11,21 @@
 Spawned local workers get this process's ``sys.path`` (multiprocessing "spawn"), so a package
 found through ``PYTHONPATH`` or an editable install is found by the workers too. A progress bar
 shows done / failed / ETA as cells finish (``distributed.as_completed``). A cell that fails is a
-record with its error; the sweep goes on. Ctrl-C cancels the cells not yet finished and keeps the
-finished ones (already journalled in the store), so a rerun resumes.
+record with its error, a cell whose closed loop diverged a record of the part run; the sweep
+goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
+journalled in the store), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the
+sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
+a second sweep into the same folder is refused.
 """
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
+import re
+import signal
+import threading
 import uuid
 from dataclasses import dataclass, field
 
@@ -27,6 +34,11 @@ from tqdm import tqdm
 from ..errors import InvalidParameterError
 from .spec import SweepSpec, failed_record, run_cell
 from .store import SweepStore, records_frame
+
+#: A Dask scheduler address: ``PROTOCOL://HOST:PORT`` (e.g. ``tcp://10.0.0.5:8786``).
+SCHEDULER_ADDRESS = re.compile(r"^[a-z][a-z0-9+.-]*://\S+:\d{1,5}$")
+#: Loggers of Dask quieted while a sweep's cluster shuts down (cancelled tasks, closing comms).
+_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
 
 
 @dataclass
@@ -37,6 +49,8 @@ class SweepResult:
         records: records of the finished cells, in cell order (reused ones included).
         ran: cells run by this call. skipped: cells found finished in the store.
         failed: cells whose record has status ``"failed"``.
+        diverged: cells whose closed loop diverged (status ``"diverged"``: metrics of the part run).
+        skipped_lines: lines of the store's journal that were not records (skipped, counted).
         interrupted: Ctrl-C stopped the sweep before every cell finished.
         total: cells in the sweep.
     """
@@ -45,6 +59,8 @@ class SweepResult:
     ran: int = 0
     skipped: int = 0
     failed: int = 0
+    diverged: int = 0
+    skipped_lines: int = 0
     interrupted: bool = False
     total: int = 0
 
@@ -96,13 +112,34 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
         :class:`SweepResult`.
 
     Raises:
-        InvalidParameterError: workers < 0 or not an integer.
+        InvalidParameterError: workers < 0 or not an integer; a scheduler that is not an address
+            ``PROTOCOL://HOST:PORT`` or a Client, or that cannot be reached; the store's folder is
+            in use by another sweep.
     """
     if workers is not None and (not isinstance(workers, int) or isinstance(workers, bool) or workers < 0):
         raise InvalidParameterError(f"workers = {workers!r} must be 0 (serial), a number of processes ≥ 1, or None")
-    cells = spec.cells() if isinstance(spec, SweepSpec) else list(spec)
+    check_scheduler(scheduler)
     if store is not None and not isinstance(store, SweepStore):
         store = SweepStore(store)
+    with store.locked() if store is not None else contextlib.nullcontext():
+        return _run_locked(spec, workers, scheduler, store, progress, on_record, retry_failed, func)
+
+
+def check_scheduler(scheduler) -> None:
+    """A scheduler is None, a ``distributed.Client`` or an address ``PROTOCOL://HOST:PORT``.
+
+    Raises:
+        InvalidParameterError: naming the value and the valid forms.
+    """
+    if scheduler is None or type(scheduler).__name__ == "Client":
+        return
+    if not isinstance(scheduler, str) or not SCHEDULER_ADDRESS.match(scheduler):
+        raise InvalidParameterError(f"scheduler = {scheduler!r} is not the address of a Dask scheduler; give "
+                                    "PROTOCOL://HOST:PORT, e.g. tcp://127.0.0.1:8786 (or a distributed.Client)")
+
+
+def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_failed, func) -> SweepResult:
+    cells = spec.cells() if isinstance(spec, SweepSpec) else list(spec)
     if store is not None and isinstance(spec, SweepSpec):
         store.save_spec(spec)
     done = store.finished(retry_failed) if store is not None else {}
@@ -111,7 +148,8 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
         if cell.key not in seen:
             seen.add(cell.key)
             todo.append(cell)
-    result = SweepResult(total=len(cells), skipped=len(cells) - len(todo))
+    result = SweepResult(total=len(cells), skipped=len(cells) - len(todo),
+                         skipped_lines=store.skipped_lines if store is not None else 0)
     with tqdm(total=len(cells), initial=result.skipped, disable=not progress, desc="sweep", unit="cell") as bar:
         collector = _Collector(result, store, bar, on_record)
         try:
@@ -124,6 +162,7 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
     by_key = {**done, **{r["key"]: r for r in collector.fresh}}
     result.records = [{**by_key[c.key], "index": c.index} for c in cells if c.key in by_key]
     result.failed = sum(r["status"] == "failed" for r in result.records)
+    result.diverged = sum(r["status"] == "diverged" for r in result.records)
     if store is not None:
         store.write_tables(r for r in result.records if r["status"] != "interrupted")
     return result
@@ -143,10 +182,15 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
     if isinstance(scheduler, Client):
         client, own_client = scheduler, False
     elif scheduler is not None:
-        client, own_client = Client(scheduler), True
+        try:
+            client, own_client = Client(scheduler), True
+        except (OSError, ValueError, TimeoutError) as exc:
+            raise InvalidParameterError(f"cannot reach the Dask scheduler {scheduler!r}: "
+                                        f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
     else:
-        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                               host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
+        with _sigint_ignored():  # the workers inherit it: Ctrl-C reaches this process only
+            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
+                                   host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
         client, own_client = Client(cluster), True
     token = uuid.uuid4().hex[:8]
     futures = {}
@@ -161,9 +205,46 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
                 record = failed_record(cell, f"{type(exc).__name__}: {exc}")
             collector.add(record)
     finally:
-        if futures:
-            client.cancel(list(futures))
-        if own_client:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+        with _quiet(*_DASK_LOGGERS):
+            if futures and cluster is None:  # a shared cluster: free its workers (ours is closed)
+                client.cancel(list(futures))
+            if futures and cluster is not None:  # our workers: no warnings about the tasks closing cancels
+                with contextlib.suppress(Exception):
+                    client.run(silence_dask_logs, wait=True)
+            if own_client:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+
+
+def silence_dask_logs() -> None:
+    """Silence Dask's loggers in this process for good (run on a sweep's own workers before they close)."""
+    for name in _DASK_LOGGERS:
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
+
+
+@contextlib.contextmanager
+def _sigint_ignored():
+    """SIGINT ignored in the block (main thread only): processes started in it inherit that."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+@contextlib.contextmanager
+def _quiet(*names):
+    """The named loggers silenced (above CRITICAL) in the block."""
+    loggers = [logging.getLogger(n) for n in names]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)

@@ -9,15 +9,21 @@ noise only) and one element of a vector field as ``"platform_force[0]"``.
 
 A spec has four tables (TOML or a dict)::
 
-    [sweep]   name, samples (random draws per grid point), seed (of the draws), trajectories
+    [sweep]   name (a folder name), samples (random draws per grid point), seed (of the draws, ≥ 0),
+              trajectories (true/false)
     [base]    settings shared by every cell
     [grid]    name = [values]: every combination (the last axis varies fastest)
     [random]  name = {uniform = [lo, hi]} | {loguniform = [lo, hi]} | {normal = [mean, std]}
               | {integers = [lo, hi]} (hi excluded) | {choice = [values]}
 
 :func:`run_cell` is the unit of work: a pure function of the cell returning a flat metrics record
-(SI units); a cell whose run raises records the error instead. Cells are keyed by a stable hash of
-their parameters, so a rerun of the same spec finds the cells it already has.
+(SI units); a cell whose closed loop diverged records the metrics of the part run (status
+``"diverged"``), a cell whose run raises records the error instead. Cells are keyed by a stable
+hash of their parameters, so a rerun of the same spec finds the cells it already has.
+
+Limits: a spec file is a regular UTF-8 file of at most :data:`SPEC_MAX_BYTES`, its values nest at
+most :data:`MAX_DEPTH` deep, and a sweep has at most :data:`MAX_CELLS` cells (counted before
+they are expanded).
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..gpc.references import pose_error_norms
+from ..model.file_checks import read_text_bounded
 from ..studies.tracking import FLAT_KEYS, TrackingSettings
 
 #: Fraction of the run at its end over which the steady-state error is averaged.
@@ -56,6 +63,17 @@ DISTRIBUTIONS = {"uniform": 2, "loguniform": 2, "normal": 2, "integers": 2, "cho
 _SETTINGS_FIELDS = FLAT_KEYS
 _INDEXED = re.compile(r"^([A-Za-z_]\w*)\[(\d+)\]$")
 _KEY_VERSION = 1
+#: Largest spec file read, bytes (size checked before reading, the read bounded).
+SPEC_MAX_BYTES = 1 << 20
+#: Most cells of one sweep (grid points × random samples), checked before expanding.
+MAX_CELLS = 100_000
+#: Deepest nesting of tables and lists in a spec.
+MAX_DEPTH = 32
+#: A sweep name is one folder name: 1 … 100 characters, no ``/``, ``\\`` or control character,
+#: not ``.`` or ``..``.
+_NAME = re.compile(r"^(?!\.{1,2}$)[^/\\\x00-\x1f\x7f]{1,100}$")
+#: Largest magnitude of an ``integers`` bound (NumPy's int64 draws).
+_INT_BOUND = 2**63 - 1
 
 
 def parameter_names() -> tuple[str, ...]:
@@ -64,6 +82,8 @@ def parameter_names() -> tuple[str, ...]:
 
 
 def _check_name(name: str, where: str) -> None:
+    if not isinstance(name, str):
+        raise InvalidParameterError(f"[{where}] names {name!r}, which is not a parameter name (a string)")
     match = _INDEXED.match(name)
     base = match.group(1) if match else name
     if base not in parameter_names():
@@ -126,6 +146,17 @@ class SweepSpec:
     plots: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        _check_depth(self.to_dict(), "the spec", 0)
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise InvalidParameterError(f"[sweep] name = {self.name!r} must be one folder name (a string of 1 to 100 "
+                                        "characters without '/', '\\' or control characters, not '.' or '..'): "
+                                        "it names the output folder out/sweep/<name>")
+        if not _is_int(self.seed) or self.seed < 0:
+            raise InvalidParameterError(f"[sweep] seed = {self.seed!r} must be an integer ≥ 0")
+        if not isinstance(self.trajectories, bool):
+            raise InvalidParameterError(f"[sweep] trajectories = {self.trajectories!r} must be true or false")
+        if not isinstance(self.plots, dict):
+            raise InvalidParameterError(f"[plots] must be a table of plot kinds, got {self.plots!r}")
         for where, table in (("base", self.base), ("grid", self.grid), ("random", self.random)):
             if not isinstance(table, dict):
                 raise InvalidParameterError(f"[{where}] must be a table of name = value, got {table!r}")
@@ -140,10 +171,24 @@ class SweepSpec:
                 raise InvalidParameterError(f"[grid] {name} = {values!r} must be a non-empty list of values")
         for name, dist in self.random.items():
             _check_distribution(name, dist)
-        if not isinstance(self.samples, int) or self.samples < 0:
+        if not _is_int(self.samples) or self.samples < 0:
             raise InvalidParameterError(f"[sweep] samples = {self.samples!r} must be an integer ≥ 0")
         if self.random and self.samples == 0:
             raise InvalidParameterError("[random] is set but [sweep] samples = 0; give samples ≥ 1")
+        if self.count > MAX_CELLS:
+            sizes = " × ".join([*(str(len(v)) for v in self.grid.values()), *([str(self.samples)] if self.samples else [])])
+            raise InvalidParameterError(f"the sweep has {self.count} cells ({sizes}); the limit is {MAX_CELLS}: "
+                                        "fewer grid values or samples, or split it into several sweeps")
+
+    @property
+    def count(self) -> int:
+        """Number of cells (grid points × max(samples, 1)), without expanding them."""
+        return math.prod(len(v) for v in self.grid.values()) * max(self.samples, 1)
+
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """The columns of the sweep's result table: bookkeeping, parameters, metrics."""
+        return (*RECORD_COLUMNS, *dict.fromkeys([*self.base, *self.axes]), *METRIC_COLUMNS)
 
     @property
     def axes(self) -> tuple[str, ...]:
@@ -165,6 +210,26 @@ class SweepSpec:
                 "base": self.base, "grid": self.grid, "random": self.random, "plots": self.plots}
 
 
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_depth(value, where: str, depth: int) -> None:
+    """Refuse tables and lists nested deeper than :data:`MAX_DEPTH` (before any recursion over them)."""
+    if depth > MAX_DEPTH:
+        raise InvalidParameterError(f"{where} nests tables or lists more than {MAX_DEPTH} deep")
+    if isinstance(value, dict):
+        for v in value.values():
+            _check_depth(v, where, depth + 1)
+    elif isinstance(value, (list, tuple)):
+        for v in value:
+            _check_depth(v, where, depth + 1)
+
+
 def _check_distribution(name: str, dist) -> None:
     if not isinstance(dist, dict) or len(dist) != 1 or next(iter(dist)) not in DISTRIBUTIONS:
         raise InvalidParameterError(f"[random] {name} = {dist!r} must be one of "
@@ -173,6 +238,11 @@ def _check_distribution(name: str, dist) -> None:
     count = DISTRIBUTIONS[kind]
     if not isinstance(args, list) or not args or (count is not None and len(args) != count):
         raise InvalidParameterError(f"[random] {name}: {kind} takes a list of {count or '≥ 1'} values, got {args!r}")
+    if kind == "integers" and not all(_is_int(a) and abs(a) <= _INT_BOUND for a in args):
+        raise InvalidParameterError(f"[random] {name}: integers takes two integers [lo, hi] (hi excluded, "
+                                    f"|bound| ≤ 2**63 − 1), got {args!r}")
+    if kind in ("uniform", "loguniform", "normal") and not all(_is_real(a) for a in args):
+        raise InvalidParameterError(f"[random] {name}: {kind} takes two finite numbers, got {args!r}")
     if kind in ("uniform", "loguniform", "integers") and not args[0] < args[1]:
         raise InvalidParameterError(f"[random] {name}: {kind} needs lo < hi, got {args}")
     if kind == "loguniform" and args[0] <= 0:
@@ -198,16 +268,22 @@ def load_spec(source) -> SweepSpec:
     """A :class:`SweepSpec` from a TOML file path or a dict of tables.
 
     Raises:
-        InvalidParameterError: unknown tables or keys, an unknown parameter, an empty grid axis,
-            a malformed distribution, a parameter set twice.
-        OSError: the file cannot be read.
+        InvalidParameterError: the file is not a regular UTF-8 file of at most
+            :data:`SPEC_MAX_BYTES` (a device, a FIFO, a folder …), not TOML, nested deeper than
+            :data:`MAX_DEPTH`; unknown tables or keys, an unknown parameter, an empty grid axis,
+            a malformed distribution, a parameter set twice, a bad name, seed or samples, more
+            than :data:`MAX_CELLS` cells.
     """
     if isinstance(source, (str, Path)):
         path = Path(source)
         try:
-            tables = tomllib.loads(path.read_text())
+            tables = tomllib.loads(read_text_bounded(path, SPEC_MAX_BYTES, "sweep spec", InvalidParameterError))
         except tomllib.TOMLDecodeError as exc:
             raise InvalidParameterError(f"{path}: not valid TOML: {exc}") from None
+        except RecursionError:
+            raise InvalidParameterError(f"{path}: nests tables or lists too deeply (the limit is {MAX_DEPTH})") from None
+        if not isinstance(tables.get("sweep", {}), dict):
+            raise InvalidParameterError(f"{path}: [sweep] must be a table, got {tables['sweep']!r}")
         tables.setdefault("sweep", {}).setdefault("name", path.stem)
     elif isinstance(source, dict):
         tables = source
@@ -216,6 +292,10 @@ def load_spec(source) -> SweepSpec:
     unknown = set(tables) - {"sweep", "base", "grid", "random", "plots"}
     if unknown:
         raise InvalidParameterError(f"unknown spec tables {sorted(unknown)}; valid: sweep, base, grid, random, plots")
+    _check_depth(tables, "the spec", 0)
+    for table in ("sweep", "base", "grid", "random", "plots"):
+        if not isinstance(tables.get(table, {}), dict):
+            raise InvalidParameterError(f"[{table}] must be a table, got {tables[table]!r}")
     head = dict(tables.get("sweep", {}))
     bad = set(head) - {"name", "samples", "seed", "trajectories"}
     if bad:
@@ -315,9 +395,11 @@ def failed_record(cell: Cell, error: str) -> dict:
 def run_cell(cell: Cell) -> dict:
     """Run one cell; a flat record: bookkeeping, parameters, :data:`METRIC_COLUMNS`.
 
-    ``status`` is ``"ok"``, ``"interrupted"`` (Ctrl-C inside the run; metrics of the part run) or
-    ``"failed"`` (``error`` holds ``"ExceptionType: message"``, metrics are NaN). With
-    ``cell.trajectory`` the record also holds ``"trajectory"``: the SimulationResult.
+    ``status`` is ``"ok"``, ``"diverged"`` (the closed loop diverged: metrics of the part run,
+    ``error`` holds :attr:`~parallel_gpc.studies.simulation.SimulationResult.stopped`),
+    ``"interrupted"`` (Ctrl-C inside the run; metrics of the part run) or ``"failed"`` (``error``
+    holds ``"ExceptionType: message"``, metrics are NaN). With ``cell.trajectory`` the record also
+    holds ``"trajectory"``: the SimulationResult.
     """
     from ..gpc.robot_references import is_file_reference
     from ..model.robot import ParallelRobot
@@ -333,7 +415,9 @@ def run_cell(cell: Cell) -> dict:
         settings, form = cell_settings(params, robot.n_y)
         res = run_tracking(settings, forms=(form,), progress=False, robot=robot)[form]
         record.update(result_metrics(res, drive_q_indices(robot), settings.Ts))
-        record["status"] = "interrupted" if res.interrupted else "ok"
+        record["status"] = res.outcome
+        if res.diverged:
+            record["error"] = res.stopped
         if cell.trajectory:
             record["trajectory"] = res
     except Exception as exc:  # noqa: BLE001 - any failure of a cell is recorded, the sweep goes on
