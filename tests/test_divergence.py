@@ -31,26 +31,26 @@ def r4():
 
 
 def controller(robot):
-    return GPCController(ReducedModel(robot), TS, Horizons(5), Weights(1.0, 1e-4))
+    return GPCController.build(ReducedModel(robot), TS, Horizons(5), Weights(1.0, 1e-4))
 
 
 class PlantFailingAt(ReducedPlant):
     """A reduced plant whose ``fail_at``-th step (1-based) raises what a plant leaving the workspace raises."""
 
     def __init__(self, robot, X0, fail_at: int):
-        super().__init__(robot, X0)
+        super().__init__(robot, X0, Ts=TS)
         self.calls, self.fail_at = 0, fail_at
 
-    def step(self, u, Ts):
+    def step(self, u):
         self.calls += 1
         if self.calls == self.fail_at:
             raise UnreachablePoseError("platform pose [9.0, 9.0, 0.0] cannot be assembled (test)")
-        return super().step(u, Ts)
+        return super().step(u)
 
 
 # ---------------------------------------------------------------- simulate
 def test_a_plant_failing_mid_run_keeps_every_sample_up_to_there(r4, tmp_path):
-    full = simulate(controller(r4), ReducedPlant(r4, X_HOME), TARGET, 0.1, progress=False)
+    full = simulate(controller(r4), ReducedPlant(r4, X_HOME, Ts=TS), TARGET, 0.1, progress=False)
     res = simulate(controller(r4), PlantFailingAt(r4, X_HOME, 8), TARGET, 0.1, progress=False)
     assert full.stopped == "" and full.outcome == "ok" and len(full.t) == 20
     # the failing step's state and input are a sample: 8 rows, equal to the full run's first 8
@@ -80,7 +80,7 @@ def test_a_controller_failing_mid_run_keeps_the_samples_before(r4, monkeypatch):
         return real(X, w)
 
     monkeypatch.setattr(ctrl, "step", step)
-    res = simulate(ctrl, ReducedPlant(r4, X_HOME), TARGET, 0.1, progress=False)
+    res = simulate(ctrl, ReducedPlant(r4, X_HOME, Ts=TS), TARGET, 0.1, progress=False)
     assert res.diverged and len(res.t) == 5
     assert res.stopped.startswith(f"closed loop diverged at t = {5 * TS:g} s after 5 of 20 samples")
     assert "(cause: SingularPoseError: near-singular pose (test))" in res.stopped
@@ -90,18 +90,18 @@ def test_a_failure_before_the_first_sample_is_raised(r4, monkeypatch):
     ctrl = controller(r4)
     monkeypatch.setattr(ctrl, "step", lambda X, w: (_ for _ in ()).throw(SingularPoseError("singular start")))
     with pytest.raises(SingularPoseError, match="singular start"):
-        simulate(ctrl, ReducedPlant(r4, X_HOME), TARGET, 0.1, progress=False)
+        simulate(ctrl, ReducedPlant(r4, X_HOME, Ts=TS), TARGET, 0.1, progress=False)
 
 
 def test_ctrl_c_and_divergence_are_one_mechanism(r4, monkeypatch):
-    plant = ReducedPlant(r4, X_HOME)
+    plant = ReducedPlant(r4, X_HOME, Ts=TS)
     real, calls = plant.step, []
 
-    def step(u, Ts):
+    def step(u):
         calls.append(1)
         if len(calls) == 4:
             raise KeyboardInterrupt
-        return real(u, Ts)
+        return real(u)
 
     monkeypatch.setattr(plant, "step", step)
     res = simulate(controller(r4), plant, TARGET, 0.1, progress=False)
@@ -110,7 +110,7 @@ def test_ctrl_c_and_divergence_are_one_mechanism(r4, monkeypatch):
 
 
 def test_a_real_divergence_is_kept_not_raised(r4):
-    settings, form = TrackingSettings(**{k: v for k, v in COARSE.items() if k != "form"}), COARSE["form"]
+    settings, form = TrackingSettings.from_flat(**{k: v for k, v in COARSE.items() if k != "form"}), COARSE["form"]
     res = run_tracking(settings, (form,), progress=False, robot=r4)[form]
     assert res.diverged and 1 <= len(res.t) <= 4, res.stopped
     assert res.stopped.startswith("closed loop diverged at t = ") and "(cause: " in res.stopped
@@ -120,16 +120,16 @@ def test_a_real_divergence_is_kept_not_raised(r4):
 # ---------------------------------------------------------------- the reference
 def test_a_hold_target_outside_the_workspace_is_refused_before_the_run(r4):
     settings = TrackingSettings(reference="hold", hold_pose=(5.0, 0.0, 0.0), duration=0.1)
-    with pytest.raises(UnreachablePoseError, match=r"the reference pose at t = 0 s is outside the workspace of "
-                                                   r"'planar_4rrr': platform pose \[5.0, 0.0, 0.0\]"):
+    with pytest.raises(UnreachablePoseError, match=r"reference pose \[5.0, 0.0, 0.0\] \(x, y, psi\) at t = 0 s is "
+                                                   r"outside the workspace of 'planar_4rrr'"):
         run_tracking(settings, ("absolute",), progress=False, robot=r4)
 
 
 def test_a_path_leaving_the_workspace_names_the_time_it_leaves(r4):
     t = np.linspace(0.0, 1.0, 11)
     path = SampledTrajectory(t, HOME + np.outer(t, [3.0, 0.0, 0.0]))  # x from 0.5 m to 3.5 m
-    with pytest.raises(UnreachablePoseError, match="the reference pose at t = ") as info:
-        simulate(controller(r4), ReducedPlant(r4, X_HOME), path, 1.0, progress=False)
+    with pytest.raises(UnreachablePoseError, match=r"reference pose \[.*\] \(x, y, psi\) at t = ") as info:
+        simulate(controller(r4), ReducedPlant(r4, X_HOME, Ts=TS), path, 1.0, progress=False)
     t_out = float(str(info.value).split("t = ")[1].split(" s")[0])
     assert 0.0 < t_out < 1.0
     r4.assemble(path.pose(0.0))  # the start is reachable: the refusal is about where the path goes
