@@ -112,7 +112,10 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         if self.n_constraints + (self.n_y if self.task_output else 0) < self.n_z:
             raise RobotFormatError(
                 f"{len(closures)} closures give {self.n_constraints} constraint rows, fewer than "
-                f"the {self.n_z} dependent coordinates: the legs are not determined by the platform pose"
+                f"the {self.n_z} dependent coordinates: at least {self.n_z - self.n_constraints} joint motion(s) are "
+                "not determined by the output (a free-flyer root, an unactuated joint, or an idle rotation such as a "
+                "rod spinning between two ball joints); lock one joint per idle rotation (joint_type FIXED), use a "
+                "universal joint (UJOINT_AB) at one end of such a rod, or add outputs"
             )
         self.torque_limit = np.array(description.torque_limit) if description.torque_limit is not None else None
         self._branch_q = np.array([self._joint_index(n, "branch joint")[0] for n in description.branch_joints],
