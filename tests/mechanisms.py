@@ -105,12 +105,15 @@ def _quat_y(angle: float) -> str:
     return f"{math.cos(angle / 2):.15g} 0 {math.sin(angle / 2):.15g} 0"
 
 
-def fivebar_mjcf(split: bool = False) -> str:
+def fivebar_mjcf(split: bool = False, ref: bool = False) -> str:
     """The same 5-bar as MJCF, drawn assembled at the home pose (MuJoCo's loops hold at qpos0, so
     the joint angles are measured from home), both legs under one root body, the loop as an
     equality connect; ``split``: as :func:`fivebar_urdf`, the halves of distal link 2 held by an
-    equality weld (relative pose of qpos0)."""
+    equality weld (relative pose of qpos0). ``ref``: the joints say their angle in the drawing
+    (``ref``, rad): qpos0 is the URDF's home configuration and q = 0 has every link upright,
+    the legs stretched and the loop open by 0.4 m."""
     q = fivebar_q_guess(split=split)
+    refs = {name: f' ref="{value:.15g}"' if ref else "" for name, value in q.items()}
     ip, idd = M_PROX * L_PROX ** 2 / 12.0, M_DIST * L_DIST ** 2 / 12.0
     legs = []
     for k, bx in zip((1, 2), FIVEBAR_BASE):
@@ -119,24 +122,25 @@ def fivebar_mjcf(split: bool = False) -> str:
         if split and k == 1:
             site += f"""
           <body name="dist2b" pos="0 0 {L_DIST}" quat="{_quat_y(q["c"])}">
-            <joint name="c" type="hinge" axis="0 1 0"/>
+            <joint name="c" type="hinge" axis="0 1 0"{refs["c"]}/>
             {_half_distal(True)}
           </body>"""
         elif split:
             dist = _half_distal(True)
         legs.append(f"""
       <body name="prox{k}" pos="{bx} 0 0" quat="{_quat_y(q[f"a{k}"])}">
-        <joint name="a{k}" type="hinge" axis="0 1 0"/>
+        <joint name="a{k}" type="hinge" axis="0 1 0"{refs[f"a{k}"]}/>
         <inertial pos="0 0 {L_PROX / 2}" mass="{M_PROX}" diaginertia="{ip:.9g} {ip:.9g} {1e-4 * M_PROX:.9g}"/>
         <body name="dist{k}" pos="0 0 {L_PROX}" quat="{_quat_y(q[f"e{k}"])}">
-          <joint name="e{k}" type="hinge" axis="0 1 0"/>
+          <joint name="e{k}" type="hinge" axis="0 1 0"{refs[f"e{k}"]}/>
           {dist}
           {site}
         </body>
       </body>""")
     loop = ('<weld name="close" body1="dist2" body2="dist2b"/>' if split
             else f'<connect name="close" body1="dist1" body2="dist2" anchor="0 0 {L_DIST}"/>')
-    return (f'<mujoco model="fivebar">\n  <worldbody>\n    <body name="base">{"".join(legs)}\n    </body>\n'
+    compiler = '  <compiler angle="radian"/>\n' if ref else ""
+    return (f'<mujoco model="fivebar">\n{compiler}  <worldbody>\n    <body name="base">{"".join(legs)}\n    </body>\n'
             f'  </worldbody>\n  <equality>\n    {loop}\n  </equality>\n</mujoco>\n')
 
 

@@ -8,7 +8,7 @@ import pinocchio as pin
 import pytest
 
 from parallel_gpc import ParallelRobot, ReducedModel, load_description
-from parallel_gpc.errors import RobotFormatError
+from parallel_gpc.errors import AssemblyError, RobotFormatError
 
 import mechanisms as mech
 
@@ -186,3 +186,65 @@ def test_the_view_draws_the_geoms_of_an_mjcf_ball_joint_mechanism(tmp_path):
     pin.framesForwardKinematics(model, data, q)
     np.testing.assert_allclose(T["robot/plate"], data.oMf[model.getFrameId("platform")].homogeneous, atol=1e-12)
     np.testing.assert_allclose(T["robot/ball1"][:3, 3], data.oMi[model.getJointId("s1")].translation, atol=1e-12)
+
+
+# ---------------------------------------------------------------- drawn configuration (qpos0)
+BRANCH = '[home]\nbranch_joints = ["e1", "e2"]\n'
+DRAWN = [mech.fivebar_q_guess()[n] for n in ("a1", "e1", "a2", "e2")]  # qpos0 = the joints' ref values
+
+
+def _drawn_fivebar(tmp_path, home: str = "", stem: str = "ref"):
+    side = mech.fivebar_mjcf_sidecar() + BRANCH + home
+    return ParallelRobot.load(mech.write(tmp_path, stem, mech.fivebar_mjcf(ref=True), side, ".xml"))
+
+
+def test_mjcf_drawn_with_joint_refs_assembles_on_the_drawn_branch(tmp_path):
+    robot = _drawn_fivebar(tmp_path)
+    model, _ = pin.buildModelAndLegacyConstraintsFromMJCF(str(tmp_path / "ref.xml"))
+    np.testing.assert_allclose(model.referenceConfigurations["qpos0"], DRAWN, atol=1e-12)
+    # q = 0 is not the drawing (every link upright, the loop open by 0.4 m) ...
+    assert np.max(np.abs(robot.closure_residual(np.zeros(4)))) > 0.3
+    # ... home is the drawing: the same configuration, branch and output as the URDF 5-bar at home
+    np.testing.assert_allclose(robot.q_home, DRAWN, atol=1e-9)
+    np.testing.assert_allclose(robot.home_pose, mech.FIVEBAR_HOME, atol=1e-9)
+    np.testing.assert_array_equal(robot.branch_signature(robot.q_home), [-1.0, 1.0])
+    _, cms = pin.buildModelAndLegacyConstraintsFromMJCF(str(tmp_path / "ref.xml"))
+    mech.assert_reduced_matches_constraint_dynamics(robot, cms=list(cms), n=6, seed=41)
+    urdf = ParallelRobot.load(mech.write(tmp_path, "fb", mech.fivebar_urdf(), mech.fivebar_sidecar()))
+    rng = np.random.default_rng(42)
+    for X in mech.random_output_states(urdf, rng, 3):
+        u = rng.uniform(-5, 5, 2)
+        np.testing.assert_allclose(ReducedModel(robot).acceleration(X, u), ReducedModel(urdf).acceleration(X, u),
+                                   rtol=1e-9, atol=1e-10)
+
+
+def test_starting_from_q_zero_instead_lands_on_another_branch(tmp_path):
+    # what assembly from the neutral configuration gives (a q_guess of zeros): elbows flipped
+    zeros = "[home.q_guess]\na1 = 0.0\ne1 = 0.0\na2 = 0.0\ne2 = 0.0\n"
+    robot = _drawn_fivebar(tmp_path, zeros)
+    assert not np.array_equal(robot.branch_signature(robot.q_home), [-1.0, 1.0])
+    assert np.linalg.norm(robot.home_pose - mech.FIVEBAR_HOME) > 0.1
+
+
+def test_a_home_far_from_the_drawing_across_the_workspace_is_refused(tmp_path):
+    # the straight path from the drawn pose (0.02, 0.5) to (-0.332, -0.3) crosses the hole of
+    # leg 1's annulus around its base pivot (-0.2, 0): no configuration on the drawn branch joins them
+    with pytest.raises(AssemblyError, match=r"home pose \[-0.332, -0.3\] of 'fivebar_mjcf' and the configuration "
+                                            r"the file is drawn at \(output \[0.02, 0.5\]\) are not joined on one "
+                                            r"assembly branch: the straight path stops at .*home.q_guess"):
+        _drawn_fivebar(tmp_path, "pose = [-0.332, -0.3]\n")
+    # a home reachable from the drawing keeps its branch
+    robot = _drawn_fivebar(tmp_path, "pose = [-0.15, 0.2]\n", stem="near")
+    np.testing.assert_array_equal(robot.branch_signature(robot.q_home), [-1.0, 1.0])
+
+
+def test_an_mjcf_without_loops_is_refused_in_one_line(tmp_path, capfd):
+    from parallel_gpc import cli
+
+    text = mech.fivebar_mjcf().replace(
+        f'<connect name="close" body1="dist1" body2="dist2" anchor="0 0 {mech.L_DIST}"/>', "")
+    path = mech.write(tmp_path, "open", text, mech.fivebar_mjcf_sidecar(), ".xml")
+    capfd.readouterr()
+    assert cli.main(["info", str(path)]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "has no loop closure" in err[0] and "<equality><connect/weld>" in err[0], err

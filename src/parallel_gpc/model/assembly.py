@@ -11,7 +11,7 @@ import math
 
 import numpy as np
 
-from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, UnreachablePoseError
+from ..errors import AssemblyError, InvalidParameterError, RobotFormatError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector
 from .forward import check_readings, drive_resolution, rates_to_velocity, solve_forward
 from .linalg import svd_thin
@@ -20,6 +20,17 @@ from .linalg import svd_thin
 SINGULAR_RCOND = 1e-8
 #: relative singular-value cut of the rank-revealing Newton step (as ``lstsq(rcond=1e-10)``).
 _NEWTON_RCOND = 1e-10
+#: smallest |sin q| of a branch joint at home: below it the joint is stretched or folded
+#: (within 0.057° of 0 or π) and the sign of sin q does not tell the assembly branch.
+BRANCH_MIN_SIN = 1e-3
+
+
+class _PathStop(Exception):
+    """A continuation stops at output ``mid`` (n_y,) for ``reason`` (internal to this module)."""
+
+    def __init__(self, mid: np.ndarray, reason: str):
+        super().__init__(reason)
+        self.mid, self.reason = mid, reason
 
 
 class AssemblyMixin:
@@ -61,6 +72,29 @@ class AssemblyMixin:
                     f"(outside the workspace of {self.name!r})"
                 )
         return q
+
+    def _project_closures(self, q_start: np.ndarray, tol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
+        """The assembled configuration nearest ``q_start``: Newton on the closures Φ(q) = 0 over
+        all coordinates with minimum-norm steps of at most 0.5 (rad or m) per coordinate (the
+        outputs move too).
+
+        Raises:
+            UnreachablePoseError: no convergence in ``max_iter`` steps.
+        """
+        q = np.array(q_start, dtype=float)
+        for _ in range(max_iter):
+            ck = self.closure_log_error(q)
+            err = float(np.max(np.abs(ck.residual), initial=0.0))
+            if err <= tol:
+                return q
+            if not err < 1e6:
+                break
+            U, s, Vt = svd_thin(ck.jacobian)
+            r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s.size and s[0] > 0 else 0
+            step = Vt[:r].T @ ((U[:, :r].T @ ck.residual) / s[:r])
+            q = self.integrate(q, -step * min(1.0, 0.5 / max(float(np.max(np.abs(step))), 1e-300)))  # damped
+        raise UnreachablePoseError(f"the closures of {self.name!r} cannot be assembled near the configuration the "
+                                   f"file is drawn at: residual {err:.3g} after {max_iter} Newton steps")
 
     def assemble_warm(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
                       near: bool = False, tol: float = 1e-12, max_iter: int = 8):
@@ -158,27 +192,86 @@ class AssemblyMixin:
                 pass
         return self._continuation(pose)
 
-    def _continuation(self, pose: np.ndarray) -> np.ndarray:
-        dist = np.abs(pose - self.home_pose)
+    def _follow(self, y_from: np.ndarray, q_from: np.ndarray, y_to: np.ndarray, watch_singular: bool = False):
+        """Continuation: Newton along the straight path y_from → y_to (steps of ≤ 0.05 m and
+        0.1 rad) from the assembled ``q_from``; the (nq,) configuration at ``y_to``.
+
+        Args:
+            watch_singular: also stop where K loses rank strictly between the ends (the
+                assembly may switch branch there).
+
+        Raises:
+            _PathStop: where and why the path stops (``mid``, ``reason``).
+        """
+        dist = np.abs(y_to - y_from)
         ang = self._is_angle
         steps = int(min(200, max(1, math.ceil(max(dist[~ang].max(initial=0) / 0.05, dist[ang].max(initial=0) / 0.1)))))
-        q = self.q_home.copy()
+        q = q_from.copy()
         for s in range(1, steps + 1):
-            mid = self.home_pose + (pose - self.home_pose) * s / steps
+            mid = y_from + (y_to - y_from) * s / steps
             try:
                 q = self._newton(mid, q)
             except UnreachablePoseError as exc:
-                raise UnreachablePoseError(
-                    f"platform pose {np.round(pose, 6).tolist()} cannot be assembled on the home branch of "
-                    f"{self.name!r}: continuation from home stops at {np.round(mid, 4).tolist()} "
-                    f"({exc})"
-                ) from None
+                raise _PathStop(mid, str(exc)) from None
+            if watch_singular and s < steps and self._map_from(self._eval(q)[1]) is None:
+                raise _PathStop(mid, "the legs are singular there: the assembly can switch branch")
+        return q
+
+    def _continuation(self, pose: np.ndarray) -> np.ndarray:
+        try:
+            q = self._follow(self.home_pose, self.q_home, pose)
+        except _PathStop as stop:
+            raise UnreachablePoseError(
+                f"platform pose {np.round(pose, 6).tolist()} cannot be assembled on the home branch of "
+                f"{self.name!r}: continuation from home stops at {np.round(stop.mid, 4).tolist()} "
+                f"({stop.reason})"
+            ) from None
         if not np.array_equal(self.branch_signature(q), self._branch):
             raise UnreachablePoseError(
                 f"platform pose {np.round(pose, 6).tolist()} is reachable only on another assembly branch "
                 f"(a leg passes through its singular stretched/folded configuration on the way)"
             )
         return q
+
+    def _home_from_drawing(self, y_draw: np.ndarray, q_draw: np.ndarray) -> np.ndarray:
+        """(nq,) home configuration reached from the assembled drawing (output ``y_draw``,
+        configuration ``q_draw``) by continuation to ``home_pose``, on the drawn branch.
+
+        Raises:
+            AssemblyError: the straight path stops (outside the workspace) or crosses a
+                singular configuration, or the branch joints' signs at home differ from the drawing's.
+        """
+        home = self.home_pose
+        ends = (f"home pose {np.round(home, 6).tolist()} of {self.name!r} and the configuration the file is drawn "
+                f"at (output {np.round(y_draw, 6).tolist()})")
+        hint = ("give home.q_guess (rough joint values at home) to choose the configuration, or a home pose "
+                "reachable from the drawing on its branch")
+        try:
+            q = self._follow(y_draw, q_draw, home, watch_singular=True)
+        except _PathStop as stop:
+            raise AssemblyError(f"{ends} are not joined on one assembly branch: the straight path stops at "
+                                f"{np.round(stop.mid, 4).tolist()} ({stop.reason}); {hint}") from None
+        drawn, at_home = self.branch_signature(q_draw), self.branch_signature(q)
+        if np.any(drawn * at_home < 0):
+            names = self.description.branch_joints
+            raise AssemblyError(f"{ends}: home lands on another branch than the drawing: the signs of sin(q) of the "
+                                f"branch joints {list(names)} are {at_home.astype(int).tolist()} at home and "
+                                f"{drawn.astype(int).tolist()} in the drawing; {hint}")
+        return q
+
+    def _check_branch_joints(self) -> None:
+        """Every branch joint is bent at home: |sin q| ≥ :data:`BRANCH_MIN_SIN`.
+
+        Raises:
+            RobotFormatError: naming the joint and its angle at home.
+        """
+        q = self.q_home[self._branch_q]
+        for name, angle in zip(self.description.branch_joints, q):
+            if abs(math.sin(angle)) < BRANCH_MIN_SIN:
+                raise RobotFormatError(
+                    f"branch joint {name!r} is at q = {angle:.6g} rad at the home pose of {self.name!r} "
+                    f"(|sin q| < {BRANCH_MIN_SIN:g}: stretched or folded), so the sign of sin q cannot tell the "
+                    "assembly branch there; list in home.branch_joints only joints that are bent at home")
 
     # ------------------------------------------------------------------ kinematics
     def inverse_kinematics(self, pose) -> np.ndarray:

@@ -4,11 +4,15 @@
   ``root = "free_flyer"``), then the sidecar's joint-type overrides: ``SPHERICAL`` becomes a
   ``JointModelSpherical`` at the joint's placement, ``UJOINT`` a ``JointModelUniversal`` turning
   about the URDF axis (a coordinate axis of the joint frame) then the next coordinate axis
-  (x→y, y→z, z→x; Gepetto's RX·RY for axis x), ``FIXED`` is locked at its ``home.q_guess`` value
+  (x→y, y→z, z→x; Gepetto's RX·RY for axis x), ``UJOINT_AB`` (``UJOINT_XY``, ``UJOINT_ZY``, …,
+  every pair of distinct axes, Gepetto's naming) a ``JointModelUniversal`` about the joint
+  frame's axis A then B whatever the URDF axis (as Gepetto's loader), ``FIXED`` is locked at its ``home.q_guess`` value
   (0 by default) by ``pin.buildReducedModel``; ``REVOLUTE``/``PRISMATIC`` only assert the URDF type.
 * MJCF: ``pin.buildModelAndLegacyConstraintsFromMJCF`` gives the model and one
   ``RigidConstraintModel`` per ``<equality><connect/weld>``; each becomes a :class:`Closure`
   between two frames added to the model at the constraint anchors (``<name>_a``, ``<name>_b``).
+  The file is drawn at ``qpos0`` (joint ``ref`` values), which Pinocchio keeps in
+  ``model.referenceConfigurations["qpos0"]``; :func:`drawn_configuration` returns it.
 """
 
 from __future__ import annotations
@@ -20,6 +24,10 @@ import pinocchio as pin
 
 from ..errors import RobotFormatError
 from .description import Closure, RobotDescription
+from .sidecar import UJOINT_AXES
+
+#: Key of the drawn configuration in ``model.referenceConfigurations`` (MJCF ``qpos0``).
+DRAWN = "qpos0"
 
 _KIND_OF_CONTACT = {pin.ContactType.CONTACT_3D: "point", pin.ContactType.CONTACT_6D: "weld"}
 
@@ -102,10 +110,13 @@ def _replacement(model: pin.Model, jid: int, kind: str, where: str):
     is_revolute = jm.nv == 1 and ("JointModelR" in short)
     if kind == "SPHERICAL":
         return pin.JointModelSpherical()
-    if kind in ("REVOLUTE", "UJOINT") and not is_revolute:
+    if (kind in ("REVOLUTE", "UJOINT") or kind in UJOINT_AXES) and not is_revolute:
         raise RobotFormatError(f"{where}: joint {model.names[jid]!r} is a {short} in the file, not a revolute joint")
     if kind == "PRISMATIC" and not (jm.nv == 1 and "JointModelP" in short):
         raise RobotFormatError(f"{where}: joint {model.names[jid]!r} is a {short} in the file, not a prismatic joint")
+    if kind in UJOINT_AXES:  # Gepetto's UJOINT_AB: axes A then B of the joint frame
+        first, second = ("XYZ".index(c) for c in kind[-2:])
+        return pin.JointModelUniversal(np.eye(3)[first], np.eye(3)[second])
     if kind != "UJOINT":
         return None
     axis = _joint_axis(model, jid)
@@ -146,7 +157,8 @@ def _override_joints(model: pin.Model, description: RobotDescription) -> pin.Mod
 
 
 def _rebuild(model: pin.Model, replaced: dict) -> pin.Model:
-    """A copy of ``model`` with the joints in ``replaced`` (id → JointModel) swapped in place."""
+    """A copy of ``model`` with the joints in ``replaced`` (id → JointModel) swapped in place; its
+    drawn configuration keeps the values of the joints not replaced (neutral for the others)."""
     new = pin.Model()
     new.name = model.name
     new.gravity = model.gravity
@@ -156,4 +168,25 @@ def _rebuild(model: pin.Model, replaced: dict) -> pin.Model:
         new.appendBodyToJoint(new_id, model.inertias[jid], pin.SE3.Identity())
     for f in list(model.frames)[1:]:  # same order: frame and joint indices are unchanged
         new.addFrame(pin.Frame(f), False)  # the inertias came with appendBodyToJoint
+    if _has_drawing(model):
+        old, q = model.referenceConfigurations[DRAWN], pin.neutral(new)
+        for jid in range(1, model.njoints):
+            if jid not in replaced:
+                a, b = model.joints[jid], new.joints[jid]
+                q[b.idx_q:b.idx_q + b.nq] = old[a.idx_q:a.idx_q + a.nq]
+        new.referenceConfigurations[DRAWN] = q
     return new
+
+
+def _has_drawing(model: pin.Model) -> bool:
+    return any(entry.key() == DRAWN for entry in model.referenceConfigurations)
+
+
+def drawn_configuration(model: pin.Model) -> np.ndarray:
+    """(nq,) the configuration the model file is drawn at: MJCF ``qpos0`` (joint ``ref`` values,
+    rad or m), else Pinocchio's neutral configuration (a URDF is drawn at q = 0)."""
+    if _has_drawing(model):
+        q = np.array(model.referenceConfigurations[DRAWN], dtype=float)
+        if q.shape == (model.nq,):
+            return q
+    return pin.neutral(model)

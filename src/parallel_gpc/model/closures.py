@@ -108,6 +108,30 @@ class ClosureMixin:
         target[self.n_constraints:] = pose
         return res - target
 
+    def closure_log_error(self, q: np.ndarray) -> ClosureKinematics:
+        """Closure mismatch with weld rows e = log₃(R_aᵀ R_b) and their exact Jacobian
+        J_log₃(R_aᵀ R_b) R_bᵀ (J_b − J_a): Newton on these converges from far (a weld drawn
+        turned by up to π), unlike the hot path's rows (:meth:`closure_kinematics`), whose
+        Jacobian is exact at assembly only. Position rows as there.
+
+        Returns:
+            residual (m,) in m and rad, jacobian (m, nv).
+        """
+        model, data = self.model, self.data
+        pin.computeJointJacobians(model, data, np.asarray(q, dtype=float))
+        pin.updateFramePlacements(model, data)
+        res, jac = [], []
+        for fa, fb, c in self.closure_frames:
+            oMa, oMb = data.oMf[fa], data.oMf[fb]
+            J = pin.getFrameJacobian(model, data, fa, _LWA) - pin.getFrameJacobian(model, data, fb, _LWA)
+            res.append(oMa.translation - oMb.translation)
+            jac.append(J[:3])
+            if c.kind == "weld":
+                R = oMa.rotation.T @ oMb.rotation
+                res.append(pin.log3(R))
+                jac.append(-pin.Jlog3(R) @ oMb.rotation.T @ J[3:])
+        return ClosureKinematics(np.concatenate(res), np.vstack(jac))
+
     def closure_kinematics(self, q: np.ndarray) -> ClosureKinematics:
         """Φ(q) and Φ_q at configuration q (updates ``self.data`` unless q was just evaluated)."""
         res, jac = self._eval(np.asarray(q, dtype=float))

@@ -11,7 +11,10 @@ A robot file is a model file and a small sidecar (``.toml`` or ``.yaml``):
   says only what the file cannot (drives, output, home, limits).
 
 The sidecar is found next to the model file by stem (``robot.urdf`` → ``robot.toml`` /
-``robot.yaml``) or given by an explicit path. Every key a sidecar may hold is listed in
+``robot.yaml``; two of them side by side are refused as ambiguous) or given by an explicit path.
+Mesh URIs of the model file resolve in its folder or under the package path
+(:mod:`.meshes`); meshes do not matter for the dynamics, and those that do not resolve are listed
+in ``unresolved_meshes``. Every key a sidecar may hold is listed in
 :data:`SIDECAR_KEYS`; any other key, and any unknown joint type, is an error.
 """
 
@@ -22,6 +25,7 @@ from pathlib import Path
 
 from ..errors import RobotFormatError
 from .file_checks import check_description, check_robot_argument, check_sidecar_types
+from .meshes import package_roots
 from .sidecar import (
     CLOSURE_ROWS,
     JOINT_TYPES,
@@ -99,6 +103,13 @@ class RobotDescription:
             (sidecar ``[home] A = [...]``, ``B = [...]``, output units m and rad), or None.
         sensors: the sidecar's ``[sensors]`` table (``counts_per_rev``, ``counts_per_m``,
             ``rates``), checked; empty: the defaults of :mod:`parallel_gpc.estimation`.
+        package_path: folders searched for ``package://`` meshes after the model file's folder
+            (:func:`~parallel_gpc.model.meshes.package_roots`: the ``package_path`` argument,
+            ``PARALLEL_GPC_PACKAGE_PATH``, ``ROS_PACKAGE_PATH``).
+        mesh_files: URI → file of the model file's meshes that resolve (filled when a
+            :class:`~parallel_gpc.model.robot.ParallelRobot` reads the model file; no mesh is read).
+        unresolved_meshes: URIs of the meshes that do not resolve in the model file's folder or
+            the package path (filled with ``mesh_files``): the view cannot draw them.
     """
 
     name: str
@@ -122,11 +133,23 @@ class RobotDescription:
     pose_a: tuple[float, ...] | None = None
     pose_b: tuple[float, ...] | None = None
     sensors: dict = field(default_factory=dict)
+    package_path: tuple[Path, ...] = ()
+    mesh_files: dict = field(default_factory=dict)
+    unresolved_meshes: tuple[str, ...] = ()
 
     @property
     def n_y(self) -> int:
         """Number of output coordinates."""
         return len(self.output_joints) if self.output_kind == "joints" else len(self.output_axes)
+
+
+def _one(found: list[Path], what: str) -> list[Path]:
+    """``found`` if it holds at most one path; several files of one stem are ambiguous."""
+    if len(found) > 1:
+        raise RobotFormatError(f"{' and '.join(repr(str(p)) for p in found)} are {what} of the same robot side by "
+                               "side: the choice would be silent; remove all but one, or name the one to use "
+                               "(sidecar=PATH)")
+    return found
 
 
 def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = None) -> tuple[Path, Path]:
@@ -135,7 +158,7 @@ def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = N
     path = Path(name_or_path)
     if path.suffix == "" and not path.exists():
         found = [urdf_dir() / f"{name_or_path}{s}" for s in MODEL_FORMATS]
-        found = [p for p in found if p.exists()]
+        found = _one([p for p in found if p.exists()], "model files")
         if not found:
             raise RobotFormatError(
                 f"unknown robot {str(name_or_path)!r}; embedded robots are "
@@ -149,7 +172,7 @@ def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = N
         )
     if path.suffix in SIDECAR_SUFFIXES:
         sidecar = path if sidecar is None else sidecar
-        models = [path.with_suffix(s) for s in MODEL_FORMATS if path.with_suffix(s).exists()]
+        models = _one([path.with_suffix(s) for s in MODEL_FORMATS if path.with_suffix(s).exists()], "model files")
         if not models:
             raise RobotFormatError(f"no model file next to sidecar {str(path)!r}; expected "
                                    f"{[path.stem + s for s in MODEL_FORMATS]}")
@@ -165,26 +188,32 @@ def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = N
             raise RobotFormatError(f"sidecar {str(sidecar)!r} does not exist or is not one of "
                                    f"{list(SIDECAR_SUFFIXES)}")
         return path, sidecar
-    for suffix in SIDECAR_SUFFIXES:
-        if path.with_suffix(suffix).exists():
-            return path, path.with_suffix(suffix)
+    found = _one([path.with_suffix(s) for s in SIDECAR_SUFFIXES if path.with_suffix(s).exists()], "sidecars")
+    if found:
+        return path, found[0]
     raise RobotFormatError(
         f"no sidecar next to {str(path)!r}; expected {path.stem}.toml or {path.stem}.yaml, or pass sidecar=PATH"
     )
 
 
-def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Path | None = None) -> RobotDescription:
+def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Path | None = None,
+                     package_path=None) -> RobotDescription:
     """Read a robot file: an embedded robot name, or a path to its model file or sidecar.
 
     Args:
         name_or_path: embedded robot name, or path of a ``.urdf`` / MJCF ``.xml`` file or of its sidecar.
         sidecar: explicit sidecar path (default: the model file's stem with ``.toml``/``.yaml``).
+        package_path: folder(s) holding the packages of ``package://`` mesh URIs, searched
+            before ``PARALLEL_GPC_PACKAGE_PATH`` and ``ROS_PACKAGE_PATH``
+            (:func:`~parallel_gpc.model.meshes.package_roots`).
 
     Raises:
-        RobotFormatError: missing file, unparsable sidecar, missing or unknown keys, unknown
-            joint types, SDF files.
+        RobotFormatError: missing file, two sidecars (or model files) of one stem, unparsable
+            sidecar, missing or unknown keys, unknown joint types, SDF files, a package folder
+            that does not exist.
     """
     model_file, sidecar = _resolve_robot_path(name_or_path, sidecar)
+    roots = package_roots(package_path)
     data = _read_sidecar(sidecar)
     where = repr(str(sidecar))
     check_sidecar_types(data, where)
@@ -236,6 +265,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         pose_a=ends["A"],
         pose_b=ends["B"],
         sensors=read_sensors(data.get("sensors"), where),
+        package_path=roots,
     )
     check_description(description)
     return description

@@ -6,12 +6,16 @@ Policies (docs/validation.md states them too):
 * A robot file (URDF, MJCF or sidecar) must be a regular file (not a device, FIFO or folder) of at
   most :data:`URDF_MAX_BYTES` / :data:`SIDECAR_MAX_BYTES`, UTF-8 encoded. The size is checked
   before reading and the read itself is bounded.
-* Every ``<inertial>`` of the URDF (and of the MJCF): mass finite and > 0 (kg); inertia entries finite; the
-  rotational inertia matrix (kg·m², about the centre of mass) symmetric positive definite with
-  principal moments satisfying the triangle inequality I₁ + I₂ ≥ I₃ (relative tolerance
-  :data:`INERTIA_RTOL`). A link without ``<inertial>`` is a massless frame. The built model's
+* Every ``<inertial>`` of the URDF (and of the MJCF): mass finite and >= 0 (kg; 0 is a massless
+  frame); inertia entries finite; the rotational inertia matrix (kg·m², about the centre of mass)
+  symmetric positive semi-definite (all zero: a point mass) with principal moments satisfying the
+  triangle inequality I₁ + I₂ ≥ I₃ (relative tolerance :data:`INERTIA_RTOL`). The built model's
   bodies are checked again (the parsers silently drop or zero some bad values).
-* A mesh file named by the model file must resolve (symlinks followed) inside its folder.
+* The URDF's joints form one tree: every joint joins two declared, different links, no link is
+  the child of two joints, and exactly one link (the root) is no joint's child. (Pinocchio's
+  parser crashes or silently builds a wrong model otherwise.)
+* Meshes are never needed for the dynamics: each mesh URI is resolved among the allowed roots
+  (:mod:`.meshes`) or recorded as unresolved; none is refused and none is read here.
 * Drives, output joints and branch joints are distinct; a closure joins two different frames
   and no two closures join the same pair.
 
@@ -29,6 +33,7 @@ import numpy as np
 
 from ..errors import RobotFormatError
 from ..validation import regular_file
+from .meshes import resolve_meshes
 
 #: Largest closure sidecar read, bytes.
 SIDECAR_MAX_BYTES = 1 << 20
@@ -235,9 +240,9 @@ def _check_inertial(inertial, link: str, path: Path) -> None:
     if mass_el is None or inertia_el is None:
         raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} has an <inertial> without <mass> or <inertia>")
     mass = _attr_float(mass_el, "value", link, path)
-    if not mass > 0:
-        raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} mass = {mass!r} kg must be > 0 (a massless "
-                               "link has no <inertial>)")
+    if not mass >= 0:
+        raise RobotFormatError(f"URDF {str(path)!r}: link {link!r} mass = {mass!r} kg must be >= 0 (0: a massless "
+                               "frame)")
     v = {k: _attr_float(inertia_el, k, link, path) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
     inertia = np.array([[v["ixx"], v["ixy"], v["ixz"]], [v["ixy"], v["iyy"], v["iyz"]],
                         [v["ixz"], v["iyz"], v["izz"]]])
@@ -245,32 +250,27 @@ def _check_inertial(inertial, link: str, path: Path) -> None:
 
 
 def _check_rotational(inertia: np.ndarray, who: str, shown, path: Path) -> None:
-    """A (3, 3) rotational inertia (kg·m²): symmetric positive definite, triangle inequality."""
+    """A (3, 3) rotational inertia (kg·m²): symmetric positive semi-definite (zero: a point mass),
+    triangle inequality."""
     moments = np.linalg.eigvalsh(0.5 * (inertia + inertia.T))
-    scale = max(float(np.abs(inertia).max()), 1e-300)
-    if moments[0] <= INERTIA_RTOL * scale or np.abs(inertia - inertia.T).max() > INERTIA_RTOL * scale:
-        raise RobotFormatError(f"{str(path)!r}: {who} inertia {shown} (kg·m²) is not symmetric positive definite "
-                               f"(principal moments {np.round(moments, 12).tolist()})")
+    scale = float(np.abs(inertia).max())
+    if moments[0] < -INERTIA_RTOL * scale or np.abs(inertia - inertia.T).max() > INERTIA_RTOL * scale:
+        raise RobotFormatError(f"{str(path)!r}: {who} inertia {shown} (kg·m²) is not symmetric positive "
+                               f"semi-definite (principal moments {np.round(moments, 12).tolist()})")
     if moments[0] + moments[1] < moments[2] * (1.0 - INERTIA_RTOL):
         raise RobotFormatError(f"{str(path)!r}: {who} inertia {shown} (kg·m²) violates the triangle "
                                f"inequality I1 + I2 >= I3 of a physical body (principal moments "
                                f"{np.round(moments, 12).tolist()})")
 
 
-def _check_mesh(name: str, link: str, path: Path) -> None:
-    folder = path.resolve().parent
-    local = name[len("file://"):] if name.startswith("file://") else name
-    target = (folder / local).resolve() if "://" not in local else None
-    if target is None or not target.is_relative_to(folder):
-        raise RobotFormatError(f"{str(path)!r}: {link!r} mesh {name!r} is outside the robot's folder "
-                               f"{str(folder)!r}; meshes must be files inside it (relative paths)")
-
-
 def check_urdf_text(text: str, path) -> None:
-    """Check a URDF's XML, masses, inertias and mesh paths (policy in the module docstring).
+    """Check a URDF's XML, tree, masses and inertias (policy in the module docstring).
+
+    Returns:
+        The parsed XML root element (``<robot>``).
 
     Raises:
-        RobotFormatError: naming the link and the bad value.
+        RobotFormatError: naming the link or joint and the bad value.
     """
     path = Path(path)
     root = _xml_root(text, path, "robot")
@@ -278,8 +278,59 @@ def check_urdf_text(text: str, path) -> None:
         name = link.get("name", "?")
         for inertial in link.findall("inertial"):
             _check_inertial(inertial, name, path)
-        for mesh in link.iter("mesh"):
-            _check_mesh(mesh.get("filename", ""), name, path)
+    _check_urdf_tree(root, path)
+    return root
+
+
+def _check_urdf_tree(root, path: Path) -> None:
+    """The joints of a URDF form one tree over its links (policy in the module docstring)."""
+    links = [link.get("name") for link in root.findall("link")]
+    dup = _duplicates(links)
+    if dup:
+        raise RobotFormatError(f"URDF {str(path)!r}: link names {dup} are declared more than once")
+    parent_of, known = {}, set(links)
+    for joint in root.findall("joint"):
+        name = joint.get("name", "?")
+        ends = {}
+        for end in ("parent", "child"):
+            el = joint.find(end)
+            ends[end] = None if el is None else el.get("link")
+            if ends[end] not in known:
+                raise RobotFormatError(f"URDF {str(path)!r}: joint {name!r} {end} link = {ends[end]!r} is not a "
+                                       f"declared <link>")
+        parent, child = ends["parent"], ends["child"]
+        if parent == child:
+            raise RobotFormatError(f"URDF {str(path)!r}: joint {name!r} joins link {child!r} to itself")
+        if child in parent_of:
+            raise RobotFormatError(
+                f"URDF {str(path)!r}: link {child!r} is the child of two joints ({parent_of[child][1]!r} from "
+                f"{parent_of[child][0]!r} and {name!r} from {parent!r}): a URDF is a tree; declare the extra "
+                "joint as a loop closure in the sidecar instead")
+        parent_of[child] = (parent, name)
+    roots = [link for link in links if link not in parent_of]
+    if len(roots) != 1:
+        cycle = _cycle(parent_of) if not roots else None
+        what = (f"its joints form a kinematic cycle through links {cycle}" if cycle
+                else f"it has {len(roots)} root links {roots[:10]} (links that are no joint's child)")
+        raise RobotFormatError(f"URDF {str(path)!r}: {what}; a URDF is one tree with one root link (close "
+                               "loops in the sidecar)")
+    cycle = _cycle(parent_of)
+    if cycle:  # unreachable with one root and one parent per link, kept as a guard
+        raise RobotFormatError(f"URDF {str(path)!r}: its joints form a kinematic cycle through links {cycle}")
+
+
+def _cycle(parent_of: dict) -> list[str] | None:
+    """Links of a parent cycle (each link's parent link in ``parent_of``), or None."""
+    done = set()
+    for start in parent_of:
+        seen, link = [], start
+        while link in parent_of and link not in done and link not in seen:
+            seen.append(link)
+            link = parent_of[link][0]
+        if link in seen:
+            return seen[seen.index(link):]
+        done.update(seen)
+    return None
 
 
 def _xml_root(text: str, path: Path, tag: str):
@@ -292,9 +343,14 @@ def _xml_root(text: str, path: Path, tag: str):
     return root
 
 
-def check_model_file(description) -> None:
-    """Bounded read and checks of a description's model file before Pinocchio parses it: URDF
-    masses, inertias and meshes (:func:`check_urdf_text`); MJCF mesh files inside the folder.
+def check_model_file(description):
+    """Bounded read and checks of a description's model file before Pinocchio parses it (URDF:
+    :func:`check_urdf_text`; MJCF: the inertials), and where its meshes are.
+
+    Returns:
+        (resolved, unresolved): the meshes that resolve among the model file's folder and the
+        description's ``package_path`` (dict URI → file) and the URIs that do not
+        (:func:`~parallel_gpc.model.meshes.resolve_meshes`; no mesh is read).
 
     Raises:
         RobotFormatError: not a regular file, larger than :data:`URDF_MAX_BYTES`, not UTF-8,
@@ -303,15 +359,13 @@ def check_model_file(description) -> None:
     path = Path(description.urdf_path)
     text = read_text_bounded(path, URDF_MAX_BYTES, "model file")
     if description.model_format == "urdf":
-        check_urdf_text(text, path)
-        return
-    root = _xml_root(text, path, "mujoco")
-    for mesh in root.iter("mesh"):
-        if mesh.get("file"):
-            _check_mesh(mesh.get("file"), mesh.get("name", "?"), path)
-    for body in root.iter("body"):
-        for inertial in body.findall("inertial"):
-            _check_mjcf_inertial(inertial, body.get("name", "?"), path)
+        root = check_urdf_text(text, path)
+    else:
+        root = _xml_root(text, path, "mujoco")
+        for body in root.iter("body"):
+            for inertial in body.findall("inertial"):
+                _check_mjcf_inertial(inertial, body.get("name", "?"), path)
+    return resolve_meshes(root, description.model_format, path, description.package_path)
 
 
 def _check_mjcf_inertial(inertial, body: str, path: Path) -> None:
@@ -330,9 +384,9 @@ def _check_mjcf_inertial(inertial, body: str, path: Path) -> None:
             raise RobotFormatError(f"{str(path)!r}: body {body!r} inertial {key} = {raw!r} must be {want} finite "
                                    "number(s)")
     mass = values.get("mass", [math.nan])[0]
-    if not mass > 0:
+    if not mass >= 0:
         raise RobotFormatError(f"{str(path)!r}: body {body!r} inertial mass = {inertial.get('mass')!r} kg must be "
-                               "> 0 (a massless body has no <inertial>)")
+                               ">= 0 (0: a massless body)")
     if "fullinertia" in values:
         ixx, iyy, izz, ixy, ixz, iyz = values["fullinertia"]
         rot = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
@@ -345,7 +399,7 @@ def _check_mjcf_inertial(inertial, body: str, path: Path) -> None:
 
 def check_model_inertias(model, path) -> None:
     """Every body of a built model: mass finite and ≥ 0 (0: massless), and with mass > 0 a
-    rotational inertia that is a valid inertia (positive definite, triangle inequality).
+    rotational inertia that is a valid inertia (positive semi-definite, triangle inequality).
 
     Raises:
         RobotFormatError: naming the body (joint) and its values.

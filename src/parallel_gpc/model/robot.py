@@ -29,7 +29,7 @@ from ..errors import AssemblyError, RobotFormatError, UnreachablePoseError
 from ..limits import Limits
 from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
-from .builder import build_model
+from .builder import build_model, drawn_configuration
 from .checks import check_actuation, check_parametrization
 from .closures import ClosureKinematics, ClosureMixin  # noqa: F401  (re-exported)
 from .console import quiet_build
@@ -83,10 +83,17 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             raise RobotFormatError(f"ParallelRobot takes a RobotDescription, got {type(description).__name__}; "
                                    "load a robot by name or path with ParallelRobot.load(...)")
         mass_scale = positive("mass_scale", mass_scale)
-        check_model_file(description)
+        mesh_files, unresolved = check_model_file(description)
         model, closures = quiet_build(build_model, description)
         check_model_inertias(model, description.urdf_path)
-        self.description = dataclasses.replace(description, closures=closures)
+        if not closures:
+            raise RobotFormatError(
+                f"{description.model_format.upper()} {str(description.urdf_path)!r} with sidecar "
+                f"{str(description.sidecar_path)!r} has no loop closure: parallel-gpc models closed-chain robots; "
+                "close the loops in the sidecar (closures / closed_loop) or, in an MJCF file, with "
+                "<equality><connect/weld>")
+        self.description = dataclasses.replace(description, closures=closures, mesh_files=mesh_files,
+                                               unresolved_meshes=unresolved)
         for j in range(1, model.njoints):
             inertia = model.inertias[j]
             model.inertias[j] = pin.Inertia(inertia.mass * mass_scale, inertia.lever, inertia.inertia * mass_scale)
@@ -107,7 +114,10 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         if self.n_constraints + (self.n_y if self.task_output else 0) < self.n_z:
             raise RobotFormatError(
                 f"{len(closures)} closures give {self.n_constraints} constraint rows, fewer than "
-                f"the {self.n_z} dependent coordinates: the legs are not determined by the platform pose"
+                f"the {self.n_z} dependent coordinates: at least {self.n_z - self.n_constraints} joint motion(s) are "
+                "not determined by the output (a free-flyer root, an unactuated joint, or an idle rotation such as a "
+                "rod spinning between two ball joints); lock one joint per idle rotation (joint_type FIXED), use a "
+                "universal joint (UJOINT_AB) at one end of such a rod, or add outputs"
             )
         self.torque_limit = np.array(description.torque_limit) if description.torque_limit is not None else None
         self._branch_q = np.array([self._joint_index(n, "branch joint")[0] for n in description.branch_joints],
@@ -115,6 +125,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         self._bs = fast_index(self._branch_q)
         self._branch = None
         self._home(description)
+        self._check_branch_joints()
         self._branch = self.branch_signature(self.q_home)
         check_parametrization(self)
         self.redundancy = check_actuation(self)
@@ -166,25 +177,47 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         self._vm_cache = None  # (q, T, pinv_z) of the last velocity map
 
     def _home(self, description: RobotDescription) -> None:
-        """Assemble the home configuration ``q_home`` at ``home_pose``."""
-        q0 = pin.neutral(self.model)
+        """Assemble the home configuration ``q_home`` at ``home_pose``.
+
+        The start is the configuration the model file is drawn at (MJCF ``qpos0``, URDF q = 0)
+        with the ``home.q_guess`` values (rough joint values at home): Newton runs from there to
+        the home pose. Without q_guess, the drawing is projected onto the closures (the nearest
+        assembled configuration, a no-op for a file drawn assembled), which fixes the branch:
+        home (default: the output there) is reached from it by continuation and must stay on
+        its branch.
+        """
+        q0 = drawn_configuration(self.model)
+        guessed = False
         for name, value in description.q_guess.items():
             if description.joint_types.get(name) == "FIXED":
                 continue  # locked at this value by the builder
             iq, _ = self._joint_index(name, "q_guess joint", nq=len(value) if isinstance(value, tuple) else 1)
             q0[iq:iq + (len(value) if isinstance(value, tuple) else 1)] = value
-        if self.task_output is not None:  # the closures alone first: the output's reference is there
+            guessed = True
+        drawn = False
+        if not guessed:
             try:
-                q0 = self._newton(None, q0)
-            except UnreachablePoseError as exc:
-                raise AssemblyError(self._assembly_failure(q0, exc, None)) from None
+                q0, drawn = self._project_closures(q0), True
+            except UnreachablePoseError:
+                pass
+        if self.task_output is not None:  # the closures alone first: the output's reference is there
+            if not drawn:
+                try:
+                    q0 = self._newton(None, q0)
+                except UnreachablePoseError as exc:
+                    raise AssemblyError(self._assembly_failure(q0, exc, None)) from None
             pin.framesForwardKinematics(self.model, self.data, q0)
             self.task_output.set_reference(self.data)
-            home = description.home_pose if description.home_pose is not None else self.task_output.value(self.data)
+            y0 = self.task_output.value(self.data)
         else:
-            home = description.home_pose if description.home_pose is not None else q0[self._y_q].copy()
-            q0[self._y_q] = finite_vector("home pose", home, self.n_y)
+            y0 = q0[self._y_q].copy()
+        home = description.home_pose if description.home_pose is not None else y0
         self.home_pose = finite_vector("home pose", home, self.n_y)
+        if drawn:
+            self.q_home = self._home_from_drawing(y0, q0)
+            return
+        if self.task_output is None:
+            q0[self._y_q] = self.home_pose
         try:
             self.q_home = self._newton(self.home_pose, q0)
         except UnreachablePoseError as exc:
@@ -211,15 +244,18 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
 
     @classmethod
     def load(cls, name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Path | None = None,
-             **kwargs) -> "ParallelRobot":
+             package_path=None, **kwargs) -> "ParallelRobot":
         """Load an embedded robot by name or a robot file by path (URDF/MJCF or sidecar).
 
         Args:
             name_or_path: embedded robot name, or path of a model file or sidecar.
             sidecar: explicit sidecar path (default: found next to the model file by stem).
+            package_path: folder(s) of the packages named by ``package://`` mesh URIs (searched
+                before ``PARALLEL_GPC_PACKAGE_PATH`` and ``ROS_PACKAGE_PATH``); meshes only
+                matter for the view.
             **kwargs: ``mass_scale``, ``gravity``.
         """
-        return cls(load_description(name_or_path, sidecar), **kwargs)
+        return cls(load_description(name_or_path, sidecar, package_path), **kwargs)
 
     def with_mass_scale(self, mass_scale: float) -> "ParallelRobot":
         """A copy whose body masses and inertias are scaled by ``mass_scale`` (plant mismatch)."""

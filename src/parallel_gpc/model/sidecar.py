@@ -19,8 +19,11 @@ from .file_checks import SIDECAR_MAX_BYTES, read_text_bounded
 
 #: constraint rows of each closure kind.
 CLOSURE_ROWS = {"point": 3, "weld": 6}
+#: universal joints with named axes (Gepetto's ``UJOINT_XY`` …): about the first coordinate axis of
+#: the joint frame, then the second (``UJOINT_ZY``: z then y); every pair of distinct axes.
+UJOINT_AXES = tuple(f"UJOINT_{a}{b}" for a in "XYZ" for b in "XYZ" if a != b)
 #: joint types a sidecar may set (``joint_name`` / ``joint_type``, Gepetto-compatible).
-JOINT_TYPES = ("SPHERICAL", "UJOINT", "FIXED", "REVOLUTE", "PRISMATIC")
+JOINT_TYPES = ("SPHERICAL", "UJOINT", *UJOINT_AXES, "FIXED", "REVOLUTE", "PRISMATIC")
 #: output kinds: joint coordinates, or the position (and orientation) of a named frame.
 OUTPUT_KINDS = ("joints", "position", "pose")
 #: task-space output axes; r* are the rotation-vector components of the frame's rotation
@@ -58,14 +61,28 @@ class Closure:
     frames: tuple[str, str]
 
 
+def _yaml_load(text: str, path: Path):
+    """``yaml.safe_load`` refusing aliases (``*name``, also in ``<<: *name`` merges): a chain of
+    aliases expands exponentially (a 1 KB "billion laughs" file took minutes and gigabytes), and
+    a sidecar never needs one. The events are scanned first (libyaml's C parser when PyYAML has
+    it: a 1 MB sidecar parses in a fraction of a second)."""
+    import yaml
+
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+    for event in yaml.parse(text, Loader=loader):
+        if isinstance(event, yaml.AliasEvent):
+            raise RobotFormatError(
+                f"sidecar {str(path)!r} line {event.start_mark.line + 1}: YAML alias *{event.anchor} is not "
+                "accepted (aliases can expand exponentially); write the values out")
+    return yaml.load(text, Loader=loader)
+
+
 def _read_sidecar(path: Path) -> dict:
     text = read_text_bounded(path, SIDECAR_MAX_BYTES, "sidecar")
     try:
-        if path.suffix == ".toml":
-            return tomllib.loads(text)
-        import yaml
-
-        data = yaml.safe_load(text)
+        data = tomllib.loads(text) if path.suffix == ".toml" else _yaml_load(text, path)
+    except RobotFormatError:
+        raise
     except Exception as exc:  # parser errors differ per format; report them as ours
         raise RobotFormatError(f"cannot parse sidecar {str(path)!r}: {exc}") from exc
     if not isinstance(data, dict):

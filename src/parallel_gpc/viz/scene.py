@@ -19,6 +19,7 @@ Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robo
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import coal
 import numpy as np
@@ -94,11 +95,25 @@ def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
 
 
 def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
-    """The robot's visual geometry (from its URDF or MJCF model file) as a ``pinocchio.GeometryModel``."""
-    path = str(robot.description.urdf_path)
-    if robot.description.model_format == "mjcf":
+    """The robot's visual geometry (from its URDF or MJCF model file) as a ``pinocchio.GeometryModel``.
+
+    Raises:
+        RobotFormatError: the model file names meshes that do not resolve in its folder or the
+            package path (Pinocchio would look for them elsewhere; they are never read).
+    """
+    description = robot.description
+    if description.unresolved_meshes:
+        shown = ", ".join(repr(u) for u in description.unresolved_meshes[:3])
+        more = len(description.unresolved_meshes) - 3
+        raise RobotFormatError(
+            f"the view cannot draw {str(description.urdf_path)!r}: {len(description.unresolved_meshes)} mesh(es) "
+            f"({shown}{f' and {more} more' if more > 0 else ''}) do not resolve in the robot's folder or the package "
+            "path (set PARALLEL_GPC_PACKAGE_PATH or pass package_path=)")
+    path = str(description.urdf_path)
+    if description.model_format == "mjcf":
         return pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
-    return pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL)
+    dirs = [str(Path(path).resolve().parent), *map(str, description.package_path)]
+    return pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL, None, dirs)
 
 
 def _shape(geometry, scale: float = 1.0) -> tuple[mg.Geometry, np.ndarray]:
