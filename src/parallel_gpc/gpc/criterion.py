@@ -9,7 +9,7 @@ from ..errors import InvalidParameterError, ShapeError
 from ..limits import Limits, as_limits
 from ..solvers import LeastSquaresProblem, MinNormOf
 from ..validation import check_allocation
-from .prediction import Horizons, Prediction, _cumulative_map
+from .prediction import Horizons, Prediction, cumulative_map
 
 
 # ---------------------------------------------------------------------------- weights
@@ -229,7 +229,7 @@ def _is_cumulative_map(u_map: np.ndarray, Nu: int, m: int) -> bool:
 
     if u_map.shape[1] != Nu * m or u_map.shape[0] < Nu * m:
         return False
-    ref = _cumulative_map(Nu, Nu, m)
+    ref = cumulative_map(Nu, Nu, m)
     if u_map is ref:  # the cached map itself (the incremental form; the nonlinear one with Nu = N)
         return True
     top = u_map[:Nu * m]

@@ -239,7 +239,7 @@ def _augment(A: np.ndarray, B: np.ndarray, c: np.ndarray | None, delayed: bool =
 
 
 @lru_cache(maxsize=64)
-def _cumulative_map(K: int, Nu: int, m: int) -> np.ndarray:
+def cumulative_map(K: int, Nu: int, m: int) -> np.ndarray:
     """(K·m, Nu·m) map Δu(0..Nu−1) ↦ cumulative sums at steps 0..K−1 (Δu = 0 after Nu).
 
     Cached and read-only: the same object serves every step of a controller.
@@ -283,7 +283,7 @@ def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed
     Nu = horizons.Nu
     n = C.shape[1]
     cd = None if cd is None else np.asarray(cd, dtype=float)
-    u_base, u_map = np.broadcast_to(u_prev, (Nu, m)).reshape(-1), _cumulative_map(Nu, Nu, m)  # tile, faster
+    u_base, u_map = np.broadcast_to(u_prev, (Nu, m)).reshape(-1), cumulative_map(Nu, Nu, m)  # tile, faster
     if Ad.shape == (n, n) and Bd.shape == (n, m) and (cd is None or cd.shape == (n,)) and X.shape == (n,):
         f, H = _lti_responses(Ad, Bd, cd, C, X, horizons.N)
         S = np.cumsum(H, axis=0)  # step response
@@ -324,4 +324,4 @@ def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> 
         raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, C.shape[0])}")
     u_sim = np.asarray(u_sim, dtype=float)
     f = y_sim[horizons.No:].reshape(-1)
-    return Prediction(f, G, u_sim.reshape(-1), _cumulative_map(N, horizons.Nu, m), horizons, "simulative")
+    return Prediction(f, G, u_sim.reshape(-1), cumulative_map(N, horizons.Nu, m), horizons, "simulative")

@@ -31,7 +31,7 @@ from ..model.native import compiled_part
 from ..solvers import SolveResult
 from ..solvers.riccati import lq_tracking
 from ..model.discretization import cached_identity
-from .prediction import Horizons, Prediction, _cumulative_map
+from .prediction import Horizons, Prediction, cumulative_map
 
 __all__ = ["RiccatiPath", "RiccatiSolver", "stage_models", "FORM_CODES"]
 
@@ -185,7 +185,7 @@ class RiccatiPath:
         if self.form == "absolute":
             return Prediction(none, empty, np.zeros(H.Nu * m), cached_identity(H.Nu * m), H, "absolute")
         if self.form == "nonlinear":
-            return Prediction(none, empty, self._u_sim.reshape(-1), _cumulative_map(H.N, H.Nu, m), H, "simulative")
+            return Prediction(none, empty, self._u_sim.reshape(-1), cumulative_map(H.N, H.Nu, m), H, "simulative")
         base = stages[4]
         u_base = np.broadcast_to(base, (H.Nu, m)).reshape(-1)  # np.tile, without its overhead
-        return Prediction(none, empty, u_base, _cumulative_map(H.Nu, H.Nu, m), H, "incremental")
+        return Prediction(none, empty, u_base, cumulative_map(H.Nu, H.Nu, m), H, "incremental")

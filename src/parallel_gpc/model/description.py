@@ -34,17 +34,17 @@ from .sidecar import (
     ROOTS,
     SIDECAR_KEYS,
     Closure,
-    _check_keys,
-    _closures_from_gepetto,
-    _closures_from_toml,
-    _joint_types,
-    _names,
-    _output_spec,
-    _pose,
-    _q_guess,
-    _read_sidecar,
-    _require,
-    _torque_limits,
+    check_keys,
+    closures_from_gepetto,
+    closures_from_toml,
+    joint_types,
+    names_field,
+    output_spec,
+    pose_field,
+    q_guess_field,
+    read_sidecar,
+    require_field,
+    torque_limits_field,
     read_sensors,
 )
 
@@ -214,27 +214,27 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     """
     model_file, sidecar = _resolve_robot_path(name_or_path, sidecar)
     roots = package_roots(package_path)
-    data = _read_sidecar(sidecar)
+    data = read_sidecar(sidecar)
     where = repr(str(sidecar))
     check_sidecar_types(data, where)
     fmt = MODEL_FORMATS[model_file.suffix]
     gepetto = "closed_loop" in data or "name_mot" in data
-    _check_keys(data, SIDECAR_KEYS["gepetto" if gepetto else "toml"], "the top level", where)
-    output = _check_keys(data.get("output"), SIDECAR_KEYS["output"], "[output]", where)
-    home = _check_keys(data.get("home"), SIDECAR_KEYS["home"], "[home]", where)
+    check_keys(data, SIDECAR_KEYS["gepetto" if gepetto else "toml"], "the top level", where)
+    output = check_keys(data.get("output"), SIDECAR_KEYS["output"], "[output]", where)
+    home = check_keys(data.get("home"), SIDECAR_KEYS["home"], "[home]", where)
     if gepetto:
-        closures = _closures_from_gepetto(data, where) if "closed_loop" in data or fmt == "urdf" else ()
-        drives = _names(_require(data, "name_mot", where), "name_mot", where)
+        closures = closures_from_gepetto(data, where) if "closed_loop" in data or fmt == "urdf" else ()
+        drives = names_field(require_field(data, "name_mot", where), "name_mot", where)
         limits = data.get("torque_limit")
     else:
-        raw = data.get("closures", []) if fmt == "mjcf" else _require(data, "closures", where)
-        closures = _closures_from_toml(raw, where)
-        drives_tbl = _check_keys(_require(data, "drives", where), SIDECAR_KEYS["drives"], "[drives]", where)
-        drives = _names(_require(drives_tbl, "joints", where), "drives.joints", where)
+        raw = data.get("closures", []) if fmt == "mjcf" else require_field(data, "closures", where)
+        closures = closures_from_toml(raw, where)
+        drives_tbl = check_keys(require_field(data, "drives", where), SIDECAR_KEYS["drives"], "[drives]", where)
+        drives = names_field(require_field(drives_tbl, "joints", where), "drives.joints", where)
         limits = drives_tbl.get("torque_limit")
         if "output" not in data:
             raise RobotFormatError(f"sidecar {where} lacks the key 'output'")
-    kind, out_joints, out_frame, axes = _output_spec(output, data, where)
+    kind, out_joints, out_frame, axes = output_spec(output, data, where)
     root = data.get("root", "fixed")
     if root not in ROOTS:
         raise RobotFormatError(f"sidecar {where}: root = {root!r} is not one of {list(ROOTS)}")
@@ -242,7 +242,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     labels = tuple(output.get("labels", list(axes) if axes else [f"y{i}" for i in range(n_y)]))
     if len(labels) != n_y:
         raise RobotFormatError(f"sidecar {where}: output labels {list(labels)} must name the {n_y} outputs")
-    pose, ends = home.get("pose"), {key: _pose(home.get(key), f"home.{key}", n_y, where) for key in ("A", "B")}
+    pose, ends = home.get("pose"), {key: pose_field(home.get(key), f"home.{key}", n_y, where) for key in ("A", "B")}
     description = RobotDescription(
         name=str(data.get("name", model_file.stem)),
         urdf_path=model_file,
@@ -251,17 +251,17 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         output_joints=out_joints,
         output_frame=out_frame,
         output_labels=labels,
-        torque_limit=_torque_limits(limits, len(drives), where),
-        home_pose=_pose(pose, "home.pose", n_y, where),
-        q_guess=_q_guess(home.get("q_guess"), where),
-        branch_joints=_names(home.get("branch_joints", []), "home.branch_joints", where),
+        torque_limit=torque_limits_field(limits, len(drives), where),
+        home_pose=pose_field(pose, "home.pose", n_y, where),
+        q_guess=q_guess_field(home.get("q_guess"), where),
+        branch_joints=names_field(home.get("branch_joints", []), "home.branch_joints", where),
         output_kind=kind,
         output_axes=axes,
-        joint_types=_joint_types(data, where),
+        joint_types=joint_types(data, where),
         root=root,
         model_format=fmt,
         sidecar_path=sidecar,
-        output_units=_names(output["units"], "output units", where) if "units" in output else None,
+        output_units=names_field(output["units"], "output units", where) if "units" in output else None,
         pose_a=ends["A"],
         pose_b=ends["B"],
         sensors=read_sensors(data.get("sensors"), where),

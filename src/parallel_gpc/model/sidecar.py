@@ -77,7 +77,7 @@ def _yaml_load(text: str, path: Path):
     return yaml.load(text, Loader=loader)
 
 
-def _read_sidecar(path: Path) -> dict:
+def read_sidecar(path: Path) -> dict:
     text = read_text_bounded(path, SIDECAR_MAX_BYTES, "sidecar")
     try:
         data = tomllib.loads(text) if path.suffix == ".toml" else _yaml_load(text, path)
@@ -90,7 +90,7 @@ def _read_sidecar(path: Path) -> dict:
     return data
 
 
-def _check_keys(table, allowed: set, what: str, where: str) -> dict:
+def check_keys(table, allowed: set, what: str, where: str) -> dict:
     """``table`` as a dict whose keys are all in ``allowed`` (unknown keys are errors)."""
     if table is None:
         return {}
@@ -103,21 +103,21 @@ def _check_keys(table, allowed: set, what: str, where: str) -> dict:
     return table
 
 
-def _require(data: dict, key: str, where: str):
+def require_field(data: dict, key: str, where: str):
     if key not in data:
         raise RobotFormatError(f"sidecar {where} lacks the key {key!r}")
     return data[key]
 
 
-def _names(value, key: str, where: str) -> tuple[str, ...]:
+def names_field(value, key: str, where: str) -> tuple[str, ...]:
     """A list of names from the sidecar as a tuple. Its type (a list of strings; a bare string
     is a typo, not a list) was checked for every key by
     :func:`~parallel_gpc.model.file_checks.check_sidecar_types` before parsing."""
     return tuple(value)
 
 
-def _closures_from_gepetto(data: dict, where: str) -> tuple[Closure, ...]:
-    pairs = _require(data, "closed_loop", where)
+def closures_from_gepetto(data: dict, where: str) -> tuple[Closure, ...]:
+    pairs = require_field(data, "closed_loop", where)
     if not isinstance(pairs, list) or not all(isinstance(p, (list, tuple)) and len(p) == 2 for p in pairs):
         raise RobotFormatError(f"sidecar {where}: closed_loop = {pairs!r} must be a list of [frame_a, frame_b] pairs")
     kinds = data.get("type", ["6d"] * len(pairs))
@@ -134,12 +134,12 @@ def _closures_from_gepetto(data: dict, where: str) -> tuple[Closure, ...]:
     return tuple(closures)
 
 
-def _closures_from_toml(raw, where: str) -> tuple[Closure, ...]:
+def closures_from_toml(raw, where: str) -> tuple[Closure, ...]:
     if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
         raise RobotFormatError(f"sidecar {where}: closures = {raw!r} must be a list of tables [[closures]]")
     closures = []
     for i, c in enumerate(raw):
-        _check_keys(c, SIDECAR_KEYS["closures"], f"closure {i + 1}", where)
+        check_keys(c, SIDECAR_KEYS["closures"], f"closure {i + 1}", where)
         kind = c.get("kind", "point")
         if kind not in CLOSURE_ROWS:
             raise RobotFormatError(
@@ -152,8 +152,8 @@ def _closures_from_toml(raw, where: str) -> tuple[Closure, ...]:
     return tuple(closures)
 
 
-def _joint_types(data: dict, where: str) -> dict:
-    names = _names(data.get("joint_name", []) or [], "joint_name", where)
+def joint_types(data: dict, where: str) -> dict:
+    names = names_field(data.get("joint_name", []) or [], "joint_name", where)
     types = data.get("joint_type", []) or []
     if not isinstance(types, list) or len(types) != len(names):
         raise RobotFormatError(f"sidecar {where}: joint_type = {types!r} must be a list of {len(names)} types, "
@@ -168,7 +168,7 @@ def _joint_types(data: dict, where: str) -> dict:
     return out
 
 
-def _output_spec(output: dict, data: dict, where: str):
+def output_spec(output: dict, data: dict, where: str):
     """(kind, joints, frame, axes) of the output table."""
     kind = output.get("kind", "joints")
     if kind not in OUTPUT_KINDS:
@@ -181,20 +181,20 @@ def _output_spec(output: dict, data: dict, where: str):
         if joints is None:
             raise RobotFormatError(f"sidecar {where}: the output needs joints = [...] (joint coordinates) or "
                                    f"frame = NAME with kind = 'position' | 'pose'")
-        return kind, _names(joints, "output joints", where), frame, ()
+        return kind, names_field(joints, "output joints", where), frame, ()
     if "joints" in output or "output_joints" in data:
         raise RobotFormatError(f"sidecar {where}: output kind {kind!r} takes a frame, not joints")
     if not frame:
         raise RobotFormatError(f"sidecar {where}: output kind {kind!r} needs frame = NAME")
     valid = POSE_AXES[:3] if kind == "position" else POSE_AXES
-    axes = _names(output.get("axes", list(valid)), "output axes", where)
+    axes = names_field(output.get("axes", list(valid)), "output axes", where)
     if not axes or any(a not in valid for a in axes) or list(axes) != [a for a in valid if a in axes]:
         raise RobotFormatError(f"sidecar {where}: output axes {list(axes)} must be a non-empty subset of "
                                f"{list(valid)} in that order")
     return kind, (), frame, axes
 
 
-def _torque_limits(limits, n: int, where: str):
+def torque_limits_field(limits, n: int, where: str):
     if limits is None:
         return None
     try:
@@ -206,7 +206,7 @@ def _torque_limits(limits, n: int, where: str):
     return limits
 
 
-def _pose(value, key: str, n_y: int, where: str) -> tuple[float, ...] | None:
+def pose_field(value, key: str, n_y: int, where: str) -> tuple[float, ...] | None:
     """An optional pose of ``n_y`` finite numbers from the sidecar (None if absent)."""
     if value is None:
         return None
@@ -220,7 +220,7 @@ def _pose(value, key: str, n_y: int, where: str) -> tuple[float, ...] | None:
     return pose
 
 
-def _q_guess(raw, where: str) -> dict:
+def q_guess_field(raw, where: str) -> dict:
     out = {}
     for k, v in (raw or {}).items():
         try:
@@ -234,7 +234,7 @@ def _q_guess(raw, where: str) -> dict:
 def read_sensors(raw, where: str) -> dict:
     """The ``[sensors]`` table: ``counts_per_rev`` (revolute drive encoders) and ``counts_per_m``
     (prismatic drives' scales), numbers > 0; ``rates`` (drive rates measured), a boolean."""
-    table = _check_keys(raw, SIDECAR_KEYS["sensors"], "[sensors]", where)
+    table = check_keys(raw, SIDECAR_KEYS["sensors"], "[sensors]", where)
     out = {}
     for key in ("counts_per_rev", "counts_per_m"):
         if key in table:
