@@ -12,7 +12,8 @@ import time
 import numpy as np
 import proxsuite
 
-from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, _solved
+from .kkt import verified
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed
 
 
 class ProxQPBackend(PersistentQPBackend):
@@ -45,5 +46,6 @@ class ProxQPBackend(PersistentQPBackend):
             kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
             self._qp = None  # its warm start is now meaningless: set up afresh next time
             return _failed(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
-        return _solved(problem, self.name, v, int(info.iter), dt)
+        duals = np.asarray(self._qp.results.z).copy() if C.size else None
+        return verified(problem, self.name, v, int(info.iter), dt, duals, f"ProxQP status: {status}")
 
