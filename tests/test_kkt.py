@@ -10,7 +10,7 @@ from scipy.optimize import lsq_linear
 
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights, build_problem
 from parallel_gpc.gpc.references import SCurve, path_for
-from parallel_gpc.solvers import (KKT_TOL, LeastSquaresProblem, QRSolver, available_solvers, kkt_residuals,
+from parallel_gpc.solvers import (LeastSquaresProblem, QRSolver, available_solvers, kkt_residuals,
                                   make_solver, verified)
 from parallel_gpc.solvers.qpsolvers_ import QpsolversBackend
 
