@@ -190,6 +190,16 @@ ROWS = [
      ResultFormatError, ["'planar_4rrr'", "'planar_3rrr' has nq = 9"]),
     ("10 --noise 1e6", lambda t: ["track", "--form", "absolute", "--noise", "1e6", *QUICK, "--out", str(t / "o")],
      UnreachablePoseError, ["noise_std", "1000000.0"]),
+    # issue 24, 9: one-line errors, no traceback, before allocating
+    *[(f"24.9 demo --deadbeat-duration {v}", lambda t, v=v: ["demo", "--deadbeat-duration", v, "--no-progress",
+                                                           "--out", str(t / "o")],
+       InvalidParameterError, ["dead-beat check duration", "must be finite and > 0"]) for v in ("nan", "inf", "0", "-1")],
+    ("24.9 demo --deadbeat-duration below Ts", lambda t: ["demo", "--deadbeat-duration", "1e-4", "--no-progress",
+                                                          "--out", str(t / "o")],
+     InvalidParameterError, ["0.0001 s", "at least one sample"]),
+    ("24.9 plan --settle 1000000000", lambda t: ["plan", "--settle", "1000000000", "--no-progress",
+                                                 "--out", str(t / "o")],
+     InvalidParameterError, ["settle_steps = 1000000000", "GiB", "reduce settle_steps"]),
 ]
 
 
