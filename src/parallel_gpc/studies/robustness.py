@@ -29,7 +29,7 @@ from ..gpc.controller import FORMS, GPCController
 from ..gpc.settings import PAPER_FORMS
 from ..model.dynamics import ReducedModel
 from .. import errors
-from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError
+from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, SingularPoseError, SolverError, writing
 from ..gpc.prediction import Horizons
 from ..gpc.references import PATH_KINDS, Hold, Reference, path_for
 from ..model.robot import DEFAULT_ROBOT, ParallelRobot
@@ -140,7 +140,7 @@ class RobustnessResult:
 
     def save_csv(self, path) -> Path:
         path = Path(path)
-        with path.open("w", newline="") as fh:
+        with writing(path, "CSV file"), path.open("w", newline="") as fh:
             wr = csv.DictWriter(fh, fieldnames=COLUMNS)
             wr.writeheader()
             wr.writerows(self.rows)
@@ -148,8 +148,10 @@ class RobustnessResult:
 
     def save_json(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps({"settings": self.settings, "interrupted": self.interrupted,
-                                    "rows": self.rows}, indent=1, default=json_default))
+        text = json.dumps({"settings": self.settings, "interrupted": self.interrupted, "rows": self.rows},
+                          indent=1, default=json_default)
+        with writing(path, "JSON file"):
+            path.write_text(text)
         return path
 
 

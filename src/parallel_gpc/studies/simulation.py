@@ -18,7 +18,7 @@ from tqdm import tqdm
 
 from ..gpc.controller import GPCController
 from ..gpc.references import Reference, pose_error_norms
-from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError
+from ..errors import AssemblyError, InvalidParameterError, SingularPoseError, ShapeError, writing
 from ..results import robot_reference, save_result, saturation_flags
 from ..validation import check_allocation, finite_vector, positive
 
@@ -93,7 +93,7 @@ class SimulationResult:
             header = (["t"] + [f"ref_{i}" for i in range(n_y)] + [f"pose_{i}" for i in range(n_y)]
                       + [f"vel_{i}" for i in range(n_y)] + [f"u_{i}" for i in range(n_u)]
                       + ["internal_force", "step_time", "solve_time", "status", "fallback"])
-            with path.open("w", newline="") as fh:
+            with writing(path, "CSV file"), path.open("w", newline="") as fh:
                 wr = csv.writer(fh)
                 wr.writerow(header)
                 for k in range(len(self.t)):
