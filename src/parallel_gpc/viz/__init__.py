@@ -18,7 +18,8 @@ import importlib
 
 #: public name -> submodule that defines it
 _PUBLIC = {
-    "LOOPBACK": "loopback", "loopback_host": "loopback", "loopback_host_header": "loopback", "IDLE_TIMEOUT_S": "loopback",
+    "LOOPBACK": "loopback", "loopback_host": "loopback", "loopback_host_header": "loopback",
+    "IDLE_TIMEOUT_S": "loopback",
     "GalleryServer": "gallery", "gallery_index": "gallery", "serve_gallery": "gallery",
     "RobotScene": "scene", "animate": "scene", "draw_path": "scene", "draw_robot": "scene",
     "frame_indices": "scene", "set_camera": "scene", "visual_model": "scene",
