@@ -37,14 +37,16 @@ class QpsolversBackend:
     #: (hexapod_8ups, N = 20, box and linear limits binding; tests/test_kkt.py). With its defaults
     #: Clarabel's gap tolerance 1e-8 leaves stationarity residuals of 1e-4…1e-2 and SCS's 1e-4
     #: breaks limits by ~1e-4 relative; HiGHS's QP regularization 1e-7 leaves stationarity
-    #: residuals of ~5e-7 (measured worst: 4.8e-12 with 1e-12). DAQP meets the tolerance with its
-    #: defaults; solvers not listed run with qpsolvers' defaults and the KKT check decides.
+    #: residuals of ~5e-7 (measured worst: 4.8e-12 with 1e-12); DAQP's primal tolerance 1e-6
+    #: leaves limit violations up to ~1e-6. Solvers not listed run with qpsolvers' defaults and
+    #: the KKT check decides.
     SETTINGS = {
         "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000, verbose=False),
         "proxqp": dict(eps_abs=1e-10, eps_rel=0.0),
         "clarabel": dict(tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12, tol_ktratio=1e-10),
         "scs": dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=100000),
         "highs": dict(qp_regularization_value=1e-12),
+        "daqp": dict(primal_tol=1e-9),
     }
 
     def __init__(self, solver: str, **settings):
