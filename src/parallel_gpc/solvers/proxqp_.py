@@ -32,6 +32,7 @@ class ProxQPBackend(PersistentQPBackend):
             self._qp = proxsuite.proxqp.dense.QP(problem.n, 0, C.shape[0])
             s = self._qp.settings
             s.eps_abs, s.eps_rel, s.max_iter, s.verbose = self.eps, 0.0, self.max_iter, False
+            s.check_duality_gap, s.eps_duality_gap_abs, s.eps_duality_gap_rel = True, self.eps, 0.0  # else off
             s.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
             self._qp.init(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
             self._shape = shape

@@ -34,7 +34,9 @@ class QpsolversBackend:
     """
 
     #: tolerances that meet :data:`~parallel_gpc.solvers.kkt.KKT_TOL` on the benchmark problems
-    #: (hexapod_8ups, N = 20, box and linear limits binding; tests/test_kkt.py). With its defaults
+    #: (hexapod_8ups, N = 20, box and linear limits binding; tests/test_kkt.py) and the random
+    #: ones of tests/test_properties.py. ProxQP does not check its duality gap unless told: a
+    #: solution 3e-6 inside an active limit passed its residual test. With its defaults
     #: Clarabel's gap tolerance 1e-8 leaves stationarity residuals of 1e-4…1e-2 and SCS's 1e-4
     #: breaks limits by ~1e-4 relative; HiGHS's QP regularization 1e-7 leaves stationarity
     #: residuals of ~5e-7 (measured worst: 4.8e-12 with 1e-12); DAQP's primal tolerance 1e-6
@@ -42,7 +44,8 @@ class QpsolversBackend:
     #: the KKT check decides.
     SETTINGS = {
         "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000, verbose=False),
-        "proxqp": dict(eps_abs=1e-10, eps_rel=0.0),
+        "proxqp": dict(eps_abs=1e-10, eps_rel=0.0, check_duality_gap=True, eps_duality_gap_abs=1e-10,
+                       eps_duality_gap_rel=0.0),
         "clarabel": dict(tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12, tol_ktratio=1e-10),
         "scs": dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=100000),
         "highs": dict(qp_regularization_value=1e-12),
