@@ -30,6 +30,7 @@ fallback takes over) when it does not, with the residuals and tolerances in the 
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 
@@ -110,7 +111,7 @@ class _Point:
         self.Pv, self.q, self.v = Pv, A.T @ b, v
         self.q *= -s
         self.g = self.Pv + self.q
-        self.norms = max(float(abs(self.Pv).max(initial=0.0)), float(abs(self.q).max(initial=0.0)))
+        self.norms = max(float(abs(self.Pv).max()), float(abs(self.q).max())) if v.size else 0.0
         self.objective = max(abs(float(v @ self.Pv)), abs(float(self.q @ v)))
         self.n_box = v.size if problem.lb is not None else 0
         self.L = problem.L
@@ -122,8 +123,9 @@ class _Point:
             self.lo, self.hi = np.concatenate([problem.lb, problem.lo]), np.concatenate([problem.ub, problem.hi])
             self.Cv = np.concatenate([v, self.L @ v])
         self.abs_lo, self.abs_hi = abs(self.lo), abs(self.hi)
-        self.finite = bool(np.isfinite(float(self.abs_lo.sum()) + float(self.abs_hi.sum())))  # else some are ±inf
+        self.finite = math.isfinite(float(self.abs_lo.sum()) + float(self.abs_hi.sum()))  # else some are ±inf
         self.slack_hi, self.slack_lo = self.hi - self.Cv, self.Cv - self.lo
+        self.gap_hi, self.gap_lo = np.maximum(self.slack_hi, 0.0), np.maximum(self.slack_lo, 0.0)
         worst = min(float(self.slack_hi.min(initial=0.0)), float(self.slack_lo.min(initial=0.0)))
         self.primal = 0.0  # never −0
         if worst < 0.0:  # each violation relative to its own limit: max(1, |limit|)
@@ -145,7 +147,7 @@ class _Point:
         stationarity = _ratio(float(abs(r).max(initial=0.0)), max(self.norms, float(abs(Cty).max(initial=0.0))))
         up = np.maximum(y, 0.0)
         down = up - y
-        slack_hi, slack_lo = np.maximum(self.slack_hi, 0.0), np.maximum(self.slack_lo, 0.0)
+        slack_hi, slack_lo = self.gap_hi, self.gap_lo
         if self.finite:
             gap = float(up @ slack_hi + down @ slack_lo)
             limits = float(up @ self.abs_hi + down @ self.abs_lo)
@@ -186,8 +188,8 @@ class _Point:
 
 def _ratio(num: float, den: float) -> float:
     """num/den, 0 when num is 0, inf when num is not finite."""
-    if not np.isfinite(num):
-        return np.inf
+    if not math.isfinite(num):
+        return math.inf
     return 0.0 if num == 0.0 else num / max(den, 1e-300)
 
 
