@@ -4,6 +4,7 @@ Python API's type errors, and the console staying quiet around our messages."""
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import shutil
@@ -16,6 +17,7 @@ from parallel_gpc import ParallelRobot, ReducedModel, cli
 from parallel_gpc.errors import (
     InvalidParameterError,
     NonFiniteError,
+    OutputError,
     ParallelGPCError,
     ResultFormatError,
     RobotFormatError,
@@ -186,6 +188,16 @@ ROWS = [
      ResultFormatError, ["'planar_4rrr'", "'planar_3rrr' has nq = 9"]),
     ("10 --noise 1e6", lambda t: ["track", "--form", "absolute", "--noise", "1e6", *QUICK, "--out", str(t / "o")],
      UnreachablePoseError, ["noise_std", "1000000.0"]),
+    # issue 24, 9: one-line errors, no traceback, before allocating
+    *[(f"24.9 demo --deadbeat-duration {v}", lambda t, v=v: ["demo", "--deadbeat-duration", v, "--no-progress",
+                                                           "--out", str(t / "o")],
+       InvalidParameterError, ["dead-beat check duration", "must be finite and > 0"]) for v in ("nan", "inf", "0", "-1")],
+    ("24.9 demo --deadbeat-duration below Ts", lambda t: ["demo", "--deadbeat-duration", "1e-4", "--no-progress",
+                                                          "--out", str(t / "o")],
+     InvalidParameterError, ["0.0001 s", "at least one sample"]),
+    ("24.9 plan --settle 1000000000", lambda t: ["plan", "--settle", "1000000000", "--no-progress",
+                                                 "--out", str(t / "o")],
+     InvalidParameterError, ["settle_steps = 1000000000", "GiB", "reduce settle_steps"]),
 ]
 
 
@@ -282,3 +294,64 @@ def test_a_symlinked_robot_file_inside_a_folder_still_loads(tmp_path):
     shutil.copy(urdf_dir() / "planar_3rrr.urdf", tmp_path / "r.urdf")
     os.symlink(urdf_dir() / "planar_3rrr.toml", tmp_path / "r.toml")
     assert ParallelRobot.load(tmp_path / "r.urdf").n_u == 3
+
+
+# ---------------------------------------------------------------------------- issue 24, 12: writing fails
+def _disk_full_after(nbytes: int):
+    """A writer that puts ``nbytes`` into the open file, then fails like a full disk (ENOSPC)."""
+    def write(target, *args, **kwargs):
+        data = b"x" * nbytes
+        if hasattr(target, "write"):
+            target.write(data)
+        else:
+            with open(target, "wb") as fh:
+                fh.write(data)
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    return write
+
+
+def test_a_full_disk_is_named_with_the_path_and_the_partial_file_removed(tmp_path, monkeypatch):
+    from matplotlib.figure import Figure
+
+    from parallel_gpc import results, save_result
+    from parallel_gpc.studies.plots_common import save_figure
+
+    t = np.array([0.0, 0.1])
+    target = tmp_path / "run.npz"
+    monkeypatch.setattr(results.np, "savez_compressed", _disk_full_after(100))
+    with pytest.raises(OutputError, match=re.escape(f"cannot write result file {str(target)!r}: No space left")) as e:
+        save_result(target, None, t)
+    assert e.value.errno == errno.ENOSPC and isinstance(e.value, OSError)
+    assert not target.exists()  # no truncated archive left behind
+    monkeypatch.undo()
+    save_result(target, None, t)  # a good file ...
+    good = target.read_bytes()
+
+    def refuse(path, *args, **kwargs):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(path))
+
+    monkeypatch.setattr(results, "open", refuse, raising=False)  # fails before writing anything
+    with pytest.raises(OutputError, match="Permission denied"):
+        save_result(target, None, t)
+    assert target.read_bytes() == good  # ... that the failed write never touched is kept
+    monkeypatch.undo()
+
+    figure = tmp_path / "f.png"
+    monkeypatch.setattr(Figure, "savefig", lambda self, path, **kw: _disk_full_after(10)(path))
+    with pytest.raises(OutputError, match=re.escape(f"cannot write figure {str(figure)!r}: No space left")):
+        save_figure(Figure(), figure)
+    assert not figure.exists()
+    with pytest.raises(OutputError, match=re.escape(f"cannot write figure {str(tmp_path / 'x.npz' / 'g.png')!r}")):
+        (tmp_path / "x.npz").write_bytes(b"")
+        save_figure(Figure(), tmp_path / "x.npz" / "g.png")  # its folder would be under a file
+
+
+def test_cli_names_the_unwritable_file_on_one_line(tmp_path, monkeypatch, capfd):
+    from parallel_gpc import results
+
+    monkeypatch.setattr(results.np, "savez_compressed", _disk_full_after(100))
+    capfd.readouterr()
+    assert cli.main(["track", "--form", "absolute", *QUICK, "--out", str(tmp_path / "o")]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("parallel-gpc: error: cannot write result file"), err
+    assert str(tmp_path / "o") in err[0] and "No space left on device" in err[0]

@@ -7,6 +7,7 @@ import json
 import os
 import urllib.error
 import urllib.request
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -98,8 +99,10 @@ def test_bench_ctrl_c_saves_the_finished_rows(tmp_path, monkeypatch, capsys):
 @pytest.mark.parametrize("form, du_limit", [("absolute", None), ("incremental", 2.0)])
 def test_no_applied_input_exceeds_the_torque_limit_with_a_loose_qp(robot4, form, du_limit):
     """OSQP at eps = 1e-2 and 50 iterations returns "solved" with |u| above τ (checked: the raw
-    solutions do exceed it); the controller refuses every such solution (visible fallback) and
-    applies only |u| ≤ τ·(1 + APPLIED_LIMIT_RTOL)."""
+    solutions do exceed it). The KKT check reports such solutions ``inaccurate``; the spy here
+    passes them on as ``optimal`` anyway (a check that missed), to test the controller's own check
+    behind it: it refuses every such solution (visible fallback) and applies only
+    |u| ≤ τ·(1 + APPLIED_LIMIT_RTOL)."""
     Ts, N, tau = 0.005, 10, 5.0
     ref = SCurve()
     c = GPCController.build(ReducedModel(robot4), Ts, Horizons(N), Weights(1.0, 0.0), form=form, solver="osqp-direct", limits=Limits(torque=tau, du=du_limit))
@@ -108,6 +111,8 @@ def test_no_applied_input_exceeds_the_torque_limit_with_a_loose_qp(robot4, form,
 
     def spy(problem, warm_start=None):
         res = loose.solve(problem, warm_start)
+        if res.status == "inaccurate":  # what the KKT check says; pretend it had not
+            res = replace(res, status="optimal")
         if res.ok:
             u0 = (c._last_pred.u_base + c._last_pred.u_map @ res.v)[:4]
             over.append(np.max(np.abs(u0)) > tau * (1 + APPLIED_LIMIT_RTOL))

@@ -8,6 +8,7 @@ with a margin (measured values in the comments, from the tests' own settings).
 from __future__ import annotations
 
 import functools
+import re
 import sys
 from pathlib import Path
 from types import SimpleNamespace
@@ -53,21 +54,59 @@ def test_sizes_and_output_kinds():
                      "hexapod_8ups": (6, 8, 30, [False] * 3 + [True] * 3)}
 
 
+#: a number in generated text (not a digit inside a name such as ``drive_1`` or ``3rus``)
+NUMBER = re.compile(r"(?<![\w.])[-+]?(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?(?![\w.])")
+#: a zero written with a sign (``-0``, ``-0.0000``, ``-0e+00``)
+NEGATIVE_ZERO = re.compile(r"(?<![\w.])-0(?:\.0*)?(?:[eE][-+]?\d+)?(?![\w.])")
+
+
+def _last_digit(token: str) -> float:
+    """One unit of the last printed digit of a number token (``0.0123`` → 1e-4, ``6.4e-06`` → 1e-7)."""
+    mantissa, _, exponent = token.lower().partition("e")
+    decimals = len(mantissa.partition(".")[2])
+    return 10.0 ** (int(exponent or 0) - decimals)
+
+
+def assert_same_up_to_last_digits(committed: str, generated: str, where: str) -> None:
+    """The same text between the numbers, and each pair of numbers equal to one unit of its last
+    printed digit: rounding that differs between machines (libm, BLAS) does not fail the test."""
+    assert NUMBER.split(committed) == NUMBER.split(generated), f"{where}: text outside the numbers differs"
+    ours, theirs = NUMBER.findall(committed), NUMBER.findall(generated)
+    assert len(ours) == len(theirs), where
+    for a, b in zip(ours, theirs):
+        unit = max(_last_digit(a), _last_digit(b))
+        assert abs(float(a) - float(b)) <= 1.5 * unit, f"{where}: {a} (committed) vs {b} (generated)"
+
+
+def test_number_comparison_of_generated_text():
+    same = assert_same_up_to_last_digits
+    same("x = 0.0000\nname = drive_1", "x = -0.0000\nname = drive_1", "signed zero")
+    same('xyz="0.1 -0.0433012701892 6.4e-06"', 'xyz="0.1 -0.0433012701893 6.4e-06"', "last digit")
+    for other in ("x = 0.0002\nname = drive_1", "x = 0.0000\nname = drive_2", "x = 0.0000 1\nname = drive_1"):
+        with pytest.raises(AssertionError):
+            same("x = 0.0000\nname = drive_1", other, "differs")
+    assert NEGATIVE_ZERO.search("a = -0.0000") and NEGATIVE_ZERO.search("[-0, 1]")
+    assert not NEGATIVE_ZERO.search("b = -0.02 c = 1e-07 d = -0.0001 drive_-0x")
+
+
 def test_generated_files_are_up_to_date():
-    """The committed files are what urdf/generate.py writes (planar ones unchanged)."""
+    """The committed files are what urdf/generate.py writes, up to the last printed digit of each
+    number; neither writes a negative zero."""
     sys.path.insert(0, str(Path(urdf_dir())))
     try:
         import generate
         from generate_spatial import SPATIAL_ROBOTS
     finally:
         sys.path.pop(0)
-    for name, n_legs in (("planar_4rrr", 4), ("planar_3rrr", 3)):
-        assert (urdf_dir() / f"{name}.urdf").read_text() == generate.urdf_text(name, n_legs)
-        assert (urdf_dir() / f"{name}.toml").read_text() == generate.sidecar_text(name, n_legs)
-    for name, files in SPATIAL_ROBOTS.items():
-        urdf, toml = files()
-        assert (urdf_dir() / f"{name}.urdf").read_text() == urdf
-        assert (urdf_dir() / f"{name}.toml").read_text() == toml
+    files = {name: (generate.urdf_text(name, n_legs), generate.sidecar_text(name, n_legs))
+             for name, n_legs in (("planar_4rrr", 4), ("planar_3rrr", 3))}
+    files.update({name: make() for name, make in SPATIAL_ROBOTS.items()})
+    for name, (urdf, toml) in files.items():
+        for suffix, generated in ((".urdf", urdf), (".toml", toml)):
+            committed = (urdf_dir() / f"{name}{suffix}").read_text()
+            assert_same_up_to_last_digits(committed, generated, f"{name}{suffix}")
+            for text in (committed, generated):
+                assert not NEGATIVE_ZERO.search(text), f"{name}{suffix}: {NEGATIVE_ZERO.search(text).group()!r}"
 
 
 def test_closure_residual_after_assembly_and_conditioning(spatial):

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import http.client
 import io
 import re
 import socket
 import threading
+import time
 import urllib.request
 from pathlib import Path as FsPath
 from types import SimpleNamespace
@@ -285,6 +287,112 @@ def test_serve_gallery_stops_on_keyboard_interrupt(tmp_path):
     assert not port_open(seen["port"])
     with pytest.raises(InvalidParameterError, match="does not exist"):
         viz.GalleryServer(tmp_path / "missing")
+
+
+# ------------------------------------------------------------------------- Host header, idle timeout
+def request(port: int, path: str, host: str | None, headers=()) -> tuple[int, bytes]:
+    """GET ``path`` from 127.0.0.1:port with this exact Host header (None: none sent)."""
+    conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+    try:
+        conn.putrequest("GET", path, skip_host=True, skip_accept_encoding=True)
+        if host is not None:
+            conn.putheader("Host", host)
+        for name, value in headers:
+            conn.putheader(name, value)
+        conn.endheaders()
+        response = conn.getresponse()
+        return response.status, response.read()
+    finally:
+        conn.close()
+
+
+def refused_hosts(port: int) -> list[str | None]:
+    return [f"evil.example:{port}", "evil.example", f"127.0.0.1.evil.example:{port}", f"127.0.0.1:{port + 1}",
+            f"0.0.0.0:{port}", f"192.168.1.5:{port}", "127.0.0.1", "", None]
+
+
+def refused(answer: tuple[int, bytes], host: str | None) -> bool:
+    """403 and no content (a missing Host header: Tornado's own 400 Bad Request, no content, also counts)."""
+    return answer[1] == b"" and (answer[0] == 403 or (host is None and answer[0] == 400))
+
+
+def loopback_hosts(port: int) -> list[str]:
+    return [f"127.0.0.1:{port}", f"localhost:{port}", f"LocalHost:{port}", f"127.0.0.2:{port}", f"[::1]:{port}"]
+
+
+def test_loopback_host_header():
+    for value in loopback_hosts(8000) + ["localhost", "127.0.0.1", "[::1]"]:
+        assert viz.loopback_host_header(value, 8000 if value.endswith("8000") else 80), value
+    for value in refused_hosts(8000) + ["::1:8000", "127.1:8000", "0x7f000001:8000", "127.0.0.1:+8000",
+                                        "127.0.0.1:８０００", "localhost:80"]:
+        assert not viz.loopback_host_header(value, 8000), value
+    for bad in (0, -1.0, float("nan"), float("inf"), "30", True, None):
+        with pytest.raises(InvalidParameterError, match="idle timeout"):
+            viz.GalleryServer(".", idle_timeout=bad)
+        with pytest.raises(InvalidParameterError, match="idle timeout"):
+            viz.LiveViewer(idle_timeout=bad)
+
+
+def test_gallery_answers_loopback_host_names_only(robot4, tmp_path):
+    """DNS rebinding: ``Host: evil.example:PORT`` with a matching Origin gets 403 and no content."""
+    t, qs, _ = line_motion(robot4, n=3)
+    viz.export_html(tmp_path / "a.html", robot4, t, qs, title="Run A")
+    with viz.GalleryServer(tmp_path) as gallery:
+        port = gallery.port
+        for host in refused_hosts(port):
+            for path in ("/", "/a.html"):
+                assert refused(request(port, path, host, [("Origin", f"http://{host}")]), host), (host, path)
+        for host in loopback_hosts(port):
+            status, body = request(port, "/a.html", host)
+            assert status == 200 and b"new MeshCat.Viewer" in body, host
+        assert b"Run A" in request(port, "/", f"localhost:{port}")[1]
+
+
+def test_live_viewer_answers_loopback_host_names_only():
+    with viz.LiveViewer() as viewer:
+        port = viewer.port
+        for host in refused_hosts(port):
+            assert refused(request(port, "/static/", host, [("Origin", f"http://{host}")]), host), host
+            upgrade = [("Origin", f"http://{host}"), ("Connection", "Upgrade"), ("Upgrade", "websocket"),
+                       ("Sec-WebSocket-Version", "13"), ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ==")]
+            assert refused(request(port, "/", host, upgrade), host), host  # no scene over a websocket
+        for host in loopback_hosts(port):
+            status, body = request(port, "/static/", host)
+            assert status == 200 and b"MeshCat.Viewer" in body, host
+        upgrade = [("Connection", "Upgrade"), ("Upgrade", "websocket"), ("Sec-WebSocket-Version", "13"),
+                   ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ==")]
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=5)
+        conn.putrequest("GET", "/", skip_host=True, skip_accept_encoding=True)
+        conn.putheader("Host", f"127.0.0.1:{port}")
+        for name, value in upgrade:
+            conn.putheader(name, value)
+        conn.endheaders()
+        assert conn.getresponse().status == 101  # the loopback websocket is accepted
+        conn.close()
+
+
+def closed_after(port: int, limit: float) -> float | None:
+    """Connect, send nothing, and return the seconds until the server closes (None: not in ``limit``)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=limit) as client:
+        t0 = time.monotonic()
+        try:
+            data = client.recv(1024)
+        except (TimeoutError, socket.timeout):
+            return None
+        except ConnectionResetError:
+            data = b""
+        return time.monotonic() - t0 if data == b"" else None
+
+
+def test_servers_close_idle_connections(tmp_path):
+    with viz.GalleryServer(tmp_path, idle_timeout=0.5) as gallery:
+        waited = closed_after(gallery.port, 10.0)
+        assert waited is not None and 0.3 <= waited < 10.0
+        assert request(gallery.port, "/", f"127.0.0.1:{gallery.port}")[0] == 200  # still serving
+    with viz.LiveViewer(idle_timeout=0.5) as viewer:
+        waited = closed_after(viewer.port, 10.0)
+        assert waited is not None and 0.3 <= waited < 10.0
+        assert request(viewer.port, "/static/", f"127.0.0.1:{viewer.port}")[0] == 200
 
 
 # ------------------------------------------------------------------------- files and CLI

@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from generate_spatial import SPATIAL_ROBOTS, number, xyz_text  # the spatial robots; one number format (no -0)
+
 HERE = Path(__file__).resolve().parent
 BASES = [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)]
 ATTACH_ANGLES_DEG = [225.0, 315.0, 45.0, 135.0]
@@ -70,7 +72,7 @@ def _revolute(name: str, parent: str, child: str, xyz, yaw: float = 0.0) -> str:
     return f"""  <joint name="{name}" type="revolute">
     <parent link="{parent}"/>
     <child link="{child}"/>
-    <origin xyz="{xyz[0]:.12g} {xyz[1]:.12g} {xyz[2]:.12g}" rpy="0 0 {yaw:.12g}"/>
+    <origin xyz="{xyz_text(xyz)}" rpy="0 0 {number(yaw)}"/>
     <axis xyz="0 0 1"/>
     <limit lower="-12.566" upper="12.566" effort="{DRIVE_TORQUE_LIMIT}" velocity="20"/>
   </joint>
@@ -82,7 +84,7 @@ def _fixed(name: str, parent: str, xyz) -> str:
   <joint name="{name}_joint" type="fixed">
     <parent link="{parent}"/>
     <child link="{name}"/>
-    <origin xyz="{xyz[0]:.12g} {xyz[1]:.12g} {xyz[2]:.12g}" rpy="0 0 0"/>
+    <origin xyz="{xyz_text(xyz)}" rpy="0 0 0"/>
   </joint>
 """
 
@@ -171,7 +173,7 @@ def sidecar_text(name: str, n_legs: int) -> str:
         a = math.radians(ATTACH_ANGLES_DEG[i]) + HOME_POSE[2]
         point = (HOME_POSE[0] + ATTACH_RADIUS * math.cos(a), HOME_POSE[1] + ATTACH_RADIUS * math.sin(a))
         drive, elbow = leg_ik(BASES[i], point)
-        lines += [f"drive_{i + 1} = {drive:.3f}", f"elbow_{i + 1} = {elbow:.3f}"]
+        lines += [f"drive_{i + 1} = {number(drive, '.3f')}", f"elbow_{i + 1} = {number(elbow, '.3f')}"]
     lines += [
         "",
         "[drives]",
@@ -191,8 +193,6 @@ def sidecar_text(name: str, n_legs: int) -> str:
 
 
 def main() -> None:
-    from generate_spatial import SPATIAL_ROBOTS  # the Delta robot and the hexapods
-
     for name, n_legs in (("planar_4rrr", 4), ("planar_3rrr", 3)):
         (HERE / f"{name}.urdf").write_text(urdf_text(name, n_legs))
         (HERE / f"{name}.toml").write_text(sidecar_text(name, n_legs))

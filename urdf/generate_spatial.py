@@ -34,8 +34,20 @@ LIMIT_ANGLE = 12.566  # rad, effectively unlimited revolute joints
 
 
 # ------------------------------------------------------------------------------ URDF pieces
-def _v(xyz) -> str:
-    return " ".join(f"{float(c):.12g}" for c in xyz)
+def number(x: float, spec: str = ".12g") -> str:
+    """``x`` formatted with ``spec``, |x| < 1e-12 written as 0 and no zero with a sign.
+
+    A value that is zero up to rounding (an asin of ±1e-17) has a sign that differs between
+    machines; the generated files must not depend on it (no ``-0.0000``, no ``6.1e-17``).
+    """
+    x = float(x)
+    text = format(0.0 if abs(x) < 1e-12 else x, spec)
+    return text[1:] if text.startswith("-") and float(text) == 0.0 else text
+
+
+def xyz_text(xyz) -> str:
+    """Three numbers of a URDF ``xyz`` or ``rpy`` attribute (:func:`number`, 12 digits)."""
+    return " ".join(number(c) for c in xyz)
 
 
 def joint(name: str, kind: str, parent: str, child: str, xyz=(0, 0, 0), rpy=(0, 0, 0), axis=(0, 0, 1),
@@ -43,10 +55,11 @@ def joint(name: str, kind: str, parent: str, child: str, xyz=(0, 0, 0), rpy=(0, 
     """One URDF joint (``revolute``, ``prismatic`` or ``fixed``)."""
     body = [f'  <joint name="{name}" type="{kind}">',
             f'    <parent link="{parent}"/><child link="{child}"/>',
-            f'    <origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>']
+            f'    <origin xyz="{xyz_text(xyz)}" rpy="{xyz_text(rpy)}"/>']
     if kind != "fixed":
-        body += [f'    <axis xyz="{_v(axis)}"/>',
-                 f'    <limit lower="{limit[0]:.6g}" upper="{limit[1]:.6g}" effort="{effort:.6g}" velocity="20"/>']
+        body += [f'    <axis xyz="{xyz_text(axis)}"/>',
+                 f'    <limit lower="{number(limit[0], ".6g")}" upper="{number(limit[1], ".6g")}" '
+                 f'effort="{effort:.6g}" velocity="20"/>']
     return "\n".join(body + ["  </joint>", ""])
 
 
@@ -64,10 +77,11 @@ def link(name: str, mass: float = 0.0, com=(0, 0, 0), rpy=(0, 0, 0), length: flo
         return f'  <link name="{name}"/>\n'
     ixx, iyy, izz = cylinder_inertia(mass, length, radius)
     return (f'  <link name="{name}">\n'
-            f'    <inertial>\n      <origin xyz="{_v(com)}" rpy="{_v(rpy)}"/>\n      <mass value="{mass:.6g}"/>\n'
+            f'    <inertial>\n      <origin xyz="{xyz_text(com)}" rpy="{xyz_text(rpy)}"/>\n'
+            f'      <mass value="{mass:.6g}"/>\n'
             f'      <inertia ixx="{ixx:.6g}" ixy="0" ixz="0" iyy="{iyy:.6g}" iyz="0" izz="{izz:.6g}"/>\n'
             f'    </inertial>\n'
-            f'    <visual>\n      <origin xyz="{_v(com)}" rpy="{_v(rpy)}"/>\n'
+            f'    <visual>\n      <origin xyz="{xyz_text(com)}" rpy="{xyz_text(rpy)}"/>\n'
             f'      <geometry><cylinder radius="{radius:.6g}" length="{length:.6g}"/></geometry>\n'
             f'      <material name="{material}"/>\n    </visual>\n  </link>\n')
 
@@ -133,8 +147,9 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
     return rot_z(yaw) @ rot_y(pitch) @ rot_x(roll)
 
 
-def toml_list(values, fmt: str = "{}") -> str:
-    return "[" + ", ".join(fmt.format(v) for v in values) + "]"
+def toml_list(values, spec: str = ".6g") -> str:
+    """A TOML list of numbers formatted by :func:`number`."""
+    return "[" + ", ".join(number(v, spec) for v in values) + "]"
 
 
 def toml_names(names) -> str:
@@ -151,17 +166,17 @@ def sidecar(name: str, description: str, numbers: str, output: list[str], labels
              f'name = "{name}"', f'description = "{description}"', "",
              "[output]", 'frame = "platform"', f"joints = {toml_names(output)}",
              f"labels = {toml_names(labels)}", f"units = {toml_names(units)}", "",
-             "[home]", f"# platform pose {toml_list(f'{lab} {u}' for lab, u in zip(labels, units))}",
-             f"pose = {toml_list(home, '{:.6g}')}",
+             "[home]", "# platform pose [" + ", ".join(f"{lab} {u}" for lab, u in zip(labels, units)) + "]",
+             f"pose = {toml_list(home)}",
              "# default start and end poses of `parallel-gpc plan` (same coordinates)",
-             *(f"{k} = {toml_list(v, '{:.6g}')}" for k, v in poses.items()),
+             *(f"{k} = {toml_list(v)}" for k, v in poses.items()),
              "# passive joints whose sign of sin(q) identifies the assembly branch",
              f"branch_joints = {toml_names(branch)}", "",
              "[home.q_guess]", "# leg joint values (rad, m) at the home pose, the start of assembly",
-             *(f"{k} = {v:.4f}" for k, v in q_guess.items()), "",
+             *(f"{k} = {number(v, '.4f')}" for k, v in q_guess.items()), "",
              "[drives]", f"joints = {toml_names(drives)}",
              "# N·m for revolute drives, N for prismatic drives",
-             f"torque_limit = {toml_list(limits, '{:.6g}')}", ""]
+             f"torque_limit = {toml_list(limits)}", ""]
     for i, (a, b) in enumerate(closures):
         lines += ["[[closures]]", f'name = "leg_{i + 1}"', 'kind = "point"', f'frames = ["{a}", "{b}"]', ""]
     return "\n".join(lines)

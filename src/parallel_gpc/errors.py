@@ -7,6 +7,10 @@ valid. Errors that also describe an invalid argument derive from :class:`ValueEr
 
 from __future__ import annotations
 
+import contextlib
+import os
+from pathlib import Path
+
 
 class ParallelGPCError(Exception):
     """Base class of all parallel-gpc errors."""
@@ -67,3 +71,43 @@ class ViewerError(ParallelGPCError):
 
 class ResultFormatError(InvalidParameterError):
     """A result file is unreadable, of an unknown format or version, or lacks a needed key."""
+
+
+class OutputError(ParallelGPCError, OSError):
+    """A file could not be written (disk full, no permission, …); the message names the path and
+    the reason. ``errno`` is the operating system's error number."""
+
+
+@contextlib.contextmanager
+def writing(path, what: str):
+    """Context manager around writing one file: an :class:`OSError` inside (also from creating its
+    folder) becomes an :class:`OutputError` naming ``what``, the path and the reason, and the
+    partly written file is removed (a file that was there before and was not touched is kept).
+
+    Args:
+        path: the file being written. what: what it is (``"result file"``, ``"figure"``, …).
+    """
+    path = Path(path)
+    before = _stat(path)
+    try:
+        yield path
+    except OutputError:
+        raise
+    except OSError as exc:
+        after = _stat(path)
+        if after is not None and after != before:
+            with contextlib.suppress(OSError):
+                path.unlink()
+        reason = exc.strerror or str(exc)
+        where = f" ({exc.filename})" if exc.filename and str(exc.filename) != str(path) else ""
+        error = OutputError(f"cannot write {what} {str(path)!r}: {reason}{where}")
+        error.errno = exc.errno
+        raise error from exc
+
+
+def _stat(path: Path) -> tuple[int, int] | None:
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_mtime_ns, st.st_size

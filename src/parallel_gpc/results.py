@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from .limits import Limits, as_limits
-from .errors import InvalidParameterError, ResultFormatError, ShapeError
+from .errors import InvalidParameterError, ResultFormatError, ShapeError, writing
 from .model.description import embedded_robots, urdf_dir
 from .validation import finite_matrix, finite_vector, regular_file
 
@@ -194,6 +194,7 @@ def save_result(path, robot, t, q=None, *, reference=None, planned=None, saturat
     Raises:
         ShapeError, InvalidParameterError: inconsistent arrays; an extra array that reuses a
             standard key or holds Python objects.
+        OutputError: the file cannot be written (the path and the reason named).
     """
     t = check_times(t)
     content = _standard_arrays(robot, t, q, reference, planned, saturated)
@@ -206,9 +207,10 @@ def save_result(path, robot, t, q=None, *, reference=None, planned=None, saturat
     content.update(format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION), kind=np.array(str(kind)),
                    robot=np.array(robot_reference(robot)), meta=np.array(json.dumps(_jsonable(meta or {}))))
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as f:
-        np.savez_compressed(f, **content)
+    with writing(path, "result file"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "wb") as f:
+            np.savez_compressed(f, **content)
     return path
 
 

@@ -53,7 +53,7 @@ from ..results import robot_reference
 from .prediction import Horizons, Prediction, absolute_prediction
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
 from .criterion import build_problem, check_problem_size
-from ..validation import check_sample_time, finite_vector
+from ..validation import check_allocation, check_sample_time, finite_vector
 from .plan_result import PlanRecorder, PlanResult
 from .plan_settings import (  # noqa: F401  (re-exported: the planning API in one place)
     DEFAULT_LIMITED_SOLVER,
@@ -207,6 +207,11 @@ def plan_point_to_point(robot, A, B, settings: PlanSettings | None = None, mode:
     backend = make_solver(settings.solver)
     sat0 = getattr(plant, "saturated", 0)
     K = settings.Nmax if mode == "once" else settings.Nmax + settings.settle_steps
+    q0 = getattr(plant, "q", None)
+    check_allocation(f"the record of {K} samples (Nmax = {settings.Nmax}"
+                     + ("" if mode == "once" else f" + settle_steps = {settings.settle_steps}") + ")",
+                     (K + 1) * (2 * n_y + n_u + 3 + (0 if q0 is None else len(q0))),
+                     "reduce settle_steps (plan --settle) or Nmax")
     rec = PlanRecorder(K, n_y, n_u, plant)
     try:
         if mode == "once":

@@ -10,13 +10,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from ..errors import writing
+
 if TYPE_CHECKING:  # saving needs no matplotlib import of its own
     from matplotlib.figure import Figure
 
 
 def save_figure(fig: Figure, path, dpi: int = 110, **kwargs) -> Path:
-    """Write ``fig`` to ``path`` (format from the suffix, parent folders created); returns the path."""
+    """Write ``fig`` to ``path`` (format from the suffix, parent folders created); returns the path.
+
+    Raises:
+        OutputError: the file cannot be written (the path and the reason named).
+    """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi, **kwargs)
+    with writing(path, "figure"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=dpi, **kwargs)
     return path

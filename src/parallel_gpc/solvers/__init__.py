@@ -19,6 +19,10 @@ with named structure hints that its builder fills in).
   linear-quadratic tracking problem over stages (not a back end of a condensed problem: the
   controller's ``solver="riccati"`` path, :mod:`parallel_gpc.gpc.riccati`, calls it).
 
+Every QP back end's solution goes through one KKT check (:mod:`parallel_gpc.solvers.kkt`,
+:func:`kkt_residuals` against :data:`KKT_TOL`): the status is ``"optimal"`` only when the primal,
+stationarity and complementarity residuals pass, ``"inaccurate"`` (not ``ok``) otherwise.
+
 Back ends register themselves (qpsolvers' style): each module is imported inside
 ``try/except ImportError`` and only those whose package imports are listed by
 :func:`available_solvers`. Every solve returns a :class:`SolveResult` (status, iterations,
@@ -37,6 +41,7 @@ from .problem import (
     MinNormOf,
     SolveResult,
 )
+from .kkt import KKT_TOL, KKTResiduals, KKTTolerance, kkt_residuals, verified
 from .bvls import BVLSSolver
 from .normal import NormalEquationsSolver
 from .qr import QRSolver, qr_least_squares
@@ -46,6 +51,7 @@ __all__ = [
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
     "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
     "available_solvers", "installed_qp_solvers", "make_solver",
+    "KKT_TOL", "KKTResiduals", "KKTTolerance", "kkt_residuals", "verified",
 ]
 
 #: every direct back-end name this package knows, installed or not (for error messages).

@@ -27,6 +27,7 @@ from scipy.linalg import lapack
 from ..errors import SolverError
 from ..validation import all_finite
 from .normal import normal_equations_factor
+from .kkt import verified
 from .problem import LeastSquaresProblem, SolveResult, _failed
 from .qr import _qr_diag_tail, qr_least_squares
 
@@ -65,7 +66,7 @@ class BVLSSolver:
         if not ok:
             return _failed(problem, self.name, "failed", iterations, dt,
                            f"bvls did not converge in {iterations} subproblem solves")
-        return SolveResult(x, problem.cost(x), "optimal", self.name, iterations, dt, problem.active(x))
+        return verified(problem, self.name, x, iterations, dt, None, "bvls: KKT met in its own iteration")
 
 
 class _QRForm:

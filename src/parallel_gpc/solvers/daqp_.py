@@ -19,7 +19,13 @@ import time
 import daqp
 import numpy as np
 
-from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, _solved, cumulative_block, from_cumulative
+from .kkt import verified
+from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, cumulative_block, from_cumulative
+
+
+#: DAQP's primal feasibility tolerance (limit units; its default 1e-6 leaves violations that fail
+#: the KKT check's 1e-7, e.g. 6.5e-7 N·m in tests/test_errors.py's derated drive).
+PRIMAL_TOL = 1e-9
 
 
 class DAQPBackend:
@@ -65,13 +71,14 @@ class DAQPBackend:
             sense = self._sense
         else:
             sense = np.zeros(lo.shape, dtype=np.int32)
-        x, _, flag, info = daqp.solve(P, q, A_in, hi, lo, sense, **kwargs)
+        x, _, flag, info = daqp.solve(P, q, A_in, hi, lo, sense, primal_tol=PRIMAL_TOL, **kwargs)
         dt = time.perf_counter() - t0
         if flag != 1 or not np.all(np.isfinite(x)):
             kind = "infeasible" if flag == -1 else "failed"
             return _failed(problem, self.name, kind, int(info.get("iterations", 0)), dt, f"DAQP exit flag {flag}")
-        self._sense = (np.abs(np.asarray(info["lam"])) > 0).astype(np.int32) if "lam" in info else None
-        if block:
+        lam = np.asarray(info["lam"], dtype=float) if "lam" in info else None
+        self._sense = None if lam is None else (np.abs(lam) > 0).astype(np.int32)
+        if block:  # the multipliers of the box on s = M v are those of the rows lo ≤ M v ≤ hi
             x = from_cumulative(x, block)
-        return _solved(problem, self.name, x, int(info.get("iterations", 0)), dt)
+        return verified(problem, self.name, x, int(info.get("iterations", 0)), dt, lam, f"DAQP exit flag {flag}")
 

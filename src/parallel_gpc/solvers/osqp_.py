@@ -14,7 +14,8 @@ import numpy as np
 import osqp
 import scipy.sparse as sp
 
-from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, _solved, quiet_stdout
+from .kkt import verified
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, quiet_stdout
 
 
 class OSQPBackend(PersistentQPBackend):
@@ -55,5 +56,6 @@ class OSQPBackend(PersistentQPBackend):
         if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):
             kind = "infeasible" if "infeasible" in status else "failed"
             return _failed(problem, self.name, kind, int(res.info.iter), dt, f"OSQP status: {status}")
-        return _solved(problem, self.name, res.x, int(res.info.iter), dt)
+        return verified(problem, self.name, res.x, int(res.info.iter), dt, res.y if C.size else None,
+                        f"OSQP status: {status}")
 

@@ -150,7 +150,9 @@ class SolveResult:
     Attributes:
         v: (n,) solution (N·m or N·m per sample); NaN-free whenever ``ok``.
         cost: J = ‖A v − b‖² at v.
-        status: ``"optimal"``, ``"unconstrained"`` (QR, limits inactive or absent),
+        status: ``"optimal"`` (a QP back end's solution that passed the KKT check of
+            :mod:`parallel_gpc.solvers.kkt`), ``"unconstrained"`` (QR, limits inactive or absent),
+            ``"inaccurate"`` (a back end's solution that failed the KKT check),
             ``"infeasible"``, ``"failed"`` or ``"fallback"`` (set by the controller).
         solver: back-end name.
         iterations: solver iterations (None if the back end does not report them).
@@ -197,12 +199,6 @@ def _scaled_qp(problem: LeastSquaresProblem):
 def _failed(problem: LeastSquaresProblem, name: str, kind: str, iterations, dt: float, message: str) -> SolveResult:
     """A reported failure: NaN solution, infinite cost, status ``kind`` (never swallowed)."""
     return SolveResult(np.full(problem.n, np.nan), np.inf, kind, name, iterations, dt, message=message)
-
-
-def _solved(problem: LeastSquaresProblem, name: str, x, iterations, dt: float) -> SolveResult:
-    """A successful QP solve: cost and active limits evaluated on the original problem."""
-    v = np.asarray(x, dtype=float)
-    return SolveResult(v, problem.cost(v), "optimal", name, iterations, dt, problem.active(v))
 
 
 def _iterations_from_extras(extras) -> int | None:

@@ -12,7 +12,8 @@ import time
 import numpy as np
 import proxsuite
 
-from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, _solved
+from .kkt import verified
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed
 
 
 class ProxQPBackend(PersistentQPBackend):
@@ -31,6 +32,7 @@ class ProxQPBackend(PersistentQPBackend):
             self._qp = proxsuite.proxqp.dense.QP(problem.n, 0, C.shape[0])
             s = self._qp.settings
             s.eps_abs, s.eps_rel, s.max_iter, s.verbose = self.eps, 0.0, self.max_iter, False
+            s.check_duality_gap, s.eps_duality_gap_abs, s.eps_duality_gap_rel = True, self.eps, 0.0  # else off
             s.initial_guess = proxsuite.proxqp.InitialGuess.WARM_START_WITH_PREVIOUS_RESULT
             self._qp.init(P, q, None, None, C if C.size else None, lo if C.size else None, hi if C.size else None)
             self._shape = shape
@@ -45,5 +47,6 @@ class ProxQPBackend(PersistentQPBackend):
             kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
             self._qp = None  # its warm start is now meaningless: set up afresh next time
             return _failed(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
-        return _solved(problem, self.name, v, int(info.iter), dt)
+        duals = np.asarray(self._qp.results.z).copy() if C.size else None
+        return verified(problem, self.name, v, int(info.iter), dt, duals, f"ProxQP status: {status}")
 

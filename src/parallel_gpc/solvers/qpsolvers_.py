@@ -13,7 +13,8 @@ import numpy as np
 import qpsolvers
 
 from ..errors import SolverNotFoundError
-from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, _solved, quiet_stdout
+from .kkt import verified
+from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, quiet_stdout
 
 
 def installed_qp_solvers() -> list[str]:
@@ -26,12 +27,29 @@ class QpsolversBackend:
 
     Args:
         solver: qpsolvers solver name (``osqp``, ``proxqp``, ``daqp``, …).
-        **settings: passed to the solver (default: tight tolerances for OSQP/ProxQP).
+        **settings: passed to the solver (default: :data:`SETTINGS`).
+
+    Every solution goes through the KKT check of :mod:`parallel_gpc.solvers.kkt`: the status is
+    ``"optimal"`` only when it passes, ``"inaccurate"`` (with the residuals) when it does not.
     """
 
-    _DEFAULTS = {
+    #: tolerances that meet :data:`~parallel_gpc.solvers.kkt.KKT_TOL` on the benchmark problems
+    #: (hexapod_8ups, N = 20, box and linear limits binding; tests/test_kkt.py) and the random
+    #: ones of tests/test_properties.py. ProxQP does not check its duality gap unless told: a
+    #: solution 3e-6 inside an active limit passed its residual test. With its defaults
+    #: Clarabel's gap tolerance 1e-8 leaves stationarity residuals of 1e-4…1e-2 and SCS's 1e-4
+    #: breaks limits by ~1e-4 relative; HiGHS's QP regularization 1e-7 leaves stationarity
+    #: residuals of ~5e-7 (measured worst: 4.8e-12 with 1e-12); DAQP's primal tolerance 1e-6
+    #: leaves limit violations up to ~1e-6. Solvers not listed run with qpsolvers' defaults and
+    #: the KKT check decides.
+    SETTINGS = {
         "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000, verbose=False),
-        "proxqp": dict(eps_abs=1e-10, eps_rel=0.0),
+        "proxqp": dict(eps_abs=1e-10, eps_rel=0.0, check_duality_gap=True, eps_duality_gap_abs=1e-10,
+                       eps_duality_gap_rel=0.0),
+        "clarabel": dict(tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12, tol_ktratio=1e-10),
+        "scs": dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=100000),
+        "highs": dict(qp_regularization_value=1e-12),
+        "daqp": dict(primal_tol=1e-9),
     }
 
     def __init__(self, solver: str, **settings):
@@ -40,7 +58,7 @@ class QpsolversBackend:
             raise SolverNotFoundError(f"QP solver {solver!r} is not installed; installed: {available}")
         self.solver = solver
         self.name = f"qpsolvers:{solver}"
-        self.settings = {**self._DEFAULTS.get(solver, {}), **settings}
+        self.settings = {**self.SETTINGS.get(solver, {}), **settings}
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
@@ -49,7 +67,7 @@ class QpsolversBackend:
         if problem.L is not None:
             G = np.vstack([problem.L, -problem.L])
             h = np.concatenate([problem.hi, -problem.lo])
-        if self.solver == "osqp":  # OSQP takes CSC matrices; convert here rather than warn
+        if self.solver not in qpsolvers.dense_solvers:  # OSQP, Clarabel, HiGHS, SCS: CSC here rather than a warning
             import scipy.sparse as sp
 
             P = sp.csc_matrix(P)
@@ -66,5 +84,23 @@ class QpsolversBackend:
         dt = time.perf_counter() - t0
         if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
             return _failed(problem, self.name, "infeasible", None, dt, f"{self.solver} found no solution")
-        return _solved(problem, self.name, sol.x, _iterations_from_extras(sol.extras), dt)
+        return verified(problem, self.name, sol.x, _iterations_from_extras(sol.extras), dt, _duals(problem, sol),
+                        f"{self.solver}: found")
+
+
+def _duals(problem: LeastSquaresProblem, sol) -> np.ndarray | None:
+    """The solution's multipliers stacked as ``[box; L]`` (positive on an upper limit), or None
+    when the solver gave none: qpsolvers' ``z_box`` and ``z`` of ``G = [L; −L]``."""
+    parts = []
+    if problem.lb is not None:
+        if sol.z_box is None or np.size(sol.z_box) != problem.n:
+            return None
+        parts.append(np.asarray(sol.z_box, dtype=float))
+    if problem.L is not None:
+        k = problem.L.shape[0]
+        if sol.z is None or np.size(sol.z) != 2 * k:
+            return None
+        z = np.asarray(sol.z, dtype=float)
+        parts.append(z[:k] - z[k:])
+    return np.concatenate(parts) if parts else None
 

@@ -28,6 +28,7 @@ from ..gpc.references import pose_error_norms
 from ..model.dynamics import ReducedModel
 from ..model.plant import ConstrainedPlant
 from ..model.robot import ParallelRobot
+from ..validation import check_allocation, positive
 from .simulation import SimulationResult
 from .tracking import TrackingSettings, run_tracking
 
@@ -87,15 +88,26 @@ def deadbeat_check(settings: TrackingSettings = DEMO_SETTINGS, duration: float =
 
     Args:
         settings: robot, Ts, horizons, Qy, solver (Qu, limits, mismatch, load and estimator are overridden).
-        duration: s of the S-curve run.
+        duration: s of the S-curve run (finite, at least one sample Ts).
         forms: forms to compare (not ``"incremental-delayed"``: its u(k) is decided at k−1).
         robot: the loaded robot (default: load ``settings.robot``).
+
+    Raises:
+        InvalidParameterError: bad forms, or a duration that is not finite, shorter than Ts or
+            too long to record.
     """
     bad = [f for f in forms if f not in FORMS or f == "incremental-delayed"]
     if bad or not forms:
         raise InvalidParameterError(f"forms {list(forms)} must be a non-empty subset of "
                                     f"{[f for f in FORMS if f != 'incremental-delayed']}")
+    duration = positive("dead-beat check duration", duration, " s")
+    K = int(round(duration / settings.Ts))
+    if K < 1:
+        raise InvalidParameterError(f"dead-beat check duration = {duration!r} s must be at least one sample "
+                                    f"(Ts = {settings.Ts!r} s)")
     robot = robot or ParallelRobot.load(settings.robot)
+    check_allocation(f"the dead-beat check's record of {K} samples (duration {duration:g} s / Ts {settings.Ts:g} s)",
+                     K * ((len(forms) + 1) * robot.n_u + robot.n_y + 1), "reduce the duration")
     s = replace(settings, weights=Weights(settings.weights.Qy, 0.0), mass_scale=1.0, platform_force=(0.0, 0.0, 0.0),
                 disturbance_gain=0.0, duration=duration, limits=None)
     reference = s.make_reference(robot)

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from ..gpc.controller import GPCController
 from ..gpc.plan_settings import INTERRUPTED
 from ..gpc.references import Reference, pose_error_norms
-from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError
+from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError, writing
 from ..gpc.robot_references import check_reference
 from ..limits import Limits
 from ..model.output_space import OutputSpace
@@ -151,7 +151,7 @@ class SimulationResult:
             header = (["t"] + [f"ref_{i}" for i in range(n_y)] + [f"pose_{i}" for i in range(n_y)]
                       + [f"vel_{i}" for i in range(n_y)] + [f"u_{i}" for i in range(n_u)]
                       + ["internal_force", "step_time", "solve_time", "status", "fallback"])
-            with path.open("w", newline="") as fh:
+            with writing(path, "CSV file"), path.open("w", newline="") as fh:
                 wr = csv.writer(fh)
                 wr.writerow(header)
                 for k in range(len(self.t)):

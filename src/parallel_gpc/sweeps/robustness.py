@@ -32,7 +32,7 @@ from ..gpc.controller import FORMS, GPCController
 from ..gpc.settings import PAPER_FORMS
 from ..model.dynamics import ReducedModel
 from .. import errors
-from ..errors import InvalidParameterError
+from ..errors import InvalidParameterError, writing
 from ..studies.simulation import DIVERGENCE_ERRORS
 from ..gpc.prediction import Horizons
 from ..gpc.references import Hold, Reference
@@ -150,7 +150,7 @@ class RobustnessResult:
 
     def save_csv(self, path) -> Path:
         path = Path(path)
-        with path.open("w", newline="") as fh:
+        with writing(path, "CSV file"), path.open("w", newline="") as fh:
             wr = csv.DictWriter(fh, fieldnames=COLUMNS)
             wr.writeheader()
             wr.writerows(self.rows)
@@ -158,8 +158,10 @@ class RobustnessResult:
 
     def save_json(self, path) -> Path:
         path = Path(path)
-        path.write_text(json.dumps({"settings": self.settings, "interrupted": self.interrupted,
-                                    "rows": self.rows}, indent=1, default=json_default))
+        text = json.dumps({"settings": self.settings, "interrupted": self.interrupted, "rows": self.rows},
+                          indent=1, default=json_default)
+        with writing(path, "JSON file"):
+            path.write_text(text)
         return path
 
 

@@ -4,8 +4,9 @@ Modules, by seam: :mod:`~parallel_gpc.viz.scene` (drawing a robot, paths and one
 trajectory), :mod:`~parallel_gpc.viz.html_export` (self-contained offline pages),
 :mod:`~parallel_gpc.viz.live` (the meshcat bridge on 127.0.0.1 in a thread),
 :mod:`~parallel_gpc.viz.gallery` (a folder of exported pages on 127.0.0.1) and
-:mod:`~parallel_gpc.viz.loopback` (bind-address checks). Every server binds a loopback address
-only and is stopped by the code that started it.
+:mod:`~parallel_gpc.viz.loopback` (bind address, Host header and idle timeout checks). Every server
+binds a loopback address only, answers loopback Host names only and is stopped by the code that
+started it.
 
 Names are resolved lazily, so the gallery (and ``import parallel_gpc.viz``) needs neither
 meshcat nor Pinocchio; the scene, the live viewer and the HTML export import both.
@@ -17,7 +18,8 @@ import importlib
 
 #: public name -> submodule that defines it
 _PUBLIC = {
-    "LOOPBACK": "loopback", "loopback_host": "loopback",
+    "LOOPBACK": "loopback", "loopback_host": "loopback", "loopback_host_header": "loopback",
+    "IDLE_TIMEOUT_S": "loopback",
     "GalleryServer": "gallery", "gallery_index": "gallery", "serve_gallery": "gallery",
     "RobotScene": "scene", "animate": "scene", "draw_path": "scene", "draw_robot": "scene",
     "frame_indices": "scene", "set_camera": "scene", "visual_model": "scene",

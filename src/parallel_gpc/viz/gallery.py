@@ -15,7 +15,8 @@ from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 
 from ..errors import InvalidParameterError, ViewerError
-from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever, wait_until_interrupt
+from .loopback import (IDLE_TIMEOUT_S, LOOPBACK, START_TIMEOUT_S, check_idle_timeout, check_port, loopback_host,
+                       loopback_host_header, wait_forever, wait_until_interrupt)
 
 
 def _page_title(path: Path) -> str:
@@ -56,8 +57,14 @@ class _GalleryHandler(SimpleHTTPRequestHandler):
 
     Served: regular files whose real path (symlinks resolved) lies inside the folder and whose
     URL has no component starting with a dot. Everything else (dotfiles, folder listings,
-    symlinks leading out of the folder) is answered 404 Not Found.
+    symlinks leading out of the folder) is answered 404 Not Found. A request whose ``Host``
+    header does not name this loopback server (DNS rebinding) is answered 403 with no content.
+    The connection's socket times out after the server's ``idle_timeout`` (s).
     """
+
+    def setup(self):
+        self.timeout = self.server.idle_timeout  # applied to the socket by StreamRequestHandler.setup
+        super().setup()
 
     def do_GET(self):  # noqa: N802 — http.server naming
         if self._route():
@@ -69,6 +76,13 @@ class _GalleryHandler(SimpleHTTPRequestHandler):
 
     def _route(self) -> bool:
         """Answer ``/`` and refused paths here; True when the default file handler may serve."""
+        if not loopback_host_header(self.headers.get("Host"), self.server.server_address[1]):
+            self.close_connection = True
+            self.send_response(403)
+            self.send_header("Content-Length", "0")
+            self.send_header("Connection", "close")
+            self.end_headers()
+            return False
         url_path = urllib.parse.unquote(self.path.split("?", 1)[0].split("#", 1)[0])
         if url_path == "/":
             body = gallery_index(self.directory).encode("utf-8")
@@ -92,6 +106,21 @@ class _GalleryHandler(SimpleHTTPRequestHandler):
         pass
 
 
+class _GalleryHTTPServer(ThreadingHTTPServer):
+    """A threading HTTP server with an idle-connection timeout; a client that times out or
+    disconnects mid-answer is dropped quietly (no traceback on stderr)."""
+
+    daemon_threads = True
+
+    def __init__(self, address, handler, idle_timeout: float):
+        self.idle_timeout = idle_timeout
+        super().__init__(address, handler)
+
+    def handle_error(self, request, client_address):
+        if not isinstance(sys.exc_info()[1], (TimeoutError, ConnectionError)):
+            super().handle_error(request, client_address)
+
+
 class GalleryServer:
     """Serve a folder of exported pages on a loopback address, as a context manager.
 
@@ -99,22 +128,24 @@ class GalleryServer:
         directory: folder holding the ``*.html`` files.
         host: bind address; must be IPv4 loopback (default 127.0.0.1).
         port: port (0: any free port).
+        idle_timeout: seconds a connection may stay idle before it is closed (default 30).
 
     Attributes:
         url: ``http://127.0.0.1:<port>/`` (the generated index).
         server: the ``http.server.ThreadingHTTPServer`` (None when stopped).
 
     Raises:
-        InvalidParameterError: bad host or port, or ``directory`` is not a folder.
+        InvalidParameterError: bad host, port or idle timeout, or ``directory`` is not a folder.
     """
 
-    def __init__(self, directory, host: str = LOOPBACK, port: int = 0):
+    def __init__(self, directory, host: str = LOOPBACK, port: int = 0, idle_timeout: float = IDLE_TIMEOUT_S):
         self.directory = Path(directory)
         if not self.directory.is_dir():
             what = "is not a folder" if self.directory.exists() else "does not exist"
             raise InvalidParameterError(f"gallery folder {str(directory)!r} {what}")
         self.host = loopback_host(host)
         self.requested_port = check_port(port)
+        self.idle_timeout = check_idle_timeout(idle_timeout)
         self.server: ThreadingHTTPServer | None = None
         self._thread: threading.Thread | None = None
 
@@ -136,10 +167,9 @@ class GalleryServer:
         """
         handler = partial(_GalleryHandler, directory=str(self.directory))
         try:
-            self.server = ThreadingHTTPServer((self.host, self.requested_port), handler)
+            self.server = _GalleryHTTPServer((self.host, self.requested_port), handler, self.idle_timeout)
         except OSError as exc:
             raise ViewerError(f"cannot serve the gallery on {self.host}:{self.requested_port}: {exc}") from exc
-        self.server.daemon_threads = True
         self._thread = threading.Thread(target=self.server.serve_forever, kwargs={"poll_interval": 0.1},
                                         name="parallel-gpc-gallery", daemon=True)
         self._thread.start()

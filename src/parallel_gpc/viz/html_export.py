@@ -6,7 +6,7 @@ import html
 import re
 from pathlib import Path
 
-from ..errors import ViewerError
+from ..errors import ViewerError, writing
 from ..model.robot import ParallelRobot
 from .live import LiveViewer
 from .scene import animate
@@ -71,6 +71,7 @@ def export_html(path, robot: ParallelRobot, t, qs, reference=None, planned=None,
     found = network_references(page)
     if found:
         raise ViewerError(f"exported page would load from the network: {found[:3]}; not written to {str(path)!r}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(page, encoding="utf-8")
+    with writing(path, "animation page"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(page, encoding="utf-8")
     return path

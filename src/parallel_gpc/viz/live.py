@@ -3,7 +3,9 @@
 meshcat 0.3.2's ``meshcat.Visualizer()`` starts a server that listens on all interfaces
 (0.0.0.0). :class:`LiveViewer` instead runs the meshcat bridge in a thread of this process with
 its web and ZeroMQ sockets bound to a loopback address only, and stops it on exit (also on
-KeyboardInterrupt).
+KeyboardInterrupt). Its web server answers only requests whose ``Host`` header names it (403
+with no content otherwise: DNS rebinding, see :mod:`parallel_gpc.viz.loopback`) and closes idle
+HTTP connections and unresponsive websocket clients after its idle timeout.
 """
 
 from __future__ import annotations
@@ -33,14 +35,29 @@ from ._meshcat import (
     ZMQWebSocketBridge,
     meshcat,
 )
-from .loopback import LOOPBACK, START_TIMEOUT_S, check_port, loopback_host, wait_forever, wait_until_interrupt
+from .loopback import (IDLE_TIMEOUT_S, LOOPBACK, START_TIMEOUT_S, check_idle_timeout, check_port, loopback_host,
+                       loopback_host_header, wait_forever, wait_until_interrupt)
 from .scene import animate, draw_robot
 
 _ZMQ_TIMEOUT_MS = 60_000
 
 
-class _QuietWebSocketHandler(WebSocketHandler):
-    """meshcat's websocket handler without its prints to stderr."""
+class _LoopbackOnly:
+    """Tornado handler mixin: a request whose ``Host`` header does not name this loopback server
+    is answered 403 with no content (the handler's method never runs)."""
+
+    def prepare(self):
+        if not loopback_host_header(self.request.headers.get("Host"), self.application.settings["server_port"]):
+            self.set_status(403)
+            self.finish()
+
+
+class _LoopbackStaticFileHandler(_LoopbackOnly, StaticFileHandlerNoCache):
+    """meshcat's viewer files, to loopback Host names only."""
+
+
+class _QuietWebSocketHandler(_LoopbackOnly, WebSocketHandler):
+    """meshcat's websocket handler without its prints to stderr, to loopback Host names only."""
 
     def open(self):
         self.bridge.websocket_pool.add(self)
@@ -73,8 +90,9 @@ class _LoopbackBridge(ZMQWebSocketBridge):
     constructed inside a running asyncio loop (the thread's loop).
     """
 
-    def __init__(self, host: str, port: int):  # noqa: D107 — replaces the parent's set-up
+    def __init__(self, host: str, port: int, idle_timeout: float):  # noqa: D107 — replaces the parent's set-up
         self.host = host
+        self.idle_timeout = idle_timeout
         self.websocket_pool = set()
         self.tree = SceneTree()
         self.app = self.make_app()
@@ -89,16 +107,19 @@ class _LoopbackBridge(ZMQWebSocketBridge):
                 sock.close()
             raise
         self.zmq_url = self.zmq_socket.getsockopt_string(zmq.LAST_ENDPOINT)
-        self.http_server = tornado.httpserver.HTTPServer(self.app)
+        self.http_server = tornado.httpserver.HTTPServer(self.app, idle_connection_timeout=idle_timeout,
+                                                         body_timeout=idle_timeout)
         self.http_server.add_sockets(self.sockets)
         self.fileserver_port = self.sockets[0].getsockname()[1]
+        self.app.settings["server_port"] = self.fileserver_port
         self.web_url = f"http://{host}:{self.fileserver_port}/static/"
 
     def make_app(self):
         return tornado.web.Application([
-            (r"/static/(.*)", StaticFileHandlerNoCache, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
+            (r"/static/(.*)", _LoopbackStaticFileHandler, {"path": VIEWER_ROOT, "default_filename": VIEWER_HTML}),
             (r"/", _QuietWebSocketHandler, {"bridge": self}),
-        ], log_function=lambda handler: None)
+        ], log_function=lambda handler: None, websocket_ping_interval=self.idle_timeout,
+            websocket_ping_timeout=self.idle_timeout)
 
     def forward_to_websockets(self, frames):
         """Send one scene command to every client (a copy of the pool: clients may leave meanwhile)."""
@@ -169,6 +190,8 @@ class LiveViewer:
     Args:
         host: bind address; must be IPv4 loopback (default 127.0.0.1).
         port: web server port (0: any free port). The ZeroMQ command port is always a free one.
+        idle_timeout: seconds an HTTP connection may stay idle, and a websocket client may leave
+            a ping unanswered, before it is closed (default 30).
 
     Attributes:
         vis: the ``meshcat.Visualizer`` talking to this server (None when stopped).
@@ -177,12 +200,14 @@ class LiveViewer:
         zmq_url: the bound ZeroMQ endpoint (``tcp://127.0.0.1:<port>``).
 
     Raises:
-        InvalidParameterError: if ``host`` is not a loopback address or ``port`` is out of range.
+        InvalidParameterError: if ``host`` is not a loopback address, ``port`` is out of range or
+            ``idle_timeout`` is not a positive number.
     """
 
-    def __init__(self, host: str = LOOPBACK, port: int = 0):
+    def __init__(self, host: str = LOOPBACK, port: int = 0, idle_timeout: float = IDLE_TIMEOUT_S):
         self.host = loopback_host(host)
         self.requested_port = check_port(port)
+        self.idle_timeout = check_idle_timeout(idle_timeout)
         self.vis: meshcat.Visualizer | None = None
         self._thread: threading.Thread | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -241,7 +266,7 @@ class LiveViewer:
 
     async def _serve(self, ready: threading.Event) -> None:
         try:
-            bridge = _LoopbackBridge(self.host, self.requested_port)
+            bridge = _LoopbackBridge(self.host, self.requested_port, self.idle_timeout)
         except (OSError, zmq.ZMQError) as exc:
             self._error = exc
             return

@@ -1,8 +1,18 @@
-"""Loopback-only networking shared by the live viewer and the gallery (no meshcat import)."""
+"""Loopback-only networking shared by the live viewer and the gallery (no meshcat import).
+
+Binding 127.0.0.1 keeps other machines out, but not a web page in the user's browser: with DNS
+rebinding, ``evil.example`` first resolves to the attacker and then to 127.0.0.1, and the page's
+requests reach our server with ``Host: evil.example:PORT`` (and a matching ``Origin``). Our
+servers therefore answer only requests whose ``Host`` header names the loopback interface
+(:func:`loopback_host_header`) and refuse the others with 403 and no content. Idle connections
+are closed after :data:`IDLE_TIMEOUT_S` so that a client that connects and sends nothing cannot
+hold a server thread.
+"""
 
 from __future__ import annotations
 
 import ipaddress
+import math
 import time
 
 import numpy as np
@@ -13,6 +23,8 @@ from ..errors import InvalidParameterError
 LOOPBACK = "127.0.0.1"
 #: Seconds a server may take to start or stop.
 START_TIMEOUT_S = 10.0
+#: Seconds a connection may stay idle (no request, or a request not finished) before it is closed.
+IDLE_TIMEOUT_S = 30.0
 
 
 def loopback_host(host: str) -> str:
@@ -34,6 +46,42 @@ def loopback_host(host: str) -> str:
             f"serve on the loopback interface only (use {LOOPBACK} or localhost)"
         )
     return str(addr)
+
+
+def loopback_host_header(value: str | None, port: int) -> bool:
+    """True when an HTTP ``Host`` header names this loopback server: ``localhost``, an IPv4
+    loopback address (127.0.0.0/8) or ``[::1]``, followed by ``:port`` (or no port when ``port``
+    is 80). A missing header, any other name and any other port are refused.
+
+    Args:
+        value: the ``Host`` header (None when absent).
+        port: the port the server listens on.
+    """
+    value = (value or "").strip().lower()
+    name, given = value, "80"  # no port: the default HTTP port
+    if not value.endswith("]") and ":" in value:  # name:port ("[::1]" alone has colons, no port)
+        name, given = value.rsplit(":", 1)
+    if not (given.isascii() and given.isdigit()) or int(given) != port:
+        return False
+    if name == "localhost" or name == "[::1]":
+        return True
+    try:
+        addr = ipaddress.ip_address(name)
+    except ValueError:
+        return False
+    return addr.version == 4 and addr.is_loopback
+
+
+def check_idle_timeout(seconds) -> float:
+    """The idle-connection timeout in s (finite, > 0).
+
+    Raises:
+        InvalidParameterError: not a positive finite number.
+    """
+    if isinstance(seconds, bool) or not isinstance(seconds, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(seconds) or seconds <= 0:
+        raise InvalidParameterError(f"idle timeout {seconds!r} must be a positive finite number of seconds")
+    return float(seconds)
 
 
 def check_port(port) -> int:
