@@ -314,7 +314,7 @@ def test_a_full_disk_is_named_with_the_path_and_the_partial_file_removed(tmp_pat
     from matplotlib.figure import Figure
 
     from parallel_gpc import results, save_result
-    from parallel_gpc.studies.plots_common import save_figure
+    from parallel_gpc.plots import save_figure
 
     t = np.array([0.0, 0.1])
     target = tmp_path / "run.npz"
