@@ -11,6 +11,7 @@ import pytest
 from scipy.optimize import lsq_linear
 
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights, build_problem
+from parallel_gpc.limits import Limits
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.solvers import (LeastSquaresProblem, QRSolver, available_solvers, kkt_residuals,
                                   make_solver, verified)
@@ -130,10 +131,10 @@ def robot_problems():
         X = np.concatenate([ref.pose(t), (ref.pose(t + 1e-4) - ref.pose(t)) / 1e-4])
         w = ref.window(t, Ts, H.N)
         for form in ("absolute", "incremental"):
-            pred = GPCController(model, Ts, H, W, form=form).predict(X)
+            pred = GPCController.build(model, Ts, H, W, form=form).predict(X)
             free = build_problem(pred, w, W, robot.n_y, robot.n_u)
             peak = np.max(np.abs(pred.u_base + pred.u_map @ QRSolver().solve(free).v))
-            out[form, t] = build_problem(pred, w, W, robot.n_y, robot.n_u, torque_limit=0.5 * peak)
+            out[form, t] = build_problem(pred, w, W, robot.n_y, robot.n_u, limits=Limits(torque=0.5 * peak))
     assert out["absolute", 0.45].lb is not None and out["absolute", 0.45].L is None
     assert out["incremental", 0.45].L is not None
     return out
@@ -195,8 +196,8 @@ def test_the_controller_does_not_apply_an_inaccurate_solution_silently(monkeypat
                         dict(eps_abs=1e-3, eps_rel=1e-3, polishing=False, verbose=False))
     robot = ParallelRobot.load("planar_4rrr")
     ref = SCurve()
-    ctrl = GPCController(ReducedModel(robot), 0.005, Horizons(12), Weights(1.0, 1e-3), torque_limit=0.5,
-                         solver="qpsolvers:osqp")
+    ctrl = GPCController.build(ReducedModel(robot), 0.005, Horizons(12), Weights(1.0, 1e-3),
+                               limits=Limits(torque=0.5), solver="qpsolvers:osqp")
     t = 0.8
     X = np.concatenate([ref.pose(t), (ref.pose(t + 1e-4) - ref.pose(t)) / 1e-4])
     info = ctrl.step(X, ref.window(t, 0.005, 12))
