@@ -38,22 +38,16 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import lapack
 
-from ..gpc.controller import GPCController
+from ..gpc import GPCController, Horizons, Prediction, condense, SCurve, path_for, Weights, build_problem
 from ..model.discretization import cached_identity
-from ..model.dynamics import ReducedModel
-from ..model.plant import ConstrainedPlant
-from ..gpc.prediction import Horizons, Prediction, condense
-from ..gpc.references import SCurve, path_for
+from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
 from ..limits import Limits
-from ..model.robot import ParallelRobot
 from .report import evaluate_targets, machine_info, markdown_report, ratios
-from ..plots.bench import plot_results
-from ..plots.common import save_figure
+from ..plots import plot_results, save_figure
 from .qpmpc import QPMPC_VELOCITY_SCALE, QpmpcPeer, qpmpc_problem
-from ..studies.simulation import simulate
+from ..studies import simulate
 from ..results import json_default
 from ..solvers import DAQPBackend, QRSolver, make_solver
-from ..gpc.criterion import Weights, build_problem
 from .problems import BenchConfig, closed_loop_states, replay_controllers, replay, robot_C
 from .store import log_solve, relative_error, BenchRun
 

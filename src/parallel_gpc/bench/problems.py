@@ -14,15 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gpc.controller import GPCController
-from ..gpc.criterion import Weights
-from ..gpc.prediction import Horizons
-from ..gpc.references import SCurve
+from ..gpc import GPCController, Weights, Horizons, SCurve
 from ..limits import Limits
-from ..model.dynamics import ReducedModel
-from ..model.plant import ConstrainedPlant
-from ..model.robot import ParallelRobot
-from ..studies.simulation import simulate
+from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
+from ..studies import simulate
 from .report import PYTHON_REFERENCE
 from .store import BenchEntry
 

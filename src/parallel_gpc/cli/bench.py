@@ -22,8 +22,7 @@ def cmd_bench(args) -> int:
         argv = [sys.executable, "-m", "parallel_gpc", "bench", "--out", str(args.out)] + (["--quick"] if args.quick else [])
         sys.stdout.flush()
         os.execve(sys.executable, argv, env)
-    from ..bench import format_table, run_benchmark, write_benchmark
-    from ..bench.report import format_targets
+    from ..bench import format_table, run_benchmark, write_benchmark, format_targets
     from .outputs import prepare_out_dir
 
     out = prepare_out_dir(args.out)

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 
 def cmd_gallery(args) -> int:
-    from ..viz.gallery import serve_gallery
+    from ..viz import serve_gallery
 
     serve_gallery(args.directory, port=args.port)
     return 0

@@ -32,7 +32,7 @@ def robot_info(robot) -> list[tuple[str, str]]:
     import numpy as np
 
     from ..errors import ParallelGPCError
-    from ..model.dynamics import ReducedModel
+    from ..model import ReducedModel
     from .plan import default_poses
 
     from ..model.native import native_status
@@ -79,7 +79,7 @@ def print_table(rows, out=None) -> None:
 
 
 def cmd_info(args) -> int:
-    from ..model.robot import ParallelRobot
+    from ..model import ParallelRobot
 
     print_table(robot_info(ParallelRobot.load(args.robot)))
     return 0

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 def robot_rows() -> list[tuple[str, str, str, str]]:
     """(name, DOF, drives, outputs) of every embedded robot, from its closure sidecar."""
-    from ..model.description import embedded_robots, load_description
+    from ..model import embedded_robots, load_description
 
     rows = []
     for name in embedded_robots():

@@ -17,16 +17,10 @@ QUICK = dict(mass_scales=(0.7, 1.3), noise_levels=(1e-4,), disturbances=(20.0,))
 
 
 def cmd_robustness(args) -> int:
-    from ..sweeps.robustness import (  # the defaults are not in the package exports
-        DEFAULT_DISTURBANCES,
-        DEFAULT_MASS_SCALES,
-        DEFAULT_NOISE_LEVELS,
-        DEFAULT_WEIGHTS,
-        robustness_study,
-    )
-    from ..plots import save_figure
-    from ..plots import plot_robustness
-    from ..gpc.criterion import Weights
+    from ..plots import plot_robustness, save_figure
+    from ..sweeps import (DEFAULT_DISTURBANCES, DEFAULT_MASS_SCALES, DEFAULT_NOISE_LEVELS, DEFAULT_WEIGHTS,
+                          robustness_study)
+    from ..gpc import Weights
     from .outputs import prepare_out_dir
 
     forms = selected_forms(args.forms)

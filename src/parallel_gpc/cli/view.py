@@ -73,7 +73,7 @@ def show_trajectory(args, robot, t, qs, reference=None, planned=None, saturated=
 def cmd_view(args) -> int:
     """Load a result file and show it; without --html/--serve write RESULT.html next to it."""
     from ..errors import ResultFormatError
-    from ..model.robot import ParallelRobot
+    from ..model import ParallelRobot
     from ..results import load_result
 
     result = load_result(args.result)

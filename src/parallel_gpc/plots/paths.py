@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from matplotlib.figure import Figure
 
-from ..model.output_space import OutputSpace
+from ..model import OutputSpace
 
 
 def path_columns(space: OutputSpace) -> list[int]:

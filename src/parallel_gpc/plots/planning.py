@@ -18,7 +18,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
-from ..gpc.planning import PlanResult
+from ..gpc import PlanResult
 from ..model.skeleton import output_world_axes, skeleton
 from .paths import draw_path, path_axes
 

@@ -6,7 +6,7 @@ import math
 
 from matplotlib.figure import Figure
 
-from ..sweeps.robustness import RobustnessResult
+from ..sweeps import RobustnessResult
 
 
 def plot_robustness(result: RobustnessResult) -> Figure:

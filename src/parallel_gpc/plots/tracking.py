@@ -12,7 +12,7 @@ from matplotlib.figure import Figure
 
 from ..gpc.references import pose_error_norms
 from .paths import draw_path, path_axes
-from ..studies.simulation import SimulationResult
+from ..studies import SimulationResult
 
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
     """Reference and tracked paths in the plane or space of the translational outputs (axes

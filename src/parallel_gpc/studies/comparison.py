@@ -21,13 +21,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..gpc.controller import FORMS, GPCController
-from ..gpc.criterion import Weights
-from ..gpc.prediction import Horizons
+from ..gpc import FORMS, GPCController, Weights, Horizons
 from ..gpc.references import pose_error_norms
-from ..model.dynamics import ReducedModel
-from ..model.plant import ConstrainedPlant
-from ..model.robot import ParallelRobot
+from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
 from ..validation import check_allocation, positive
 from .simulation import SimulationResult
 from .tracking import TrackingSettings, run_tracking

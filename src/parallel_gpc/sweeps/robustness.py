@@ -28,20 +28,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..gpc.controller import FORMS, GPCController
+from ..gpc import FORMS, GPCController, Horizons, Hold, Reference, Weights
 from ..gpc.settings import PAPER_FORMS
-from ..model.dynamics import ReducedModel
+from ..model import ReducedModel, DEFAULT_ROBOT, ParallelRobot
 from .. import errors
 from ..errors import InvalidParameterError, writing
 from ..studies.simulation import DIVERGENCE_ERRORS
-from ..gpc.prediction import Horizons
-from ..gpc.references import Hold, Reference
 from ..gpc.robot_references import check_reference, check_times, reference_for
-from ..model.robot import DEFAULT_ROBOT, ParallelRobot
 from ..results import json_default
 from .spec import SETTLE_FRACTION, Cell
 from .runner import check_scheduler, run_sweep
-from ..gpc.criterion import Weights
 from ..validation import finite_vector, positive
 
 #: Plant mass/inertia scales of the default study (−30 … +30 %).

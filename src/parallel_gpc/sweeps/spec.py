@@ -371,7 +371,7 @@ def resolve_robot(robot: str) -> str:
     relative path that is not here but was shipped to this Dask worker
     (``client.upload_file(path, load=False)``: the URDF and its sidecar, a CSV reference) is the
     worker's copy."""
-    from ..model.robot import embedded_robots
+    from ..model import embedded_robots
 
     if robot in embedded_robots() or Path(robot).exists():
         return robot
@@ -402,8 +402,8 @@ def run_cell(cell: Cell) -> dict:
     holds ``"trajectory"``: the SimulationResult.
     """
     from ..gpc.robot_references import is_file_reference
-    from ..model.robot import ParallelRobot
-    from ..studies.tracking import run_tracking
+    from ..model import ParallelRobot
+    from ..studies import run_tracking
 
     record = failed_record(cell, "")
     start = time.perf_counter()

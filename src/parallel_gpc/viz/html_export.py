@@ -7,7 +7,7 @@ import re
 from pathlib import Path
 
 from ..errors import ViewerError, writing
-from ..model.robot import ParallelRobot
+from ..model import ParallelRobot
 from .live import LiveViewer
 from .scene import animate
 

@@ -24,7 +24,7 @@ import tornado.websocket
 import zmq
 
 from ..errors import ViewerError
-from ..model.robot import ParallelRobot
+from ..model import ParallelRobot
 from ._meshcat import (
     VIEWER_HTML,
     VIEWER_ROOT,

@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import InvalidParameterError, RobotFormatError, ShapeError
-from ..model.robot import ParallelRobot
+from ..model import ParallelRobot
 from ..model.skeleton import output_joint_ids, output_world_axes, skeleton
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
