@@ -256,27 +256,11 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     machine = settings.sensors != "full" or settings.plant != "own"
     sensors = check_machine(settings) if machine else None
     for form in forms:
-        if machine:
-            try:
-                res = _run_machine(settings, sensors, per_form[form], robot, plant_robot, reference, start, duration)
-            except KeyboardInterrupt:
-                if not results:
-                    raise
-                break
-            results[form] = res
-            if res.interrupted:
-                break
-            continue
-        ctrl = controllers[form]
-        plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(robot.n_y)]), Ts=settings.Ts,
-                                 torque_limit=settings.plant_limit(robot),
-                                 platform_force=settings.platform_force if any(settings.platform_force) else None)
         try:
-            res = simulate(ctrl, plant, reference, duration, seed=settings.seed,
-                           noise_std=settings.noise_std or None, progress=progress, check=False,
-                           meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
-                                 "disturbance_gain": ctrl.disturbance_gain,
-                                 "platform_force": list(settings.platform_force)})
+            if machine:
+                res = _run_machine(settings, sensors, per_form[form], robot, plant_robot, reference, start, duration)
+            else:
+                res = _run_own(settings, controllers[form], plant_robot, reference, start, duration, progress)
         except KeyboardInterrupt:  # interrupted before this form's first step: keep the earlier forms
             if not results:
                 raise
@@ -285,6 +269,18 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
         if res.interrupted:
             break
     return results
+
+
+def _run_own(settings: TrackingSettings, ctrl: GPCController, plant_robot, reference, start, duration: float,
+             progress: bool) -> SimulationResult:
+    """One form on our constrained plant with the full measured state (and its optional noise)."""
+    plant = ConstrainedPlant(plant_robot, np.concatenate([start, np.zeros(plant_robot.n_y)]), Ts=settings.Ts,
+                             torque_limit=settings.plant_limit(plant_robot),
+                             platform_force=settings.platform_force if any(settings.platform_force) else None)
+    return simulate(ctrl, plant, reference, duration, seed=settings.seed, noise_std=settings.noise_std or None,
+                    progress=progress, check=False,
+                    meta={"mass_scale": settings.mass_scale, "noise_std": settings.noise_std,
+                          "disturbance_gain": ctrl.disturbance_gain, "platform_force": list(settings.platform_force)})
 
 
 def check_machine(settings: TrackingSettings) -> Sensors:
