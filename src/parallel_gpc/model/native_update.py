@@ -17,10 +17,11 @@ import numpy as np
 
 from ..errors import NonFiniteError, SingularPoseError
 from .discretization import DEGREE_NORMS
+from .forward import assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
-__all__ = ["compiled_model_update", "model_update_status", "use_native"]
+__all__ = ["compiled_forward", "compiled_model_update", "model_update_status", "use_native"]
 
 
 class _ValidatedPath:
@@ -40,6 +41,10 @@ class _ValidatedPath:
         cond = self.robot.singularity(q)["cond_phi_z"]
         raise SingularPoseError(f"legs singular at platform pose {np.round(self.robot.platform_pose(q), 6).tolist()}: "
                                 f"cond(Φ_z) = {cond:.3g} (compiled model update)")
+
+    def assembled(self, pose: np.ndarray, q_guess: np.ndarray):
+        """Forward kinematics' trial pose on the validated path: (q, T) or None (forward._assembled)."""
+        return assemble_validated(self.robot, pose, q_guess)
 
     @staticmethod
     def nonfinite() -> None:
@@ -100,3 +105,16 @@ def compiled_model_update(robot):
         universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
         degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot),
     )
+
+
+def compiled_forward(robot):
+    """A ``_native.ModelUpdate`` of ``robot`` for the compiled loop of
+    :func:`~parallel_gpc.model.forward.solve_forward` (the compiled core must be available, see
+    :func:`use_native`): its own instance with the drives' q indices set, so forward kinematics
+    never disturbs the warm starts of a model or plant. None when the compiled core predates
+    forward kinematics (a build older than its sources: the Python loop runs)."""
+    if not hasattr(native_module().ModelUpdate, "forward"):
+        return None
+    update = compiled_model_update(robot)
+    update.drive_q = [int(i) for i in robot.drive_q_indices]
+    return update
