@@ -21,7 +21,7 @@ from .forward import assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
-__all__ = ["compiled_forward", "compiled_model_update", "model_update_status", "use_native"]
+__all__ = ["compiled_forward", "compiled_model_update", "forward_status", "model_update_status", "use_native"]
 
 
 class _ValidatedPath:
@@ -118,3 +118,14 @@ def compiled_forward(robot):
     update = compiled_model_update(robot)
     update.drive_q = [int(i) for i in robot.drive_q_indices]
     return update
+
+
+def forward_status() -> str:
+    """Which loop :meth:`~parallel_gpc.model.robot.ParallelRobot.forward_solution` runs, and if
+    not the compiled one, why."""
+    module = native_module()
+    if module is None:
+        return f"Python loop ({native_status()})"
+    if not hasattr(getattr(module, "ModelUpdate", None), "forward"):
+        return "Python loop (the compiled core predates forward kinematics: rebuild it)"
+    return "compiled"
