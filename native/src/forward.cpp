@@ -15,16 +15,27 @@ namespace {
 constexpr double MAX_DRIVE_STEP = 0.1;  // forward.MAX_DRIVE_STEP (rad or m)
 constexpr int HALVINGS = 30;            // forward._HALVINGS
 constexpr double LSTSQ_RCOND = 1e-12;   // np.linalg.lstsq(..., rcond=1e-12) in solve_forward
+
+// a vector for the Python callback as a list of floats (an Eigen argument failed to convert there)
+nb::list as_list(const Vec &v) {
+  nb::list out;
+  for (Index i = 0; i < v.size(); ++i) out.append(v[i]);
+  return out;
+}
 }  // namespace
 
 bool ModelUpdate::assembled(const Vec &pose, const Vec &q_guess, bool validated) {
   if (assemble_warm(pose, q_guess, nullptr, false)) return true;
   if (!validated) return false;
-  // forward.assemble_validated: robot.assemble + velocity_map, None where it does not assemble
-  nb::object out = handler_.attr("assembled")(pose, q_guess);
+  // forward.assemble_validated: robot.assemble from q_guess (None where the pose does not assemble
+  // or is singular), then T here by the SVD rank test as in fallback (a borderline K that Python
+  // accepted and this test refuses counts as not assembled: the step is halved)
+  nb::object out = handler_.attr("assembled")(as_list(pose), as_list(q_guess));
   if (out.is_none()) return false;
-  q_ = nb::cast<Vec>(out[0]);
-  T_ = nb::cast<Mat>(out[1]);
+  Vec q = nb::cast<Vec>(out);
+  kin.eval(q);
+  if (!map_from(kin.jac_, true)) return false;
+  q_ = std::move(q);
   return true;
 }
 

@@ -42,9 +42,11 @@ class _ValidatedPath:
         raise SingularPoseError(f"legs singular at platform pose {np.round(self.robot.platform_pose(q), 6).tolist()}: "
                                 f"cond(Φ_z) = {cond:.3g} (compiled model update)")
 
-    def assembled(self, pose: np.ndarray, q_guess: np.ndarray):
-        """Forward kinematics' trial pose on the validated path: (q, T) or None (forward._assembled)."""
-        return assemble_validated(self.robot, pose, q_guess)
+    def assembled(self, pose, q_guess):
+        """Forward kinematics' trial pose (lists of floats) on the validated path: q, or None where
+        it does not assemble (forward._assembled)."""
+        out = assemble_validated(self.robot, np.asarray(pose, dtype=float), np.asarray(q_guess, dtype=float))
+        return None if out is None else out[0]
 
     @staticmethod
     def nonfinite() -> None:
