@@ -76,16 +76,17 @@ def check_readings(robot, readings, resolution: np.ndarray, what: str = "drive r
         raise ShapeError(f"{what} have shape {arr.shape}; {robot.name!r} has {robot.n_u} drives "
                          f"{list(robot.description.drive_joints)}, expected ({robot.n_u},)")
     names = robot.description.drive_joints
-    units = robot.drive_position_units
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         i = int(bad[0])
+        units = robot.drive_position_units  # looked up only for the message (a hot path: every sample)
         raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]}; a reading must be a finite "
                           f"position in {units[i]} (a broken or disconnected encoder?)")
     lo, hi = robot.drive_range
     out = np.flatnonzero((arr < lo - 2 * resolution) | (arr > hi + 2 * resolution))
     if out.size:
         i = int(out[0])
+        units = robot.drive_position_units
         raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]:.9g} {units[i]}, outside its range "
                           f"[{lo[i]:.6g}, {hi[i]:.6g}] {units[i]} (a broken encoder or a wrong zero offset?)")
     return arr
