@@ -148,6 +148,6 @@ def test_without_meshcat_demo_hints_and_an_explicit_view_fails(tmp_path, monkeyp
              "--deadbeat-duration", "0.03"]
     assert main(["demo", "--out", str(tmp_path), *quick]) == 0
     assert view.INSTALL_HINT in capsys.readouterr().out
-    assert not list(tmp_path.glob("*.html")) and len(list(tmp_path.glob("demo_*.npz"))) == 4
+    assert not list(tmp_path.glob("*.html")) and len(list(tmp_path.glob("demo_*.npz"))) == 6  # α 0, α, encoders
     assert main(["view", str(tmp_path / "demo_absolute_a0.npz"), "--html", str(tmp_path / "x.html")]) == 2
     assert view.INSTALL_HINT in capsys.readouterr().err

@@ -5,6 +5,7 @@ rank as the paper says; no form fights its own drives at any Qu."""
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -152,8 +153,32 @@ def test_cli_demo_writes_the_comparison(tmp_path, capsys):
     assert args.func(args) == 0
     out = capsys.readouterr().out
     assert "dead-beat" in out and "est. α" in out
-    for name in ("demo_compare.png", "demo_path.png", "demo_absolute_a0.npz", "demo_incremental_a0.5.npz"):
+    assert "3) drive encoders only" in out and out.count("full, α 0.5") == 2
+    for name in ("demo_compare.png", "demo_path.png", "demo_absolute_a0.npz", "demo_incremental_a0.5.npz",
+                 "demo_absolute_encoders.npz", "demo_incremental_encoders.npz"):
         assert (tmp_path / name).stat().st_size > 1000
+
+
+def test_demo_encoder_part_beside_the_full_state_runs():
+    """Part 3's table: per form the full-state run of part 2 then the encoder-only run, with the
+    steps longer than Ts counted from the recorded step times (oracle: the arrays themselves)."""
+    from parallel_gpc.studies import TrackingSettings, run_tracking, sensors_table
+
+    s = TrackingSettings.from_flat(robot="planar_4rrr", Ts=0.01, N=8, duration=0.1, disturbance_gain=0.5)
+    full = run_tracking(s, ["absolute"])
+    enc = run_tracking(replace(s, sensors="encoders:2^16"), ["absolute"])
+    assert enc["absolute"].meta["sensors"] == "encoders" and enc["absolute"].meta["disturbance_gain"] == 0.0
+    rows = sensors_table(full, enc, 0.01).splitlines()[2:]
+    assert [r.split()[:2] for r in rows] == [["absolute", "full,"], ["absolute", "encoders:2^16"]]
+    overruns = [int(r.split()[-1]) for r in rows]
+    assert overruns == [int(np.sum(full["absolute"].step_time > 0.01)), int(np.sum(enc["absolute"].step_time > 0.01))]
+
+
+def test_demo_refuses_a_bad_encoder_spec_before_running(capsys):
+    from parallel_gpc.cli.main import main
+
+    assert main(["demo", "--encoders", "full", "--no-progress"]) == 2
+    assert "--encoders 'full'" in capsys.readouterr().err
 
 
 def test_demo_help_defaults_are_the_comparison_defaults():

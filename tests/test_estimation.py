@@ -62,6 +62,24 @@ def test_encoder_loop_on_spatial_robots(name, form):
     assert res.metrics()["rms_position_error_m"] <= 1.5 * full_state_rms(robot, form, 0.6)
 
 
+#: counts per metre on hexapod_6ups's prismatic legs comparable to 2^16 counts per revolution on
+#: planar_4rrr's 0.3 m links: 2π · 0.3 m / 2^16 ≈ 28.8 µm at the platform, 1 / 3.5e4 m ≈ 28.6 µm
+COUNTS_PER_M_LIKE_2_16 = 3.5e4
+
+
+@pytest.mark.parametrize("form", ["absolute", "nonlinear"])
+def test_coarse_linear_scales_on_the_hexapod(form):
+    """The 2^16-count case for prismatic drives: 28.6 µm counts keep the encoder-only loop
+    within 3x the full-state RMS error (the spec string gives the same sensors)."""
+    robot = ParallelRobot.load("hexapod_6ups")
+    sensors = Sensors.parse(f"encoders:m={COUNTS_PER_M_LIKE_2_16:g}")
+    assert sensors == Sensors("encoders", counts_per_m=COUNTS_PER_M_LIKE_2_16)
+    np.testing.assert_allclose(sensors.resolution(robot), 1 / COUNTS_PER_M_LIKE_2_16)
+    m = loop(robot, form, sensors, duration=0.6).metrics()
+    assert m["rms_position_error_m"] <= 3.0 * full_state_rms(robot, form, 0.6)
+    assert m["fallbacks"] == 0
+
+
 def test_computation_delay_is_compensated(robot4):
     """u(k) applied one sample late, computed from x̂(k+1|k): tracks as well as without the delay."""
     delayed = loop(robot4, "incremental", Sensors("encoders"), computation_delay=True)
@@ -133,14 +151,17 @@ def test_two_disturbance_estimators_are_refused(robot4):
                  estimator=StateEstimator(ReducedModel(robot4), TS, sensors, X0))
 
 
-@pytest.mark.parametrize("spec, kind, counts", [("full", "full", None), ("encoders", "encoders", None),
-                                                ("encoders:65536", "encoders", 65536.0)])
-def test_sensor_specs(spec, kind, counts):
+@pytest.mark.parametrize("spec, kind, counts, per_m", [
+    ("full", "full", None, None), ("encoders", "encoders", None, None), ("encoders:65536", "encoders", 65536.0, None),
+    ("encoders:2^16", "encoders", 65536.0, None), ("encoders:rev=4096", "encoders", 4096.0, None),
+    ("encoders:m=1e5", "encoders", None, 1e5), ("encoders: 2^20 , m=3.5e4", "encoders", 2.0**20, 3.5e4)])
+def test_sensor_specs(spec, kind, counts, per_m):
     s = Sensors.parse(spec)
-    assert (s.kind, s.counts_per_rev) == (kind, counts)
+    assert (s.kind, s.counts_per_rev, s.counts_per_m) == (kind, counts, per_m)
 
 
-@pytest.mark.parametrize("spec", ["pose", "encoders:abc", "encoders:-5", "full:12"])
+@pytest.mark.parametrize("spec", ["pose", "encoders:abc", "encoders:-5", "full:12", "encoders:m=0", "encoders:=5",
+                                  "encoders:m=1,m=2", "encoders:2^16,4096", "encoders:mm=3", "encoders:2^9999"])
 def test_bad_sensor_specs(spec):
     with pytest.raises(InvalidParameterError):
         Sensors.parse(spec)

@@ -7,13 +7,19 @@ Two parts (library: :mod:`parallel_gpc.studies`):
 2. Qu > 0 (default Ts = 10 ms, N = 30, Qu = 1e-3) on a plant 20 % heavier than the model with a
    steady load: every form, with the state-disturbance estimate off and on (one table column),
    so that the effects of the form and of the estimator are never confounded.
+3. The same forms on the same plant seeing only their drive encoders (``--encoders``, default
+   2^20 counts per revolution): quantized readings → forward kinematics → Kalman filter of
+   [y, ẏ, d], beside the full-state runs of part 2 (estimate on), with the step times and the
+   steps longer than Ts — what a controller for a real machine does.
 
 Writes ``demo_compare.png`` (shared axes, limit lines if ``--torque-limit``), ``demo_path.png``,
-``demo_<form>_a<α>.npz`` result files and one labelled ``demo_<form>.html`` animation per form.
+``demo_<form>_a<α>.npz`` and ``demo_<form>_encoders.npz`` result files and one labelled
+``demo_<form>.html`` animation per form.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from .defaults import DEMO
@@ -22,12 +28,19 @@ from .vocabulary import add_forms_argument, selected_forms
 
 
 def cmd_demo(args) -> int:
+    from ..errors import InvalidParameterError
+    from ..model.native_update import forward_status
     from ..model.robot import ParallelRobot
-    from ..studies import comparison_table, deadbeat_check, run_comparison
+    from ..studies import comparison_table, deadbeat_check, run_comparison, run_tracking, sensors_table
     from ..plots import save_figure
     from ..plots import plot_comparison, plot_paths
 
     settings = settings_from_args(args)
+    if args.encoders != "none":  # refused before parts 1 and 2 run
+        if not str(args.encoders).startswith("encoders"):
+            raise InvalidParameterError(f"--encoders {args.encoders!r} must be an encoder spec (encoders, "
+                                        "encoders:2^16, encoders:m=1e5, ...) or none")
+        replace(settings, sensors=args.encoders)
     robot = ParallelRobot.load(settings.robot)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -51,13 +64,25 @@ def cmd_demo(args) -> int:
     for (form, gain), res in runs.items():
         res.save(out / f"demo_{form}_a{gain:g}.npz")
     on = {form: res for (form, gain), res in runs.items() if gain == settings.disturbance_gain}
+    encoders = {}
+    if args.encoders != "none":
+        encoders = run_tracking(replace(settings, sensors=args.encoders), forms, progress=not args.no_progress,
+                                robot=robot)
+        print(f"3) drive encoders only ({args.encoders}: quantized readings → forward kinematics → Kalman filter of "
+              f"[y, ẏ, d]; the controller's own estimate off) beside the full-state runs of 2), same plant and load:")
+        print(sensors_table(on, encoders, settings.Ts))
+        print(f"   step = estimation + control time per sample, > Ts = steps longer than Ts = {1e3 * settings.Ts:g} ms "
+              f"(forward kinematics: {forward_status()})")
+        for form, res in encoders.items():
+            res.save(out / f"demo_{form}_encoders.npz")
     title = f"Qu = {settings.weights.Qu:g}, mass × {settings.mass_scale:g}, load {list(settings.platform_force)}"
     written = [save_figure(plot_comparison(runs, settings.limits, f"GPC forms compared ({title})"),
                            out / "demo_compare.png"),
                save_figure(plot_paths(on, f"platform path, estimator on ({title})"), out / "demo_path.png")]
     _animations(args, robot, on, settings, out)
-    print("wrote " + ", ".join(str(p) for p in written) + f" and demo_<form>_a<α>.npz in {out}")
-    return outcome_code(runs.values())
+    print("wrote " + ", ".join(str(p) for p in written) + " and demo_<form>_a<α>.npz"
+          + (" and demo_<form>_encoders.npz" if encoders else "") + f" in {out}")
+    return outcome_code([*runs.values(), *encoders.values()])
 
 
 def _animations(args, robot, results, settings, out: Path) -> None:
@@ -84,5 +109,8 @@ def register_demo(sub) -> None:
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     add_forms_argument(p)
     p.add_argument("--deadbeat-duration", type=float, default=1.0, help="s of the Qu = 0 lockstep check (default 1)")
+    p.add_argument("--encoders", default="encoders", metavar="encoders[:COUNTS_PER_REV][,m=COUNTS_PER_M]|none",
+                   help="sensors of part 3, the encoder-only loop (as track's --sensors); none skips it "
+                        "(default encoders: 2^20 counts per revolution, 1e7 per metre)")
     add_tracking_arguments(p, DEMO, html=False)  # it writes demo_<form>.html itself
     p.set_defaults(func=cmd_demo)

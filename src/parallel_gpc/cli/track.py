@@ -51,9 +51,10 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     add_reference_argument(p, "a step to a pose near home, held")
     p.add_argument("--duration", type=float, default=d["duration"], help="run length in s (default: "
                    + ("motion + 0.2 s)" if d["duration"] is None else f"{d['duration']:g} s)"))
-    p.add_argument("--sensors", default="full", metavar="full|encoders[:COUNTS_PER_REV]",
+    p.add_argument("--sensors", default="full", metavar="full|encoders[:COUNTS_PER_REV][,m=COUNTS_PER_M]",
                    help="what the controller sees: the full state, or quantized drive encoders through a Kalman "
-                        "filter (default counts 2^20 per revolution; e.g. encoders:65536) (default full)")
+                        "filter: counts per revolution of revolute drives, m= counts per metre of prismatic ones (defaults "
+                        "2^20 and 1e7; e.g. encoders:2^16, encoders:m=1e5) (default full)")
     p.add_argument("--plant", choices=["own", "mujoco"], default="own",
                    help="the simulated machine: our constrained plant, or the robot exported to MuJoCo "
                         "(pip install 'parallel-gpc[mujoco]') (default own)")

@@ -61,20 +61,28 @@ class Sensors:
 
     @classmethod
     def parse(cls, spec: str) -> "Sensors":
-        """``"full"``, ``"encoders"`` or ``"encoders:COUNTS_PER_REV"`` (the CLI's ``--sensors``)."""
+        """The CLI's ``--sensors``: ``"full"``, ``"encoders"`` or ``"encoders:RESOLUTION"``.
+
+        RESOLUTION is one or two comma-separated items: ``N`` or ``rev=N`` — counts per revolution
+        of the revolute drives — and ``m=N`` — counts per metre of the prismatic drives' scales.
+        N is a number or a power of two ``2^k``: ``encoders:2^16``, ``encoders:m=1e5``,
+        ``encoders:2^16,m=3.5e4``. What is not given comes from the robot file or the defaults.
+        """
         kind, _, counts = str(spec).partition(":")
         if kind not in SENSOR_KINDS or (counts and kind != "encoders"):
-            raise InvalidParameterError(f"sensors {spec!r} is not 'full', 'encoders' or 'encoders:COUNTS_PER_REV' "
-                                        "(e.g. encoders:65536)")
+            raise InvalidParameterError(f"sensors {spec!r} is not 'full', 'encoders' or 'encoders:RESOLUTION' "
+                                        "(e.g. encoders:65536, encoders:2^16, encoders:m=1e5, encoders:2^16,m=1e5)")
         if not counts:
             return cls(kind)
-        try:
-            value = float(counts)
-        except ValueError:
-            raise InvalidParameterError(f"sensors {spec!r}: {counts!r} is not a number of counts per "
-                                        "revolution (e.g. encoders:1048576)") from None
-        return cls(kind, counts_per_rev=value)
-
+        values = {}
+        for item in counts.split(","):
+            key, eq, text = item.strip().rpartition("=")
+            field = {None: "counts_per_rev", "rev": "counts_per_rev", "m": "counts_per_m"}.get(key.strip() if eq else None)
+            if field is None or field in values:
+                raise InvalidParameterError(f"sensors {spec!r}: {item!r} is not N or rev=N (counts per revolution) "
+                                            "or m=N (counts per metre), each at most once")
+            values[field] = _count(spec, text.strip())
+        return cls(kind, **values)
     def resolution(self, robot) -> np.ndarray:
         """(n_u,) size of one count of each drive (rad or m)."""
         return drive_resolution(robot, self.counts_per_rev, self.counts_per_m)
@@ -87,6 +95,19 @@ class Sensors:
         """(n_u,) standard deviation of a reading's error (rad or m): quantization (Δ/√12) and noise."""
         res = self.resolution(robot)
         return res * np.sqrt(1.0 / 12.0 + self.noise_counts**2)
+
+
+def _count(spec: str, text: str) -> float:
+    """A count of a ``--sensors`` spec: a number or ``2^k``."""
+    try:
+        base, caret, power = text.partition("^")
+        value = float(base) ** float(power) if caret else float(text)
+    except (ValueError, OverflowError):
+        raise InvalidParameterError(f"sensors {spec!r}: {text!r} is not a number of counts (e.g. 1048576, 2^20 "
+                                    "or 1e5)") from None
+    if not (value > 0 and np.isfinite(value)):
+        raise InvalidParameterError(f"sensors {spec!r}: {text!r} counts must be finite and > 0")
+    return value
 
 
 def encoder_readings(sensors: Sensors, resolution: np.ndarray, exact: np.ndarray,

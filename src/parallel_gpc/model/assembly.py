@@ -15,6 +15,7 @@ from ..errors import AssemblyError, InvalidParameterError, RobotFormatError, Sin
 from ..validation import finite_vector
 from .forward import check_readings, drive_resolution, rates_to_velocity, solve_forward
 from .linalg import svd_thin
+from .native_update import compiled_forward, use_native
 
 #: K smallest/largest singular value below which the legs count as singular.
 SINGULAR_RCOND = 1e-8
@@ -310,9 +311,13 @@ class AssemblyMixin:
         if q_guess is None:
             q0, pose0 = self.q_home, self.home_pose
         else:
-            q0 = finite_vector("q_guess", q_guess, self.model.nq)
-            pose0 = self.platform_pose(q0)
-        return solve_forward(self, readings, res, pose0, q0, max_residual=float(max_residual))
+            q0, pose0 = finite_vector("q_guess", q_guess, self.model.nq), None
+        compiled = None
+        if use_native(None):  # the compiled loop unless PARALLEL_GPC_NATIVE=0 or not built
+            if self._forward_compiled is None:
+                self._forward_compiled = compiled_forward(self) or False
+            compiled = self._forward_compiled or None
+        return solve_forward(self, readings, res, q0, pose0, max_residual=float(max_residual), compiled=compiled)
 
     def forward_velocity(self, solution, rates, rate_resolution=None) -> np.ndarray:
         """(n_y,) ẏ (m/s, rad/s) from (n_u,) drive rates (rad/s or m/s) at a

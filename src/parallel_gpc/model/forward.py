@@ -76,26 +76,25 @@ def check_readings(robot, readings, resolution: np.ndarray, what: str = "drive r
         raise ShapeError(f"{what} have shape {arr.shape}; {robot.name!r} has {robot.n_u} drives "
                          f"{list(robot.description.drive_joints)}, expected ({robot.n_u},)")
     names = robot.description.drive_joints
-    units = robot.drive_position_units
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         i = int(bad[0])
+        units = robot.drive_position_units  # looked up only for the message (a hot path: every sample)
         raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]}; a reading must be a finite "
                           f"position in {units[i]} (a broken or disconnected encoder?)")
     lo, hi = robot.drive_range
     out = np.flatnonzero((arr < lo - 2 * resolution) | (arr > hi + 2 * resolution))
     if out.size:
         i = int(out[0])
+        units = robot.drive_position_units
         raise SensorError(f"{what}: drive {i} ({names[i]!r}) reads {arr[i]:.9g} {units[i]}, outside its range "
                           f"[{lo[i]:.6g}, {hi[i]:.6g}] {units[i]} (a broken encoder or a wrong zero offset?)")
     return arr
 
 
-def _assembled(robot, pose: np.ndarray, q_guess: np.ndarray):
-    """(q, T) at ``pose`` on the home branch from q_guess, or None if it does not assemble there."""
-    out = robot.assemble_warm(pose, q_guess)
-    if out is not None:
-        return out[0], out[1]
+def assemble_validated(robot, pose: np.ndarray, q_guess: np.ndarray):
+    """(q, T) at ``pose`` on the validated path (:meth:`assemble` from q_guess, continuation from
+    home, and the velocity map), or None where the pose does not assemble or is singular."""
     try:
         q = robot.assemble(pose, q_guess)
         T, _ = robot.velocity_map_nocopy(q)
@@ -104,23 +103,49 @@ def _assembled(robot, pose: np.ndarray, q_guess: np.ndarray):
     return q, T
 
 
-def solve_forward(robot, readings: np.ndarray, resolution: np.ndarray, pose_guess: np.ndarray,
-                  q_guess: np.ndarray, max_residual: float = 50.0, max_iter: int = 50) -> ForwardSolution:
+def _assembled(robot, pose: np.ndarray, q_guess: np.ndarray):
+    """(q, T) at ``pose`` on the home branch from q_guess, or None if it does not assemble there."""
+    out = robot.assemble_warm(pose, q_guess)
+    if out is not None:
+        return out[0], out[1]
+    return assemble_validated(robot, pose, q_guess)
+
+
+def solve_forward(robot, readings: np.ndarray, resolution: np.ndarray, q_guess: np.ndarray,
+                  pose_guess: np.ndarray | None = None, max_residual: float = 50.0, max_iter: int = 50,
+                  compiled=None) -> ForwardSolution:
     """Weighted least-squares forward kinematics (see the module docstring).
 
     Args:
         robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
         readings: (n_u,) drive positions (rad or m), already checked (:func:`check_readings`).
         resolution: (n_u,) σ_i > 0, the resolution of each drive's encoder (rad or m): the weights.
-        pose_guess: (n_y,) start (the last pose for a warm start, else home); must assemble.
-        q_guess: (nq,) configuration near ``pose_guess``.
+        q_guess: (nq,) start configuration (the last one for a warm start, else home).
+        pose_guess: (n_y,) its output (default ``robot.platform_pose(q_guess)``).
         max_residual: largest accepted |residual_i| / σ_i (counts) at the solution.
         max_iter: Gauss-Newton iterations.
+        compiled: the robot's compiled model update with ``drive_q`` set
+            (:func:`~parallel_gpc.model.native_update.compiled_forward`): runs the same
+            Gauss-Newton loop in C++; None = this module's Python loop (the reference). A start
+            the compiled warm Newton cannot assemble is solved here.
 
     Raises:
         SensorError: the best pose leaves a drive more than ``max_residual`` counts from its
             reading (the message names the worst drive), or the start does not assemble.
     """
+    out = None if compiled is None else compiled.forward(readings, resolution, q_guess, max_iter)
+    sol = _gauss_newton(robot, readings, resolution, q_guess, pose_guess, max_iter) if out is None \
+        else ForwardSolution(*out)
+    counts = np.abs(sol.weighted_residual(resolution))
+    if not counts.max() <= max_residual:
+        raise SensorError(_inconsistency(robot, readings, sol, resolution, max_residual))
+    return sol
+
+
+def _gauss_newton(robot, readings, resolution, q_guess, pose_guess, max_iter) -> ForwardSolution:
+    """The Gauss-Newton loop of :func:`solve_forward` (the reference of native/src/forward.cpp)."""
+    if pose_guess is None:
+        pose_guess = robot.platform_pose(q_guess)
     drive_q, drive_v = robot.drive_q_indices, robot.drive_idx
     start = _assembled(robot, np.asarray(pose_guess, dtype=float), q_guess)
     if start is None:
@@ -156,11 +181,7 @@ def solve_forward(robot, readings: np.ndarray, resolution: np.ndarray, pose_gues
         J = T[drive_v]
         if improvement <= 1e-14 * max(cost, 1.0) and lam < 1.0:
             break
-    sol = ForwardSolution(pose, q, J, e, it)
-    counts = np.abs(sol.weighted_residual(resolution))
-    if not counts.max() <= max_residual:
-        raise SensorError(_inconsistency(robot, readings, sol, resolution, max_residual))
-    return sol
+    return ForwardSolution(pose, q, J, e, it)
 
 
 def _inconsistency(robot, readings, sol: ForwardSolution, resolution: np.ndarray, max_residual: float) -> str:

@@ -17,10 +17,11 @@ import numpy as np
 
 from ..errors import NonFiniteError, SingularPoseError
 from .discretization import DEGREE_NORMS
+from .forward import assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
-__all__ = ["compiled_model_update", "model_update_status", "use_native"]
+__all__ = ["compiled_forward", "compiled_model_update", "forward_status", "model_update_status", "use_native"]
 
 
 class _ValidatedPath:
@@ -40,6 +41,12 @@ class _ValidatedPath:
         cond = self.robot.singularity(q)["cond_phi_z"]
         raise SingularPoseError(f"legs singular at platform pose {np.round(self.robot.platform_pose(q), 6).tolist()}: "
                                 f"cond(Φ_z) = {cond:.3g} (compiled model update)")
+
+    def assembled(self, pose, q_guess):
+        """Forward kinematics' trial pose (lists of floats) on the validated path: q, or None where
+        it does not assemble (forward._assembled)."""
+        out = assemble_validated(self.robot, np.asarray(pose, dtype=float), np.asarray(q_guess, dtype=float))
+        return None if out is None else out[0]
 
     @staticmethod
     def nonfinite() -> None:
@@ -100,3 +107,27 @@ def compiled_model_update(robot):
         universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
         degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot),
     )
+
+
+def compiled_forward(robot):
+    """A ``_native.ModelUpdate`` of ``robot`` for the compiled loop of
+    :func:`~parallel_gpc.model.forward.solve_forward` (the compiled core must be available, see
+    :func:`use_native`): its own instance with the drives' q indices set, so forward kinematics
+    never disturbs the warm starts of a model or plant. None when the compiled core predates
+    forward kinematics (a build older than its sources: the Python loop runs)."""
+    if not hasattr(native_module().ModelUpdate, "forward"):
+        return None
+    update = compiled_model_update(robot)
+    update.drive_q = [int(i) for i in robot.drive_q_indices]
+    return update
+
+
+def forward_status() -> str:
+    """Which loop :meth:`~parallel_gpc.model.robot.ParallelRobot.forward_solution` runs, and if
+    not the compiled one, why."""
+    module = native_module()
+    if module is None:
+        return f"Python loop ({native_status()})"
+    if not hasattr(getattr(module, "ModelUpdate", None), "forward"):
+        return "Python loop (the compiled core predates forward kinematics: rebuild it)"
+    return "compiled"

@@ -175,6 +175,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             self.constraint_jacobian_derivative = self.closure_jacobian_derivative
         self._ck_cache = None  # (q, residual, jacobian) of the last Jacobian evaluation
         self._vm_cache = None  # (q, T, pinv_z) of the last velocity map
+        self._forward_compiled = None  # compiled forward kinematics (forward_solution builds it on first use)
 
     def _home(self, description: RobotDescription) -> None:
         """Assemble the home configuration ``q_home`` at ``home_pose``.

@@ -4,7 +4,8 @@
   :class:`SimulationResult`;
 * :mod:`.tracking` — :func:`run_tracking` builds the controller's model and the plant from
   :class:`TrackingSettings` and runs every form; :func:`metrics_table`;
-* :mod:`.comparison` — the paper's Fig. 2 comparison measured (``parallel-gpc demo``).
+* :mod:`.comparison` — the paper's Fig. 2 comparison measured (``parallel-gpc demo``), and the
+  encoder-only loop beside the full-state one (:func:`sensors_table`).
 
 Many closed loops as tasks (sweeps, the robustness study) are :mod:`parallel_gpc.sweeps`; figures
 are :mod:`parallel_gpc.plots`; the benchmark harness is :mod:`parallel_gpc.bench`.
@@ -17,6 +18,7 @@ _PUBLIC = {
     "null_space_components": "simulation",
     "TrackingSettings": "tracking", "run_tracking": "tracking", "metrics_table": "tracking",
     "DEMO_SETTINGS": "comparison", "run_comparison": "comparison", "comparison_table": "comparison",
+    "sensors_table": "comparison",
     "deadbeat_check": "comparison", "DeadbeatCheck": "comparison", "steady_state_error": "comparison",
     "one_step_deadbeat_input": "comparison",
     "run_loop": "loop",

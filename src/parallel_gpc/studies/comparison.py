@@ -156,3 +156,25 @@ def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
                      f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}"
                      + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
     return "\n".join(lines)
+
+
+def sensors_table(full: dict[str, SimulationResult], encoders: dict[str, SimulationResult], Ts: float) -> str:
+    """Text table: each form of ``encoders`` with full-state feedback (its run in ``full``) and
+    with drive encoders only (quantized readings → forward kinematics → Kalman filter), one row
+    each: RMS / max / steady-state position error (mm), RMS orientation error (mrad), mean and
+    largest step time (ms, estimation included) and the steps longer than ``Ts`` (s)."""
+    head = (f"{'form':<20} {'sensors':<16} {'rms pos':>9} {'max pos':>9} {'steady':>9} {'rms ψ':>9} {'step':>7} "
+            f"{'max':>7} {'> Ts':>5}")
+    units = f"{'':<20} {'':<16} {'[mm]':>9} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[ms]':>7} {'[ms]':>7} {'':>5}"
+    lines = [head, units]
+    for form, enc in encoders.items():
+        ref = full[form]
+        for label, res in ((f"full, α {ref.meta.get('disturbance_gain', float('nan')):g}", ref),
+                           (str(enc.meta.get("sensors_spec", "encoders")), enc)):
+            m = res.metrics()
+            lines.append(f"{form:<20} {label:<16} {1e3 * m['rms_position_error_m']:9.3g} "
+                         f"{1e3 * m['max_position_error_m']:9.3g} {1e3 * steady_state_error(res):9.2e} "
+                         f"{1e3 * m['rms_orientation_error_rad']:9.3g} {1e3 * m['mean_step_time_s']:7.2f} "
+                         f"{1e3 * float(np.max(res.step_time)):7.2f} {int(np.sum(res.step_time > Ts)):5d}"
+                         + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
+    return "\n".join(lines)

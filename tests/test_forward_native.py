@@ -1,0 +1,138 @@
+"""The compiled forward kinematics (``_native.ModelUpdate.forward``) against the Python reference.
+
+Oracle: :func:`~parallel_gpc.model.forward.solve_forward` with ``compiled=None`` (the Python
+Gauss-Newton loop) on the same readings, resolution and warm start: the same pose, configuration,
+drive Jacobian and residual, on every embedded robot and the special robots of
+the suite (task-space output, free-flyer root, spherical joint), at random poses with readings
+±10 counts off, cold from home and warm; the same SensorError for readings no pose explains; and
+a start the compiled warm Newton cannot assemble handed back to the Python loop. Without the
+compiled core the tests skip with the reason, except under CI.
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+from parallel_gpc import ParallelRobot
+from parallel_gpc.errors import SensorError
+from parallel_gpc.model.description import embedded_robots
+from parallel_gpc.model.forward import drive_resolution, solve_forward
+from parallel_gpc.model.native import native_module, native_status
+from parallel_gpc.model.native_update import compiled_forward, use_native
+
+import mechanisms as mech
+import mechanisms_ups as ups
+from test_forward_kinematics import random_configurations
+
+_module = native_module()
+STATUS = native_status() if _module is None else (
+    "ok" if hasattr(_module.ModelUpdate, "forward") else "the compiled core predates forward kinematics: rebuild it")
+if STATUS != "ok":
+    if os.environ.get("CI"):
+        raise RuntimeError(f"CI must test the compiled forward kinematics, but: {STATUS}")
+    pytestmark = pytest.mark.skip(reason=STATUS)
+
+SPECIAL = ["fivebar_task", "fivebar_free_flyer", "rps_spherical", "ups_universal"]
+#: random poses per robot
+POSES = 40
+
+
+def _special(name: str, folder) -> ParallelRobot:
+    if name == "fivebar_task":
+        return ParallelRobot.load(mech.write(folder, name, mech.fivebar_urdf(), mech.fivebar_sidecar()))
+    if name == "rps_spherical":
+        return ParallelRobot.load(mech.write(folder, name, mech.rps_urdf(True), mech.rps_sidecar(True), ".urdf", ".yaml"))
+    if name == "ups_universal":
+        return ParallelRobot.load(mech.write(folder, name, ups.ups_urdf(True), ups.ups_sidecar(True), ".urdf", ".yaml"))
+    side = mech.fivebar_sidecar(extra='root = "free_flyer"\n') + (
+        '[[closures]]\nname = "ground"\nkind = "weld"\nframes = ["base", "universe"]\n')
+    return ParallelRobot.load(mech.write(folder, name, mech.fivebar_urdf(), side))
+
+
+@pytest.fixture(scope="module", params=list(embedded_robots()) + SPECIAL)
+def robot(request, tmp_path_factory) -> ParallelRobot:
+    if request.param in SPECIAL:
+        return _special(request.param, tmp_path_factory.mktemp(request.param))
+    return ParallelRobot.load(request.param)
+
+
+def both(robot, compiled, readings, res, q_guess, **kw):
+    """(Python solution, compiled solution) of the same problem."""
+    py = solve_forward(robot, readings, res, q_guess, robot.platform_pose(q_guess), compiled=None, **kw)
+    cc = solve_forward(robot, readings, res, q_guess, compiled=compiled, **kw)
+    return py, cc
+
+
+def assert_same(py, cc, atol=1e-9):
+    """Equal to ``atol`` (m, rad): the loops stop when the next step would move a drive by less
+    than 10^-6 counts, so rounding may leave them ~10^-10 apart (the largest seen: 1.4e-10 rad,
+    2e-5 counts of 2^20 per revolution)."""
+    np.testing.assert_allclose(cc.pose, py.pose, rtol=0, atol=atol)
+    np.testing.assert_allclose(cc.q, py.q, rtol=0, atol=atol)
+    np.testing.assert_allclose(cc.jacobian, py.jacobian, rtol=1e-8, atol=atol)
+    np.testing.assert_allclose(cc.residual, py.residual, rtol=0, atol=atol)
+
+
+def test_compiled_equals_python_at_random_poses(robot):
+    """±10 counts on every drive; cold from home (several trust-region steps) and warm from a
+    configuration 1 mm / 1 mrad away; the validated-path callback of trial poses included."""
+    compiled = compiled_forward(robot)
+    rng = np.random.default_rng(11)
+    res = drive_resolution(robot)
+    iterations = []
+    for k, (y, q) in enumerate(random_configurations(robot, rng, POSES)):
+        readings = q[robot.drive_q_indices] + rng.integers(-10, 11, robot.n_u) * res
+        guess = robot.q_home if k % 2 == 0 else robot.assemble(y + 1e-3, q)
+        py, cc = both(robot, compiled, readings, res, guess)
+        assert_same(py, cc)
+        # not compared: the stopping tests (10^-6 counts, an improvement of 10^-14 relative) sit at
+        # rounding level, so one loop may take a few more steps that change nothing above 1e-12
+        iterations.append(py.iterations)
+    assert max(iterations) >= 3  # the cold starts took several bounded steps
+
+
+def test_the_robot_uses_the_compiled_loop_unless_switched_off(robot4, monkeypatch):
+    y = robot4.home_pose + np.array([0.02, -0.01, 0.03])
+    drives = robot4.inverse_kinematics(y)
+    calls = []
+    real = solve_forward.__globals__["_gauss_newton"]
+    monkeypatch.setitem(solve_forward.__globals__, "_gauss_newton", lambda *a: calls.append(1) or real(*a))
+    np.testing.assert_allclose(robot4.forward_kinematics(drives), y, atol=1e-9)
+    assert calls == [] and use_native(None)
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
+    np.testing.assert_allclose(robot4.forward_kinematics(drives), y, atol=1e-9)
+    assert calls == [1]
+
+
+def test_a_start_off_the_closures_is_handed_to_python(robot4):
+    """A q_guess whose passive joints are 0.5 rad off: the compiled warm Newton refuses it
+    (None), and solve_forward solves it with the Python loop (the validated assembly)."""
+    compiled = compiled_forward(robot4)
+    y = robot4.home_pose + np.array([0.01, 0.02, -0.02])
+    q = robot4.assemble(y)
+    res = drive_resolution(robot4)
+    bad = q.copy()
+    bad[robot4.z_idx] += 0.5
+    readings = q[robot4.drive_q_indices]
+    assert compiled.forward(readings, res, bad, 50) is None
+    py, cc = both(robot4, compiled, readings, res, bad)
+    assert_same(py, cc, atol=0)
+    np.testing.assert_allclose(cc.pose, y, atol=1e-9)
+
+
+@pytest.mark.parametrize("name, drive, offset", [("planar_4rrr", 2, 0.05), ("hexapod_8ups", 5, 0.002)])
+def test_a_broken_encoder_raises_the_same_error(name, drive, offset):
+    robot = ParallelRobot.load(name)
+    compiled = compiled_forward(robot)
+    res = drive_resolution(robot)
+    drives = robot.inverse_kinematics(robot.home_pose + np.where(robot.output_angular, 0.02, 0.01))
+    drives[drive] += offset
+    messages = []
+    for c in (None, compiled):
+        with pytest.raises(SensorError, match=r"inconsistent.*drive \d \('drive_\d'\) is off by") as info:
+            solve_forward(robot, drives, res, robot.q_home, robot.home_pose, compiled=c)
+        messages.append(str(info.value).split("drives [")[1].split("]")[0])
+    assert messages[0] == messages[1] and f"'drive_{drive + 1}'" in messages[0]
