@@ -28,7 +28,8 @@ pre-simulation) accepts v + α(v⁺ − v) with sufficient decrease; a convex co
 feasible plans is feasible. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
 problem's), the iteration limit, a failed line search or solve (the last accepted plan is
-kept), or the time budget (the next iteration would end past it).
+kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
+converged), or the time budget (the next iteration would end past it).
 """
 
 from __future__ import annotations
@@ -48,6 +49,8 @@ __all__ = ["NMPCIterations", "IterationReport", "state_jacobians", "ARMIJO", "BA
 ARMIJO = 1e-4
 #: largest number of step halvings before the line search gives up.
 BACKTRACKS = 12
+#: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
+ROUNDING = 1e-12
 #: relative step of the central differences of Φ (per state entry, times max(1, |X_k|)).
 FD_STEP = 1e-5
 
@@ -176,8 +179,9 @@ class NMPCIterations:
             scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
             report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / scale if report["iterations"] > 1 \
                 else float("nan")
-            if accepted is None:
-                report["stop"] = "line search"
+            if accepted is None:  # no decrease measurable above rounding: as good as converged
+                flat = decrease <= ROUNDING * cost
+                report.update(stop="converged" if flat else "line search", converged=flat)
                 break
             v, traj, u_traj, cost = accepted
             if report["iterations"] > 1 and report["residual"] <= self.tolerance:
