@@ -5,7 +5,8 @@ The discrete map Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) enters CasADi as an ext
 central differences in u, exact for a map affine in u) — not the library's Jacobians. The
 problem is written from its definition (single shooting over v = Δu, u = u_sim⁰ + cumsum(v),
 Qy-weighted outputs and Qu-weighted v), the limits as linear constraints on u, and solved by
-IPOPT (limited-memory Hessian, tight tolerances).
+IPOPT (limited-memory Hessian, tight tolerances). The benchmark benchmarks/bench_nmpc.py
+runs the same formulation in closed loop (IPOPT and CasADi's SQP).
 """
 
 from __future__ import annotations
@@ -86,16 +87,19 @@ class _Phi(ca.Callback):
         return self._jac
 
 
-def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_prev=None, disturbance=None):
-    """The optimal v (Nu = N) of the NMPC problem by IPOPT.
+def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_prev=None, disturbance=None,
+               method="ipopt", max_iter=None):
+    """The optimal v (Nu = N) of the NMPC problem by IPOPT (or CasADi's SQP, ``method="sqpmethod"``).
 
     Args:
         model: the reduced model; Ts: s; X0: (n_x,); u0: (N, m) u_sim⁰; w: (N − No, p) reference;
         Qy, Qu: scalar square-root weights; torque, du: scalars or (m,) (already tightened), or None;
         u_prev: (m,) u(k−1) for the du limit; disturbance: (n_x,) d or None.
+        method: "ipopt" (tight tolerances) or "sqpmethod" (qpOASES subproblems); max_iter: None
+            (to convergence) or a cap (``1``: one SQP iteration).
 
     Returns:
-        (v (N·m,), J(v), IPOPT's return status).
+        (v (N·m,), J(v), the solver's return status, its iteration count).
     """
     n, m = model.n_x, model.n_u
     phi = _Phi("phi", model, Ts)
@@ -132,9 +136,16 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
     f0 = ca.Function("f", [V], [cost])
     scale = float(f0(np.zeros(N * m)))
     nlp = {"x": V, "f": cost / scale, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
-    opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-14, "ipopt.acceptable_iter": 0,
-            "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": 3000,
-            "ipopt.limited_memory_max_history": 50, "ipopt.bound_relax_factor": 0.0}
-    solver = ca.nlpsol("oracle", "ipopt", nlp, opts)
+    if method == "ipopt":
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-14, "ipopt.acceptable_iter": 0,
+                "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter or 3000,
+                "ipopt.limited_memory_max_history": 50, "ipopt.bound_relax_factor": 0.0}
+    else:
+        opts = {"print_time": False, "print_header": False, "print_iteration": False, "print_status": False,
+                "hessian_approximation": "limited-memory", "max_iter": max_iter or 200, "error_on_fail": False,
+                "qpsol_options": {"printLevel": "none", "error_on_fail": False}}
+    solver = ca.nlpsol("oracle", method, nlp, opts)
     sol = solver(x0=np.zeros(N * m), lbg=lbg, ubg=ubg)
-    return np.array(sol["x"]).ravel(), float(sol["f"]) * scale, solver.stats()["return_status"]
+    stats = solver.stats()
+    return (np.array(sol["x"]).ravel(), float(sol["f"]) * scale, stats["return_status"],
+            int(stats.get("iter_count", 0)))

@@ -134,7 +134,7 @@ def test_converged_plan_equals_ipopts(name, limits):
         lim = Limits(du=0.5 * np.abs(np.diff(np.vstack([plan[:1], u_free]), axis=0)).max())
     _, info = _step(model, X, plan, target, N, 50, limits=lim)
     tight = lim.for_drives(model.n_u).scaled(1.0 - LIMIT_MARGIN)
-    v, J, status = ipopt_plan(model, TS, X, u0, np.tile(target, (N, 1)), QY, QU, N,
+    v, J, status, _ = ipopt_plan(model, TS, X, u0, np.tile(target, (N, 1)), QY, QU, N,
                               torque=tight.torque, du=tight.du, u_prev=plan[0])
     assert status == "Solve_Succeeded"
     assert info.result.active_limits == (limits is not None)
