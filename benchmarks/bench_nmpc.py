@@ -80,7 +80,10 @@ def closed_loop(robot, ref, duration, Ts, N, torque, step):
     for k in range(K):
         w = ref.sample(k * Ts + Ts * np.arange(1, N + 1))
         t0 = time.perf_counter()
-        u, it = step(plant.X, w)
+        try:
+            u, it = step(plant.X, w)
+        except Exception as exc:  # a method that fails (e.g. a trial step outside the workspace) is reported
+            return {"failed": f"step {k}: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}", "steps": k}
         times.append(time.perf_counter() - t0)
         X = plant.step(u)
         errors.append(float(np.linalg.norm(X[:3] - ref.pose((k + 1) * Ts))))
@@ -120,7 +123,8 @@ def main(argv=None) -> int:
         model = ReducedModel(robot)
         step = make(model, Ts, N, torque, arg) if make is gpc_method else make(model, Ts, N, torque, *arg)
         rows[name] = closed_loop(robot, ref, duration, Ts, N, torque, step)
-        print(f"{name:40s} " + "  ".join(f"{k} {v:.4g}" for k, v in rows[name].items()), flush=True)
+        print(f"{name:40s} " + "  ".join(f"{k} {v:.4g}" if not isinstance(v, str) else f"{k}: {v}"
+                                          for k, v in rows[name].items()), flush=True)
     meta = {"robot": "delta_3rus", "Ts": Ts, "N": N, "move_s": args.move, "distance_m": 0.85 * reach,
             "torque_limit_Nm": torque, "Qy": QY, "Qu": QU}
     out = Path(args.out)
