@@ -39,6 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..errors import AssemblyError, NonFiniteError, SingularPoseError
 from ..solvers import SolveResult
 from .criterion import Criterion
 from .prediction import Prediction, simulative_prediction
@@ -49,6 +50,8 @@ __all__ = ["NMPCIterations", "IterationReport", "state_jacobians", "ARMIJO", "BA
 ARMIJO = 1e-4
 #: largest number of step halvings before the line search gives up.
 BACKTRACKS = 12
+#: errors of the model away from its domain (a trial plan beyond the workspace): a shorter step.
+MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
 #: relative step of the central differences of Φ (per state entry, times max(1, |X_k|)).
@@ -67,7 +70,7 @@ class IterationReport:
         converged: True when the residual fell to the tolerance.
         cost: J(v) of the applied plan on the nonlinear model (the criterion's units).
         stop: why the iterations ended (``"converged"``, ``"iterations"``, ``"time budget"``,
-            ``"line search"``, ``"solve failed"``).
+            ``"line search"``, ``"solve failed"``, ``"jacobian failed"``).
     """
 
     iterations: int = 1
@@ -122,18 +125,18 @@ class NMPCIterations:
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
 
     # -------------------------------------------------------------- the true problem
-    def _rollout(self, X, u0, u_map, v, d):
-        """(trajectory, J(v)) on the nonlinear model; trajectory = simulate_factorized's output."""
+    def _rollout(self, X, w, u0, u_map, v, d):
+        """(trajectory, inputs (N, m), J(v)) on the nonlinear model; trajectory = simulate_factorized's output."""
         H, m = self.criterion.horizons, self.model.n_u
         u = (u0 + u_map @ v).reshape(-1, m)
         traj = self.model.simulate_factorized(X, u, self.Ts, d)
         y = traj[3][1:] @ self.model.C.T
-        return traj, u, self._cost(y[H.No:].reshape(-1), v)
+        return traj, u, self._cost(y[H.No:].reshape(-1), w, v)
 
-    def _cost(self, y_rows: np.ndarray, v: np.ndarray, w=None) -> float:
+    def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
+        """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,))."""
         c = self.criterion
-        p = c.n_outputs
-        e = (y_rows - (self._w if w is None else w)).reshape(-1, p) @ c.Wy.T
+        e = (y_rows - w).reshape(-1, c.n_outputs) @ c.Wy.T
         q = c.Qu_block @ v
         return float(e.reshape(-1) @ e.reshape(-1) + q @ q)
 
@@ -153,13 +156,13 @@ class NMPCIterations:
             (prediction of the last linearization in the total v, its result with v the accepted
             plan, :class:`IterationReport`).
         """
-        self._w = np.asarray(w, dtype=float).reshape(-1)
+        w = np.asarray(w, dtype=float).reshape(-1)
         if not result.ok:
             return pred, result, IterationReport(stop="solve failed")
         H, C = self.criterion.horizons, self.model.C
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
-        cost = self._cost(pred.f, v)
+        cost = self._cost(pred.f, w, v)
         lin = pred  # the linearization that produced `result`
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
@@ -167,11 +170,15 @@ class NMPCIterations:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
-            decrease = max(self._cost(lin.f + lin.G @ v, v) - self._cost(lin.f + lin.G @ v_new, v_new), 0.0)
+            decrease = max(self._cost(lin.f + lin.G @ v, w, v) - self._cost(lin.f + lin.G @ v_new, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
-                traj, u_traj, trial_cost = self._rollout(X, u0, u_map, trial, disturbance)
+                try:
+                    traj, u_traj, trial_cost = self._rollout(X, w, u0, u_map, trial, disturbance)
+                except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
+                    alpha *= 0.5
+                    continue
                 if trial_cost <= cost - ARMIJO * alpha * decrease:
                     accepted = (trial, traj, u_traj, trial_cost)
                     break
@@ -195,7 +202,11 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
-            JX = state_jacobians(self.model, X_seq, u_traj, self.Ts)
+            try:
+                JX = state_jacobians(self.model, X_seq, u_traj, self.Ts)
+            except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
+                report["stop"] = "jacobian failed"
+                break
             y_traj = X_seq[1:] @ C.T
             G = simulative_prediction(JX, B_seq, C, y_traj, u_traj, H).G
             lin = Prediction(y_traj[H.No:].reshape(-1) - G @ v, G, u0, u_map, H, "simulative")
