@@ -34,10 +34,10 @@ from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
+from .nmpc import IterationReport, NMPCIterations
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
-from .nmpc import IterationReport, NMPCIterations
 from .riccati import RiccatiPath
 from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
 
@@ -54,7 +54,8 @@ class StepInfo:
     Attributes:
         u: (m,) applied drive torques (N·m).
         result: the solver's :class:`SolveResult` (status ``fallback`` if the solve failed).
-        model_time, predict_time, solve_time: wall times in s of the three phases.
+        model_time, predict_time, solve_time: wall times in s of the three phases (solve_time
+            includes the nonlinear form's further iterations).
         fallback: True when the applied u did not come from a successful solve.
         iterations: Gauss–Newton iterations of the nonlinear form (1: the paper's single step;
             ``GPCSettings.iterations``, :mod:`parallel_gpc.gpc.nmpc`).
