@@ -160,3 +160,31 @@ def test_bad_iteration_settings_are_refused(kw, word):
     kw = {"form": "nonlinear", **kw}
     with pytest.raises(InvalidParameterError, match=word):
         GPCSettings(TS, Horizons(10), **kw)
+
+
+class _Fenced:
+    """The reduced model whose simulation fails beyond an input bound (a plan leaving the domain)."""
+
+    def __init__(self, model, bound):
+        self._model, self.bound = model, bound
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+    def simulate_factorized(self, X0, u_seq, Ts, offset=None):
+        from parallel_gpc.errors import UnreachablePoseError
+        if np.abs(u_seq).max() > self.bound:
+            raise UnreachablePoseError(f"inputs beyond {self.bound} N·m")
+        return self._model.simulate_factorized(X0, u_seq, Ts, offset)
+
+
+def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    _, paper = _step(model, X, plan, target, 10, 1)
+    u0 = np.vstack([plan[1:10], plan[9:10]])
+    peak = np.abs(u0 + np.cumsum(paper.result.v.reshape(10, -1), axis=0)).max()
+    bound = 0.5 * (peak + np.abs(u0).max())  # the paper's full step goes beyond it, v = 0 stays within
+    assert peak > bound
+    _, info = _step(_Fenced(model, bound), X, plan, target, 10, 5)
+    u = u0 + np.cumsum(info.result.v.reshape(10, -1), axis=0)
+    assert np.abs(u).max() <= bound and not info.fallback and info.iterations >= 1
