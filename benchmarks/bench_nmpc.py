@@ -66,7 +66,7 @@ def casadi_method(model, Ts, N, torque, method, max_iter):
         plan = state["plan"]
         u0 = np.vstack([plan[1:], plan[-1:]])
         v, _, _, iters = ipopt_plan(model, Ts, X, u0, w, QY, QU, N, torque=torque * (1 - LIMIT_MARGIN),
-                                    method=method, max_iter=max_iter)
+                                    method=method, max_iter=max_iter, tol=1e-8)
         state["plan"] = u0 + np.cumsum(v.reshape(N, m), axis=0)
         return state["plan"][0].copy(), iters
     return step

@@ -88,7 +88,7 @@ class _Phi(ca.Callback):
 
 
 def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_prev=None, disturbance=None,
-               method="ipopt", max_iter=None):
+               method="ipopt", max_iter=None, tol=1e-14):
     """The optimal v (Nu = N) of the NMPC problem by IPOPT (or CasADi's SQP, ``method="sqpmethod"``).
 
     Args:
@@ -96,7 +96,8 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
         Qy, Qu: scalar square-root weights; torque, du: scalars or (m,) (already tightened), or None;
         u_prev: (m,) u(k−1) for the du limit; disturbance: (n_x,) d or None.
         method: "ipopt" (tight tolerances) or "sqpmethod" (qpOASES subproblems); max_iter: None
-            (to convergence) or a cap (``1``: one SQP iteration).
+            (to convergence) or a cap (``1``: one SQP iteration); tol: IPOPT's tolerance (the
+            oracle: 1e-14; the benchmark a control-rate 1e-8).
 
     Returns:
         (v (N·m,), J(v), the solver's return status, its iteration count).
@@ -137,7 +138,7 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
     scale = float(f0(np.zeros(N * m)))
     nlp = {"x": V, "f": cost / scale, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
     if method == "ipopt":
-        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-14, "ipopt.acceptable_iter": 0,
+        opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": tol, "ipopt.acceptable_iter": 0,
                 "ipopt.hessian_approximation": "limited-memory", "ipopt.max_iter": max_iter or 3000,
                 "ipopt.limited_memory_max_history": 50, "ipopt.bound_relax_factor": 0.0}
     else:
