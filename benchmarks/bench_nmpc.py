@@ -48,7 +48,7 @@ def delta_move(robot, move: float, hold: float = 0.04):
 
 def gpc_method(model, Ts, N, torque, iterations, tolerance=1e-8):
     ctrl = GPCController.build(model, Ts, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=iterations,
-                               tolerance=tolerance, limits=Limits(torque=torque))
+                               tolerance=tolerance, limits=Limits(torque=torque), disturbance_gain=0.0)  # as CasADi
 
     def step(X, w):
         info = ctrl.step(X, w)
