@@ -34,6 +34,7 @@ from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
+from .nmpc import IterationReport, NMPCIterations
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
@@ -53,8 +54,14 @@ class StepInfo:
     Attributes:
         u: (m,) applied drive torques (N·m).
         result: the solver's :class:`SolveResult` (status ``fallback`` if the solve failed).
-        model_time, predict_time, solve_time: wall times in s of the three phases.
+        model_time, predict_time, solve_time: wall times in s of the three phases (solve_time
+            includes the nonlinear form's further iterations).
         fallback: True when the applied u did not come from a successful solve.
+        iterations: Gauss–Newton iterations of the nonlinear form (1: the paper's single step;
+            ``GPCSettings.iterations``, :mod:`parallel_gpc.gpc.nmpc`).
+        residual: relative size of the last Gauss–Newton step (0 at the NMPC optimum; NaN with
+            a single iteration).
+        budget_hit: True when the time budget stopped the iterations.
     """
 
     u: np.ndarray
@@ -63,6 +70,9 @@ class StepInfo:
     predict_time: float
     solve_time: float
     fallback: bool = False
+    iterations: int = 1
+    residual: float = float("nan")
+    budget_hit: bool = False
 
     @property
     def step_time(self) -> float:
@@ -124,6 +134,8 @@ class GPCController:
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
+        self._nmpc = None if settings.iterations == 1 else NMPCIterations(
+            self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -308,6 +320,11 @@ class GPCController:
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             t2 = time.perf_counter()
             result = self._dense_solve(problem, pred, result)
+        report = IterationReport()
+        if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
+            pred, result, report = self._nmpc.run(
+                X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
+                self._backend.solve, self.disturbance, t0)
         violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
         if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
             result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
@@ -333,7 +350,8 @@ class GPCController:
         self.u_prev = u
         Ad, Bd, cd = self._one_step[:3]
         self._x_next = Ad @ X + Bd @ u + cd
-        return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback)
+        return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, report.iterations, report.residual,
+                        report.budget_hit)
 
     def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None) -> SolveResult:
         """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),

@@ -63,6 +63,14 @@ class GPCSettings:
             paper's S-curve and A→B on both embedded robots, 1e3 is about 1 cm from a planar_3rrr
             direct singularity. Which gain is checked for other models:
             :class:`~parallel_gpc.gpc.ControlModel`.
+        iterations: largest number of Gauss–Newton iterations per step of the nonlinear form
+            (integer ≥ 1): 1 is the paper's single linearization; more continue to the optimum of
+            the discrete nonlinear MPC problem (:mod:`parallel_gpc.gpc.nmpc`). Only with form
+            ``"nonlinear"`` and a dense back end (not ``"riccati"``) when > 1.
+        tolerance: the iterations stop when the Gauss–Newton step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞)
+            (> 0, relative; default 1e-8).
+        time_budget: s per control step (> 0) for the iterations (real-time mode): no iteration
+            starts that would end past it (the step record says so), or None (no budget).
 
     Raises:
         InvalidParameterError: bad Ts, form, horizons, weights or limits type, solver/limits
@@ -77,6 +85,9 @@ class GPCSettings:
     limits: Limits = field(default_factory=Limits)
     disturbance_gain: float | None = None
     max_condition: float = 1e3
+    iterations: int = 1
+    tolerance: float = 1e-8
+    time_budget: float | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -99,6 +110,23 @@ class GPCSettings:
             put("disturbance_gain", 0.0 if self.form == "absolute" else 0.5)
         put("disturbance_gain", unit_interval("disturbance_gain", self.disturbance_gain))
         put("max_condition", positive("max_condition", self.max_condition))
+        check_iterations(self)
+        put("tolerance", positive("tolerance", self.tolerance))
+        if self.time_budget is not None:
+            put("time_budget", positive("time_budget", self.time_budget, " s"))
+
+
+def check_iterations(settings: "GPCSettings") -> None:
+    """Refuse iterations that are not an integer ≥ 1, or > 1 outside the nonlinear form's dense solve."""
+    n = settings.iterations
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
+        raise InvalidParameterError(f"iterations = {n!r} must be an integer ≥ 1 (1: the paper's single step)")
+    if n > 1 and settings.form != "nonlinear":
+        raise InvalidParameterError(f"iterations = {n} iterates the nonlinear form's prediction; form is "
+                                    f"{settings.form!r} (use form='nonlinear' or iterations=1)")
+    if n > 1 and settings.solver == "riccati":
+        raise InvalidParameterError(f"iterations = {n} needs a dense back end (e.g. 'qr'); solver 'riccati' "
+                                    "solves the paper's single step only")
 
 
 def check_form_limits(form: str, limits: Limits) -> None:

@@ -1,0 +1,190 @@
+"""The nonlinear form iterated to the NMPC optimum (gpc/nmpc.py): the paper's step unchanged at
+iterations=1, the converged plan against CasADi + IPOPT on the same discrete problem (an
+independent formulation and Jacobian, tests/nmpc_oracle.py), limits inside every iteration, the
+time budget and the settings' checks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from parallel_gpc import ControllerState, GPCController, GPCSettings, Horizons, ParallelRobot, ReducedModel, Weights
+from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.gpc.controller import LIMIT_MARGIN
+from parallel_gpc.gpc.nmpc import state_jacobians
+from parallel_gpc.limits import Limits
+
+TS = 0.002
+QY, QU = 1.0, 1e-3
+
+
+def _case(name):
+    """(model, X, previous plan, reference rows) of a strongly nonlinear step: moving fast, the
+    reference off the current pose."""
+    robot = ParallelRobot.load(name)
+    model = ReducedModel(robot)
+    if name == "planar_4rrr":
+        X = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
+        plan = np.tile([1.0, -1.0, 0.5, 0.2], (20, 1))
+        target = np.array([0.51, 0.39, 0.12])
+    else:  # delta_3rus near its home, fast
+        X = np.concatenate([robot.home_pose + [0.02, -0.01, 0.03], [0.4, -0.3, 0.5]])
+        plan = np.tile([0.5, -0.3, 0.2], (20, 1))
+        target = robot.home_pose + [0.03, -0.02, 0.035]
+    return model, X, plan, target
+
+
+def _step(model, X, plan, target, N, iterations, limits=Limits(), tolerance=1e-12, **kw):
+    ctrl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=iterations,
+                               tolerance=tolerance, limits=limits, disturbance_gain=0.0, **kw)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+    return ctrl, ctrl.step(X, np.tile(target, (N, 1)))
+
+
+def _true_cost(model, X, u0, v, target, N):
+    """J(v) of the discrete problem, rolled out step by step with the model's discrete map."""
+    m = model.n_u
+    u = u0 + np.cumsum(v.reshape(N, m), axis=0)
+    J, x = float(QU ** 2 * v @ v), X
+    for i in range(N):
+        Ad, Bd, cd = model.discrete(x, TS)
+        x = Ad @ x + Bd @ u[i] + cd
+        J += float(np.sum((QY * (x[:model.n_y] - target)) ** 2))
+    return J
+
+
+def test_one_iteration_is_the_papers_step_bit_for_bit(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    _, paper = _step(ReducedModel(robot4), X, plan, target, 10, 1)
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(QY, QU), form="nonlinear",
+                               disturbance_gain=0.0)  # the settings without the new fields
+    ctrl.restore(ControllerState(plan[0], plan[:10], np.zeros(6)))
+    today = ctrl.step(X, np.tile(target, (10, 1)))
+    assert np.array_equal(paper.u, today.u) and np.array_equal(paper.result.v, today.result.v)
+    assert paper.iterations == 1 and math.isnan(paper.residual) and not paper.budget_hit
+
+
+def test_iterations_decrease_the_true_cost_to_a_stationary_point(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    costs, plans = [], []
+    for it in (1, 2, 3, 50):
+        _, info = _step(model, X, plan, target, N, it)
+        costs.append(_true_cost(model, X, u0, info.result.v, target, N))
+        plans.append(info.result.v)
+        assert info.iterations <= it
+    assert all(b <= a * (1 + 1e-12) for a, b in zip(costs, costs[1:]))
+    assert costs[0] > costs[-1]  # the paper's single step is not the optimum here
+    assert np.abs(plans[0] - plans[-1]).max() > 1e-4 * np.abs(plans[-1]).max()
+    assert np.abs(plans[2] - plans[-1]).max() < np.abs(plans[0] - plans[-1]).max() / 10
+    assert info.residual <= 1e-8 and info.result.cost == pytest.approx(costs[-1], rel=1e-9)
+    # stationary: the gradient of the true cost (central differences of the rollout) vanishes
+    v = info.result.v
+    g = np.empty_like(v)
+    for k in range(len(v)):
+        e = np.zeros_like(v)
+        e[k] = 1e-3
+        g[k] = (_true_cost(model, X, u0, v + e, target, N) - _true_cost(model, X, u0, v - e, target, N)) / 2e-3
+    g0 = abs(costs[0] - _true_cost(model, X, u0, np.zeros_like(v), target, N)) / max(np.abs(v).max(), 1e-12)
+    assert np.abs(g).max() <= 1e-6 * max(g0, costs[-1])
+
+
+def test_state_jacobians_match_a_finer_difference(robot4):
+    model, X, plan, _ = _case("planar_4rrr")
+    u = plan[:3]
+    traj = model.simulate_factorized(X, u, TS)[3]
+    J = state_jacobians(model, traj, u, TS)
+    Ad = model.simulate_factorized(X, u, TS)[0]
+    for i in range(3):
+        fine = np.empty((6, 6))
+        for k in range(6):
+            e = np.zeros(6)
+            e[k] = 1e-3
+            f = lambda x: (lambda A, B, c: A @ x + B @ u[i] + c)(*model.discrete(x, TS))  # noqa: E731
+            x = traj[i]
+            fine[:, k] = (-f(x + 2 * e) + 8 * f(x + e) - 8 * f(x - e) + f(x - 2 * e)) / 12e-3
+        assert np.abs(J[i] - fine).max() <= 1e-8
+        assert np.abs(J[i] - Ad[i]).max() > 1e-6  # the frozen A_d is not the Jacobian
+
+
+@pytest.mark.parametrize("name,limits", [
+    ("planar_4rrr", None),
+    ("planar_4rrr", "torque"),
+    ("planar_4rrr", "du"),
+    ("delta_3rus", None),
+    ("delta_3rus", "torque"),
+])
+def test_converged_plan_equals_ipopts(name, limits):
+    pytest.importorskip("casadi")
+    from nmpc_oracle import ipopt_plan
+
+    model, X, plan, target = _case(name)
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    # limits that bind on this step (found from the unconstrained optimum)
+    _, free = _step(model, X, plan, target, N, 50)
+    u_free = u0 + np.cumsum(free.result.v.reshape(N, -1), axis=0)
+    lim = Limits()
+    if limits == "torque":
+        lim = Limits(torque=0.8 * np.abs(u_free).max())
+    elif limits == "du":
+        lim = Limits(du=0.5 * np.abs(np.diff(np.vstack([plan[:1], u_free]), axis=0)).max())
+    _, info = _step(model, X, plan, target, N, 50, limits=lim)
+    tight = lim.for_drives(model.n_u).scaled(1.0 - LIMIT_MARGIN)
+    v, J, status, _ = ipopt_plan(model, TS, X, u0, np.tile(target, (N, 1)), QY, QU, N,
+                              torque=tight.torque, du=tight.du, u_prev=plan[0])
+    assert status == "Solve_Succeeded"
+    assert info.result.active_limits == (limits is not None)
+    assert np.abs(info.result.v - v).max() <= 1e-6 * np.abs(v).max()
+    assert info.result.cost == pytest.approx(J, rel=1e-9)
+    assert info.residual <= 1e-6 and not info.fallback  # the QP back end's own tolerance
+
+
+def test_time_budget_stops_and_says_so(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    _, info = _step(model, X, plan, target, 10, 50, time_budget=1e-6)
+    assert info.budget_hit and info.iterations == 1 and not info.fallback  # the paper's step, applied
+    _, info = _step(model, X, plan, target, 10, 50, time_budget=60.0)
+    assert not info.budget_hit and info.residual <= 1e-8
+
+
+@pytest.mark.parametrize("kw,word", [
+    (dict(iterations=0), "iterations"), (dict(iterations=2.0), "iterations"), (dict(iterations=True), "iterations"),
+    (dict(iterations=3, form="incremental"), "nonlinear"), (dict(iterations=3, solver="riccati"), "riccati"),
+    (dict(tolerance=0.0), "tolerance"), (dict(time_budget=-1.0), "time_budget"),
+])
+def test_bad_iteration_settings_are_refused(kw, word):
+    kw = {"form": "nonlinear", **kw}
+    with pytest.raises(InvalidParameterError, match=word):
+        GPCSettings(TS, Horizons(10), **kw)
+
+
+class _Fenced:
+    """The reduced model whose simulation fails beyond an input bound (a plan leaving the domain)."""
+
+    def __init__(self, model, bound):
+        self._model, self.bound = model, bound
+
+    def __getattr__(self, name):
+        return getattr(self._model, name)
+
+    def simulate_factorized(self, X0, u_seq, Ts, offset=None):
+        from parallel_gpc.errors import UnreachablePoseError
+        if np.abs(u_seq).max() > self.bound:
+            raise UnreachablePoseError(f"inputs beyond {self.bound} N·m")
+        return self._model.simulate_factorized(X0, u_seq, Ts, offset)
+
+
+def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    _, paper = _step(model, X, plan, target, 10, 1)
+    u0 = np.vstack([plan[1:10], plan[9:10]])
+    peak = np.abs(u0 + np.cumsum(paper.result.v.reshape(10, -1), axis=0)).max()
+    bound = 0.5 * (peak + np.abs(u0).max())  # the paper's full step goes beyond it, v = 0 stays within
+    assert peak > bound
+    _, info = _step(_Fenced(model, bound), X, plan, target, 10, 5)
+    u = u0 + np.cumsum(info.result.v.reshape(10, -1), axis=0)
+    assert np.abs(u).max() <= bound and not info.fallback and info.iterations >= 1
