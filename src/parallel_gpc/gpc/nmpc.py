@@ -23,7 +23,7 @@ linearizes Φ along the trajectory of the current plan with its true Jacobians �
 (Φ is affine in u) and ∂Φ/∂X by central differences of Φ (2·n_x evaluations per stage; the
 frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed
 point that is not the optimum) — and solves the same least-squares/QP problem for the total v,
-limits included (soft ones stay soft). A backtracking line search on the true J (each trial one
+every limit of the problem included. A backtracking line search on the true J (each trial one
 pre-simulation) accepts v + α(v⁺ − v) with sufficient decrease; a convex combination of two
 feasible plans is feasible. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
