@@ -28,7 +28,7 @@ class QRFirst:
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         qr_time = 0.0
-        if not (self._limits_active and problem.constrained):
+        if not (self._limits_active and problem.constrained) and problem.c is None:  # (QR takes no linear term)
             res = self.qr.solve_unconstrained(problem)
             if not problem.constrained or problem.feasible(res.v):
                 self._limits_active = False
