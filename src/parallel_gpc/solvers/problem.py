@@ -183,9 +183,11 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
     Ls.append(L_new)
     los.append(np.full(len(h), -UNBOUNDED))
     his.append(np.asarray(h, dtype=float))
-    lb = np.full(n + ns, -UNBOUNDED) if problem.lb is None else np.concatenate([problem.lb, np.zeros(ns)])
-    ub = np.full(n + ns, UNBOUNDED) if problem.ub is None else np.concatenate([problem.ub, np.full(ns, UNBOUNDED)])
-    lb[n:] = 0.0
+    lb = ub = None
+    if problem.lb is not None or ns:  # the slack variables' s ≥ 0 (v unbounded unless it had a box)
+        lb = np.full(n + ns, -UNBOUNDED) if problem.lb is None else np.concatenate([problem.lb, np.zeros(ns)])
+        ub = np.full(n + ns, UNBOUNDED) if problem.ub is None else np.concatenate([problem.ub, np.full(ns, UNBOUNDED)])
+        lb[n:] = 0.0
     c = np.zeros(n + ns)
     if problem.c is not None:
         c[:n] = problem.c
@@ -315,7 +317,11 @@ def _stacked_constraints(problem: LeastSquaresProblem):
         hi.append(problem.hi)
     if not rows:
         return np.zeros((0, problem.n)), np.zeros(0), np.zeros(0)
-    return np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+    C, lo, hi = np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+    free = (lo <= -UNBOUNDED) & (hi >= UNBOUNDED)
+    if free.any():  # rows bounding nothing (the box of v beside slack variables): left out
+        C, lo, hi = C[~free], lo[~free], hi[~free]
+    return C, lo, hi
 
 
 
