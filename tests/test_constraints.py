@@ -108,7 +108,7 @@ def test_soft_equals_hard_when_feasible_and_pays_the_exact_penalty_when_not(form
     full = constrain(problem, rows, tight)
     res = solver.solve(full)
     assert res.ok
-    v, s = res.v[:full.n_decision], res.v[full.n_decision:]
+    v, s = res.v[:full.n_decision], res.v[full.n_decision:] * full.slack_unit  # in m
     y = pred.outputs(v).reshape(-1, 2)
     excess = np.maximum(y[:, 0] - 0.25, 0.0)
     assert excess[0] > 1e-3
@@ -139,7 +139,7 @@ def test_inactive_constraints_give_the_unconstrained_plan(form):
     for soft in ((), ("output_box", "output_velocity")):
         plans, _, infos = run(form, Limits(**wide, soft=soft), "daqp-direct", 60)
         np.testing.assert_allclose(plans, free, atol=1e-9, rtol=0)
-        assert all(i.constraints.active == () and i.constraints.max_slack == 0.0 for i in infos)
+        assert all(i.constraints.active == () and i.constraints.max_slack < 1e-12 for i in infos)
     qr, _, _ = run(form, Limits(), "qr", 60)
     np.testing.assert_allclose(free, qr, atol=1e-7 * np.abs(qr).max(), rtol=0)
 

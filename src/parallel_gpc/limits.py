@@ -62,7 +62,7 @@ OUTPUT_KINDS = ("output_box", "output_velocity")
 #: the kinds that are soft when ``soft`` is not given.
 SOFT_DEFAULT = frozenset(STATE_KINDS)
 #: default exact-penalty weight ρ of a soft kind: criterion units per unit of violation (m, rad, m/s, …).
-DEFAULT_PENALTY = 1e5
+DEFAULT_PENALTY = 1e3
 #: the quadratic slack weight, relative to ρ (per unit²): keeps the QP strictly convex, small beside ρ·s.
 SOFT_QUADRATIC = 1e-2
 

@@ -200,7 +200,7 @@ def report(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndar
     if rows is None or not len(rows.h):
         return None
     n = problem.n_decision
-    v, s = x[:n], x[n:]
+    v, s = x[:n], x[n:] * (1.0 if problem.slack_unit is None else problem.slack_unit)  # in the limits' units
     relaxed = rows.h + np.where(rows.slack_of >= 0, s[np.maximum(rows.slack_of, 0)] if s.size else 0.0, 0.0)
     gap = relaxed - rows.G @ v
     active = sorted({str(k) for k in rows.kind[gap <= ACTIVE_TOL * (1.0 + np.abs(rows.h))]})
@@ -223,9 +223,9 @@ def hard_violation(problem: LeastSquaresProblem, rows: ConstraintRows | None, x:
 
 
 def split(problem: LeastSquaresProblem, result: SolveResult) -> tuple[SolveResult, np.ndarray]:
-    """The result with v the decision variables proper, and the slack variables (n_s,)."""
+    """The result with v the decision variables proper, and the slack (n_s,) in the limits' units."""
     n = problem.n_decision
     if not problem.n_slack:
         return result, np.zeros(0)
     x = result.v
-    return replace(result, v=x[:n].copy()), x[n:].copy()
+    return replace(result, v=x[:n].copy()), x[n:] * problem.slack_unit

@@ -49,6 +49,8 @@ class LeastSquaresProblem:
             back ends take it).
         n_slack: the last ``n_slack`` entries of v are slack variables s ≥ 0 of soft limits
             (:func:`with_inequalities`); the decision variables proper are the first n − n_slack.
+        slack_unit: (n_slack,) what one unit of each slack variable is in its limit's unit
+            (violation = slack · slack_unit), or None.
         min_norm_of: when A is rank-deficient, the QR back end returns the minimizer with the
             smallest ‖M v + offset‖ (see :class:`MinNormOf`); None: the smallest ‖v‖.
         nonzero_rows: number of leading rows of A (and b) that can be nonzero; the rows below
@@ -72,6 +74,7 @@ class LeastSquaresProblem:
     tail_positive: bool = False
     c: np.ndarray | None = None
     n_slack: int = 0
+    slack_unit: np.ndarray | None = field(default=None, repr=False)
 
     def leading_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """(A, b) without the rows known to be zero (views, no copy)."""
@@ -135,7 +138,8 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
     may share one: the two sides of a range never both bind) costing ``penalty``·s_j (the exact
     L1 penalty: s = 0 whenever the hard problem is feasible and ``penalty`` exceeds the row's
     Lagrange multiplier) plus ``quadratic``·s_j² (the slack's Hessian, > 0). A row with
-    ``slack_of[i] = −1`` is hard. The slack variables are new last columns; the problem's
+    ``slack_of[i] = −1`` is hard. The slack variables are new last columns, each in the unit of
+    its row divided by the row's norm (``slack_unit``); the problem's
     structure hints (a diagonal regularization tail) are kept. Each row is divided by its norm in
     v (the same inequality, equilibrated).
 
@@ -152,27 +156,31 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
     n = problem.n
     slack_of = np.asarray(slack_of, dtype=int)
     ns = int(slack_of.max(initial=-1)) + 1
+    G = np.asarray(G, dtype=float)
+    norm = np.linalg.norm(G, axis=1)
+    norm[norm == 0.0] = 1.0
+    # rows of unit norm in v: a solver's feasibility tolerance then means the same for every row;
+    # slack j measured in the same unit, t_j = s_j / ‖G_i‖ (rows sharing a slack have one norm):
+    # its Hessian ε‖G_i‖² then sits beside the criterion's, not 10¹³ away
+    unit = np.ones(ns)
+    soft = slack_of >= 0
+    unit[slack_of[soft]] = norm[soft]
     top = problem.A.shape[0] - n if problem.tail_diag is not None else problem.A.shape[0]
     rows = problem.A.shape[0] + (ns if problem.tail_diag is None else 0)
     A = np.zeros((rows + (0 if problem.tail_diag is None else ns), n + ns))
     b = np.zeros(A.shape[0])
     A[:problem.A.shape[0], :n] = problem.A
     b[:problem.b.shape[0]] = problem.b
-    root = np.sqrt(quadratic)
+    root = np.sqrt(quadratic) * unit
     tail = None
     if problem.tail_diag is not None:  # [A_top; diag(d)] → [A_top 0; diag(d, √ε)]: still a diagonal tail
         A[top:top + n, :n] = 0.0
-        tail = np.concatenate([problem.tail_diag, np.full(ns, root)])
+        tail = np.concatenate([problem.tail_diag, root])
         A[top:, :] = np.diag(tail)
     else:
-        A[problem.A.shape[0]:, n:] = root * np.eye(ns)
-    G = np.asarray(G, dtype=float)
-    norm = np.linalg.norm(G, axis=1)
-    norm[norm == 0.0] = 1.0
-    # rows of unit norm in v: a solver's feasibility tolerance then means the same for every row
+        A[problem.A.shape[0]:, n:] = np.diag(root)
     L_slack = np.zeros((len(h), ns))
-    soft = slack_of >= 0
-    L_slack[np.flatnonzero(soft), slack_of[soft]] = -1.0
+    L_slack[np.flatnonzero(soft), slack_of[soft]] = -norm[soft]
     L_new = np.hstack([G, L_slack]) / norm[:, None]
     h = np.asarray(h, dtype=float) / norm
     Ls, los, his = [], [], []
@@ -191,10 +199,11 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
     c = np.zeros(n + ns)
     if problem.c is not None:
         c[:n] = problem.c
-    c[n:] = penalty
+    c[n:] = penalty * unit
     return LeastSquaresProblem(A, b, lb, ub, np.vstack(Ls), np.concatenate(los), np.concatenate(his),
                                min_norm_of=None, nonzero_rows=None, tail_diag=tail,
-                               tail_positive=problem.tail_positive and quadratic > 0, c=c, n_slack=ns)
+                               tail_positive=problem.tail_positive and quadratic > 0, c=c, n_slack=ns,
+                               slack_unit=unit)
 
 
 def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
