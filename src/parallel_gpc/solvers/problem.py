@@ -51,6 +51,8 @@ class LeastSquaresProblem:
             (:func:`with_inequalities`); the decision variables proper are the first n − n_slack.
         slack_unit: (n_slack,) what one unit of each slack variable is in its limit's unit
             (violation = slack · slack_unit), or None.
+        base: the problem before :func:`with_inequalities` added rows (its unconstrained
+            minimizer, with zero slack, solves this one whenever it keeps every row), or None.
         min_norm_of: when A is rank-deficient, the QR back end returns the minimizer with the
             smallest ‖M v + offset‖ (see :class:`MinNormOf`); None: the smallest ‖v‖.
         nonzero_rows: number of leading rows of A (and b) that can be nonzero; the rows below
@@ -75,6 +77,7 @@ class LeastSquaresProblem:
     c: np.ndarray | None = None
     n_slack: int = 0
     slack_unit: np.ndarray | None = field(default=None, repr=False)
+    base: "LeastSquaresProblem | None" = field(default=None, repr=False)
 
     def leading_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """(A, b) without the rows known to be zero (views, no copy)."""
@@ -111,6 +114,13 @@ class LeastSquaresProblem:
         return worst
 
     def feasible(self, v: np.ndarray) -> bool:
+        """True when v keeps every limit within :data:`LIMIT_TOL` (relative to the largest bound; rows
+        added by :func:`with_inequalities` each relative to its own bound, and slack ≥ 0)."""
+        if self.base is not None:
+            n, k = self.base.n, 0 if self.base.L is None else self.base.L.shape[0]
+            added = self.L[k:] @ v - self.hi[k:]
+            return (self.base.feasible(v[:n]) and bool(np.all(v[n:] >= 0.0))
+                    and bool(np.all(added <= LIMIT_TOL * (1.0 + np.abs(self.hi[k:])))))
         scale = 1.0
         for arr in (self.ub, self.hi):
             finite = None if arr is None else np.abs(arr[np.abs(arr) < UNBOUNDED])
@@ -119,10 +129,12 @@ class LeastSquaresProblem:
         return self.violation(v) <= LIMIT_TOL * scale
 
     def active(self, v: np.ndarray, tol: float = 1e-6) -> bool:
-        """True when a limit is (nearly) active at v."""
-        if self.lb is not None and (np.any(v - self.lb <= tol * (1 + np.abs(self.lb))) or
-                                    np.any(self.ub - v <= tol * (1 + np.abs(self.ub)))):
-            return True
+        """True when a limit is (nearly) active at v (a slack variable at 0 is no active limit)."""
+        n = self.n_decision
+        if self.lb is not None:
+            lb, ub, x = self.lb[:n], self.ub[:n], v[:n]
+            if np.any(x - lb <= tol * (1 + np.abs(lb))) or np.any(ub - x <= tol * (1 + np.abs(ub))):
+                return True
         if self.L is not None:
             Lv = self.L @ v
             return bool(np.any(Lv - self.lo <= tol * (1 + np.abs(self.lo))) or
@@ -203,7 +215,7 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
     return LeastSquaresProblem(A, b, lb, ub, np.vstack(Ls), np.concatenate(los), np.concatenate(his),
                                min_norm_of=None, nonzero_rows=None, tail_diag=tail,
                                tail_positive=problem.tail_positive and quadratic > 0, c=c, n_slack=ns,
-                               slack_unit=unit)
+                               slack_unit=unit, base=problem)
 
 
 def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
@@ -330,7 +342,8 @@ def _stacked_constraints(problem: LeastSquaresProblem):
     free = (lo <= -UNBOUNDED) & (hi >= UNBOUNDED)
     if free.any():  # rows bounding nothing (the box of v beside slack variables): left out
         C, lo, hi = C[~free], lo[~free], hi[~free]
-    return C, lo, hi
+    # a free side as ±inf (ProxQP and OSQP take it; a finite 1e20 upsets their infeasibility detection)
+    return C, np.where(lo <= -UNBOUNDED, -np.inf, lo), np.where(hi >= UNBOUNDED, np.inf, hi)
 
 
 
