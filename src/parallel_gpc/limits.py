@@ -67,7 +67,7 @@ DEFAULT_PENALTY = 1e3
 SOFT_QUADRATIC = 1e-2
 
 
-def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | None:
+def symmetric_limit(name: str, value, size: int | None = None, per: str = "drive") -> np.ndarray | None:
     """A symmetric limit ±value as a read-only float array; None stays None.
 
     Args:
@@ -75,6 +75,7 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
         value: a number (every drive) or a 1-D sequence (one per drive), finite and > 0.
         size: the drive count, when known: a number is broadcast to (size,), a sequence must
             have that length.
+        per: what one value is for, in messages (``"drive"``, ``"output"``).
 
     Returns:
         () or (n,) read-only array; (size,) when ``size`` is given.
@@ -94,7 +95,7 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
     except (TypeError, ValueError):
         raise InvalidParameterError(f"{name} limit = {value!r} is not a number or a vector of numbers") from None
     if arr.ndim > 1 or (arr.ndim == 1 and arr.size == 0):
-        raise ShapeError(f"{name} limit has shape {arr.shape}; expected a scalar or one value per drive (n_u,)")
+        raise ShapeError(f"{name} limit has shape {arr.shape}; expected a scalar or one value per {per}")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise InfeasibleLimitsError(f"{name} limit = {arr.tolist()} must be finite and > 0 (symmetric limits "
                                     "±value)")
@@ -103,7 +104,7 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
             arr = np.full(size, float(arr))
         elif arr.shape != (size,):
             raise ShapeError(f"{name} limit {arr.tolist()} has shape {arr.shape}; expected a scalar or one value "
-                             f"per drive ({size},)")
+                             f"per {per} ({size},)")
     arr.setflags(write=False)
     return arr
 
@@ -150,7 +151,9 @@ def bound_pairs(name: str, value, size: int | None = None) -> np.ndarray | None:
 
 def _check_value(kind: str, value, size: int | None = None):
     """A kind's value validated (and sized when ``size`` is given)."""
-    return (bound_pairs if kind in BOUND_KINDS else symmetric_limit)(kind, value, size)
+    if kind in BOUND_KINDS:
+        return bound_pairs(kind, value, size)
+    return symmetric_limit(kind, value, size, "output" if kind in OUTPUT_KINDS else "drive")
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -322,7 +325,8 @@ class Limits:
         for kind, arr in self.values().items():
             if kind in BOUND_KINDS:
                 rows = np.unique(arr, axis=0)
-                text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in rows) if len(rows) <= 2 else f"{len(arr)} ranges"
+                shown = rows if len(rows) <= 2 else arr
+                text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in shown) if len(shown) <= 6 else f"{len(arr)} ranges"
             else:
                 flat = np.unique(arr)
                 text = "±" + ("/".join(f"{x:g}" for x in flat) if flat.size <= 2 else f"{arr.size} values")

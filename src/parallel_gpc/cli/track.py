@@ -38,6 +38,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--torque-limit", type=float, default=None, help="drive limit in N·m (N for prismatic drives)")
     p.add_argument("--du-limit", type=float, default=None,
                    help="drive increment limit in N·m (N) per sample (incremental forms only)")
+    add_limit_arguments(p)
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
                    help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
                         + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
@@ -61,17 +62,37 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     add_view_arguments(p, html=html)
 
 
+def add_limit_arguments(p) -> None:
+    """The state-limit options (``--limits``, ``--output-box``, ``--velocity-limit``, ``--hard-limits``)."""
+    p.add_argument("--limits", choices=["robot", "none"], default="robot",
+                   help="state limits: the robot file's [limits] table (drive strokes, workspace, velocities) or "
+                        "none (default robot; the run prints which apply)")
+    p.add_argument("--output-box", type=float, nargs="+", default=None, metavar="LO HI",
+                   help="workspace box: lower and upper bound of each output in turn (m, rad), e.g. for x, y, ψ: "
+                        "-0.1 0.1 -0.1 0.1 -3.2 3.2 (soft unless --hard-limits)")
+    p.add_argument("--velocity-limit", type=float, nargs="+", default=None, metavar="V",
+                   help="output velocity limit |ẏ| ≤ V (m/s, rad/s): one value or one per output")
+    p.add_argument("--hard-limits", action="store_true",
+                   help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")
+
+
 def settings_from_args(args):
-    """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments."""
+    """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments, with the state limits
+    of ``--limits`` and the explicit ones."""
+    from ..model.robot import ParallelRobot
     from ..studies import TrackingSettings
 
-    return TrackingSettings.from_flat(
+    settings = TrackingSettings.from_flat(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
         disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
         reference=args.reference, duration=args.duration, sensors=args.sensors, plant=args.plant,
     )
+    velocity = None if args.velocity_limit is None else (
+        args.velocity_limit[0] if len(args.velocity_limit) == 1 else args.velocity_limit)
+    return settings.with_run_limits(ParallelRobot.load(settings.robot), args.limits, args.output_box, velocity,
+                                    args.hard_limits)
 
 
 def run_and_report(settings, forms, out: Path, args, title: str) -> int:
@@ -93,6 +114,8 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
           f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
+    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
+          f"{settings.limits.describe()}")
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")
