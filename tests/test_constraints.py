@@ -304,3 +304,21 @@ def test_track_refuses_bad_limits_in_one_line(tmp_path, capsys, flags, message):
     err = capsys.readouterr().err.strip()
     assert err.startswith("parallel-gpc: error:") and "\n" not in err
     assert __import__("re").search(message, err), err
+
+
+def test_the_planner_slows_down_to_respect_the_velocity_limit():
+    from parallel_gpc.cli.plan import default_poses
+    from parallel_gpc.gpc.plan_settings import PlanSettings
+    from parallel_gpc.gpc.planning import plan_point_to_point
+    from parallel_gpc.model import ParallelRobot
+
+    robot = ParallelRobot.load("planar_4rrr")
+    A, B = default_poses(robot)
+    speeds = {}
+    for name, lim in (("free", Limits()), ("hard", Limits(output_velocity=[0.3, 0.3, 10.0], soft=()))):
+        res = plan_point_to_point(robot, A, B, PlanSettings(Nmax=60, limits=lim, settle_steps=10), mode="b")
+        assert not any(s == "fallback" for s in res.status)
+        speeds[name] = np.abs(np.diff(res.poses, axis=0) / res.settings.Ts).max(axis=0)  # mean over each sample
+    assert speeds["free"][:2].max() > 0.6
+    # the plan is the model frozen at each state (eq. (20)): the plant follows it to its one-step error
+    assert speeds["hard"][:2].max() <= 0.3 + 1e-4
