@@ -16,7 +16,7 @@ from pathlib import Path
 from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
-from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
+from .vocabulary import add_forms_argument, add_limit_arguments, add_reference_argument, selected_forms
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
@@ -60,20 +60,6 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                         "(pip install 'parallel-gpc[mujoco]') (default own)")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     add_view_arguments(p, html=html)
-
-
-def add_limit_arguments(p) -> None:
-    """The state-limit options (``--limits``, ``--output-box``, ``--velocity-limit``, ``--hard-limits``)."""
-    p.add_argument("--limits", choices=["robot", "none"], default="robot",
-                   help="state limits: the robot file's [limits] table (drive strokes, workspace, velocities) or "
-                        "none (default robot; the run prints which apply)")
-    p.add_argument("--output-box", type=float, nargs="+", default=None, metavar="LO HI",
-                   help="workspace box: lower and upper bound of each output in turn (m, rad), e.g. for x, y, ψ: "
-                        "-0.1 0.1 -0.1 0.1 -3.2 3.2 (soft unless --hard-limits)")
-    p.add_argument("--velocity-limit", type=float, nargs="+", default=None, metavar="V",
-                   help="output velocity limit |ẏ| ≤ V (m/s, rad/s): one value or one per output")
-    p.add_argument("--hard-limits", action="store_true",
-                   help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")
 
 
 def settings_from_args(args):
