@@ -256,7 +256,7 @@ def test_the_hexapod_declares_its_stroke_and_bad_limit_tables_are_refused(tmp_pa
     assert lim.soft == frozenset() and "drive_position [0.45, 1.3] (hard)" in lim.describe()
     assert run_limits(robot, "none").is_empty
     both = run_limits(robot, "robot", Limits(torque=1000.0), output_velocity=2.0)
-    assert both.torque.shape == (6,) and both.drive_position is not None and both.output_velocity.shape == (6,)
+    assert both.torque.shape == () and both.drive_position.shape == (6, 2) and both.output_velocity.shape == ()
     with pytest.raises(ShapeError, match="expected 2 × 6 = 12"):
         run_limits(robot, "robot", output_box=[0, 1])
     src = Path(robot.description.sidecar_path)

@@ -264,7 +264,9 @@ def run_limits(robot: ParallelRobot, source: str = "robot", base: Limits | None 
         values["output_velocity"] = output_velocity
     if hard:
         options["soft"] = ()
-    return Limits(**values, **options).for_drives(robot.n_u, robot.n_y)
+    limits = Limits(**values, **options)
+    limits.for_drives(robot.n_u, robot.n_y)  # sizes checked against the robot here, once
+    return limits
 
 
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
