@@ -322,3 +322,33 @@ def test_the_planner_slows_down_to_respect_the_velocity_limit():
     assert speeds["free"][:2].max() > 0.6
     # the plan is the model frozen at each state (eq. (20)): the plant follows it to its one-step error
     assert speeds["hard"][:2].max() <= 0.3 + 1e-4
+
+
+def test_drive_rows_are_the_inverse_kinematics_to_first_order(model4):
+    """drive_position and drive_rate rows against the robot's own inverse kinematics (Newton
+    assembly) at the predicted poses, by finite differences."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    robot = model4.robot
+    H = Horizons(6)
+    X = np.concatenate([robot.home_pose, [0.05, -0.02, 0.1]])
+    Ad, Bd, cd = model4.discrete(X, TS)
+    pred = absolute_prediction(Ad, Bd, cd, model4.C, X, H)
+    lim = Limits(drive_position=[-10.0, 10.0], drive_rate=50.0).for_drives(robot.n_u, robot.n_y)
+    rows = stage_constraints(pred, lim, TS, X[:3], drives=DriveKinematics(robot))
+    p, m = robot.n_y, robot.n_u
+    poses = pred.f.reshape(-1, p)
+    q0 = np.array([robot.inverse_kinematics(y) for y in poses])
+    pos = rows.kind == "drive_position"
+    hi_rows = np.flatnonzero(pos)[: len(q0.reshape(-1))]  # the upper side comes first
+    np.testing.assert_allclose(10.0 - rows.h[hi_rows], q0.reshape(-1), atol=1e-9)  # value at v = 0
+    v = np.random.default_rng(1).normal(size=pred.G.shape[1]) * 0.5
+    q1 = np.array([robot.inverse_kinematics(y) for y in pred.outputs(v).reshape(-1, p)])
+    lin = rows.G[hi_rows] @ v
+    dq = (q1 - q0).reshape(-1)
+    assert np.abs(dq).max() > 1e-5
+    np.testing.assert_allclose(lin, dq, atol=1e-3 * np.abs(dq).max())  # first order: error O(|Δy|²)
+    rate = np.flatnonzero(rows.kind == "drive_rate")[: len(q0.reshape(-1))]  # |J (ŷ_i − ŷ_{i−1})| ≤ r Ts
+    q_prev = np.vstack([robot.inverse_kinematics(X[:3]), q1[:-1]])
+    np.testing.assert_allclose(rows.G[rate] @ v + (50.0 * TS - rows.h[rate]), (q1 - q_prev).reshape(-1),
+                               atol=2e-3 * np.abs(q1 - q_prev).max())
