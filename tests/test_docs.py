@@ -179,7 +179,8 @@ def test_the_sidecar_key_table_is_the_loaders():
 
     text = (ROOT / "docs" / "robot-files.md").read_text(encoding="utf-8")
     rows = {"top level (TOML)": "toml", "top level (Gepetto YAML)": "gepetto", "`[[closures]]`": "closures",
-            "`[drives]`": "drives", "`[output]`": "output", "`[home]`": "home", "`[sensors]`": "sensors"}
+            "`[drives]`": "drives", "`[output]`": "output", "`[home]`": "home", "`[sensors]`": "sensors",
+            "`[limits]`": "limits"}
     for label, table in rows.items():
         row = next(line for line in text.splitlines() if line.startswith(f"| {label} |"))
         keys = set(re.findall(r"`(\w+)`", row.split("|")[2]))

@@ -158,8 +158,9 @@ def toml_names(names) -> str:
 
 def sidecar(name: str, description: str, numbers: str, output: list[str], labels: list[str], units: list[str],
             home, poses: dict, branch: list[str], q_guess: dict, drives: list[str], limits: list[float],
-            closures: list[tuple[str, str]]) -> str:
-    """The TOML closure sidecar (parallel-gpc robot format)."""
+            closures: list[tuple[str, str]], state_limits: list[str] | None = None) -> str:
+    """The TOML closure sidecar (parallel-gpc robot format); ``state_limits``: the lines of a
+    ``[limits]`` table (comments included), or None."""
     lines = [f"# Closure sidecar of {name}.urdf (parallel-gpc robot format, see docs/robot-files.md).",
              "# Numbers are our own stand-in; the paper gives no robot data:",
              *(f"#   {line}" for line in numbers.splitlines()),
@@ -177,6 +178,8 @@ def sidecar(name: str, description: str, numbers: str, output: list[str], labels
              "[drives]", f"joints = {toml_names(drives)}",
              "# N·m for revolute drives, N for prismatic drives",
              f"torque_limit = {toml_list(limits)}", ""]
+    if state_limits:
+        lines += ["[limits]", *state_limits, ""]
     for i, (a, b) in enumerate(closures):
         lines += ["[[closures]]", f'name = "leg_{i + 1}"', 'kind = "point"', f'frames = ["{a}", "{b}"]', ""]
     return "\n".join(lines)
@@ -320,8 +323,15 @@ def hexapod_files(name: str = "hexapod_6ups", n_legs: int = 6) -> tuple[str, str
                    ["platform_x", "platform_y", "platform_z", "platform_roll", "platform_pitch", "platform_yaw"],
                    ["x", "y", "z", "roll", "pitch", "yaw"], ["m", "m", "m", "rad", "rad", "rad"], h["home"],
                    {"A": h["A"], "B": h["B"]}, [], q_guess, [f"drive_{k}" for k in legs],
-                   [h["force_limit"]] * n_legs, [(f"tip_{k}", f"attach_{k}") for k in legs])
+                   [h["force_limit"]] * n_legs, [(f"tip_{k}", f"attach_{k}") for k in legs],
+                   HEXAPOD_STROKE if name == "hexapod_6ups" else None)
     return "".join(parts), toml
+
+
+#: the [limits] table of hexapod_6ups: its legs' stroke, hard.
+HEXAPOD_STROKE = ["# the legs' stroke 0.45 ... 1.30 m: the drives' <limit> ranges of hexapod_6ups.urdf, hard",
+                  "# (the controller never plans a leg beyond it; soft kinds would be relaxed at an exact penalty)",
+                  'drive_position = "urdf"', "soft = []"]
 
 
 #: name -> generator of the embedded spatial robots.

@@ -8,16 +8,26 @@ it. A limit is validated once, when the :class:`Limits` is built (finite, > 0, a
 value per drive), and sized to the drive count once, by :meth:`Limits.for_drives`, where the
 drive count is first known.
 
-Kinds now (symmetric, per drive, hard):
+Input kinds (symmetric, per drive, always hard):
 
 * ``torque``: |u(k+i)| ≤ τ over the control horizon (N·m for revolute drives, N for prismatic ones);
 * ``du``: |u(k+i) − u(k+i−1)| ≤ δ per sample, u(k−1) the input applied last (same unit per sample;
   incremental forms).
 
-Kinds to come (drive positions, passive joint positions, an output box, output and drive
-velocities, hard or soft) are further optional named fields of the same frozen type, listed in
-:data:`KINDS`, validated in :meth:`Limits.__post_init__` and sized in :meth:`Limits.for_drives`
-like these two; a field that is None is no limit of that kind.
+State kinds (stage-wise over the predicted steps k+No+1..k+N, linearized along the prediction;
+soft by default, see :data:`SOFT_DEFAULT`):
+
+* ``drive_position``: q_lo ≤ q_a(ŷ(k+i)) ≤ q_hi, (n_u, 2) lower and upper bounds (m or rad: a
+  leg's stroke, a crank's angle range), linearized through the drive Jacobian ∂q_a/∂y;
+* ``drive_rate``: |q̇_a| ≤ r per drive (m/s or rad/s), q̇_a ≈ ∂q_a/∂y (ŷ(k+i) − ŷ(k+i−1)) / Ts;
+* ``output_box``: y_lo ≤ ŷ(k+i) ≤ y_hi, (n_y, 2) bounds (m, rad; ±inf: that side free) — the
+  workspace;
+* ``output_velocity``: |ẏ| ≤ v per output (m/s, rad/s), ẏ ≈ (ŷ(k+i) − ŷ(k+i−1)) / Ts.
+
+A soft kind is relaxed by slack variables s ≥ 0 (one per bound and step) at the exact L1 cost
+``penalty``·s plus a small quadratic ``penalty``·:data:`SOFT_QUADRATIC`·s²: the problem is
+always feasible and the constraint holds exactly whenever it can (the penalty above the
+constraint's Lagrange multiplier). A field that is None is no limit of that kind.
 
 This module sits beside :mod:`parallel_gpc.validation` (it imports only NumPy and the errors) so
 that the plants (``model``) and the controller (``gpc``) take the same type.
@@ -31,14 +41,33 @@ import numpy as np
 
 from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 
-__all__ = ["Limits", "KINDS", "as_limits", "symmetric_limit"]
+__all__ = ["Limits", "KINDS", "INPUT_KINDS", "STATE_KINDS", "SOFT_DEFAULT", "DEFAULT_PENALTY", "SOFT_QUADRATIC",
+           "as_limits", "symmetric_limit", "bound_pairs"]
 
 #: the limit kinds a :class:`Limits` holds, by field name, with their meaning and unit.
 KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)",
-         "du": "drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)"}
+         "du": "drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)",
+         "drive_position": "drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)",
+         "drive_rate": "drive rate limit |q̇_a| ≤ r (m/s or rad/s)",
+         "output_box": "workspace box y_lo ≤ y ≤ y_hi (m, rad)",
+         "output_velocity": "output velocity limit |ẏ| ≤ v (m/s, rad/s)"}
+#: kinds on the inputs (hard: the QP enforces them exactly, every applied input is checked).
+INPUT_KINDS = ("torque", "du")
+#: kinds on the predicted motion (stage-wise, linearized along the prediction).
+STATE_KINDS = ("drive_position", "drive_rate", "output_box", "output_velocity")
+#: kinds given as (lower, upper) pairs; the others are symmetric ±value.
+BOUND_KINDS = ("drive_position", "output_box")
+#: kinds sized by the outputs (n_y); the others by the drives (n_u).
+OUTPUT_KINDS = ("output_box", "output_velocity")
+#: the kinds that are soft when ``soft`` is not given.
+SOFT_DEFAULT = frozenset(STATE_KINDS)
+#: default exact-penalty weight ρ of a soft kind: criterion units per unit of violation (m, rad, m/s, …).
+DEFAULT_PENALTY = 1e3
+#: the quadratic slack weight, relative to ρ (per unit²): keeps the QP strictly convex, small beside ρ·s.
+SOFT_QUADRATIC = 1e-2
 
 
-def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | None:
+def symmetric_limit(name: str, value, size: int | None = None, per: str = "drive") -> np.ndarray | None:
     """A symmetric limit ±value as a read-only float array; None stays None.
 
     Args:
@@ -46,6 +75,7 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
         value: a number (every drive) or a 1-D sequence (one per drive), finite and > 0.
         size: the drive count, when known: a number is broadcast to (size,), a sequence must
             have that length.
+        per: what one value is for, in messages (``"drive"``, ``"output"``).
 
     Returns:
         () or (n,) read-only array; (size,) when ``size`` is given.
@@ -65,7 +95,7 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
     except (TypeError, ValueError):
         raise InvalidParameterError(f"{name} limit = {value!r} is not a number or a vector of numbers") from None
     if arr.ndim > 1 or (arr.ndim == 1 and arr.size == 0):
-        raise ShapeError(f"{name} limit has shape {arr.shape}; expected a scalar or one value per drive (n_u,)")
+        raise ShapeError(f"{name} limit has shape {arr.shape}; expected a scalar or one value per {per}")
     if not np.all(np.isfinite(arr)) or np.any(arr <= 0):
         raise InfeasibleLimitsError(f"{name} limit = {arr.tolist()} must be finite and > 0 (symmetric limits "
                                     "±value)")
@@ -74,9 +104,56 @@ def symmetric_limit(name: str, value, size: int | None = None) -> np.ndarray | N
             arr = np.full(size, float(arr))
         elif arr.shape != (size,):
             raise ShapeError(f"{name} limit {arr.tolist()} has shape {arr.shape}; expected a scalar or one value "
-                             f"per drive ({size},)")
+                             f"per {per} ({size},)")
     arr.setflags(write=False)
     return arr
+
+
+def bound_pairs(name: str, value, size: int | None = None) -> np.ndarray | None:
+    """(lower, upper) bounds as a read-only (k, 2) float array; None stays None.
+
+    Args:
+        name: the kind, for the message (``"drive_position"``).
+        value: one pair ``[lo, hi]`` (every drive or output) or one pair per entry ``[[lo, hi], …]``;
+            lo < hi, either may be ±inf (that side free) but not both NaN.
+        size: the entry count, when known: one pair is broadcast to (size, 2).
+
+    Raises:
+        InvalidParameterError: not numbers. ShapeError: not (2,) or (k, 2), or not ``size`` long.
+        InfeasibleLimitsError: a lower bound not below its upper bound, or NaN.
+    """
+    if value is None:
+        return None
+    try:
+        if isinstance(value, (str, bytes)) or any(isinstance(x, (str, bytes, bool, np.bool_))
+                                                  for x in np.asarray(value, dtype=object).reshape(-1)):
+            raise TypeError
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        raise InvalidParameterError(f"{name} = {value!r} is not a pair [lower, upper] or a list of pairs") from None
+    if arr.shape == (2,):
+        arr = arr[None, :]
+    if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] == 0:
+        raise ShapeError(f"{name} has shape {arr.shape}; expected one pair [lower, upper] (2,) or one per entry (k, 2)")
+    bad = np.flatnonzero(~(arr[:, 0] < arr[:, 1]))
+    if bad.size:
+        i = int(bad[0])
+        raise InfeasibleLimitsError(f"{name}[{i}] = [{arr[i, 0]:g}, {arr[i, 1]:g}]: the lower bound must be below the "
+                                    "upper bound (and neither NaN)")
+    if size is not None:
+        if arr.shape[0] == 1 and size != 1:
+            arr = np.repeat(arr, size, axis=0)
+        elif arr.shape[0] != size:
+            raise ShapeError(f"{name} has {arr.shape[0]} pairs; expected one pair or {size} (one per entry)")
+    arr.setflags(write=False)
+    return arr
+
+
+def _check_value(kind: str, value, size: int | None = None):
+    """A kind's value validated (and sized when ``size`` is given)."""
+    if kind in BOUND_KINDS:
+        return bound_pairs(kind, value, size)
+    return symmetric_limit(kind, value, size, "output" if kind in OUTPUT_KINDS else "drive")
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -92,26 +169,58 @@ class Limits:
             prismatic drives), or None.
         du: symmetric increment limit δ > 0 on u(k) − u(k−1), () or (n_u,) read-only array
             (N·m or N per sample), or None. Incremental forms only.
+        drive_position: (1, 2) or (n_u, 2) drive position bounds [lo, hi] (m or rad), or None.
+        drive_rate: symmetric drive rate limit, () or (n_u,) (m/s or rad/s), or None.
+        output_box: (1, 2) or (n_y, 2) output bounds [lo, hi] (m, rad; ±inf: free), or None.
+        output_velocity: symmetric output velocity limit, () or (n_y,) (m/s, rad/s), or None.
+        soft: the state kinds relaxed by slack variables (frozenset of names of
+            :data:`STATE_KINDS`); default :data:`SOFT_DEFAULT` (every state kind), ``()``: all hard.
+        penalty: exact L1 penalty weight ρ > 0 of the soft kinds (criterion units per unit of
+            violation; default :data:`DEFAULT_PENALTY`).
 
     Raises:
-        InvalidParameterError: a value that is not a number or a vector of numbers.
-        ShapeError: a 2-D value, or per-drive values of different lengths.
-        InfeasibleLimitsError: a value ≤ 0, NaN or infinite.
+        InvalidParameterError: a value that is not a number or a vector of numbers, a soft kind
+            that is not a state kind, a penalty that is not finite and > 0.
+        ShapeError: a 2-D symmetric value, or per-drive (per-output) values of different lengths.
+        InfeasibleLimitsError: a value ≤ 0, NaN or infinite; a lower bound not below its upper one.
     """
 
     torque: np.ndarray | None = None
     du: np.ndarray | None = None
+    drive_position: np.ndarray | None = None
+    drive_rate: np.ndarray | None = None
+    output_box: np.ndarray | None = None
+    output_velocity: np.ndarray | None = None
+    soft: frozenset = SOFT_DEFAULT
+    penalty: float = DEFAULT_PENALTY
 
     def __post_init__(self):
-        sizes = set()
+        sizes = {"drives": set(), "outputs": set()}
         for kind in KINDS:
-            arr = symmetric_limit(kind, getattr(self, kind))
+            arr = _check_value(kind, getattr(self, kind))
             object.__setattr__(self, kind, arr)
-            if arr is not None and arr.ndim == 1:
-                sizes.add(arr.size)
-        if len(sizes) > 1:
-            raise ShapeError(f"per-drive limits of different lengths: {self!r}; give one value per drive "
-                             "for each (or a scalar)")
+            per_entry = arr is not None and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)
+            if per_entry:
+                sizes["outputs" if kind in OUTPUT_KINDS else "drives"].add(arr.shape[0])
+        for what, found in sizes.items():
+            if len(found) > 1:
+                raise ShapeError(f"per-{what[:-1]} limits of different lengths: {self!r}; give one value per "
+                                 f"{what[:-1]} for each (or one for all)")
+        soft = self.soft
+        if isinstance(soft, str) or not hasattr(soft, "__iter__"):
+            raise InvalidParameterError(f"soft = {soft!r} must be a collection of kind names out of {list(STATE_KINDS)}")
+        soft = frozenset(soft)
+        wrong = sorted(str(k) for k in soft if k not in STATE_KINDS)
+        if wrong:
+            raise InvalidParameterError(f"soft = {sorted(map(str, soft))}: {wrong} cannot be soft; soft kinds are "
+                                        f"{list(STATE_KINDS)} (torque and du limits are always hard)")
+        object.__setattr__(self, "soft", soft)
+        rho = self.penalty
+        if isinstance(rho, (bool, np.bool_)) or not isinstance(rho, (int, float, np.integer, np.floating)) or \
+                not np.isfinite(rho) or rho <= 0:
+            raise InvalidParameterError(f"penalty = {rho!r} must be a finite number > 0 (criterion units per unit "
+                                        "of violation)")
+        object.__setattr__(self, "penalty", float(rho))
 
     @classmethod
     def none(cls) -> "Limits":
@@ -127,6 +236,20 @@ class Limits:
         """True when no limit of any kind is set."""
         return not self.values()
 
+    def is_soft(self, kind: str) -> bool:
+        """True when ``kind`` (a state kind that is set) is relaxed by slack variables."""
+        return kind in self.soft
+
+    @property
+    def has_state_limits(self) -> bool:
+        """True when a limit of a state kind (positions, rates, workspace) is set."""
+        return any(getattr(self, kind) is not None for kind in STATE_KINDS)
+
+    @property
+    def needs_qp(self) -> bool:
+        """True when the problem has limits a QP back end must enforce (input or state kinds)."""
+        return self.has_input_limits or self.has_state_limits
+
     @property
     def has_input_limits(self) -> bool:
         """True when a torque or increment limit is set (what a QP back end must enforce)."""
@@ -134,42 +257,98 @@ class Limits:
 
     @property
     def n_drives(self) -> int | None:
-        """The drive count the per-drive values fix, or None (scalars only, or no limit)."""
-        return next((arr.size for arr in self.values().values() if arr.ndim == 1), None)
+        """The drive count the per-drive values fix, or None (one value for all, or no limit)."""
+        return next((arr.shape[0] for kind, arr in self.values().items() if kind not in OUTPUT_KINDS
+                     and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)), None)
 
-    def for_drives(self, n_u: int) -> "Limits":
-        """The same limits with every value an (n_u,) array (a scalar broadcast); ``self`` when
+    def _options(self) -> dict:
+        return {"soft": self.soft, "penalty": self.penalty}
+
+    def for_drives(self, n_u: int, n_y: int | None = None) -> "Limits":
+        """The same limits with every per-drive value (n_u,) or (n_u, 2) (one value broadcast),
+        and, when ``n_y`` is given, every per-output value (n_y,) or (n_y, 2); ``self`` when
         already so.
 
         Raises:
-            ShapeError: per-drive values that are not n_u long.
+            ShapeError: per-drive (per-output) values that are not n_u (n_y) long.
         """
-        if all(arr.shape == (n_u,) for arr in self.values().values()):
+        sizes = {kind: (n_y if kind in OUTPUT_KINDS else n_u) for kind in self.values()}
+        sized = {kind: arr if sizes[kind] is None else _check_value(kind, arr, sizes[kind])
+                 for kind, arr in self.values().items()}
+        if all(sized[k] is self.values()[k] or sized[k].shape == self.values()[k].shape for k in sized):
             return self
-        sized = {kind: symmetric_limit(kind, arr, n_u) for kind, arr in self.values().items()}
-        return Limits(**sized)
+        return Limits(**sized, **self._options())
 
     def scaled(self, factor: float) -> "Limits":
-        """Every limit multiplied by ``factor`` > 0 (e.g. tightened by 1 − margin for a QP)."""
-        return Limits(**{kind: arr * factor for kind, arr in self.values().items()})
+        """The input limits (torque, du) multiplied by ``factor`` > 0 (e.g. tightened by 1 − margin for
+        a QP); the state kinds as they are."""
+        values = {kind: arr * factor if kind in INPUT_KINDS else arr for kind, arr in self.values().items()}
+        return Limits(**values, **self._options())
 
-    def to_dict(self) -> dict[str, float | list[float] | None]:
-        """Plain-Python values by kind (None when unset): JSON and result-file metadata."""
-        return {kind: None if getattr(self, kind) is None else getattr(self, kind).tolist() for kind in KINDS}
+    def only(self, *kinds: str) -> "Limits":
+        """The same limits with only ``kinds`` set (e.g. ``only("torque")`` for a plant's saturation)."""
+        return Limits(**{k: v for k, v in self.values().items() if k in kinds}, **self._options())
+
+    def check_pose(self, y, labels=None) -> None:
+        """Raise when the output pose ``y`` (n_y,) lies outside the output box (a box that excludes
+        the start pose admits no motion from it).
+
+        Raises:
+            InfeasibleLimitsError: naming the output, its value and the box.
+        """
+        box = self.output_box
+        if box is None:
+            return
+        y = np.asarray(y, dtype=float).reshape(-1)
+        box = bound_pairs("output_box", box, y.size)
+        out = np.flatnonzero((y < box[:, 0]) | (y > box[:, 1]))
+        if out.size:
+            i = int(out[0])
+            name = labels[i] if labels is not None else f"y[{i}]"
+            raise InfeasibleLimitsError(f"the output box excludes the pose: {name} = {y[i]:.6g} is outside "
+                                        f"[{box[i, 0]:g}, {box[i, 1]:g}]; the box must contain the start pose")
+
+    def to_dict(self) -> dict:
+        """Plain-Python values by kind (the input kinds always, None when unset; a state kind when
+        set, with the soft kinds and the penalty): JSON and result-file metadata."""
+        out = {kind: None if getattr(self, kind) is None else getattr(self, kind).tolist() for kind in KINDS
+               if kind in INPUT_KINDS or getattr(self, kind) is not None}
+        if self.has_state_limits:
+            out["soft"] = sorted(k for k in self.soft if getattr(self, k) is not None)
+            out["penalty"] = self.penalty
+        return out
+
+    def describe(self) -> str:
+        """One line naming every limit that is set (``"torque ±1000; drive_position [0.45, 1.3] (soft)"``),
+        or ``"none"``."""
+        parts = []
+        for kind, arr in self.values().items():
+            if kind in BOUND_KINDS:
+                rows = np.unique(arr, axis=0)
+                shown = rows if len(rows) <= 2 else arr
+                text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in shown) if len(shown) <= 6 else f"{len(arr)} ranges"
+            else:
+                flat = np.unique(arr)
+                text = "±" + ("/".join(f"{x:g}" for x in flat) if flat.size <= 2 else f"{arr.size} values")
+            hardness = "" if kind in INPUT_KINDS else (" (soft)" if kind in self.soft else " (hard)")
+            parts.append(f"{kind} {text}{hardness}")
+        return ", ".join(parts) if parts else "none"
 
     def __eq__(self, other) -> bool:
         if not isinstance(other, Limits):
             return NotImplemented
-        return all((a is None and b is None) or (a is not None and b is not None and a.shape == b.shape
-                                                 and bool(np.array_equal(a, b)))
-                   for a, b in ((getattr(self, k), getattr(other, k)) for k in KINDS))
+        return self._options() == other._options() and all(
+            (a is None and b is None) or (a is not None and b is not None and a.shape == b.shape
+                                          and bool(np.array_equal(a, b)))
+            for a, b in ((getattr(self, k), getattr(other, k)) for k in KINDS))
 
     def __hash__(self) -> int:
-        return hash(tuple((k, None if v is None else (v.shape, v.tobytes())) for k, v in
-                          ((k, getattr(self, k)) for k in KINDS)))
+        return hash((tuple(sorted(self.soft)), self.penalty) + tuple(
+            (k, None if v is None else (v.shape, v.tobytes())) for k, v in ((k, getattr(self, k)) for k in KINDS)))
 
     def __repr__(self) -> str:
-        return "Limits(" + ", ".join(f"{k}={v!r}" for k, v in self.to_dict().items() if v is not None) + ")"
+        return "Limits(" + ", ".join(f"{k}={v!r}" for k, v in self.to_dict().items()
+                                     if v is not None and k in KINDS) + ")"
 
 
 

@@ -44,6 +44,8 @@ def cmd_demo(args) -> int:
     robot = ParallelRobot.load(settings.robot)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
+    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
+          f"{settings.limits.describe()}")
     check = deadbeat_check(settings, duration=args.deadbeat_duration, robot=robot)
     diffs = ", ".join(f"{f} {d:.1e}" for f, d in check.max_difference().items())
     print(f"1) Qu = 0 (the paper's Fig. 2 setting), exact plant, Ts = {1e3 * settings.Ts:g} ms, N = {settings.horizons.N}: "

@@ -13,6 +13,7 @@ from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
+from .vocabulary import add_limit_arguments
 
 if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
     import numpy as np
@@ -56,18 +57,26 @@ def cmd_plan(args) -> int:
     from ..limits import Limits
     from ..model import ParallelRobot
     from ..plots import plot_fig3, plot_fig4, save_figure
+    from ..studies import run_limits
 
     out = prepare_out_dir(args.out)
     check_view_outputs(args)
     robot = ParallelRobot.load(args.robot)
     A, B = (_pose_rad(robot, values, default, name)
             for values, default, name in zip((args.A, args.B), default_poses(robot), "AB"))
+    velocity = None if args.velocity_limit is None else (
+        args.velocity_limit[0] if len(args.velocity_limit) == 1 else args.velocity_limit)
+    limits = run_limits(robot, args.limits, Limits(torque=args.torque_limit), args.output_box, velocity,
+                        args.hard_limits)
+    limits.check_pose(A, robot.output_space.labels)
     settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, weights=Weights(args.Qy, args.Qu),
-                            limits=Limits(torque=args.torque_limit), solver=args.solver, settle_steps=args.settle)
+                            limits=limits, solver=args.solver, settle_steps=args.settle)
     print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, rad); "
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
           f"(move {settings.duration:g} s), Qy = {settings.weights.Qy}, Qu = {settings.weights.Qu}, "
           f"torque limit = {settings.limits.to_dict()['torque']}, solver = {settings.solver}")
+    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
+          f"{settings.limits.describe()}")
     comparison = plan_modes(robot, A, B, settings, progress=not args.no_progress)
     results = comparison.results
     for res in results:
@@ -117,6 +126,7 @@ def register_plan(sub) -> None:
                    help="square-root input weight over the horizon (default 1e-6; larger values shorten the move)")
     p.add_argument("--torque-limit", type=float, default=None, metavar="NM",
                    help="drive limit |u| ≤ NM in N·m (N for prismatic drives), enforced by the QP back end (default none)")
+    add_limit_arguments(p)
     p.add_argument("--solver", default=None,
                    help="back end: qr (default without limits), qr-first:daqp-direct (default with limits), "
                         "osqp-direct, proxqp-direct, qpsolvers:<name>, …")

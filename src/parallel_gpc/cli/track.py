@@ -16,7 +16,7 @@ from pathlib import Path
 from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
-from .vocabulary import add_forms_argument, add_reference_argument, selected_forms
+from .vocabulary import add_forms_argument, add_limit_arguments, add_reference_argument, selected_forms
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
@@ -38,6 +38,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--torque-limit", type=float, default=None, help="drive limit in N·m (N for prismatic drives)")
     p.add_argument("--du-limit", type=float, default=None,
                    help="drive increment limit in N·m (N) per sample (incremental forms only)")
+    add_limit_arguments(p)
     p.add_argument("--disturbance-gain", type=float, default=d["disturbance_gain"], metavar="ALPHA",
                    help="gain α ∈ [0, 1] of the state-disturbance estimate, the same for every form; 0 = off "
                         + ("(default: each form's own, 0 absolute, 0.5 incremental)" if d["disturbance_gain"] is None
@@ -63,16 +64,22 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
 
 
 def settings_from_args(args):
-    """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments."""
+    """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments, with the state limits
+    of ``--limits`` and the explicit ones."""
+    from ..model.robot import ParallelRobot
     from ..studies import TrackingSettings
 
-    return TrackingSettings.from_flat(
+    settings = TrackingSettings.from_flat(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
         solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
         disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
         reference=args.reference, duration=args.duration, sensors=args.sensors, plant=args.plant,
     )
+    velocity = None if args.velocity_limit is None else (
+        args.velocity_limit[0] if len(args.velocity_limit) == 1 else args.velocity_limit)
+    return settings.with_run_limits(ParallelRobot.load(settings.robot), args.limits, args.output_box, velocity,
+                                    args.hard_limits)
 
 
 def run_and_report(settings, forms, out: Path, args, title: str) -> int:
@@ -94,6 +101,8 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
           f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
+    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
+          f"{settings.limits.describe()}")
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")

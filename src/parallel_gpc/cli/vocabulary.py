@@ -47,3 +47,17 @@ def add_reference_argument(p, hold: str, extra: str = "") -> None:
                         "translations, an S-curve in the plane of 2, a line for 1), s-curve, circle, line, helix; "
                         f"hold: {hold}; or a file: FILE.csv (a column t and one column per output label, SI units: "
                         f"s, m, rad) or a plan/reference FILE.npz{extra} (default auto)")
+
+
+def add_limit_arguments(p) -> None:
+    """The state-limit options (``--limits``, ``--output-box``, ``--velocity-limit``, ``--hard-limits``)."""
+    p.add_argument("--limits", choices=["robot", "none"], default="robot",
+                   help="state limits: the robot file's [limits] table (drive strokes, workspace, velocities) or "
+                        "none (default robot; the run prints which apply)")
+    p.add_argument("--output-box", type=float, nargs="+", default=None, metavar="LO HI",
+                   help="workspace box: lower and upper bound of each output in turn (m, rad), e.g. for x, y, ψ: "
+                        "-0.1 0.1 -0.1 0.1 -3.2 3.2 (soft unless --hard-limits)")
+    p.add_argument("--velocity-limit", type=float, nargs="+", default=None, metavar="V",
+                   help="output velocity limit |ẏ| ≤ V (m/s, rad/s): one value or one per output")
+    p.add_argument("--hard-limits", action="store_true",
+                   help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")

@@ -32,6 +32,8 @@ from ..solvers import QRSolver, SolveResult, make_solver
 from ..solvers.problem import from_cumulative
 from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
+from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrain, hard_violation, report, split,
+                          stage_constraints)
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
 from .nmpc import IterationReport, NMPCIterations
@@ -62,6 +64,8 @@ class StepInfo:
         residual: relative size of the last Gauss–Newton step (0 at the NMPC optimum; NaN with
             a single iteration).
         budget_hit: True when the time budget stopped the iterations.
+        constraints: what the state/output limits did (active kinds, slack used), or None
+            without state limits.
     """
 
     u: np.ndarray
@@ -73,6 +77,7 @@ class StepInfo:
     iterations: int = 1
     residual: float = float("nan")
     budget_hit: bool = False
+    constraints: ConstraintReport | None = None
 
     @property
     def step_time(self) -> float:
@@ -130,7 +135,14 @@ class GPCController:
     def _apply(self, settings: GPCSettings) -> None:
         """Check ``settings`` against the model's sizes and make them current."""
         criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
-        limits = settings.limits.for_drives(self.n_u)
+        limits = settings.limits.for_drives(self.n_u, self.n_y)
+        drives = None
+        if limits.drive_position is not None or limits.drive_rate is not None:
+            drives = DriveKinematics.of(self.model)
+            if drives is None:
+                raise InvalidParameterError(f"drive_position and drive_rate limits need a robot's model (drive "
+                                            f"kinematics); {type(self.model).__name__} has none")
+        self._drives = drives
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
@@ -304,6 +316,7 @@ class GPCController:
         X = finite_vector("measured state X", X, self.n_x)
         w = self._reference_rows(w)
         t0 = time.perf_counter()
+        constraint_report = None
         self._update_disturbance(X)
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
@@ -318,11 +331,21 @@ class GPCController:
         else:  # the dense path (and a failed Riccati solve's visible replacement: QR, with its reason)
             pred = self.predict(X) if pred is None else pred
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
+            warm = self._warm_start(pred, problem.n)
+            rows = self._stage_rows(pred, X, warm)
+            full = constrain(problem, rows, self._limits)
             t2 = time.perf_counter()
-            result = self._dense_solve(problem, pred, result)
-        report = IterationReport()
+            result = self._dense_solve(full, pred, result, warm)
+            if rows is not None and result.ok:
+                constraint_report = report(full, rows, result.v)
+                excess = hard_violation(full, rows, result.v)
+                if excess > STATE_TOL:  # a hard row broken beyond the tolerance: never applied
+                    result = replace(result, status="limits violated",
+                                     message=f"{result.status}, but a hard state limit is exceeded by {excess:.3g}")
+            result, _ = split(full, result)
+        iterations = IterationReport()
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
-            pred, result, report = self._nmpc.run(
+            pred, result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
                 self._backend.solve, self.disturbance, t0)
         violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
@@ -350,15 +373,27 @@ class GPCController:
         self.u_prev = u
         Ad, Bd, cd = self._one_step[:3]
         self._x_next = Ad @ X + Bd @ u + cd
-        return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, report.iterations, report.residual,
-                        report.budget_hit)
+        return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, iterations.iterations, iterations.residual,
+                        iterations.budget_hit, constraint_report)
 
-    def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None) -> SolveResult:
+    def _stage_rows(self, pred: Prediction, X: np.ndarray, warm: np.ndarray | None):
+        """The state/output limits' rows for this step (None without them), the drive limits
+        linearized along the poses of the previous plan (ŷ at the warm start)."""
+        if not self._limits.has_state_limits:
+            return None
+        y_lin = pred.f if warm is None else pred.outputs(warm)
+        return stage_constraints(pred, self._limits, self.Ts, self.model.C @ X, y_lin, self._drives)
+
+    def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None,
+                     warm: np.ndarray | None = None) -> SolveResult:
         """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),
-        QR's, with the Riccati failure in the message. A back end's exception becomes a failed result."""
+        QR's, with the Riccati failure in the message. A back end's exception becomes a failed result.
+        ``warm``: the warm start in the decision variables proper (slack variables start at 0)."""
         backend = self._backend if failed is None else QRSolver()
+        if warm is not None and problem.n_slack:
+            warm = np.concatenate([warm, np.zeros(problem.n_slack)])
         try:
-            result = backend.solve(problem, self._warm_start(pred, problem.n))
+            result = backend.solve(problem, warm)
         except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
             return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", backend.name,
                                message=f"{type(exc).__name__}: {exc}")

@@ -92,7 +92,7 @@ class PlanSettings:
             raise InvalidParameterError(f"the plan is in absolute inputs: its limits {limits!r} may not hold a du "
                                         "limit (give the torque limit only)")
         object.__setattr__(self, "limits", limits)
-        solver = DEFAULT_LIMITED_SOLVER if self.solver is None and limits.has_input_limits else self.solver
+        solver = DEFAULT_LIMITED_SOLVER if self.solver is None and limits.needs_qp else self.solver
         object.__setattr__(self, "solver", resolve_solver(solver, "absolute", limits))
 
     @property

@@ -52,6 +52,7 @@ from ..errors import InvalidParameterError, SolverError
 from ..results import robot_reference
 from .prediction import Horizons, Prediction, absolute_prediction
 from ..solvers import LeastSquaresProblem, SolveResult, make_solver
+from .constraints import DriveKinematics, constrain, split, stage_constraints
 from .criterion import build_problem, check_problem_size
 from ..validation import check_allocation, check_sample_time, finite_vector
 from .plan_result import PlanRecorder, PlanResult
@@ -66,7 +67,8 @@ from .plan_settings import (  # noqa: F401  (re-exported: the planning API in on
 
 # ---------------------------------------------------------------------------- one solve
 def end_point_problem(model, X, target, N: int, settings: PlanSettings,
-                      u_hold: np.ndarray | None = None) -> tuple[LeastSquaresProblem, Prediction]:
+                      u_hold: np.ndarray | None = None,
+                      warm_start: np.ndarray | None = None) -> tuple[LeastSquaresProblem, Prediction]:
     """The least squares (20) at state X: horizon N, No = N − k, Nu = N.
 
     The model is the state-dependent factorization (3) at X, ZOH-discretized at Ts (4); only
@@ -84,20 +86,36 @@ def end_point_problem(model, X, target, N: int, settings: PlanSettings,
         N: horizon, N ≥ k.
         settings: weights, k, Ts, torque limit.
         u_hold: (n_u,) N·m, or None (zero).
+        warm_start: (N·n_u,) the previous plan as v (shifted), or None: the poses the drive
+            limits are linearized at (:mod:`parallel_gpc.gpc.constraints`).
+
+    The state limits of ``settings.limits`` (drive strokes, workspace box, velocities) hold over
+    the whole move, every predicted step 1..N, not only the compared end: a move that would
+    leave them bends or slows instead.
 
     Returns:
-        (problem, prediction): ``min ‖A v − b‖²`` over v = [u(0) … u(N−1)] − u_hold (N·n_u, N·m).
+        (problem, prediction): ``min ‖A v − b‖²`` over v = [u(0) … u(N−1)] − u_hold (N·n_u, N·m),
+        followed by the slack variables of soft state limits (``problem.n_slack``).
     """
     A, B, c = model.factorize(X)
     Ad, Bd, cd = discretize_zoh(A, B, c, settings.Ts)
-    pred = absolute_prediction(Ad, Bd, cd, model.C, X, Horizons(int(N), int(N) - settings.k, int(N)))
-    w = np.tile(target, (settings.k, 1))
-    hold = None if u_hold is None else np.tile(u_hold, int(N))
+    N = int(N)
+    whole = absolute_prediction(Ad, Bd, cd, model.C, X, Horizons(N, 0, N))  # every step: the state limits'
+    hold = None if u_hold is None else np.tile(u_hold, N)
     if hold is not None:  # ŷ = f + G (v + hold)
-        pred = replace(pred, f=pred.f + pred.G @ hold, u_base=pred.u_base + hold)
+        whole = replace(whole, f=whole.f + whole.G @ hold, u_base=whole.u_base + hold)
+    rows_end = settings.k * model.n_y  # the compared end: the last k steps
+    pred = replace(whole, f=whole.f[-rows_end:], G=whole.G[-rows_end:], horizons=Horizons(N, N - settings.k, N))
+    w = np.tile(target, (settings.k, 1))
     problem = build_problem(pred, w, settings.weights, model.n_y, model.n_u, settings.limits)
     if hold is not None and problem.lb is not None:
         problem.lb, problem.ub = problem.lb - hold, problem.ub - hold
+    limits = settings.limits
+    if limits.has_state_limits:
+        limits = limits.for_drives(model.n_u, model.n_y)
+        y_lin = whole.f if warm_start is None or warm_start.shape != (whole.G.shape[1],) else whole.outputs(warm_start)
+        rows = stage_constraints(whole, limits, settings.Ts, model.C @ X, y_lin, DriveKinematics.of(model))
+        problem = constrain(problem, rows, limits)
     return problem, pred
 
 
@@ -121,9 +139,11 @@ def solve_end_point(model, X, target, N: int, settings: PlanSettings, backend=No
         (u, result): u is the (N, n_u) input sequence in N·m (NaN if the solve failed; check
         ``result.ok``).
     """
-    problem, _ = end_point_problem(model, X, target, N, settings, u_hold)
+    problem, _ = end_point_problem(model, X, target, N, settings, u_hold, warm_start)
     backend = make_solver(settings.solver) if backend is None else backend
-    result = backend.solve(problem, warm_start)
+    if warm_start is not None and problem.n_slack:
+        warm_start = np.concatenate([warm_start, np.zeros(problem.n_slack)])
+    result, _ = split(problem, backend.solve(problem, warm_start))
     u = np.asarray(result.v, dtype=float).reshape(int(N), model.n_u)
     return (u if u_hold is None else u + u_hold), result
 

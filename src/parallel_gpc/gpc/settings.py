@@ -47,10 +47,12 @@ class GPCSettings:
         solver: back-end name (:func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``: the
             unconstrained problem by the Riccati recursion, no condensing (needs Qu nonsingular and
             no limits; :mod:`parallel_gpc.gpc.riccati`); None resolves to ``"qr"`` without limits;
-            with limits :data:`DEFAULT_BOX_SOLVER` (absolute form) or
-            :data:`DEFAULT_LIMITED_SOLVER` (incremental forms).
-        limits: the input :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
-            |u(k) − u(k−1)| ≤ δ, incremental forms only); None = ``Limits()``, no limit.
+            with input limits only :data:`DEFAULT_BOX_SOLVER` (absolute form) or
+            :data:`DEFAULT_LIMITED_SOLVER` (incremental forms, and any form with state limits).
+        limits: the :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
+            |u(k) − u(k−1)| ≤ δ, incremental forms only; the state kinds drive_position,
+            drive_rate, output_box, output_velocity, hard or soft, :mod:`parallel_gpc.gpc.constraints`);
+            None = ``Limits()``, no limit.
         disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
             d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the horizon
             (unbiased prediction under model mismatch with a steady load, which the incremental
@@ -127,6 +129,10 @@ def check_iterations(settings: "GPCSettings") -> None:
     if n > 1 and settings.solver == "riccati":
         raise InvalidParameterError(f"iterations = {n} needs a dense back end (e.g. 'qr'); solver 'riccati' "
                                     "solves the paper's single step only")
+    if n > 1 and settings.limits.has_state_limits:
+        raise InvalidParameterError(f"iterations = {n} takes torque and du limits inside every iteration; the state "
+                                    "and output limits (drive_position, drive_rate, output_box, output_velocity) "
+                                    "enter the paper's single step only so far: use iterations=1 with them")
 
 
 def check_form_limits(form: str, limits: Limits) -> None:
@@ -144,9 +150,10 @@ def resolve_solver(solver: str | None, form: str, limits: Limits) -> str:
         InvalidParameterError: not a name, or a name that cannot enforce ``limits`` (qr, cholesky,
             riccati with any input limit; bvls with the incremental forms' torque limit).
     """
-    limited = limits.has_input_limits
+    limited = limits.needs_qp
     if solver is None:
-        return "qr" if not limited else DEFAULT_BOX_SOLVER if form == "absolute" else DEFAULT_LIMITED_SOLVER
+        box_only = form == "absolute" and not limits.has_state_limits
+        return "qr" if not limited else DEFAULT_BOX_SOLVER if box_only else DEFAULT_LIMITED_SOLVER
     if not isinstance(solver, str):
         raise InvalidParameterError(f"solver {solver!r} must be a back-end name such as 'qr'")
     if solver in ("qr", "cholesky") and limited:
@@ -157,6 +164,10 @@ def resolve_solver(solver: str | None, form: str, limits: Limits) -> str:
         raise InvalidParameterError(
             f"solver 'riccati' solves the unconstrained problem only; with the limits {limits!r} use a QP back end "
             f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
+    if solver.endswith("bvls") and limits.has_state_limits:
+        raise InvalidParameterError(
+            f"solver {solver!r} handles box limits only; the state limits {limits.describe()} are linear rows in the "
+            f"decision variables: use {DEFAULT_LIMITED_SOLVER!r} or 'proxqp-direct'")
     if solver.endswith("bvls") and form != "absolute" and limits.torque is not None:
         raise InvalidParameterError(
             f"solver {solver!r} handles box limits only; the {form} form's torque limit acts on cumulative sums "

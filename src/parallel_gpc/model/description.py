@@ -45,6 +45,7 @@ from .sidecar import (
     read_sidecar,
     require_field,
     torque_limits_field,
+    read_limits,
     read_sensors,
 )
 
@@ -103,6 +104,8 @@ class RobotDescription:
             (sidecar ``[home] A = [...]``, ``B = [...]``, output units m and rad), or None.
         sensors: the sidecar's ``[sensors]`` table (``counts_per_rev``, ``counts_per_m``,
             ``rates``), checked; empty: the defaults of :mod:`parallel_gpc.estimation`.
+        limits: the sidecar's ``[limits]`` table (state limits: drive_position, drive_rate,
+            output_box, output_velocity, soft, penalty), as written; empty: none.
         package_path: folders searched for ``package://`` meshes after the model file's folder
             (:func:`~parallel_gpc.model.meshes.package_roots`: the ``package_path`` argument,
             ``PARALLEL_GPC_PACKAGE_PATH``, ``ROS_PACKAGE_PATH``).
@@ -133,6 +136,7 @@ class RobotDescription:
     pose_a: tuple[float, ...] | None = None
     pose_b: tuple[float, ...] | None = None
     sensors: dict = field(default_factory=dict)
+    limits: dict = field(default_factory=dict)
     package_path: tuple[Path, ...] = ()
     mesh_files: dict = field(default_factory=dict)
     unresolved_meshes: tuple[str, ...] = ()
@@ -265,6 +269,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         pose_a=ends["A"],
         pose_b=ends["B"],
         sensors=read_sensors(data.get("sensors"), where),
+        limits=read_limits(data.get("limits"), drives, where),
         package_path=roots,
     )
     check_description(description)

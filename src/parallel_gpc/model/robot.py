@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from ..errors import AssemblyError, RobotFormatError, UnreachablePoseError
+from ..errors import AssemblyError, ParallelGPCError, RobotFormatError, UnreachablePoseError
 from ..limits import Limits
 from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
@@ -290,6 +290,35 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         """The robot file's own input :class:`~parallel_gpc.limits.Limits` (its drive torque limits,
         (n_u,) N·m or N; ``Limits()`` when the file gives none)."""
         return Limits(torque=self.torque_limit).for_drives(self.n_u)
+
+    @property
+    def state_limits(self) -> Limits:
+        """The state limits of the sidecar's ``[limits]`` table (drive strokes, workspace box,
+        velocities; hard or soft) as a :class:`~parallel_gpc.limits.Limits` sized to the drives
+        and outputs; ``Limits()`` when the file declares none. ``drive_position = "urdf"`` takes
+        the drives' ranges of the model file, a table ``{drive_joint = [lo, hi]}`` sets those drives
+        (the others free).
+
+        Raises:
+            RobotFormatError: a value the Limits type refuses (naming the sidecar).
+        """
+        table = dict(self.description.limits)
+        if not table:
+            return Limits()
+        dp = table.get("drive_position")
+        if dp == "urdf":
+            table["drive_position"] = np.c_[self.drive_range]
+        elif isinstance(dp, dict):
+            pairs = np.tile([-np.inf, np.inf], (self.n_u, 1))
+            for name, pair in dp.items():
+                pairs[list(self.description.drive_joints).index(name)] = pair
+            table["drive_position"] = pairs
+        if "soft" in table:
+            table["soft"] = tuple(table["soft"])
+        try:
+            return Limits(**table).for_drives(self.n_u, self.n_y)
+        except ParallelGPCError as exc:
+            raise RobotFormatError(f"sidecar {str(self.description.sidecar_path)!r}: [limits]: {exc}") from None
 
     @property
     def output_angular(self) -> np.ndarray:

@@ -31,7 +31,7 @@ OUTPUT_KINDS = ("joints", "position", "pose")
 POSE_AXES = ("x", "y", "z", "rx", "ry", "rz")
 ROOTS = ("fixed", "free_flyer")
 
-_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root", "sensors"}
+_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root", "sensors", "limits"}
 #: Every key a sidecar may hold, per table; anything else is refused (never ignored).
 SIDECAR_KEYS = {
     "toml": _COMMON_KEYS | {"closures", "drives"},
@@ -42,6 +42,7 @@ SIDECAR_KEYS = {
     "output": {"joints", "frame", "kind", "axes", "labels", "units"},
     "home": {"pose", "q_guess", "branch_joints", "A", "B"},
     "sensors": {"counts_per_rev", "counts_per_m", "rates"},
+    "limits": {"drive_position", "drive_rate", "output_box", "output_velocity", "soft", "penalty"},
 }
 
 
@@ -228,6 +229,36 @@ def q_guess_field(raw, where: str) -> dict:
         except (TypeError, ValueError):
             raise RobotFormatError(f"sidecar {where}: home.q_guess {k} = {v!r} must be a number "
                                    f"(or a list of nq numbers for a multi-DOF joint)") from None
+    return out
+
+
+def read_limits(raw, drives: tuple[str, ...], where: str) -> dict:
+    """The ``[limits]`` table as plain values (checked for kind and shape here; the numbers are
+    validated when the robot makes its :class:`~parallel_gpc.limits.Limits`):
+
+    * ``drive_position``: ``"urdf"`` (the drives' ``<limit>`` ranges of the model file), one pair
+      ``[lo, hi]`` for every drive, one pair per drive, or a table ``{drive_joint = [lo, hi]}``
+      (m or rad); ``drive_rate`` (m/s or rad/s), ``output_box`` (pairs, m and rad),
+      ``output_velocity`` (m/s, rad/s) as in :class:`~parallel_gpc.limits.Limits`;
+    * ``soft``: the kinds relaxed by slack variables (default every state kind), ``penalty`` ρ.
+
+    Raises:
+        RobotFormatError: an unknown key, a drive_position table naming a joint that is not a
+            drive, a value of the wrong type.
+    """
+    table = check_keys(raw, SIDECAR_KEYS["limits"], "[limits]", where)
+    out = dict(table)
+    dp = table.get("drive_position")
+    if isinstance(dp, str) and dp != "urdf":
+        raise RobotFormatError(f"sidecar {where}: limits.drive_position = {dp!r}; valid: \"urdf\" (the model "
+                               "file's ranges), [lo, hi], one pair per drive, or a table {drive_joint = [lo, hi]}")
+    if isinstance(dp, dict):
+        unknown = sorted(set(dp) - set(drives))
+        if unknown:
+            raise RobotFormatError(f"sidecar {where}: limits.drive_position names {unknown}, which are not drive "
+                                   f"joints; the drives are {list(drives)}")
+    if "soft" in table and (not isinstance(table["soft"], list) or not all(isinstance(k, str) for k in table["soft"])):
+        raise RobotFormatError(f"sidecar {where}: limits.soft = {table['soft']!r} must be a list of kind names")
     return out
 
 

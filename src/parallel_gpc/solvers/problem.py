@@ -19,6 +19,8 @@ LIMIT_TOL = 1e-7
 #: reciprocal condition (estimate, 1-norm) of the unpivoted triangular factor above which the
 #: fast QR path trusts full rank; below it the rank-revealing (pivoted) path decides.
 FAST_QR_RCOND = 1e-8
+#: a bound of this magnitude or more is no bound (the free side of a one-sided row; a slack's upper bound).
+UNBOUNDED = 1e20
 
 @dataclass(frozen=True)
 class MinNormOf:
@@ -38,10 +40,19 @@ class MinNormOf:
 
 @dataclass
 class LeastSquaresProblem:
-    """``min ‖A v − b‖²`` subject to ``lb ≤ v ≤ ub`` and ``lo ≤ L v ≤ hi`` (either may be None).
+    """``min ‖A v − b‖² + cᵀv`` subject to ``lb ≤ v ≤ ub`` and ``lo ≤ L v ≤ hi`` (either may be None).
 
     Attributes:
-        A: (r, n); b: (r,); lb, ub: (n,) or None; L: (k, n) or None; lo, hi: (k,) or None.
+        A: (r, n); b: (r,); lb, ub: (n,) or None; L: (k, n) or None; lo, hi: (k,) or None
+            (±:data:`UNBOUNDED` or beyond: that side free).
+        c: (n,) linear cost term or None (the exact L1 penalty of slack variables; only the QP
+            back ends take it).
+        n_slack: the last ``n_slack`` entries of v are slack variables s ≥ 0 of soft limits
+            (:func:`with_inequalities`); the decision variables proper are the first n − n_slack.
+        slack_unit: (n_slack,) what one unit of each slack variable is in its limit's unit
+            (violation = slack · slack_unit), or None.
+        base: the problem before :func:`with_inequalities` added rows (its unconstrained
+            minimizer, with zero slack, solves this one whenever it keeps every row), or None.
         min_norm_of: when A is rank-deficient, the QR back end returns the minimizer with the
             smallest ‖M v + offset‖ (see :class:`MinNormOf`); None: the smallest ‖v‖.
         nonzero_rows: number of leading rows of A (and b) that can be nonzero; the rows below
@@ -63,6 +74,10 @@ class LeastSquaresProblem:
     nonzero_rows: int | None = None
     tail_diag: np.ndarray | None = field(default=None, repr=False)
     tail_positive: bool = False
+    c: np.ndarray | None = None
+    n_slack: int = 0
+    slack_unit: np.ndarray | None = field(default=None, repr=False)
+    base: "LeastSquaresProblem | None" = field(default=None, repr=False)
 
     def leading_rows(self) -> tuple[np.ndarray, np.ndarray]:
         """(A, b) without the rows known to be zero (views, no copy)."""
@@ -78,9 +93,15 @@ class LeastSquaresProblem:
     def constrained(self) -> bool:
         return self.lb is not None or self.L is not None
 
+    @property
+    def n_decision(self) -> int:
+        """The number of decision variables proper (without the slack variables)."""
+        return self.A.shape[1] - self.n_slack
+
     def cost(self, v: np.ndarray) -> float:
+        """‖A v − b‖² + cᵀv at v (n,)."""
         r = self.A @ v - self.b
-        return float(r @ r)
+        return float(r @ r) + (0.0 if self.c is None else float(self.c @ v))
 
     def violation(self, v: np.ndarray) -> float:
         """Largest limit violation of v (0 when feasible), in the units of the limits."""
@@ -93,22 +114,108 @@ class LeastSquaresProblem:
         return worst
 
     def feasible(self, v: np.ndarray) -> bool:
+        """True when v keeps every limit within :data:`LIMIT_TOL` (relative to the largest bound; rows
+        added by :func:`with_inequalities` each relative to its own bound, and slack ≥ 0)."""
+        if self.base is not None:
+            n, k = self.base.n, 0 if self.base.L is None else self.base.L.shape[0]
+            added = self.L[k:] @ v - self.hi[k:]
+            return (self.base.feasible(v[:n]) and bool(np.all(v[n:] >= 0.0))
+                    and bool(np.all(added <= LIMIT_TOL * (1.0 + np.abs(self.hi[k:])))))
         scale = 1.0
         for arr in (self.ub, self.hi):
-            if arr is not None and arr.size:
-                scale = max(scale, float(np.max(np.abs(arr))))
+            finite = None if arr is None else np.abs(arr[np.abs(arr) < UNBOUNDED])
+            if finite is not None and finite.size:
+                scale = max(scale, float(np.max(finite)))
         return self.violation(v) <= LIMIT_TOL * scale
 
     def active(self, v: np.ndarray, tol: float = 1e-6) -> bool:
-        """True when a limit is (nearly) active at v."""
-        if self.lb is not None and (np.any(v - self.lb <= tol * (1 + np.abs(self.lb))) or
-                                    np.any(self.ub - v <= tol * (1 + np.abs(self.ub)))):
-            return True
+        """True when a limit is (nearly) active at v (a slack variable at 0 is no active limit)."""
+        n = self.n_decision
+        if self.lb is not None:
+            lb, ub, x = self.lb[:n], self.ub[:n], v[:n]
+            if np.any(x - lb <= tol * (1 + np.abs(lb))) or np.any(ub - x <= tol * (1 + np.abs(ub))):
+                return True
         if self.L is not None:
             Lv = self.L @ v
             return bool(np.any(Lv - self.lo <= tol * (1 + np.abs(self.lo))) or
                         np.any(self.hi - Lv <= tol * (1 + np.abs(self.hi))))
         return False
+
+
+def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray, slack_of: np.ndarray,
+                      penalty: float, quadratic: float) -> LeastSquaresProblem:
+    """``problem`` with the one-sided rows ``G v ≤ h`` added, some of them soft.
+
+    A row with ``slack_of[i] = j ≥ 0`` is soft: ``G_i v − s_j ≤ h_i`` with a slack s_j ≥ 0 (rows
+    may share one: the two sides of a range never both bind) costing ``penalty``·s_j (the exact
+    L1 penalty: s = 0 whenever the hard problem is feasible and ``penalty`` exceeds the row's
+    Lagrange multiplier) plus ``quadratic``·s_j² (the slack's Hessian, > 0). A row with
+    ``slack_of[i] = −1`` is hard. The slack variables are new last columns, each in the unit of
+    its row divided by the row's norm (``slack_unit``); the problem's
+    structure hints (a diagonal regularization tail) are kept. Each row is divided by its norm in
+    v (the same inequality, equilibrated).
+
+    Args:
+        problem: the problem in v (no slack yet), n columns.
+        G: (k, n); h: (k,) finite. slack_of: (k,) int, −1 or a slack index 0..n_s−1.
+        penalty: ρ > 0 (cost per unit of violation). quadratic: ε > 0 (cost per unit²).
+
+    Returns:
+        A new problem in x = [v; s], (n + n_s) columns.
+    """
+    if problem.n_slack:
+        raise InvalidParameterError("the problem has slack variables already: add all inequalities at once")
+    n = problem.n
+    slack_of = np.asarray(slack_of, dtype=int)
+    ns = int(slack_of.max(initial=-1)) + 1
+    G = np.asarray(G, dtype=float)
+    norm = np.linalg.norm(G, axis=1)
+    norm[norm == 0.0] = 1.0
+    # rows of unit norm in v: a solver's feasibility tolerance then means the same for every row;
+    # slack j measured in the same unit, t_j = s_j / ‖G_i‖ (rows sharing a slack have one norm):
+    # its Hessian ε‖G_i‖² then sits beside the criterion's, not 10¹³ away
+    unit = np.ones(ns)
+    soft = slack_of >= 0
+    unit[slack_of[soft]] = norm[soft]
+    top = problem.A.shape[0] - n if problem.tail_diag is not None else problem.A.shape[0]
+    rows = problem.A.shape[0] + (ns if problem.tail_diag is None else 0)
+    A = np.zeros((rows + (0 if problem.tail_diag is None else ns), n + ns))
+    b = np.zeros(A.shape[0])
+    A[:problem.A.shape[0], :n] = problem.A
+    b[:problem.b.shape[0]] = problem.b
+    root = np.sqrt(quadratic) * unit
+    tail = None
+    if problem.tail_diag is not None:  # [A_top; diag(d)] → [A_top 0; diag(d, √ε)]: still a diagonal tail
+        A[top:top + n, :n] = 0.0
+        tail = np.concatenate([problem.tail_diag, root])
+        A[top:, :] = np.diag(tail)
+    else:
+        A[problem.A.shape[0]:, n:] = np.diag(root)
+    L_slack = np.zeros((len(h), ns))
+    L_slack[np.flatnonzero(soft), slack_of[soft]] = -norm[soft]
+    L_new = np.hstack([G, L_slack]) / norm[:, None]
+    h = np.asarray(h, dtype=float) / norm
+    Ls, los, his = [], [], []
+    if problem.L is not None:
+        Ls.append(np.hstack([problem.L, np.zeros((problem.L.shape[0], ns))]))
+        los.append(problem.lo)
+        his.append(problem.hi)
+    Ls.append(L_new)
+    los.append(np.full(len(h), -UNBOUNDED))
+    his.append(np.asarray(h, dtype=float))
+    lb = ub = None
+    if problem.lb is not None or ns:  # the slack variables' s ≥ 0 (v unbounded unless it had a box)
+        lb = np.full(n + ns, -UNBOUNDED) if problem.lb is None else np.concatenate([problem.lb, np.zeros(ns)])
+        ub = np.full(n + ns, UNBOUNDED) if problem.ub is None else np.concatenate([problem.ub, np.full(ns, UNBOUNDED)])
+        lb[n:] = 0.0
+    c = np.zeros(n + ns)
+    if problem.c is not None:
+        c[:n] = problem.c
+    c[n:] = penalty * unit
+    return LeastSquaresProblem(A, b, lb, ub, np.vstack(Ls), np.concatenate(los), np.concatenate(his),
+                               min_norm_of=None, nonzero_rows=None, tail_diag=tail,
+                               tail_positive=problem.tail_positive and quadratic > 0, c=c, n_slack=ns,
+                               slack_unit=unit, base=problem)
 
 
 def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
@@ -118,7 +225,7 @@ def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
     Raises:
         InvalidParameterError: naming the back end and what enforces limits instead.
     """
-    if problem.constrained:
+    if problem.constrained or problem.c is not None:
         raise InvalidParameterError(
             f"solver {solver!r} cannot enforce the problem's limits (it would ignore them); use a QP back end such "
             "as 'qr-first:daqp-direct', 'daqp-direct' or 'bvls' (box limits), or drop the limits")
@@ -189,10 +296,13 @@ def _scaled_qp(problem: LeastSquaresProblem):
     diag = P.reshape(-1)[::P.shape[0] + 1]  # a view on the diagonal of P
     if tail is not None:
         diag += tail * tail
-    scale = 1.0 / max(float(diag.max()), 1e-300)
+    # the scale of the decision variables proper: slack columns leave the rest of the QP as it was
+    scale = 1.0 / max(float(diag[:problem.n_decision].max(initial=0.0)), 1e-300)
     P *= scale
     diag += QP_REGULARIZATION
     q *= -scale
+    if problem.c is not None:  # ‖A v − b‖² + cᵀv: gradient −2Aᵀb + c, halved with P = AᵀA
+        q += 0.5 * scale * problem.c
     return P, q, scale
 
 
@@ -224,7 +334,12 @@ def _stacked_constraints(problem: LeastSquaresProblem):
         hi.append(problem.hi)
     if not rows:
         return np.zeros((0, problem.n)), np.zeros(0), np.zeros(0)
-    return np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+    C, lo, hi = np.vstack(rows), np.concatenate(lo), np.concatenate(hi)
+    free = (lo <= -UNBOUNDED) & (hi >= UNBOUNDED)
+    if free.any():  # rows bounding nothing (the box of v beside slack variables): left out
+        C, lo, hi = C[~free], lo[~free], hi[~free]
+    # a free side as ±inf (ProxQP and OSQP take it; a finite 1e20 upsets their infeasibility detection)
+    return C, np.where(lo <= -UNBOUNDED, -np.inf, lo), np.where(hi >= UNBOUNDED, np.inf, hi)
 
 
 

@@ -29,7 +29,13 @@ class QRFirst:
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         qr_time = 0.0
         if not (self._limits_active and problem.constrained):
-            res = self.qr.solve_unconstrained(problem)
+            # rows added to a problem (state limits, slack variables costing c ≥ 0): QR solves the
+            # problem without them; with zero slack that keeps every row it is this one's minimizer
+            inner = problem.base if problem.base is not None else problem
+            res = self.qr.solve_unconstrained(inner)
+            if inner is not problem:
+                res.v = np.concatenate([res.v, np.zeros(problem.n - inner.n)])
+                res.cost = problem.cost(res.v)
             if not problem.constrained or problem.feasible(res.v):
                 self._limits_active = False
                 res.solver = self.name

@@ -17,6 +17,7 @@ _PUBLIC = {
     "SimulationResult": "simulation", "simulate": "simulation", "null_space_component": "simulation",
     "null_space_components": "simulation",
     "TrackingSettings": "tracking", "run_tracking": "tracking", "metrics_table": "tracking",
+    "run_limits": "tracking", "LIMIT_SOURCES": "tracking",
     "DEMO_SETTINGS": "comparison", "run_comparison": "comparison", "comparison_table": "comparison",
     "sensors_table": "comparison",
     "deadbeat_check": "comparison", "DeadbeatCheck": "comparison", "steady_state_error": "comparison",

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
-from ..errors import InvalidParameterError
+from ..errors import InvalidParameterError, ShapeError
 from ..gpc.controller import FORMS, GPCController
 from ..gpc.criterion import Weights
 from ..gpc.prediction import Horizons
@@ -182,6 +182,12 @@ class TrackingSettings:
                     if f.name not in ("horizons", "weights", "limits", "extra")})
         return out
 
+    def with_run_limits(self, robot: ParallelRobot, source: str = "robot", output_box=None, output_velocity=None,
+                        hard: bool = False) -> "TrackingSettings":
+        """These settings with the limits a command applies (:func:`run_limits`) added to their
+        torque and du limits."""
+        return replace(self, limits=run_limits(robot, source, self.limits, output_box, output_velocity, hard))
+
     def make_reference(self, robot: ParallelRobot, max_condition: float = 1e3) -> Reference:
         """The run's reference on ``robot`` (built-in paths sized to its workspace, whose probe
         stops where cond(M_r⁻¹ B_r) exceeds ``max_condition``)."""
@@ -221,6 +227,48 @@ FLAT_KEYS = EMBEDDED_KEYS + tuple(f.name for f in fields(TrackingSettings)
                                   if f.name not in ("horizons", "weights", "limits", "extra"))
 
 
+#: where a command's state limits come from: the robot file's ``[limits]`` table, or nowhere.
+LIMIT_SOURCES = ("robot", "none")
+
+
+def run_limits(robot: ParallelRobot, source: str = "robot", base: Limits | None = None, output_box=None,
+               output_velocity=None, hard: bool = False) -> Limits:
+    """The limits a command applies: ``base`` (torque, du), the robot file's state limits
+    (``source="robot"``: :attr:`~parallel_gpc.model.ParallelRobot.state_limits`; ``"none"``: none),
+    then an explicit workspace box and output velocity limit, which replace the file's.
+
+    Args:
+        robot: the robot. source: one of :data:`LIMIT_SOURCES`.
+        base: the input limits (None: none).
+        output_box: 2·n_y numbers lo₁ hi₁ lo₂ hi₂ … (m, rad), or None.
+        output_velocity: a number or n_y numbers (m/s, rad/s), or None.
+        hard: every state kind hard (default: the file's choice, else soft).
+
+    Raises:
+        InvalidParameterError: an unknown source. ShapeError: a box of another length than 2·n_y.
+        InfeasibleLimitsError: a lower bound above its upper one.
+    """
+    if source not in LIMIT_SOURCES:
+        raise InvalidParameterError(f"limits source {source!r} is not one of {list(LIMIT_SOURCES)}")
+    values = {} if base is None else dict(base.values())
+    file_limits = robot.state_limits if source == "robot" else Limits()
+    values.update(file_limits.values())
+    options = {"soft": file_limits.soft, "penalty": file_limits.penalty}
+    if output_box is not None:
+        box = np.asarray(output_box, dtype=float).reshape(-1)
+        if box.size != 2 * robot.n_y:
+            raise ShapeError(f"output box {box.tolist()} has {box.size} numbers; expected 2 × {robot.n_y} = "
+                             f"{2 * robot.n_y}: lower and upper bound of each output {list(robot.output_space.labels)}")
+        values["output_box"] = box.reshape(-1, 2)
+    if output_velocity is not None:
+        values["output_velocity"] = output_velocity
+    if hard:
+        options["soft"] = ()
+    limits = Limits(**values, **options)
+    limits.for_drives(robot.n_u, robot.n_y)  # sizes checked against the robot here, once
+    return limits
+
+
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
                  robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
     """Run each GPC form on the reference with the plant of ``settings``; returns results by form.
@@ -252,6 +300,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     start = reference.pose(0.0)
     if settings.reference == "hold":
         start = robot.home_pose
+    settings.limits.check_pose(start, robot.output_space.labels)  # a box that excludes the start: refused
     results = {}
     machine = settings.sensors != "full" or settings.plant != "own"
     sensors = check_machine(settings) if machine else None

@@ -1,0 +1,231 @@
+"""State and output constraints of the GPC problem, stage-wise over the horizon (issue 22).
+
+The prediction ŷ = f + G v (:mod:`parallel_gpc.gpc.prediction`) is affine in the decision
+variables v, so every limit on the predicted motion is a set of rows ``G_c v ≤ h_c``:
+
+* ``output_box``: y_lo ≤ ŷ(k+i) ≤ y_hi on the predicted steps i = No+1..N;
+* ``output_velocity``: |ŷ(k+i) − ŷ(k+i−1)| ≤ v·Ts (the mean velocity over each sample; the
+  first difference from the measured y(k) when No = 0);
+* ``drive_position``: q_lo ≤ q_a(ŷ(k+i)) ≤ q_hi, linearized along the poses the controller
+  expects, ȳ(k+i) (the previous plan's prediction: f + G v_warm, the nonlinear form's
+  pre-simulated trajectory): q_a(ŷ) ≈ q_a(ȳ) + J(ȳ)(ŷ − ȳ), J = ∂q_a/∂y the drive rows of the
+  velocity map (q̇ = T ẏ);
+* ``drive_rate``: |J(ȳ(k+i)) (ŷ(k+i) − ŷ(k+i−1))| ≤ r·Ts.
+
+Soft kinds (``Limits.soft``) get one slack variable per bound pair and step (exact L1 penalty,
+:func:`~parallel_gpc.solvers.problem.with_inequalities`); hard ones are plain rows. A kind whose
+bounds are all infinite adds no row; with no state limit the problem is returned unchanged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from ..errors import InvalidParameterError
+from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
+from ..solvers.problem import LeastSquaresProblem, SolveResult, with_inequalities
+from .prediction import Prediction
+
+__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "constrain", "report", "split",
+           "hard_violation", "STATE_TOL"]
+
+#: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
+ACTIVE_TOL = 1e-7
+#: a solution whose hard state rows are violated by more than this (m, rad, m/s, …) is not applied.
+STATE_TOL = 1e-7
+
+
+class DriveKinematics:
+    """Drive positions q_a(y) and their Jacobian ∂q_a/∂y of a robot, warm-started pose to pose.
+
+    Args:
+        robot: a :class:`~parallel_gpc.model.ParallelRobot` (assembly, velocity map, drive indices).
+    """
+
+    def __init__(self, robot):
+        self.robot = robot
+        self._q = robot.q_home.copy()
+
+    def __call__(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((n_u,) drive positions (m or rad), (n_u, n_y) Jacobian ∂q_a/∂y) at pose y (m, rad).
+
+        Raises:
+            AssemblyError, SingularPoseError: y cannot be assembled on the robot's branch.
+        """
+        r = self.robot
+        out = r.assemble_warm(np.asarray(y, dtype=float), self._q)
+        if out is None:
+            q = r.assemble(y, self._q)
+            T, _ = r.velocity_map_nocopy(q)
+        else:
+            q, T, _ = out
+        self._q = q
+        return q[r.drive_q_indices].copy(), T[r.drive_idx].copy()
+
+    @classmethod
+    def of(cls, model) -> "DriveKinematics | None":
+        """The drive kinematics of a controller's model (a robot's reduced model), or None."""
+        robot = getattr(model, "robot", None)
+        return None if robot is None or not hasattr(robot, "assemble_warm") else cls(robot)
+
+
+@dataclass
+class ConstraintRows:
+    """One step's state/output constraints as one-sided rows ``G v ≤ h``.
+
+    Attributes:
+        G: (k, n); h: (k,). kind: (k,) the kind of each row (names of
+        :data:`~parallel_gpc.limits.STATE_KINDS`). slack_of: (k,) slack index, −1 for a hard row.
+        n_slack: number of slack variables.
+    """
+
+    G: np.ndarray
+    h: np.ndarray
+    kind: np.ndarray
+    slack_of: np.ndarray
+    n_slack: int = 0
+
+
+@dataclass(frozen=True)
+class ConstraintReport:
+    """What the state/output constraints did in one step.
+
+    Attributes:
+        active: the kinds with a row at its (relaxed) bound, sorted.
+        slack: the largest slack used per soft kind (units of the limit: m, rad, m/s, …); 0 when
+            the constraint holds.
+    """
+
+    active: tuple[str, ...] = ()
+    slack: dict = field(default_factory=dict)
+
+    @property
+    def max_slack(self) -> float:
+        return max(self.slack.values(), default=0.0)
+
+
+def _pairs(bounds: np.ndarray, n_steps: int):
+    """The (k, 2) bounds as lower and upper vectors tiled over n_steps, (n_steps·k,) each."""
+    lo, hi = np.tile(bounds[:, 0], n_steps), np.tile(bounds[:, 1], n_steps)
+    return lo, hi
+
+
+def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.ndarray,
+                      y_lin: np.ndarray | None = None, drives: DriveKinematics | None = None) -> ConstraintRows | None:
+    """The rows of every state limit of ``limits`` for one step.
+
+    Args:
+        pred: the prediction ŷ = f + G v (outputs k+No+1..k+N, p each).
+        limits: sized to the drives and outputs (:meth:`~parallel_gpc.limits.Limits.for_drives`).
+        Ts: sample time (s). y_now: (p,) measured output y(k) (m, rad).
+        y_lin: (n_rows·p,) poses the drive limits are linearized at (default f).
+        drives: the robot's :class:`DriveKinematics` (needed by drive_position and drive_rate).
+
+    Returns:
+        The rows, or None when no state limit is set.
+
+    Raises:
+        InvalidParameterError: a drive limit without drive kinematics (a model that is not a robot's).
+    """
+    if not limits.has_state_limits:
+        return None
+    H = pred.horizons
+    p = len(y_now)
+    n_rows, n = H.n_rows, pred.G.shape[1]
+    Gy, fy = pred.G.reshape(n_rows, p, n), pred.f.reshape(n_rows, p)
+    # differences ŷ(k+i) − ŷ(k+i−1) of the predicted rows, the first from y(k) when No = 0
+    if H.No == 0:
+        dG = np.concatenate([Gy[:1], np.diff(Gy, axis=0)])
+        df = np.concatenate([fy[:1] - y_now, np.diff(fy, axis=0)])
+    else:
+        dG, df = np.diff(Gy, axis=0), np.diff(fy, axis=0)
+    jac = None
+    if limits.drive_position is not None or limits.drive_rate is not None:
+        if drives is None:
+            raise InvalidParameterError("drive_position and drive_rate limits need the robot's drive kinematics "
+                                        "(a controller of a robot's reduced model); this model has none")
+        ybar = (pred.f if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(n_rows, p)
+        qj = [drives(y) for y in ybar]
+        qbar = np.array([a for a, _ in qj])
+        jac = np.array([J for _, J in qj])  # (n_rows, m, p)
+    blocks = []  # (kind, M (rows, n), value at v = 0 (rows,), lower (rows,), upper (rows,))
+    if limits.output_box is not None:
+        box = limits.output_box
+        blocks.append(("output_box", Gy.reshape(-1, n), fy.reshape(-1), *_pairs(box, n_rows)))
+    if limits.output_velocity is not None:
+        vmax = limits.output_velocity * Ts
+        k = len(dG)
+        blocks.append(("output_velocity", dG.reshape(-1, n), df.reshape(-1), np.tile(-vmax, k), np.tile(vmax, k)))
+    if limits.drive_position is not None:
+        # q_a(ŷ) ≈ q̄ + J (f + G v − ȳ)
+        M = np.einsum("imp,ipn->imn", jac, Gy).reshape(-1, n)
+        value = (qbar + np.einsum("imp,ip->im", jac, fy - ybar)).reshape(-1)
+        blocks.append(("drive_position", M, value, *_pairs(limits.drive_position, n_rows)))
+    if limits.drive_rate is not None:
+        J = jac if H.No == 0 else jac[1:]
+        rmax = limits.drive_rate * Ts
+        M = np.einsum("imp,ipn->imn", J, dG).reshape(-1, n)
+        value = np.einsum("imp,ip->im", J, df).reshape(-1)
+        blocks.append(("drive_rate", M, value, np.tile(-rmax, len(J)), np.tile(rmax, len(J))))
+    G_rows, h_rows, kinds, slack_of = [], [], [], []
+    n_slack = 0
+    for kind, M, value, lo, hi in blocks:
+        soft = limits.is_soft(kind)
+        has_hi, has_lo = np.isfinite(hi), np.isfinite(lo)
+        used = has_hi | has_lo
+        index = np.full(len(M), -1)
+        if soft:
+            index[used] = n_slack + np.arange(int(used.sum()))
+            n_slack += int(used.sum())
+        for side, mask, sign, bound in (("hi", has_hi, 1.0, hi), ("lo", has_lo, -1.0, lo)):
+            G_rows.append(sign * M[mask])
+            h_rows.append(sign * (bound[mask] - value[mask]))
+            kinds += [kind] * int(mask.sum())
+            slack_of.append(index[mask])
+    return ConstraintRows(np.vstack(G_rows), np.concatenate(h_rows), np.array(kinds, dtype=object),
+                          np.concatenate(slack_of).astype(int), n_slack)
+
+
+def constrain(problem: LeastSquaresProblem, rows: ConstraintRows | None, limits: Limits) -> LeastSquaresProblem:
+    """``problem`` with the state constraint ``rows`` added (slack variables for the soft ones)."""
+    if rows is None or not len(rows.h):
+        return problem
+    return with_inequalities(problem, rows.G, rows.h, rows.slack_of, limits.penalty, limits.penalty * SOFT_QUADRATIC)
+
+
+def report(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndarray) -> ConstraintReport | None:
+    """Which kinds are active at the full solution x = [v; s] and the slack each used."""
+    if rows is None or not len(rows.h):
+        return None
+    n = problem.n_decision
+    v, s = x[:n], x[n:] * (1.0 if problem.slack_unit is None else problem.slack_unit)  # in the limits' units
+    relaxed = rows.h + np.where(rows.slack_of >= 0, s[np.maximum(rows.slack_of, 0)] if s.size else 0.0, 0.0)
+    gap = relaxed - rows.G @ v
+    active = sorted({str(k) for k in rows.kind[gap <= ACTIVE_TOL * (1.0 + np.abs(rows.h))]})
+    slack = {}
+    for kind in STATE_KINDS:
+        sel = (rows.kind == kind) & (rows.slack_of >= 0)
+        if sel.any():
+            slack[kind] = float(max(0.0, np.max(s[rows.slack_of[sel]])))
+    return ConstraintReport(tuple(active), slack)
+
+
+def hard_violation(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndarray) -> float:
+    """The largest violation of a hard row at x = [v; s] (units of the limit: m, rad, m/s, …; 0 when kept)."""
+    if rows is None or not len(rows.h):
+        return 0.0
+    hard = rows.slack_of < 0
+    if not hard.any():
+        return 0.0
+    return float(max(0.0, np.max(rows.G[hard] @ x[:problem.n_decision] - rows.h[hard])))
+
+
+def split(problem: LeastSquaresProblem, result: SolveResult) -> tuple[SolveResult, np.ndarray]:
+    """The result with v the decision variables proper, and the slack (n_s,) in the limits' units."""
+    n = problem.n_decision
+    if not problem.n_slack:
+        return result, np.zeros(0)
+    x = result.v
+    return replace(result, v=x[:n].copy()), x[n:] * problem.slack_unit

@@ -1,0 +1,354 @@
+"""State and output constraints (issue 22): the stage-wise rows, hard and soft, against an
+independent QP and its KKT conditions; inactive constraints cost nothing; closed loops keep them."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import qpsolvers
+from scipy.optimize import nnls
+
+from parallel_gpc.errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
+from parallel_gpc.gpc import DiscreteLinearModel, GPCController, Horizons, Weights
+from parallel_gpc.gpc.constraints import constrain, stage_constraints
+from parallel_gpc.gpc.criterion import build_problem
+from parallel_gpc.gpc.prediction import absolute_prediction, incremental_prediction
+from parallel_gpc.limits import Limits
+from parallel_gpc.solvers import make_solver
+
+TS = 0.01
+
+
+def double_integrator():
+    """Two decoupled double integrators, outputs the positions (m), inputs accelerations."""
+    A = np.eye(4)
+    A[0, 2] = A[1, 3] = TS
+    B = np.zeros((4, 2))
+    B[0, 0] = B[1, 1] = TS ** 2 / 2
+    B[2, 0] = B[3, 1] = TS
+    C = np.hstack([np.eye(2), np.zeros((2, 2))])
+    return A, B, C
+
+
+def one_step(form, X, u_prev, H):
+    A, B, C = double_integrator()
+    if form == "absolute":
+        return absolute_prediction(A, B, None, C, X, H)
+    return incremental_prediction(A, B, None, C, X, u_prev, H)
+
+
+def kkt_residual(P, q, Gc, hc, x, tol=1e-7):
+    """Stationarity residual of min ½xᵀPx + qᵀx s.t. Gc x ≤ hc at x, with multipliers ≥ 0 on the
+    active rows found by non-negative least squares (an independent optimality certificate)."""
+    grad = P @ x + q
+    active = hc - Gc @ x <= tol * (1 + np.abs(hc))
+    if not active.any():
+        return float(np.linalg.norm(grad)) / max(1.0, float(np.linalg.norm(q)))
+    lam, res = nnls(Gc[active].T, -grad)
+    return res / max(1.0, float(np.linalg.norm(q)))
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+@pytest.mark.parametrize("solver", ["daqp-direct", "proxqp-direct"])
+def test_hard_box_and_velocity_match_an_independent_qp(form, solver):
+    H = Horizons(12)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    u_prev = np.array([1.0, -2.0])
+    pred = one_step(form, X, u_prev, H)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    weights = Weights(1.0, 0.05)
+    limits = Limits(output_box=[[-1.0, 0.45], [-0.3, 1.0]], output_velocity=[1.5, 2.5], soft=()).for_drives(2, 2)
+    problem = build_problem(pred, w, weights, 2, 2)
+    rows = stage_constraints(pred, limits, TS, X[:2])
+    full = constrain(problem, rows, limits)
+    res = make_solver(solver).solve(full)
+    assert res.ok and full.n_slack == 0
+    # the oracle: the raw QP written here from ŷ = f + G v, no scaling, no equilibration
+    Qu = 0.05 ** 2 * np.eye(problem.n)
+    P = 2 * (pred.G.T @ pred.G + Qu)
+    q = 2 * pred.G.T @ (pred.f - w.reshape(-1))
+    Y, dY = pred.G.reshape(H.n_rows, 2, -1), None
+    f = pred.f.reshape(H.n_rows, 2)
+    dG = np.concatenate([Y[:1], np.diff(Y, axis=0)]).reshape(-1, problem.n)
+    df = np.concatenate([f[:1] - X[:2], np.diff(f, axis=0)]).reshape(-1)
+    hi_y, lo_y = np.tile([0.45, 1.0], H.n_rows), np.tile([-1.0, -0.3], H.n_rows)
+    vmax = np.tile([1.5, 2.5], H.n_rows) * TS
+    Gc = np.vstack([pred.G, -pred.G, dG, -dG])
+    hc = np.concatenate([hi_y - pred.f, pred.f - lo_y, vmax - df, vmax + df])
+    scale = 1.0 / np.diag(P).max()
+    x = qpsolvers.solve_qp(P * scale, q * scale, Gc, hc, solver="daqp")  # raw rows, through qpsolvers
+    assert x is not None
+    assert kkt_residual(P, q, Gc, hc, x) < 1e-6  # the oracle is optimal
+    assert np.max(Gc @ res.v - hc) < 1e-8  # hard: kept
+    assert kkt_residual(P, q, Gc, hc, res.v) < 1e-5
+    np.testing.assert_allclose(res.v, x, atol=1e-6 * max(1.0, np.abs(x).max()))
+    assert np.sum(Gc @ res.v - hc > -1e-7) >= 1  # a limit binds (a test that can fail)
+    assert np.max(Gc @ np.linalg.solve(P, -q) - hc) > 1e-3  # the unconstrained optimum breaks them
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_soft_equals_hard_when_feasible_and_pays_the_exact_penalty_when_not(form):
+    H = Horizons(10)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    pred = one_step(form, X, np.zeros(2), H)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    problem = build_problem(pred, w, Weights(1.0, 0.05), 2, 2)
+    hard = Limits(output_box=[[-1.0, 0.45], [-1.0, 1.0]], soft=()).for_drives(2, 2)
+    soft = Limits(output_box=[[-1.0, 0.45], [-1.0, 1.0]]).for_drives(2, 2)
+    solver = make_solver("daqp-direct")
+    v_hard = solver.solve(constrain(problem, stage_constraints(pred, hard, TS, X[:2]), hard)).v
+    full = constrain(problem, stage_constraints(pred, soft, TS, X[:2]), soft)
+    x = solver.solve(full).v
+    assert full.n_slack > 0 and np.max(x[full.n_decision:]) < 1e-9  # exact penalty: no slack used
+    np.testing.assert_allclose(x[:full.n_decision], v_hard, atol=1e-6 * np.abs(v_hard).max())
+    # an infeasible box (the first predicted position cannot move far enough in one sample):
+    # the soft problem is solved, the hard one is not; the slack is the violation
+    # (the torque limit: no input stops it in time)
+    tight = Limits(torque=100.0, output_box=[[-1.0, 0.25], [-1.0, 1.0]], penalty=1e3).for_drives(2, 2)
+    problem = build_problem(pred, w, Weights(1.0, 0.05), 2, 2, tight.only("torque"), np.zeros(2))
+    rows = stage_constraints(pred, tight, TS, X[:2])
+    full = constrain(problem, rows, tight)
+    res = solver.solve(full)
+    assert res.ok
+    v, s = res.v[:full.n_decision], res.v[full.n_decision:] * full.slack_unit  # in m
+    y = pred.outputs(v).reshape(-1, 2)
+    excess = np.maximum(y[:, 0] - 0.25, 0.0)
+    assert excess[0] > 1e-3
+    np.testing.assert_allclose(np.sort(s[s > 1e-9]), np.sort(excess[excess > 1e-9]), rtol=1e-6, atol=1e-9)
+    hard_tight = Limits(torque=100.0, output_box=[[-1.0, 0.25], [-1.0, 1.0]], soft=()).for_drives(2, 2)
+    assert not solver.solve(constrain(problem, stage_constraints(pred, hard_tight, TS, X[:2]), hard_tight)).ok
+
+
+def run(form, limits, solver, steps=120):
+    A, B, C = double_integrator()
+    ctl = GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(15), form=form,
+                              weights=Weights(1.0, 0.01), limits=limits, solver=solver)
+    X, w = np.zeros(4), np.tile([1.0, 0.2], (15, 1))
+    plans, ys, infos = [], [], []
+    for _ in range(steps):
+        info = ctl.step(X, w)
+        plans.append(ctl.plan.copy())
+        X = A @ X + B @ info.u
+        ys.append(X.copy())
+        infos.append(info)
+    return np.array(plans), np.array(ys), infos
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed", "nonlinear"])
+def test_inactive_constraints_give_the_unconstrained_plan(form):
+    wide = dict(output_box=[[-5.0, 5.0], [-5.0, 5.0]], output_velocity=100.0)
+    free, _, _ = run(form, Limits(), "daqp-direct", 60)
+    for soft in ((), ("output_box", "output_velocity")):
+        plans, _, infos = run(form, Limits(**wide, soft=soft), "daqp-direct", 60)
+        np.testing.assert_allclose(plans, free, atol=1e-9, rtol=0)
+        assert all(i.constraints.active == () and i.constraints.max_slack < 1e-12 for i in infos)
+    qr, _, _ = run(form, Limits(), "qr", 60)
+    np.testing.assert_allclose(free, qr, atol=1e-7 * np.abs(qr).max(), rtol=0)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+@pytest.mark.parametrize("solver", ["daqp-direct", "qr-first:daqp-direct"])
+def test_closed_loop_keeps_the_box_and_the_velocity(form, solver):
+    _, ys_free, _ = run(form, Limits(), "qr")
+    assert ys_free[:, 0].max() > 1.0 and np.abs(np.diff(ys_free[:, 0]) / TS).max() > 3.0  # would break both
+    for soft in ((), ("output_box", "output_velocity")):
+        _, ys, infos = run(form, Limits(output_box=[[-1, 0.5], [-1, 1]], output_velocity=3.0, soft=soft), solver)
+        assert not any(i.fallback for i in infos)
+        assert ys[:, 0].max() <= 0.5 + 1e-6
+        vel = np.abs(np.diff(np.vstack([np.zeros(4), ys])[:, :2], axis=0)) / TS
+        assert vel.max() <= 3.0 + 1e-5
+        assert any("output_box" in i.constraints.active for i in infos)
+        assert abs(ys[-1, 1] - 0.2) < 5e-3  # the free output still tracks (absolute form: Qu's offset)
+
+
+def test_bad_limits_get_one_clear_error_each():
+    with pytest.raises(InfeasibleLimitsError, match=r"output_box\[1\] = \[2, 1\].*lower bound must be below"):
+        Limits(output_box=[[0, 1], [2, 1]])
+    with pytest.raises(InfeasibleLimitsError, match="drive_position"):
+        Limits(drive_position=[1.3, 0.45])
+    with pytest.raises(InvalidParameterError, match="torque.*cannot be soft"):
+        Limits(torque=1.0, soft=("torque",))
+    with pytest.raises(InvalidParameterError, match="penalty"):
+        Limits(output_box=[0, 1], penalty=0.0)
+    with pytest.raises(ShapeError, match="3 pairs"):
+        Limits(output_box=[[0, 1]] * 3).for_drives(2, 2)
+    with pytest.raises(InfeasibleLimitsError, match=r"y\[0\] = 0.7.*outside \[0, 0.5\]"):
+        Limits(output_box=[[0, 0.5], [0, 1]]).check_pose([0.7, 0.2])
+    A, B, C = double_integrator()
+    with pytest.raises(InvalidParameterError, match="drive kinematics"):
+        GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(5),
+                            limits=Limits(drive_position=[0, 1]))
+    with pytest.raises(InvalidParameterError, match="box limits only"):
+        GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(5),
+                            limits=Limits(output_box=[0, 1]), solver="bvls")
+
+
+# ---------------------------------------------------------------------------- the hexapod's stroke
+def hexapod_stroke_run(period, duration, limits, N=8):
+    """hexapod_6ups tracking z: 0.70 m → 1.35 m → 0.70 m in ``period`` s (the legs would need 1.39 m);
+    returns the error norm (m), the longest leg (m) per sample and the step reports."""
+    from parallel_gpc.gpc.references import SampledTrajectory
+    from parallel_gpc.model import ConstrainedPlant, ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("hexapod_6ups")
+    t = np.linspace(0.0, period, 101)
+    poses = np.tile(robot.home_pose, (len(t), 1))
+    poses[:, 2] = 0.70 + 0.325 * (1 - np.cos(2 * np.pi * t / period))
+    ref = SampledTrajectory(t, poses)
+    Ts = 0.002
+    ctl = GPCController.build(ReducedModel(robot), Ts=Ts, horizons=Horizons(N), form="nonlinear", limits=limits)
+    plant = ConstrainedPlant(robot, np.concatenate([robot.home_pose, np.zeros(6)]), Ts=Ts)
+    X, err, legs, infos = plant.X, [], [], []
+    for k in range(int(round(duration / Ts))):
+        info = ctl.step(X, ref.sample((k + 1 + np.arange(N)) * Ts))
+        X = plant.step(info.u)
+        err.append(np.linalg.norm(X[:6] - ref.pose((k + 1) * Ts)))
+        legs.append(plant.q[robot.drive_q_indices].max())
+        infos.append(info)
+    return np.array(err), np.array(legs), infos
+
+
+def stroke_limits(robot_range, soft):
+    lo, hi = robot_range
+    return Limits(torque=1000.0, drive_position=np.c_[lo, hi], soft=("drive_position",) if soft else ())
+
+
+def test_hexapod_stroke_holds_and_costs_nothing_before_it_binds():
+    from parallel_gpc.model import ParallelRobot
+
+    rng = ParallelRobot.load("hexapod_6ups").drive_range
+    assert np.allclose(rng[1], 1.30)
+    err, legs, infos = hexapod_stroke_run(2.0, 1.0, stroke_limits(rng, False), N=10)  # up to the top
+    assert not any(i.fallback for i in infos)
+    assert legs.max() <= 1.30 + 1e-6  # the plant's legs, not the prediction's
+    assert legs.max() > 1.30 - 1e-4  # it binds
+    first = next(k for k, i in enumerate(infos) if i.constraints.active)
+    assert first > 10
+    free_err, _, _ = hexapod_stroke_run(2.0, (first + 1) * 0.002, Limits(torque=1000.0), N=10)
+    np.testing.assert_allclose(err[:first], free_err[:first], atol=1e-9, rtol=0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("soft", [False, True])
+def test_hexapod_stroke_over_the_two_second_move(soft):
+    from parallel_gpc.model import ParallelRobot
+
+    err, legs, infos = hexapod_stroke_run(2.0, 2.0, stroke_limits(ParallelRobot.load("hexapod_6ups").drive_range,
+                                                                  soft), N=10)
+    assert not any(i.fallback for i in infos) and legs.max() <= 1.30 + 1e-6
+    if soft:  # the exact penalty: no slack where the hard problem is feasible
+        assert max(i.constraints.max_slack for i in infos) < 1e-6
+    assert err[-100:].max() < 1e-5  # back on the reference once the stroke lets go (3.6e-6 m measured)
+
+
+# ---------------------------------------------------------------------------- robot files and the command line
+def test_the_hexapod_declares_its_stroke_and_bad_limit_tables_are_refused(tmp_path):
+    import shutil
+
+    from parallel_gpc.errors import RobotFormatError
+    from parallel_gpc.model import ParallelRobot
+    from parallel_gpc.model.description import load_description
+    from parallel_gpc.studies import run_limits
+
+    robot = ParallelRobot.load("hexapod_6ups")
+    lim = robot.state_limits
+    np.testing.assert_array_equal(lim.drive_position, np.c_[robot.drive_range])
+    assert lim.soft == frozenset() and "drive_position [0.45, 1.3] (hard)" in lim.describe()
+    assert run_limits(robot, "none").is_empty
+    both = run_limits(robot, "robot", Limits(torque=1000.0), output_velocity=2.0)
+    assert both.torque.shape == () and both.drive_position.shape == (6, 2) and both.output_velocity.shape == ()
+    with pytest.raises(ShapeError, match="expected 2 × 6 = 12"):
+        run_limits(robot, "robot", output_box=[0, 1])
+    src = Path(robot.description.sidecar_path)
+    shutil.copy(robot.description.urdf_path, tmp_path / "hexapod_6ups.urdf")
+    text = src.read_text()
+    for table, message in (('drive_position = { drive_1 = [0.5, 1.2], leg_9 = [0.5, 1.2] }', "leg_9.*not drive"),
+                           ('drive_position = "stroke"', "valid: \"urdf\""),
+                           ('speed = 1.0', "unknown key")):
+        (tmp_path / "hexapod_6ups.toml").write_text(text.replace('drive_position = "urdf"', table))
+        with pytest.raises(RobotFormatError, match=message):
+            load_description(tmp_path / "hexapod_6ups.urdf")
+    (tmp_path / "hexapod_6ups.toml").write_text(text.replace('drive_position = "urdf"', "drive_position = [1.3, 0.45]"))
+    with pytest.raises(RobotFormatError, match=r"\[limits\].*lower bound must be below"):
+        ParallelRobot.load(tmp_path / "hexapod_6ups.urdf").state_limits
+    (tmp_path / "hexapod_6ups.toml").write_text(
+        text.replace('drive_position = "urdf"', "drive_position = { drive_2 = [0.5, 1.2] }"))
+    one = ParallelRobot.load(tmp_path / "hexapod_6ups.urdf").state_limits.drive_position
+    assert one[1].tolist() == [0.5, 1.2] and np.isinf(one[[0, 2, 3, 4, 5]]).all()
+
+
+def test_track_keeps_the_workspace_box_and_prints_the_limits(tmp_path, capsys):
+    from parallel_gpc.cli import main
+
+    box = ["--output-box", "0.3", "0.6", "0.1", "0.9", "-1", "1"]  # x ≤ 0.6 cuts the S-curve (x up to 0.65)
+    assert main(["track", "--robot", "planar_4rrr", "--forms", "nonlinear", "--N", "10", "--no-progress",
+                 "--out", str(tmp_path), *box]) == 0
+    out = capsys.readouterr().out
+    assert "limits (robot file and flags): output_box [0.3, 0.6]; [0.1, 0.9]; [-1, 1] (soft)" in out
+    res = np.load(tmp_path / "track_nonlinear.npz", allow_pickle=True)
+    assert res["pose"][:, 0].max() <= 0.6 + 1e-3 and res["reference"][:, 0].max() > 0.64
+    assert not res["fallback"].any()
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--output-box", "0.6", "0.7", "0.1", "0.9", "-1", "1"], "excludes the pose: x = 0.5"),
+    (["--output-box", "0.6", "0.3", "0.1", "0.9", "-1", "1"], "lower bound must be below"),
+    (["--output-box", "0.3", "0.6"], "expected 2 × 3 = 6"),
+    (["--velocity-limit", "1", "2"], r"one value per output \(3,\)"),
+])
+def test_track_refuses_bad_limits_in_one_line(tmp_path, capsys, flags, message):
+    from parallel_gpc.cli import main
+
+    assert main(["track", "--robot", "planar_4rrr", "--forms", "nonlinear", "--no-progress",
+                 "--out", str(tmp_path), *flags]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("parallel-gpc: error:") and "\n" not in err
+    assert __import__("re").search(message, err), err
+
+
+def test_the_planner_slows_down_to_respect_the_velocity_limit():
+    from parallel_gpc.cli.plan import default_poses
+    from parallel_gpc.gpc.plan_settings import PlanSettings
+    from parallel_gpc.gpc.planning import plan_point_to_point
+    from parallel_gpc.model import ParallelRobot
+
+    robot = ParallelRobot.load("planar_4rrr")
+    A, B = default_poses(robot)
+    speeds = {}
+    for name, lim in (("free", Limits()), ("hard", Limits(output_velocity=[0.3, 0.3, 10.0], soft=()))):
+        res = plan_point_to_point(robot, A, B, PlanSettings(Nmax=60, limits=lim, settle_steps=10), mode="b")
+        assert not any(s == "fallback" for s in res.status)
+        speeds[name] = np.abs(np.diff(res.poses, axis=0) / res.settings.Ts).max(axis=0)  # mean over each sample
+    assert speeds["free"][:2].max() > 0.6
+    # the plan is the model frozen at each state (eq. (20)): the plant follows it to its one-step error
+    assert speeds["hard"][:2].max() <= 0.3 + 1e-4
+
+
+def test_drive_rows_are_the_inverse_kinematics_to_first_order(model4):
+    """drive_position and drive_rate rows against the robot's own inverse kinematics (Newton
+    assembly) at the predicted poses, by finite differences."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    robot = model4.robot
+    H = Horizons(6)
+    X = np.concatenate([robot.home_pose, [0.05, -0.02, 0.1]])
+    Ad, Bd, cd = model4.discrete(X, TS)
+    pred = absolute_prediction(Ad, Bd, cd, model4.C, X, H)
+    lim = Limits(drive_position=[-10.0, 10.0], drive_rate=50.0).for_drives(robot.n_u, robot.n_y)
+    rows = stage_constraints(pred, lim, TS, X[:3], drives=DriveKinematics(robot))
+    p, m = robot.n_y, robot.n_u
+    poses = pred.f.reshape(-1, p)
+    q0 = np.array([robot.inverse_kinematics(y) for y in poses])
+    pos = rows.kind == "drive_position"
+    hi_rows = np.flatnonzero(pos)[: len(q0.reshape(-1))]  # the upper side comes first
+    np.testing.assert_allclose(10.0 - rows.h[hi_rows], q0.reshape(-1), atol=1e-9)  # value at v = 0
+    v = np.random.default_rng(1).normal(size=pred.G.shape[1]) * 0.5
+    q1 = np.array([robot.inverse_kinematics(y) for y in pred.outputs(v).reshape(-1, p)])
+    lin = rows.G[hi_rows] @ v
+    dq = (q1 - q0).reshape(-1)
+    assert np.abs(dq).max() > 1e-5
+    np.testing.assert_allclose(lin, dq, atol=1e-3 * np.abs(dq).max())  # first order: error O(|Δy|²)
+    rate = np.flatnonzero(rows.kind == "drive_rate")[: len(q0.reshape(-1))]  # |J (ŷ_i − ŷ_{i−1})| ≤ r Ts
+    q_prev = np.vstack([robot.inverse_kinematics(X[:3]), q1[:-1]])
+    np.testing.assert_allclose(rows.G[rate] @ v + (50.0 * TS - rows.h[rate]), (q1 - q_prev).reshape(-1),
+                               atol=2e-3 * np.abs(q1 - q_prev).max())
