@@ -125,7 +125,8 @@ def register_plan(sub) -> None:
     p.add_argument("--Qu", type=float, default=1e-6,
                    help="square-root input weight over the horizon (default 1e-6; larger values shorten the move)")
     p.add_argument("--torque-limit", type=float, default=None, metavar="NM",
-                   help="drive limit |u| ≤ NM in N·m (N for prismatic drives), enforced by the QP back end (default none)")
+                   help="drive limit |u| ≤ NM in N·m (N for prismatic drives), enforced by the QP back end (default: the "
+                        "robot file's; --limits none: none)")
     add_limit_arguments(p)
     p.add_argument("--solver", default=None,
                    help="back end: qr (default without limits), qr-first:daqp-direct (default with limits), "

@@ -35,7 +35,8 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
-    p.add_argument("--torque-limit", type=float, default=None, help="drive limit in N·m (N for prismatic drives)")
+    p.add_argument("--torque-limit", type=float, default=None,
+                   help="drive limit in N·m (N for prismatic drives); default: the robot file's (--limits none: none)")
     p.add_argument("--du-limit", type=float, default=None,
                    help="drive increment limit in N·m (N) per sample (incremental forms only)")
     add_limit_arguments(p)

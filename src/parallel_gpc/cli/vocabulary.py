@@ -52,8 +52,9 @@ def add_reference_argument(p, hold: str, extra: str = "") -> None:
 def add_limit_arguments(p) -> None:
     """The state-limit options (``--limits``, ``--output-box``, ``--velocity-limit``, ``--hard-limits``)."""
     p.add_argument("--limits", choices=["robot", "none"], default="robot",
-                   help="state limits: the robot file's [limits] table (drive strokes, workspace, velocities) or "
-                        "none (default robot; the run prints which apply)")
+                   help="the robot file's limits: its drive limit ([drives] torque_limit, unless --torque-limit "
+                        "gives one) and its [limits] table (drive strokes, workspace, velocities), or none "
+                        "(default robot; the run prints which apply)")
     p.add_argument("--output-box", type=float, nargs="+", default=None, metavar="LO HI",
                    help="workspace box: lower and upper bound of each output in turn (m, rad), e.g. for x, y, ψ: "
                         "-0.1 0.1 -0.1 0.1 -3.2 3.2 (soft unless --hard-limits)")

@@ -233,9 +233,10 @@ LIMIT_SOURCES = ("robot", "none")
 
 def run_limits(robot: ParallelRobot, source: str = "robot", base: Limits | None = None, output_box=None,
                output_velocity=None, hard: bool = False) -> Limits:
-    """The limits a command applies: ``base`` (torque, du), the robot file's state limits
-    (``source="robot"``: :attr:`~parallel_gpc.model.ParallelRobot.state_limits`; ``"none"``: none),
-    then an explicit workspace box and output velocity limit, which replace the file's.
+    """The limits a command applies: ``base`` (torque, du), the robot file's limits
+    (``source="robot"``: its drive limit ``[drives] torque_limit`` where ``base`` has no torque
+    limit, and its state limits :attr:`~parallel_gpc.model.ParallelRobot.state_limits`; ``"none"``:
+    none), then an explicit workspace box and output velocity limit, which replace the file's.
 
     Args:
         robot: the robot. source: one of :data:`LIMIT_SOURCES`.
@@ -251,6 +252,8 @@ def run_limits(robot: ParallelRobot, source: str = "robot", base: Limits | None 
     if source not in LIMIT_SOURCES:
         raise InvalidParameterError(f"limits source {source!r} is not one of {list(LIMIT_SOURCES)}")
     values = {} if base is None else dict(base.values())
+    if source == "robot" and values.get("torque") is None and robot.torque_limit is not None:
+        values["torque"] = robot.torque_limit  # the robot's own drive limit, unless one is given
     file_limits = robot.state_limits if source == "robot" else Limits()
     values.update(file_limits.values())
     options = {"soft": file_limits.soft, "penalty": file_limits.penalty}
