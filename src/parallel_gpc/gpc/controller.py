@@ -232,13 +232,13 @@ class GPCController:
         """
         H, C = self.horizons, self.model.C
         if self.form == "nonlinear":
-            return simulative_prediction(*self._presimulate(X), H)
-        Ad, Bd, cd, base = self._linear_stages(X)
+            return simulative_prediction(*self.presimulate(X), H)
+        Ad, Bd, cd, base = self.linear_stages(X)
         if self.form == "absolute":
             return absolute_prediction(Ad, Bd, cd, C, X, H)
         return incremental_prediction(Ad, Bd, cd, C, X, base, H, delayed=self.form == "incremental-delayed")
 
-    def _linear_stages(self, X: np.ndarray):
+    def linear_stages(self, X: np.ndarray):
         """(A_d, B_d, c_d + d, base) at X for the absolute and incremental forms; base is the input
         in the augmented state (incremental: u(k−1) without its null(B_d) part; delayed: u(k);
         absolute: None). Keeps the one-step model for the disturbance estimate."""
@@ -277,7 +277,7 @@ class GPCController:
         if alpha > 0.0 and self._x_next is not None:
             self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
-    def _presimulate(self, X: np.ndarray):
+    def presimulate(self, X: np.ndarray):
         """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
         C = self.model.C
         u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted

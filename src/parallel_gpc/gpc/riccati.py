@@ -168,9 +168,9 @@ class RiccatiPath:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
         keeps the controller's one-step model (and, nonlinear, the pre-simulated inputs)."""
         if self.form == "nonlinear":
-            A_seq, B_seq, _, y_sim, self._u_sim = ctl._presimulate(X)
+            A_seq, B_seq, _, y_sim, self._u_sim = ctl.presimulate(X)
             return A_seq, B_seq, None, X, None, w - y_sim[self.horizons.No:]
-        Ad, Bd, cd, base = ctl._linear_stages(X)
+        Ad, Bd, cd, base = ctl.linear_stages(X)
         return Ad, Bd, cd, X, base, w
 
     def solve(self, A, B, c, x0, u0, r) -> SolveResult:

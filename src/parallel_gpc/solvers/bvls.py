@@ -28,8 +28,8 @@ from ..errors import SolverError
 from ..validation import all_finite
 from .normal import normal_equations_factor
 from .kkt import verified
-from .problem import LeastSquaresProblem, SolveResult, _failed
-from .qr import _qr_diag_tail, qr_least_squares
+from .problem import LeastSquaresProblem, SolveResult, failed_result
+from .qr import qr_diag_tail, qr_least_squares
 
 #: a bound variable is freed only when its gradient component exceeds this fraction of the
 #: largest gradient component of the problem (max |Aᵀ b|): the KKT (dual) tolerance.
@@ -51,20 +51,20 @@ class BVLSSolver:
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
         if problem.L is not None:
-            return _failed(problem, self.name, "failed", 0, time.perf_counter() - t0,
+            return failed_result(problem, self.name, "failed", 0, time.perf_counter() - t0,
                            "bvls handles box limits lb ≤ v ≤ ub only; this problem has linear limits "
                            "lo ≤ L v ≤ hi (use daqp-direct or proxqp-direct)")
         n = problem.n
         lb = np.full(n, -np.inf) if problem.lb is None else problem.lb
         ub = np.full(n, np.inf) if problem.ub is None else problem.ub
         if (lb > ub).any():
-            return _failed(problem, self.name, "infeasible", 0, time.perf_counter() - t0,
+            return failed_result(problem, self.name, "infeasible", 0, time.perf_counter() - t0,
                            "lower bound above upper bound")
         x0 = None if warm_start is None or warm_start.shape != (n,) or not all_finite(warm_start) else warm_start
         x, iterations, ok = bvls(_subproblem_form(problem), lb, ub, x0, self.max_iter or 3 * n + 10)
         dt = time.perf_counter() - t0
         if not ok:
-            return _failed(problem, self.name, "failed", iterations, dt,
+            return failed_result(problem, self.name, "failed", iterations, dt,
                            f"bvls did not converge in {iterations} subproblem solves")
         return verified(problem, self.name, x, iterations, dt, None, "bvls: KKT met in its own iteration")
 
@@ -91,7 +91,7 @@ class _QRForm:
             bound[idx] = False
             b = b - A[:, bound] @ x[bound]
         if self.top is not None:  # the tail rows of the free columns are diag(d[idx]), their rhs 0
-            out = _qr_diag_tail(A[:self.top, idx], b[:self.top], self.d[idx])
+            out = qr_diag_tail(A[:self.top, idx], b[:self.top], self.d[idx])
             if out is not None:
                 return out[0]
         return qr_least_squares(A[:, idx], b)[0]

@@ -20,7 +20,7 @@ import daqp
 import numpy as np
 
 from .kkt import verified
-from .problem import LeastSquaresProblem, SolveResult, _failed, _scaled_qp, cumulative_block, from_cumulative
+from .problem import LeastSquaresProblem, SolveResult, failed_result, scaled_qp, cumulative_block, from_cumulative
 
 
 #: DAQP's primal feasibility tolerance (limit units; its default 1e-6 leaves violations that fail
@@ -43,7 +43,7 @@ class DAQPBackend:
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        P, q, _ = _scaled_qp(problem)
+        P, q, _ = scaled_qp(problem)
         block = cumulative_block(problem)
         parts_lo, parts_hi = [], []
         if problem.lb is not None:  # simple bounds come first
@@ -75,7 +75,7 @@ class DAQPBackend:
         dt = time.perf_counter() - t0
         if flag != 1 or not np.all(np.isfinite(x)):
             kind = "infeasible" if flag == -1 else "failed"
-            return _failed(problem, self.name, kind, int(info.get("iterations", 0)), dt, f"DAQP exit flag {flag}")
+            return failed_result(problem, self.name, kind, int(info.get("iterations", 0)), dt, f"DAQP exit flag {flag}")
         lam = np.asarray(info["lam"], dtype=float) if "lam" in info else None
         self._sense = None if lam is None else (np.abs(lam) > 0).astype(np.int32)
         if block:  # the multipliers of the box on s = M v are those of the rows lo ≤ M v ≤ hi

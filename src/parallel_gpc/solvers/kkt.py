@@ -110,7 +110,7 @@ class _Point:
         Pv += QP_REGULARIZATION * v
         self.Pv, self.q, self.v = Pv, A.T @ b, v
         self.q *= -s
-        if problem.c is not None:  # ‖A v − b‖² + cᵀv (the soft limits' exact penalty): q of problem._scaled_qp
+        if problem.c is not None:  # ‖A v − b‖² + cᵀv (the soft limits' exact penalty): q of problem.scaled_qp
             self.q += 0.5 * s * problem.c
         self.g = self.Pv + self.q
         self.norms = max(float(abs(self.Pv).max()), float(abs(self.q).max())) if v.size else 0.0

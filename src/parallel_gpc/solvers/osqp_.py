@@ -15,7 +15,7 @@ import osqp
 import scipy.sparse as sp
 
 from .kkt import verified
-from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed, quiet_stdout
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, failed_result, quiet_stdout
 
 
 class OSQPBackend(PersistentQPBackend):
@@ -55,7 +55,7 @@ class OSQPBackend(PersistentQPBackend):
         status = str(res.info.status)
         if "solved" not in status or "inaccurate" in status or not np.all(np.isfinite(res.x)):
             kind = "infeasible" if "infeasible" in status else "failed"
-            return _failed(problem, self.name, kind, int(res.info.iter), dt, f"OSQP status: {status}")
+            return failed_result(problem, self.name, kind, int(res.info.iter), dt, f"OSQP status: {status}")
         return verified(problem, self.name, res.x, int(res.info.iter), dt, res.y if C.size else None,
                         f"OSQP status: {status}")
 

@@ -283,7 +283,7 @@ class SolveResult:
 
 
 # ---------------------------------------------------------------------------- QP
-def _scaled_qp(problem: LeastSquaresProblem):
+def scaled_qp(problem: LeastSquaresProblem):
     """Hessian P = AᵀA and gradient q = −Aᵀb scaled to max(diag P) = 1, plus a tiny ridge."""
     A, b = problem.leading_rows()
     tail = None
@@ -306,12 +306,12 @@ def _scaled_qp(problem: LeastSquaresProblem):
     return P, q, scale
 
 
-def _failed(problem: LeastSquaresProblem, name: str, kind: str, iterations, dt: float, message: str) -> SolveResult:
+def failed_result(problem: LeastSquaresProblem, name: str, kind: str, iterations, dt: float, message: str) -> SolveResult:
     """A reported failure: NaN solution, infinite cost, status ``kind`` (never swallowed)."""
     return SolveResult(np.full(problem.n, np.nan), np.inf, kind, name, iterations, dt, message=message)
 
 
-def _iterations_from_extras(extras) -> int | None:
+def iterations_from_extras(extras) -> int | None:
     info = extras.get("info") if isinstance(extras, dict) else None
     for attr in ("iter", "iterations"):
         if info is not None and hasattr(info, attr):
@@ -376,7 +376,7 @@ class PersistentQPBackend:
     def dense_qp(problem: LeastSquaresProblem):
         """(P, q, C, lo, hi, shape): scaled Hessian and gradient, stacked limits ``lo ≤ C v ≤ hi``
         and the (P, C) shapes that identify the problem structure."""
-        P, q, _ = _scaled_qp(problem)
+        P, q, _ = scaled_qp(problem)
         C, lo, hi = _stacked_constraints(problem)
         return P, q, C, lo, hi, (P.shape, C.shape)
 

@@ -13,7 +13,7 @@ import numpy as np
 import proxsuite
 
 from .kkt import verified
-from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, _failed
+from .problem import LeastSquaresProblem, PersistentQPBackend, SolveResult, failed_result
 
 
 class ProxQPBackend(PersistentQPBackend):
@@ -46,7 +46,7 @@ class ProxQPBackend(PersistentQPBackend):
         if "SOLVED" not in status.upper() or "CLOSEST" in status.upper() or not np.all(np.isfinite(v)):
             kind = "infeasible" if "INFEASIBLE" in status.upper() else "failed"
             self._qp = None  # its warm start is now meaningless: set up afresh next time
-            return _failed(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
+            return failed_result(problem, self.name, kind, int(info.iter), dt, f"ProxQP status: {status}")
         duals = np.asarray(self._qp.results.z).copy() if C.size else None
         return verified(problem, self.name, v, int(info.iter), dt, duals, f"ProxQP status: {status}")
 

@@ -14,7 +14,7 @@ import qpsolvers
 
 from ..errors import SolverNotFoundError
 from .kkt import verified
-from .problem import LeastSquaresProblem, SolveResult, _failed, _iterations_from_extras, _scaled_qp, quiet_stdout
+from .problem import LeastSquaresProblem, SolveResult, failed_result, iterations_from_extras, scaled_qp, quiet_stdout
 
 
 def installed_qp_solvers() -> list[str]:
@@ -62,7 +62,7 @@ class QpsolversBackend:
 
     def solve(self, problem: LeastSquaresProblem, warm_start: np.ndarray | None = None) -> SolveResult:
         t0 = time.perf_counter()
-        P, q, _ = _scaled_qp(problem)
+        P, q, _ = scaled_qp(problem)
         G = h = None
         if problem.L is not None:
             G = np.vstack([problem.L, -problem.L])
@@ -80,11 +80,11 @@ class QpsolversBackend:
             with quiet_stdout():  # OSQP prints "Polishing not needed ..." on stdout even when quiet
                 sol = qpsolvers.solve_problem(qp, solver=self.solver, initvals=warm_start, **settings)
         except Exception as exc:  # a solver's own exception becomes a reported failure
-            return _failed(problem, self.name, "failed", None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
+            return failed_result(problem, self.name, "failed", None, time.perf_counter() - t0, f"{type(exc).__name__}: {exc}")
         dt = time.perf_counter() - t0
         if not sol.found or sol.x is None or not np.all(np.isfinite(sol.x)):
-            return _failed(problem, self.name, "infeasible", None, dt, f"{self.solver} found no solution")
-        return verified(problem, self.name, sol.x, _iterations_from_extras(sol.extras), dt, _duals(problem, sol),
+            return failed_result(problem, self.name, "infeasible", None, dt, f"{self.solver} found no solution")
+        return verified(problem, self.name, sol.x, iterations_from_extras(sol.extras), dt, _duals(problem, sol),
                         f"{self.solver}: found")
 
 

@@ -108,7 +108,7 @@ def _qr_lapack(A: np.ndarray, b: np.ndarray):
 TPQRT_BLOCK = 8
 
 
-def _qr_diag_tail(G: np.ndarray, b: np.ndarray, d: np.ndarray):
+def qr_diag_tail(G: np.ndarray, b: np.ndarray, d: np.ndarray):
     """min ‖G v − b‖² + ‖diag(d) v‖², d > 0, by Householder QR of [diag(d); G] that keeps the
     diagonal block's structure (LAPACK ``tpqrt``/``tpmqrt``: about half the work of a dense QR
     of the stacked matrix); None when the triangular factor is not well conditioned.
@@ -209,7 +209,7 @@ class QRSolver:
             # A = [A_top; diag(d)], d > 0: full column rank, one minimizer (no minimum-norm
             # transform needed); QR of the triangular-pentagonal pair [diag(d); A_top]
             top = A.shape[0] - A.shape[1]
-            out = _qr_diag_tail(A[:top], b[:top], problem.tail_diag)
+            out = qr_diag_tail(A[:top], b[:top], problem.tail_diag)
         if out is not None:
             v, cost, rank = out
         elif problem.min_norm_of is None:
