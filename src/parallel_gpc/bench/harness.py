@@ -39,8 +39,7 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ..gpc import GPCController, Horizons, Prediction, condense, SCurve, path_for, Weights, build_problem
-from ..model.discretization import cached_identity
-from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
+from ..model import cached_identity, ReducedModel, ConstrainedPlant, ParallelRobot
 from ..limits import Limits
 from .report import evaluate_targets, machine_info, markdown_report, ratios
 from ..plots import plot_results, save_figure

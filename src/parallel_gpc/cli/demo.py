@@ -29,11 +29,9 @@ from .vocabulary import add_forms_argument, selected_forms
 
 def cmd_demo(args) -> int:
     from ..errors import InvalidParameterError
-    from ..model.native_update import forward_status
-    from ..model.robot import ParallelRobot
+    from ..model import forward_status, ParallelRobot
     from ..studies import comparison_table, deadbeat_check, run_comparison, run_tracking, sensors_table
-    from ..plots import save_figure
-    from ..plots import plot_comparison, plot_paths
+    from ..plots import save_figure, plot_comparison, plot_paths
 
     settings = settings_from_args(args)
     if args.encoders != "none":  # refused before parts 1 and 2 run

@@ -35,7 +35,7 @@ def robot_info(robot) -> list[tuple[str, str]]:
     from ..model import ReducedModel
     from .plan import default_poses
 
-    from ..model.native import native_status
+    from ..model import native_status
 
     q = robot.q_home
     model = ReducedModel(robot)

@@ -67,7 +67,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
 def settings_from_args(args):
     """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments, with the state limits
     of ``--limits`` and the explicit ones."""
-    from ..model.robot import ParallelRobot
+    from ..model import ParallelRobot
     from ..studies import TrackingSettings
 
     settings = TrackingSettings.from_flat(
@@ -85,10 +85,9 @@ def settings_from_args(args):
 
 def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     """Run, print the metrics table, write plots and result files; returns the exit code."""
-    from ..model.robot import ParallelRobot
+    from ..model import ParallelRobot
     from ..results import saturation_flags
-    from ..plots import save_figure
-    from ..plots import plot_paths, plot_time_histories
+    from ..plots import save_figure, plot_paths, plot_time_histories
     from ..studies import metrics_table, run_tracking
     from .view import show_trajectory
 

@@ -18,6 +18,7 @@ The closed loop over such a plant is :func:`parallel_gpc.studies.loop.run_loop`.
 from .._lazy import lazy_exports
 
 _PUBLIC = {
+    "MujocoPlant": "mujoco_plant",
     "Sensors": "sensors", "Measurement": "sensors", "SENSOR_KINDS": "sensors",
     "StateEstimator": "kalman",
     "MachinePlant": "plant", "SensedPlant": "plant", "check_measurement": "plant",

@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidParameterError, NonFiniteError, RobotFormatError
-from ..model.mjcf_export import export_mjcf
-from ..model.plant import saturation_limit
+from ..model import export_mjcf, saturation_limit
 from ..validation import finite_vector, positive
 from .sensors import Measurement, Sensors, encoder_readings
 

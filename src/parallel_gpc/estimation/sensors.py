@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..model.forward import drive_resolution
+from ..model import drive_resolution
 from ..validation import number
 
 #: what a :class:`Sensors` may measure

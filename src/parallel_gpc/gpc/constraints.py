@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
-from ..solvers.problem import LeastSquaresProblem, SolveResult, with_inequalities
+from ..solvers import LeastSquaresProblem, SolveResult, with_inequalities
 from .prediction import Prediction
 
 __all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "constrain", "report", "split",

@@ -28,8 +28,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InfeasibleLimitsError, InvalidParameterError, NonFiniteError, ShapeError
-from ..solvers import QRSolver, SolveResult, make_solver
-from ..solvers.problem import from_cumulative
+from ..solvers import QRSolver, SolveResult, make_solver, from_cumulative
 from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
 from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrain, hard_violation, report, split,

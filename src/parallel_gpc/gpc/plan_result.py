@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import AssemblyError, SingularPoseError
-from ..model.output_space import OutputSpace
+from ..model import OutputSpace
 from ..results import save_result
 from .references import SampledTrajectory, pose_error_norms
 from .plan_settings import INTERRUPTED, MODE_LABELS, PlanSettings

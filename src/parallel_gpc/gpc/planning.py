@@ -46,8 +46,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from tqdm import tqdm
 
-from ..model.discretization import discretize_zoh
-from ..model.dynamics import ReducedModel
+from ..model import discretize_zoh, ReducedModel
 from ..errors import InvalidParameterError, SolverError
 from ..results import robot_reference
 from .prediction import Horizons, Prediction, absolute_prediction
@@ -166,7 +165,7 @@ def deadbeat_inputs(model, X, target, settings: PlanSettings) -> np.ndarray:
 
 # ---------------------------------------------------------------------------- planner
 def _default_plant(robot, X0, settings: PlanSettings):
-    from ..model.plant import ConstrainedPlant
+    from ..model import ConstrainedPlant
 
     return ConstrainedPlant(robot, X0, Ts=settings.Ts, substeps=settings.plant_substeps, torque_limit=robot.limits)
 

@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model.discretization import cached_identity
+from ..model import cached_identity
 from ..errors import InvalidParameterError, ShapeError
 
 

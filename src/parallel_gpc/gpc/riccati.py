@@ -27,10 +27,8 @@ import time
 import numpy as np
 
 from ..errors import InvalidParameterError, SolverError
-from ..model.native import compiled_part
-from ..solvers import SolveResult
-from ..solvers.riccati import lq_tracking
-from ..model.discretization import cached_identity
+from ..model import compiled_part, cached_identity
+from ..solvers import SolveResult, lq_tracking
 from .prediction import Horizons, Prediction, cumulative_map
 
 __all__ = ["RiccatiPath", "RiccatiSolver", "stage_models", "FORM_CODES"]

@@ -22,7 +22,7 @@ import numpy as np
 
 from ..errors import (AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError,
                       UnreachablePoseError)
-from ..model.dynamics import ReducedModel
+from ..model import ReducedModel
 from ..validation import positive
 from .protocol import condition_number
 from .references import (PATH_KINDS, Helix, Hold, Reference, SampledTrajectory, SCurve,

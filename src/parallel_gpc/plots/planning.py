@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
 from ..gpc import PlanResult
-from ..model.skeleton import output_world_axes, skeleton
+from ..model import output_world_axes, skeleton
 from .paths import draw_path, path_axes
 
 #: Colors of the modes (and of anything else the figures draw per mode).

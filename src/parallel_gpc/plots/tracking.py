@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..gpc.references import pose_error_norms
+from ..gpc import pose_error_norms
 from .paths import draw_path, path_axes
 from ..studies import SimulationResult
 

@@ -40,7 +40,10 @@ from .problem import (
     LeastSquaresProblem,
     MinNormOf,
     SolveResult,
+    from_cumulative,
+    with_inequalities,
 )
+from .riccati import lq_tracking
 from .kkt import KKT_TOL, KKTResiduals, KKTTolerance, kkt_residuals, verified
 from .bvls import BVLSSolver
 from .normal import NormalEquationsSolver
@@ -48,6 +51,7 @@ from .qr import QRSolver, qr_least_squares
 from .qr_first import QRFirst
 
 __all__ = [
+    "from_cumulative", "with_inequalities", "lq_tracking",
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
     "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
     "available_solvers", "installed_qp_solvers", "make_solver",

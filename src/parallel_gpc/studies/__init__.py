@@ -14,6 +14,7 @@ are :mod:`parallel_gpc.plots`; the benchmark harness is :mod:`parallel_gpc.bench
 from .._lazy import lazy_exports
 
 _PUBLIC = {
+    "DIVERGENCE_ERRORS": "simulation", "FLAT_KEYS": "tracking",
     "SimulationResult": "simulation", "simulate": "simulation", "null_space_component": "simulation",
     "null_space_components": "simulation",
     "TrackingSettings": "tracking", "run_tracking": "tracking", "metrics_table": "tracking",

@@ -21,8 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..gpc import FORMS, GPCController, Weights, Horizons
-from ..gpc.references import pose_error_norms
+from ..gpc import FORMS, GPCController, Weights, Horizons, pose_error_norms
 from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
 from ..validation import check_allocation, positive
 from .simulation import SimulationResult

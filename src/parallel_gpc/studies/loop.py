@@ -16,12 +16,10 @@ import time
 import numpy as np
 
 from ..errors import InvalidParameterError, ShapeError
-from ..estimation.kalman import StateEstimator
-from ..estimation.plant import check_measurement
-from ..estimation.sensors import Sensors
+from ..estimation import StateEstimator, check_measurement, Sensors
 from ..results import robot_reference
 from ..validation import check_allocation, positive
-from ..gpc.plan_settings import INTERRUPTED
+from ..gpc import INTERRUPTED
 from .simulation import DIVERGENCE_ERRORS, SimulationResult, divergence_message, null_space_components
 
 

@@ -19,13 +19,18 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from ..gpc.controller import GPCController
-from ..gpc.plan_settings import INTERRUPTED
-from ..gpc.references import Reference, pose_error_norms
-from ..errors import AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError, SolverError, writing
-from ..gpc.robot_references import check_reference
+from ..gpc import GPCController, check_reference, INTERRUPTED, Reference, pose_error_norms
+from ..errors import (
+    AssemblyError,
+    InvalidParameterError,
+    NonFiniteError,
+    ShapeError,
+    SingularPoseError,
+    SolverError,
+    writing,
+)
 from ..limits import Limits
-from ..model.output_space import OutputSpace
+from ..model import OutputSpace
 from ..results import robot_reference, save_result, saturation_flags
 from ..validation import check_allocation, check_sample_time, finite_vector, positive
 

@@ -13,20 +13,25 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 
 from ..errors import InvalidParameterError, ShapeError
-from ..gpc.controller import FORMS, GPCController
-from ..gpc.criterion import Weights
-from ..gpc.prediction import Horizons
-from ..gpc.references import Reference, SampledTrajectory
-from ..gpc.robot_references import REFERENCE_KINDS, check_reference, check_times, is_file_reference, reference_for
-from ..gpc.settings import GPCSettings, unit_interval
+from ..gpc import (
+    FORMS,
+    GPCController,
+    Weights,
+    Horizons,
+    Reference,
+    SampledTrajectory,
+    REFERENCE_KINDS,
+    check_reference,
+    check_times,
+    is_file_reference,
+    reference_for,
+    GPCSettings,
+    unit_interval,
+)
 from ..limits import Limits, as_limits, symmetric_limit
-from ..model.dynamics import ReducedModel
-from ..model.plant import ConstrainedPlant
-from ..model.robot import DEFAULT_ROBOT, ParallelRobot
+from ..model import ReducedModel, ConstrainedPlant, DEFAULT_ROBOT, ParallelRobot
 from ..validation import finite_vector, positive
-from ..estimation.kalman import StateEstimator
-from ..estimation.plant import SensedPlant
-from ..estimation.sensors import Sensors
+from ..estimation import StateEstimator, SensedPlant, Sensors
 from .loop import run_loop
 from .simulation import SimulationResult, simulate
 
@@ -356,7 +361,7 @@ def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GP
         ctrl_settings = replace(ctrl_settings, disturbance_gain=0.0)
     ctrl = GPCController(ReducedModel(robot), ctrl_settings)
     if settings.plant == "mujoco":
-        from ..estimation.mujoco_plant import MujocoPlant
+        from ..estimation import MujocoPlant
 
         plant = MujocoPlant(plant_robot, Ts, X0, sensors, torque_limit=settings.plant_limit(robot), seed=settings.seed)
     else:

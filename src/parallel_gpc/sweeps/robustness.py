@@ -28,13 +28,22 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 
-from ..gpc import FORMS, GPCController, Horizons, Hold, Reference, Weights
-from ..gpc.settings import PAPER_FORMS
+from ..gpc import (
+    FORMS,
+    GPCController,
+    Horizons,
+    Hold,
+    Reference,
+    Weights,
+    PAPER_FORMS,
+    check_reference,
+    check_times,
+    reference_for,
+)
 from ..model import ReducedModel, DEFAULT_ROBOT, ParallelRobot
 from .. import errors
 from ..errors import InvalidParameterError, writing
-from ..studies.simulation import DIVERGENCE_ERRORS
-from ..gpc.robot_references import check_reference, check_times, reference_for
+from ..studies import DIVERGENCE_ERRORS
 from ..results import json_default
 from .spec import SETTLE_FRACTION, Cell
 from .runner import check_scheduler, run_sweep

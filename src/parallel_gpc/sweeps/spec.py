@@ -41,9 +41,9 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..gpc.references import pose_error_norms
-from ..model.file_checks import read_text_bounded
-from ..studies.tracking import FLAT_KEYS, TrackingSettings
+from ..gpc import pose_error_norms
+from ..model import read_text_bounded
+from ..studies import FLAT_KEYS, TrackingSettings
 
 #: Fraction of the run at its end over which the steady-state error is averaged.
 SETTLE_FRACTION = 0.1
@@ -401,7 +401,7 @@ def run_cell(cell: Cell) -> dict:
     holds ``"ExceptionType: message"``, metrics are NaN). With ``cell.trajectory`` the record also
     holds ``"trajectory"``: the SimulationResult.
     """
-    from ..gpc.robot_references import is_file_reference
+    from ..gpc import is_file_reference
     from ..model import ParallelRobot
     from ..studies import run_tracking
 

@@ -26,8 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import InvalidParameterError, RobotFormatError, ShapeError
-from ..model import ParallelRobot
-from ..model.skeleton import output_joint_ids, output_world_axes, skeleton
+from ..model import ParallelRobot, output_joint_ids, output_world_axes, skeleton
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
 from ._meshcat import Animation, meshcat, mg
