@@ -11,7 +11,7 @@ from .description import (DEFAULT_ROBOT, SIDECAR_KEYS, Closure, RobotDescription
 _PUBLIC = {
     "read_text_bounded": "file_checks", "drive_resolution": "forward", "export_mjcf": "mjcf_export",
     "compiled_part": "native", "native_status": "native", "forward_status": "native_update",
-    "saturation_limit": "plant", "output_joint_ids": "skeleton", "output_world_axes": "skeleton", "skeleton": "skeleton",
+    "saturation_limit": "plant", "output_joint_ids": "skeleton", "output_world_axes": "skeleton", "stick_figure": "skeleton",
     "cached_identity": "discretization",
     "TaskOutput": "outputs", "ClosureKinematics": "robot", "ParallelRobot": "robot",
     "ReducedModel": "dynamics", "ReducedTerms": "dynamics", "discretize_zoh": "discretization",

@@ -74,7 +74,7 @@ def output_joint_ids(robot) -> set[int]:
     return {model.getJointId(n) for n in robot.description.output_joints} if robot.task_output is None else set()
 
 
-def skeleton(robot, q=None) -> Skeleton:
+def stick_figure(robot, q=None) -> Skeleton:
     """The stick figure of ``robot`` at configuration q (nq,) (default: home)."""
     model = robot.model
     q = robot.q_home if q is None else finite_vector("configuration q", q, model.nq)

@@ -19,7 +19,7 @@ from matplotlib.figure import Figure
 from matplotlib.patches import Polygon
 
 from ..gpc import PlanResult
-from ..model import output_world_axes, skeleton
+from ..model import output_world_axes, stick_figure
 from .paths import draw_path, path_axes
 
 #: Colors of the modes (and of anything else the figures draw per mode).
@@ -44,7 +44,7 @@ def robot_outline(robot, q: np.ndarray, axes=(0, 1)) -> tuple[list[np.ndarray], 
         (legs, platform): a list of (n_i, len(axes)) polylines and the (n, len(axes)) platform
         polygon (m).
     """
-    sk = skeleton(robot, q)
+    sk = stick_figure(robot, q)
     axes = list(axes)
     return [leg[:, axes] for leg in sk.legs], sk.platform[:, axes]
 

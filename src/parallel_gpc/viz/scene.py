@@ -26,7 +26,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import InvalidParameterError, RobotFormatError, ShapeError
-from ..model import ParallelRobot, output_joint_ids, output_world_axes, skeleton
+from ..model import ParallelRobot, output_joint_ids, output_world_axes, stick_figure
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
 from ._meshcat import Animation, meshcat, mg
@@ -88,7 +88,7 @@ def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
     the output point's at home, lifted by :data:`PATH_Z` along z (above a planar robot's plane)."""
     world = output_world_axes(robot)
     columns = [world.index(k) if k in world else None for k in range(3)]
-    fill = np.array(skeleton(robot).output, dtype=float)
+    fill = np.array(stick_figure(robot).output, dtype=float)
     fill[2] += PATH_Z
     return columns, fill
 
@@ -201,7 +201,7 @@ class StickFigure:
             joint = model.frames[f].parentJoint
             if joint in bare:
                 self.rods.append((joint, None, f))
-        points = skeleton(robot).joints
+        points = stick_figure(robot).joints
         span = float(np.ptp(points, axis=0).max()) if len(points) > 1 else 0.3
         self.radius = float(np.clip(0.012 * span, 0.003, 0.015))
         self._robot = robot
