@@ -61,10 +61,11 @@ def test_view_opens_demo_files(tmp_path, monkeypatch):
                      *QUICK_TRACK]) == 0
     for form in ("absolute", "nonlinear"):  # one labelled animation per form
         assert (tmp_path / "demo" / f"demo_{form}.html").stat().st_size > 500_000
-    # each form with the disturbance estimate off and on
-    results = view_every_result(tmp_path / "demo", tmp_path / "elsewhere", monkeypatch, expected=4)
-    assert sorted((r.meta["form"], r.meta["disturbance_gain"]) for r in results) == [
-        ("absolute", 0.0), ("absolute", 0.5), ("nonlinear", 0.0), ("nonlinear", 0.5)]
+    # each form with the disturbance estimate off and on, and with encoders only (part 3)
+    results = view_every_result(tmp_path / "demo", tmp_path / "elsewhere", monkeypatch, expected=6)
+    assert sorted((r.meta["form"], r.meta.get("sensors", "full"), r.meta["disturbance_gain"]) for r in results) == [
+        ("absolute", "encoders", 0.0), ("absolute", "full", 0.0), ("absolute", "full", 0.5),
+        ("nonlinear", "encoders", 0.0), ("nonlinear", "full", 0.0), ("nonlinear", "full", 0.5)]
     assert all(r.robot == "planar_4rrr" for r in results)
 
 
