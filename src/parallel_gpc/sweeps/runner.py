@@ -271,6 +271,7 @@ def cluster_pays(work_left: float, n_workers: int) -> bool:
 
 
 def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -283,7 +284,10 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
             raise InvalidParameterError(f"cannot reach the Dask scheduler {scheduler!r}: "
                                         f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
     else:
-        with _sigint_ignored():  # the workers inherit it: Ctrl-C reaches this process only
+        # the workers inherit SIGINT ignored (Ctrl-C reaches this process only) and the config: no
+        # statistical profiler sampling the running cell's stack every 10 ms (it feeds a dashboard
+        # nobody watches)
+        with _sigint_ignored(), dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
         client, own_client = Client(cluster), True
