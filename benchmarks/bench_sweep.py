@@ -119,12 +119,13 @@ def main() -> int:
         for key, label in (("own", f"run_sweep(workers={w}): own LocalCluster, start-up and shutdown included"),
                            ("running", f"running LocalCluster({w})")):
             ratios = [s / d for s, d in zip(t["serial"], t[key])]
-            rows.append((f"  {label}", f"{statistics.median(t[key]):.2f} s: speed-up {statistics.median(ratios):.2f}× "
-                                       f"({min(ratios):.2f}–{max(ratios):.2f}×), {statistics.median(ratios) / w:.2f} "
-                                       "per worker"))
+            speedup = statistics.median(ratios)
+            rows.append((f"  {label}", f"{statistics.median(t[key]):.2f} s: speed-up {speedup:.2f}× "
+                                       f"({min(ratios):.2f}–{max(ratios):.2f}×), {speedup / w:.2f} per worker"))
     rows += [
         ("cluster start-up (incl. imports on the workers)", f"{t_start:.2f} s"),
-        (f"64 no-op cells through run_sweep (median of {REPEATS})", f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
+        (f"64 no-op cells through run_sweep (median of {REPEATS})",
+         f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
         (f"64 no-op client.submit + as_completed (median of {REPEATS})",
          f"{t_bare:.3f} s = {1e3 * t_bare / 64:.2f} ms per task"),
         ("every path gives the serial metrics", str(same)),
