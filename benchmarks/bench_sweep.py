@@ -1,12 +1,16 @@
 #!/usr/bin/env python3
-"""Benchmark a 64-cell sweep: serial in-process vs a LocalCluster, and the per-task overhead.
+"""Benchmark sweeps: serial in-process vs Dask (a LocalCluster), 64 cells of ~0.2 s and 16 of ~0.1 s.
 
-Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--duration 0.5] [--out DIR]``
-(PYTHONPATH=src or the package installed). Runs the same 64 cells (2 forms × 4 horizons × 4 input
-weights × 2 plant mass scales, S-curve over 80 % of the run, Ts = 5 ms) serially (``workers=0``) and on a
-``LocalCluster`` of ``--workers`` processes, checks that both give the same metrics, then times 64
-no-op tasks through the same runner and through bare ``client.submit``. Prints a Markdown table
-and writes it to DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
+Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR]``
+(PYTHONPATH=src or the package installed). Two sweeps on planar_3rrr (S-curve over 80 % of the run,
+Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass scales, 0.5 s runs,
+~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
+round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (its own
+LocalCluster: start-up, in-process probe and shutdown included) and on a running LocalCluster
+(``scheduler=client``, workers warmed up), interleaved, and checks that every path gives the
+serial metrics. Then it times 64 no-op cells through ``run_sweep`` and 64 bare ``client.submit``
+tasks. Prints a Markdown table (medians over the rounds, the speed-ups' range) and writes it to
+DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
 """
 
 import os
@@ -16,6 +20,7 @@ os.environ["OPENBLAS_NUM_THREADS"] = "1"  # one BLAS thread per process: the wor
 import argparse  # noqa: E402
 import logging  # noqa: E402
 import platform  # noqa: E402
+import statistics  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
@@ -27,13 +32,24 @@ from parallel_gpc.sweeps import run_sweep  # noqa: E402
 REPEATS = 5
 
 
-def spec_64(duration: float):
+def spec_64(duration: float = 0.5):
+    """64 cells of ~0.2 s (0.5 s runs at Ts = 5 ms)."""
     return load_spec({
         "sweep": {"name": "bench64"},
         "base": {"robot": "planar_3rrr", "reference": "s-curve", "s_curve_duration": 0.8 * duration,
                  "duration": duration, "Ts": 0.005},
         "grid": {"form": ["absolute", "nonlinear"], "N": [4, 8, 12, 16], "Qu": [1e-5, 3e-5, 1e-4, 3e-4],
                  "mass_scale": [0.9, 1.1]},
+    })
+
+
+def spec_16(duration: float = 0.25):
+    """16 cells of ~0.1 s (0.25 s runs at Ts = 5 ms)."""
+    return load_spec({
+        "sweep": {"name": "bench16"},
+        "base": {"robot": "planar_3rrr", "reference": "s-curve", "s_curve_duration": 0.8 * duration,
+                 "duration": duration, "Ts": 0.005},
+        "grid": {"form": ["absolute", "nonlinear"], "N": [4, 8, 12, 16], "Qu": [1e-5, 1e-4]},
     })
 
 
@@ -54,49 +70,67 @@ def timed(fn):
     return time.perf_counter() - start, out
 
 
+def metrics(result):
+    frame = result.frame()
+    return frame[[c for c in frame.columns if c not in TIMING_COLUMNS]]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--workers", type=int, default=os.cpu_count())
-    parser.add_argument("--duration", type=float, default=0.5, help="length of each run in s (default 0.5)")
+    parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     args = parser.parse_args()
     from dask.distributed import Client, LocalCluster, as_completed
 
-    spec = spec_64(args.duration)
-    cells = spec.cells()
+    sweeps = {"64 cells of ~0.2 s": spec_64().cells(), "16 cells of ~0.1 s": spec_16().cells()}
     load_before = os.getloadavg()
-    t_serial, serial = timed(lambda: run_sweep(cells, workers=0, progress=False))
-    t_cold, cold = timed(lambda: run_sweep(cells, workers=args.workers, progress=False))
     t_start, (cluster, client) = timed(lambda: _start(LocalCluster, Client, args.workers))
+    times = {name: {"serial": [], "own": [], "running": []} for name in sweeps}
+    cell_means, same, failed = {}, True, {}
     try:
-        t_warm, warm = timed(lambda: run_sweep(cells, scheduler=client, progress=False))
+        run_sweep(spec_16().cells()[:4], scheduler=client, progress=False)  # warm-up: first run of each worker
+        for _ in range(args.rounds):
+            for name, cells in sweeps.items():
+                t, serial = timed(lambda: run_sweep(cells, workers=0, progress=False))
+                times[name]["serial"].append(t)
+                t, own = timed(lambda: run_sweep(cells, workers=args.workers, progress=False))
+                times[name]["own"].append(t)
+                t, running = timed(lambda: run_sweep(cells, scheduler=client, progress=False))
+                times[name]["running"].append(t)
+                same &= metrics(own).equals(metrics(serial)) and metrics(running).equals(metrics(serial))
+                cell_means[name] = serial.frame()["wall_time_s"].mean()
+                failed[name] = serial.failed
+        cells = sweeps["64 cells of ~0.2 s"]
         run_sweep(cells[:4], scheduler=client, progress=False, func=noop)  # warm-up: functions shipped once
-        t_noop = sorted(timed(lambda: run_sweep(cells, scheduler=client, progress=False, func=noop))[0]
-                        for _ in range(REPEATS))[REPEATS // 2]
-        t_bare = sorted(timed(lambda: [f.result() for f in as_completed(
-            [client.submit(_bare, i, pure=False) for i in range(len(cells))])])[0] for _ in range(REPEATS))[REPEATS // 2]
+        t_noop = statistics.median(timed(lambda: run_sweep(cells, scheduler=client, progress=False, func=noop))[0]
+                                   for _ in range(REPEATS))
+        t_bare = statistics.median(timed(lambda: [f.result() for f in as_completed(
+            [client.submit(_bare, i, pure=False) for i in range(len(cells))])])[0] for _ in range(REPEATS))
     finally:
         client.close()
         cluster.close()
-    keep = [c for c in serial.frame().columns if c not in TIMING_COLUMNS]
-    same = all(r.frame()[keep].equals(serial.frame()[keep]) for r in (cold, warm))
-    n = len(cells)
-    cell_time = serial.frame()["wall_time_s"]
-    rows = [
-        ("cells", f"{n} ({serial.failed} failed)"),
-        ("mean / max time of one cell, serial", f"{cell_time.mean():.3f} s / {cell_time.max():.3f} s"),
-        ("serial (workers=0)", f"{t_serial:.2f} s"),
-        (f"LocalCluster({args.workers}), incl. start-up and shutdown", f"{t_cold:.2f} s  (speed-up {t_serial / t_cold:.2f}×)"),
-        (f"LocalCluster({args.workers}), running cluster", f"{t_warm:.2f} s  (speed-up {t_serial / t_warm:.2f}×)"),
-        ("cells running at once in the running cluster (Σ cell wall time / elapsed)",
-         f"{warm.frame()['wall_time_s'].sum() / t_warm:.2f}"),
-        ("cluster start-up", f"{t_start:.2f} s"),
-        (f"{n} no-op cells through run_sweep (median of {REPEATS})", f"{t_noop:.3f} s = {1e3 * t_noop / n:.2f} ms per task"),
-        (f"{n} no-op client.submit + as_completed (median of {REPEATS})",
-         f"{t_bare:.3f} s = {1e3 * t_bare / n:.2f} ms per task"),
-        ("serial and cluster metrics identical", str(same)),
+    w = args.workers
+    rows = []
+    for name, t in times.items():
+        serial = statistics.median(t["serial"])
+        rows.append((f"{name} ({failed[name]} failed; mean cell {cell_means[name]:.3f} s serial)", ""))
+        rows.append(("  serial (workers=0)", f"{serial:.2f} s"))
+        for key, label in (("own", f"run_sweep(workers={w}): own LocalCluster, start-up and shutdown included"),
+                           ("running", f"running LocalCluster({w})")):
+            ratios = [s / d for s, d in zip(t["serial"], t[key])]
+            speedup = statistics.median(ratios)
+            rows.append((f"  {label}", f"{statistics.median(t[key]):.2f} s: speed-up {speedup:.2f}× "
+                                       f"({min(ratios):.2f}–{max(ratios):.2f}×), {speedup / w:.2f} per worker"))
+    rows += [
+        ("cluster start-up (incl. imports on the workers)", f"{t_start:.2f} s"),
+        (f"64 no-op cells through run_sweep (median of {REPEATS})",
+         f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
+        (f"64 no-op client.submit + as_completed (median of {REPEATS})",
+         f"{t_bare:.3f} s = {1e3 * t_bare / 64:.2f} ms per task"),
+        ("every path gives the serial metrics", str(same)),
         ("machine", f"{platform.machine()}, {os.cpu_count()} cores, 1-min load avg {load_before[0]:.2f} before, "
-                    f"{os.getloadavg()[0]:.2f} after"),
+                    f"{os.getloadavg()[0]:.2f} after; {args.rounds} interleaved rounds"),
     ]
     width = max(len(r[0]) for r in rows)
     lines = [f"| {'quantity':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]

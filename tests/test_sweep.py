@@ -23,6 +23,8 @@ from parallel_gpc.sweeps import (
 )
 from parallel_gpc.sweeps import run_sweep
 from parallel_gpc.sweeps import SweepStore, load_results
+from parallel_gpc.sweeps import batch_size, cluster_pays, failed_record, run_cells
+from parallel_gpc.sweeps import runner
 
 ROBOTS = Path(__file__).resolve().parents[1] / "urdf"
 #: Tiny runs: hold of the home pose offset by the default hold pose, 0.1 s at Ts = 5 ms, N = 4.
@@ -234,6 +236,66 @@ def test_ctrl_c_keeps_finished_cells_and_a_rerun_resumes(tmp_path):
     assert list(load_results(tmp_path)["N"]) == [3, 4, 5, 6]
 
 
+def _pid_cell(cell):
+    """A blank ok record whose error field holds the pid of the process that ran the cell."""
+    record = failed_record(cell, str(os.getpid()))
+    record["status"] = "ok"
+    return record
+
+
+def _raise_on_odd(cell):
+    if cell.index % 2:
+        raise ValueError(f"odd   cell\n{cell.index}")
+    return _pid_cell(cell)
+
+
+@pytest.mark.parametrize("n_workers", [1, 2, 3, 8])
+@pytest.mark.parametrize("per_cell", [None, 0.0, 1e-4, 0.03, 0.1, 0.2, 0.9, 5.0])
+def test_batch_size_holds_a_second_of_work_and_shrinks_at_the_tail(n_workers, per_cell):
+    for left in (1, 2, 3, 7, 12, 60, 64, 1000, 10**6):
+        size = batch_size(left, n_workers, per_cell)
+        assert 1 <= size <= left
+        if per_cell is None:
+            assert size == 1
+            continue
+        if size > 1:  # never more than a batch's worth of work, nor more than the share of the cells left
+            assert size * per_cell <= runner.BATCH_SECONDS
+            assert size <= math.ceil(left / (runner.IN_FLIGHT * n_workers))
+        # and as large as both bounds allow
+        assert size + 1 > min(runner.BATCH_SECONDS / max(per_cell, 1e-6), left / (runner.IN_FLIGHT * n_workers))
+
+
+def test_sixty_four_cells_go_in_batches_of_a_second():
+    assert runner.BATCH_SECONDS == 1.0 and runner.IN_FLIGHT == 2
+    assert batch_size(60, 2, 0.1) == 10 and batch_size(60, 2, 0.2) == 5
+    assert batch_size(12, 2, 0.1) == 3  # the tail: 12 cells left for 2 workers × 2 queued tasks
+
+
+def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch):
+    start = runner.LOCAL_START_SECONDS
+    assert not cluster_pays(15 * 0.1, 2)  # 16 cells of 0.1 s, one run in the probe
+    assert cluster_pays(60 * 0.2, 2)  # 64 cells of 0.2 s
+    assert not cluster_pays(1.99 * start, 2) and cluster_pays(2.01 * start, 2)  # 2 workers save half the work
+    assert not cluster_pays(1.49 * start, 3) and cluster_pays(1.51 * start, 3)
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a LocalCluster was started for a sweep too small to repay it")
+
+    import dask.distributed
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", no_cluster)
+    result = run_sweep(tiny_spec(N=[3, 4, 5]).cells(), workers=2, progress=False, func=_pid_cell)
+    assert result.ran == 3 and {r["error"] for r in result.records} == {str(os.getpid())}
+
+
+def test_run_cells_keeps_the_order_and_records_a_cell_function_that_raises():
+    cells = tiny_spec(N=[3, 4, 5]).cells()
+    records, seconds = run_cells(cells, _raise_on_odd)
+    assert [r["key"] for r in records] == [c.key for c in cells] and seconds >= 0
+    assert [r["status"] for r in records] == ["ok", "failed", "ok"]
+    assert records[1]["error"] == "ValueError: odd cell 1" and math.isnan(records[1][METRIC_COLUMNS[0]])
+
+
 def test_an_interrupted_run_stops_the_sweep_and_is_not_journalled(tmp_path):
     cells = tiny_spec(N=[3, 4, 5]).cells()
 
@@ -333,7 +395,7 @@ def test_local_cluster_gives_the_serial_metrics_records_failures_and_keeps_cells
     """A real LocalCluster (2 processes): bit-identical metrics to the serial path, the failed cell
     recorded the same way, Ctrl-C in the progress loop keeps the finished cells; the robustness
     preset gives the serial table."""
-    from dask.distributed import Client, LocalCluster
+    from dask.distributed import Client, LocalCluster, get_task_stream
 
     from parallel_gpc.sweeps import robustness_study
 
@@ -345,7 +407,9 @@ def test_local_cluster_gives_the_serial_metrics_records_failures_and_keeps_cells
                  duration=0.1, reference="hold")
     with LocalCluster(n_workers=2, processes=True, threads_per_worker=1, host="127.0.0.1",
                       dashboard_address="127.0.0.1:0") as cluster, Client(cluster) as client:
-        parallel = run_sweep(spec, scheduler=client, progress=False)
+        with get_task_stream(client) as stream:
+            parallel = run_sweep(spec, scheduler=client, progress=False)
+        batched = run_sweep(spec, scheduler=client, progress=False, func=_pid_cell)
         seen = []
 
         def interrupt_at_third(record):
@@ -366,6 +430,9 @@ def test_local_cluster_gives_the_serial_metrics_records_failures_and_keeps_cells
         workers = set(client.run(os.getpid).values())
     assert len(workers) == 2 and os.getpid() not in workers  # really other processes
     assert parallel.ran == 12 and parallel.failed == 6
+    # single cells until a batch has returned, then batches (at most the share of the cells left)
+    assert 4 <= len(stream.data) < 12
+    assert batched.ran == 12 and {int(r["error"]) for r in batched.records} <= workers
     frame = parallel.frame()
     assert deterministic(frame).equals(deterministic(serial))  # bit-identical, NaN where failed
     assert (frame["status"] == "failed").sum() == 6

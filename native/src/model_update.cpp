@@ -12,16 +12,9 @@
 #include <stdexcept>
 
 #include "bindings.hpp"
-#include "pinocchio/serialization.hpp"
+#include "model_io.hpp"
 
 namespace pgpc {
-namespace {
-pinocchio::Model load_model(const std::string &text) {
-  pinocchio::Model model;
-  model.loadFromString(text);
-  return model;
-}
-}  // namespace
 
 ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::object handler)
     : cfg(std::move(cfg_)), kin(load_model(model_str), cfg), handler_(std::move(handler)) {

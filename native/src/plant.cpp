@@ -6,6 +6,7 @@
 // nq ≠ nv, q + h v otherwise), the same order of operations. The projection onto the closures after
 // the sample stays in Python (it is the robot's assembly, compiled elsewhere).
 #include "bindings.hpp"
+#include "model_io.hpp"
 
 #include <cmath>
 #include <string>
@@ -24,7 +25,6 @@
 #include <pinocchio/algorithm/joint-configuration.hpp>
 #include <pinocchio/multibody/data.hpp>
 #include <pinocchio/multibody/model.hpp>
-#include <pinocchio/serialization.hpp>
 #include <pinocchio/spatial.hpp>
 
 namespace pgpc {
@@ -70,8 +70,7 @@ class Plant {
         const std::vector<Eigen::Matrix4d> &placements_a, const std::vector<int> &joints_b,
         const std::vector<Eigen::Matrix4d> &placements_b, double kp, double kd, double accuracy, double mu,
         int max_iter)
-      : prox_(accuracy, mu, max_iter) {
-    model_.loadFromString(model_text);
+      : model_(load_model(model_text)), prox_(accuracy, mu, max_iter) {
     data_ = pin::Data(model_);
     flat_ = model_.nq == model_.nv;
     const std::size_t n = dims.size();

@@ -8,12 +8,23 @@
 * ``scheduler="tcp://HOST:PORT"`` (or a ``distributed.Client``) — an existing cluster whose
   workers can import ``parallel_gpc`` and read the robot files.
 
+Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: the
+first tasks are single cells; then a batch holds about :data:`BATCH_SECONDS` of work at the mean
+cell time measured so far, and never more than its share of the cells left (:data:`IN_FLIGHT`
+batches queued per worker), so the workers finish together. A cell of 0.1 s thus pays the
+scheduler's 5–25 ms per task once per ten cells, not once per cell. The records of a batch are
+journalled as it returns. A sweep on a local cluster it starts itself first runs cells in this
+process for :data:`PROBE_SECONDS`: if the work left (cells left × mean cell time) would not pay
+for starting the cluster (:data:`LOCAL_START_SECONDS` per the time the extra workers save) the
+rest runs here too, so a small sweep is never slower than a serial one.
+
 Spawned local workers get this process's ``sys.path`` (multiprocessing "spawn"), so a package
 found through ``PYTHONPATH`` or an editable install is found by the workers too. A progress bar
-shows done / failed / ETA as cells finish (``distributed.as_completed``). A cell that fails is a
+shows done / failed / ETA as cells (batches) finish (``distributed.as_completed``). A cell that fails is a
 record with its error, a cell whose closed loop diverged a record of the part run; the sweep
 goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
-journalled in the store), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the
+journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
+of work), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the
 sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
 a second sweep into the same folder is refused.
 """
@@ -22,11 +33,15 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import math
 import os
 import re
 import signal
+import statistics
 import threading
+import time
 import uuid
+from collections import deque
 from dataclasses import dataclass, field
 
 from tqdm import tqdm
@@ -37,6 +52,17 @@ from .store import SweepStore, records_frame
 
 #: A Dask scheduler address: ``PROTOCOL://HOST:PORT`` (e.g. ``tcp://10.0.0.5:8786``).
 SCHEDULER_ADDRESS = re.compile(r"^[a-z][a-z0-9+.-]*://\S+:\d{1,5}$")
+#: Work per Dask task, s: a batch holds this much at the mean cell time measured so far (the
+#: scheduler's 5–25 ms per task is ≤ 2.5 % of it; Ctrl-C loses at most this much per worker).
+BATCH_SECONDS = 1.0
+#: Batches queued per worker (one running, the next ready: no idle gap between two).
+IN_FLIGHT = 2
+#: In-process run time before deciding whether a local cluster pays for itself, s.
+PROBE_SECONDS = 0.5
+#: Time to start a local cluster and import the package on its workers, s (measured 1.1–2 s on
+#: 2 cores): a cluster is started only if the time its extra workers save repays it
+#: (:func:`cluster_pays`).
+LOCAL_START_SECONDS = 2.0
 #: Loggers of Dask quieted while a sweep's cluster shuts down (cancelled tasks, closing comms).
 _DASK_LOGGERS = ("distributed", "tornado", "asyncio")
 
@@ -155,8 +181,11 @@ def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_fail
         try:
             if workers == 0 and scheduler is None:
                 _run_serial(todo, func, collector)
-            elif todo:
-                _run_dask(todo, func, collector, workers, scheduler)
+            else:
+                if scheduler is None:  # our own cluster: worth starting only for enough work
+                    todo = _run_probe(todo, func, collector, workers or os.cpu_count() or 1)
+                if todo and not result.interrupted:
+                    _run_dask(todo, func, collector, workers, scheduler)
         except KeyboardInterrupt:
             result.interrupted = True
     by_key = {**done, **{r["key"]: r for r in collector.fresh}}
@@ -175,7 +204,74 @@ def _run_serial(cells, func, collector: _Collector) -> None:
             return
 
 
+def _run_probe(cells, func, collector: _Collector, n_workers: int) -> list:
+    """Run cells in this process for :data:`PROBE_SECONDS`; the cells left for a local cluster of
+    ``n_workers``: none if the work left would not repay the cluster's start-up
+    (:func:`cluster_pays`), then all run here. One worker is a cluster asked for as such
+    (its worker process isolates a crash): no probe."""
+    if n_workers < 2:
+        return cells
+    queue, start = deque(cells), time.perf_counter()
+    while queue and not collector.result.interrupted:
+        elapsed = time.perf_counter() - start
+        done = len(cells) - len(queue)
+        if done and elapsed >= PROBE_SECONDS and cluster_pays(elapsed / done * len(queue), n_workers):
+            return list(queue)
+        collector.add(_run_one(func, queue.popleft()))
+    return []
+
+
+def run_cells(cells, func=run_cell) -> tuple[list, float]:
+    """Run a batch of cells one after the other (one Dask task of :func:`run_sweep`).
+
+    Args:
+        cells: the :class:`~parallel_gpc.sweeps.spec.Cell` s of the batch.
+        func: the cell function.
+
+    Returns:
+        (records in cell order, wall time of the batch in s). A cell whose ``func`` raised is a
+        failed record (the batch goes on).
+    """
+    start = time.perf_counter()
+    records = [_run_one(func, cell) for cell in cells]
+    return records, time.perf_counter() - start
+
+
+def _run_one(func, cell) -> dict:
+    try:
+        return func(cell)
+    except Exception as exc:  # noqa: BLE001 - a cell function that raises (run_cell records its own errors)
+        return failed_record(cell, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
+
+
+def batch_size(left: int, n_workers: int, per_cell: float | None) -> int:
+    """Cells in the next Dask task of a sweep (guided self-scheduling).
+
+    Args:
+        left: cells not yet submitted (≥ 1).
+        n_workers: worker threads of the cluster (≥ 1).
+        per_cell: measured time of one cell in s, or None before any batch returned.
+
+    Returns:
+        1 before any measurement; else :data:`BATCH_SECONDS` of work, at most the cells left /
+        (:data:`IN_FLIGHT` · workers) so that the last batches shrink and the workers finish
+        together; at least 1.
+    """
+    if per_cell is None:
+        return 1
+    share = math.ceil(left / (IN_FLIGHT * n_workers))
+    return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
+
+
+def cluster_pays(work_left: float, n_workers: int) -> bool:
+    """Whether starting a local cluster of ``n_workers`` (≥ 2) for ``work_left`` seconds of serial
+    work saves time: the work the extra workers take over, ``work_left · (1 − 1/n)``, must exceed
+    :data:`LOCAL_START_SECONDS`."""
+    return work_left * (1 - 1 / n_workers) > LOCAL_START_SECONDS
+
+
 def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -188,22 +284,42 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
             raise InvalidParameterError(f"cannot reach the Dask scheduler {scheduler!r}: "
                                         f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
     else:
-        with _sigint_ignored():  # the workers inherit it: Ctrl-C reaches this process only
+        # the workers inherit SIGINT ignored (Ctrl-C reaches this process only) and the config: no
+        # statistical profiler sampling the running cell's stack every 10 ms (it feeds a dashboard
+        # nobody watches)
+        with _sigint_ignored(), dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
         client, own_client = Client(cluster), True
     token = uuid.uuid4().hex[:8]
     futures = {}
+    queue = deque(cells)
     try:
-        for cell in cells:
-            futures[client.submit(func, cell, key=f"sweep-{token}-{cell.key}", pure=False)] = cell
-        for future in as_completed(futures):
-            cell = futures.pop(future)
+        n_workers = max(1, sum(client.nthreads().values()))
+        per_cell, finished = [], as_completed()  # per batch: its time per cell (s)
+
+        def submit() -> None:
+            # the median over batches: a worker's first task (it imports the package) counts once
+            size = batch_size(len(queue), n_workers, statistics.median(per_cell) if per_cell else None)
+            batch = [queue.popleft() for _ in range(min(len(queue), size))]
+            future = client.submit(run_cells, batch, func, key=f"sweep-{token}-{batch[0].key}-{len(batch)}",
+                                   pure=False)
+            futures[future] = batch
+            finished.add(future)
+
+        while queue and len(futures) < IN_FLIGHT * n_workers:
+            submit()
+        for future in finished:
+            batch = futures.pop(future)
             try:
-                record = future.result()
+                records, seconds = future.result()
+                per_cell.append(seconds / len(batch))
             except Exception as exc:  # noqa: BLE001 - the task itself failed (worker lost, unpicklable …)
-                record = failed_record(cell, f"{type(exc).__name__}: {exc}")
-            collector.add(record)
+                records = [failed_record(cell, f"{type(exc).__name__}: {exc}") for cell in batch]
+            while queue and len(futures) < IN_FLIGHT * n_workers:  # keep the workers busy, then journal
+                submit()
+            for record in records:
+                collector.add(record)
     finally:
         with _quiet(*_DASK_LOGGERS):
             if futures and cluster is None:  # a shared cluster: free its workers (ours is closed)
