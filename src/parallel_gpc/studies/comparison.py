@@ -139,6 +139,16 @@ def run_comparison(settings: TrackingSettings = DEMO_SETTINGS, forms=FORMS, gain
     return runs
 
 
+def _error_cells(res: SimulationResult, m: dict) -> str:
+    """RMS / max / steady-state position error (mm) and RMS orientation error (mrad) as table cells."""
+    return (f"{1e3 * m['rms_position_error_m']:9.3g} {1e3 * m['max_position_error_m']:9.3g} "
+            f"{1e3 * steady_state_error(res):9.2e} {1e3 * m['rms_orientation_error_rad']:9.3g}")
+
+
+def _outcome(res: SimulationResult) -> str:
+    return "" if res.outcome == "ok" else f"  ({res.outcome})"
+
+
 def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
     """Text table: form, estimator gain α, RMS / max / steady-state position error (mm), RMS
     orientation error (mrad), peak torque and internal-force measure (N·m), mean step time (ms)."""
@@ -149,11 +159,8 @@ def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
     lines = [head, units]
     for (form, gain), res in runs.items():
         m = res.metrics()
-        lines.append(f"{form:<20} {gain:6.2f} {1e3 * m['rms_position_error_m']:9.3g} "
-                     f"{1e3 * m['max_position_error_m']:9.3g} {1e3 * steady_state_error(res):9.2e} "
-                     f"{1e3 * m['rms_orientation_error_rad']:9.3g} {m['peak_torque_Nm']:7.2f} "
-                     f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}"
-                     + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
+        lines.append(f"{form:<20} {gain:6.2f} {_error_cells(res, m)} {m['peak_torque_Nm']:7.2f} "
+                     f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}" + _outcome(res))
     return "\n".join(lines)
 
 
@@ -171,9 +178,7 @@ def sensors_table(full: dict[str, SimulationResult], encoders: dict[str, Simulat
         for label, res in ((f"full, α {ref.meta.get('disturbance_gain', float('nan')):g}", ref),
                            (str(enc.meta.get("sensors_spec", "encoders")), enc)):
             m = res.metrics()
-            lines.append(f"{form:<20} {label:<16} {1e3 * m['rms_position_error_m']:9.3g} "
-                         f"{1e3 * m['max_position_error_m']:9.3g} {1e3 * steady_state_error(res):9.2e} "
-                         f"{1e3 * m['rms_orientation_error_rad']:9.3g} {1e3 * m['mean_step_time_s']:7.2f} "
+            lines.append(f"{form:<20} {label:<16} {_error_cells(res, m)} {1e3 * m['mean_step_time_s']:7.2f} "
                          f"{1e3 * float(np.max(res.step_time)):7.2f} {int(np.sum(res.step_time > Ts)):5d}"
-                         + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
+                         + _outcome(res))
     return "\n".join(lines)
