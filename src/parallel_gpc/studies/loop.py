@@ -17,10 +17,9 @@ import numpy as np
 
 from ..errors import InvalidParameterError, ShapeError
 from ..estimation import StateEstimator, check_measurement, Sensors
-from ..results import robot_reference
 from ..validation import check_allocation, positive
 from ..gpc import INTERRUPTED
-from .simulation import DIVERGENCE_ERRORS, SimulationResult, divergence_message, null_space_components
+from .simulation import DIVERGENCE_ERRORS, SimulationResult, divergence_message, null_space_components, run_meta
 
 
 def _window(reference, t: float, Ts: float, N: int) -> np.ndarray:
@@ -156,10 +155,7 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
         if rec["B_r"] else np.zeros(done)
     estimate_error = (np.asarray(rec["estimate"][:done]) - np.asarray(rec["truth"][:done])) \
         if truth is not None and estimator is not None else None
-    info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form,
-                 "solver": controller.solver, "N": controller.horizons.N, "No": controller.horizons.No,
-                 "Nu": controller.horizons.Nu, "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
-                 "limits": controller.limits.to_dict(), "sensors": sensors.kind,
+    info_meta = {**run_meta(controller, robot), "sensors": sensors.kind,
                  "computation_delay": bool(computation_delay), "deadline_overruns": int(overruns), **(meta or {})}
     return SimulationResult(**arrays, meta=info_meta, stopped=stopped, outputs=robot.output_space,
                             limits=controller.limits, estimate_error=estimate_error, overruns=int(overruns))

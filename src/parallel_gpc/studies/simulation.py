@@ -228,6 +228,14 @@ def divergence_message(exc: Exception, t: float, rec: dict, K: int, angular) -> 
             f"t = {rec['t'][-1]:.6g} s (cause: {type(exc).__name__}: {' '.join(str(exc).split())})")
 
 
+def run_meta(controller: GPCController, robot) -> dict:
+    """The settings a closed-loop result records: robot, form, solver, horizons, weights, Ts, limits."""
+    H, W = controller.horizons, controller.weights
+    return {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form,
+            "solver": controller.solver, "N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu,
+            "Ts": controller.Ts, "limits": controller.limits.to_dict()}
+
+
 def simulate(controller: GPCController, plant, reference: Reference, duration: float,
              noise_std=None, seed: int = 0, progress: bool = True, meta: dict | None = None,
              check: bool = True) -> SimulationResult:
@@ -347,9 +355,6 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     arrays = {k: v[:done] for k, v in arrays.items()}
     arrays["internal_force"] = null_space_components(np.asarray(B_rs[:done]), arrays["u"]) if B_rs \
         else np.zeros(done)
-    info_meta = {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form, "solver": controller.solver,
-                 "N": controller.horizons.N, "No": controller.horizons.No, "Nu": controller.horizons.Nu,
-                 "Qy": controller.weights.Qy, "Qu": controller.weights.Qu, "Ts": Ts,
-                 "limits": controller.limits.to_dict(), **(meta or {})}
+    info_meta = {**run_meta(controller, robot), **(meta or {})}
     return SimulationResult(**arrays, meta=info_meta, stopped=stopped, outputs=robot.output_space,
                             limits=controller.limits)
