@@ -5,7 +5,8 @@
 * :mod:`.tracking` — :func:`run_tracking` builds the controller's model and the plant from
   :class:`TrackingSettings` and runs every form; :func:`metrics_table`;
 * :mod:`.comparison` — the paper's Fig. 2 comparison measured (``parallel-gpc demo``), and the
-  encoder-only loop beside the full-state one (:func:`sensors_table`).
+  encoder-only loop beside the full-state one (:func:`sensors_table`);
+* :mod:`.tables` — the one column mechanism of those text tables (:func:`text_table`, :class:`Column`).
 
 Many closed loops as tasks (sweeps, the robustness study) are :mod:`parallel_gpc.sweeps`; figures
 are :mod:`parallel_gpc.plots`; the benchmark harness is :mod:`parallel_gpc.bench`.
@@ -24,6 +25,7 @@ _PUBLIC = {
     "deadbeat_check": "comparison", "DeadbeatCheck": "comparison", "steady_state_error": "comparison",
     "one_step_deadbeat_input": "comparison",
     "run_loop": "loop",
+    "Column": "tables", "text_table": "tables",
 }
 
 __all__ = list(_PUBLIC)

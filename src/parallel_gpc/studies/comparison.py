@@ -25,6 +25,7 @@ from ..gpc import FORMS, GPCController, Weights, Horizons, pose_error_norms
 from ..model import ReducedModel, ConstrainedPlant, ParallelRobot
 from ..validation import check_allocation, positive
 from .simulation import SimulationResult
+from .tables import FORM_WIDTH, effort_columns, error_columns, output_space_of, step_time_columns, text_table
 from .tracking import TrackingSettings, run_tracking
 
 #: The comparison's default setting: Ts = 10 ms and N = 30 (a 0.3 s horizon), Qu = 1e-3 so
@@ -139,46 +140,28 @@ def run_comparison(settings: TrackingSettings = DEMO_SETTINGS, forms=FORMS, gain
     return runs
 
 
-def _error_cells(res: SimulationResult, m: dict) -> str:
-    """RMS / max / steady-state position error (mm) and RMS orientation error (mrad) as table cells."""
-    return (f"{1e3 * m['rms_position_error_m']:9.3g} {1e3 * m['max_position_error_m']:9.3g} "
-            f"{1e3 * steady_state_error(res):9.2e} {1e3 * m['rms_orientation_error_rad']:9.3g}")
-
-
-def _outcome(res: SimulationResult) -> str:
-    return "" if res.outcome == "ok" else f"  ({res.outcome})"
-
-
 def comparison_table(runs: dict[tuple[str, float], SimulationResult]) -> str:
-    """Text table: form, estimator gain α, RMS / max / steady-state position error (mm), RMS
-    orientation error (mrad), peak torque and internal-force measure (N·m), mean step time (ms)."""
-    head = (f"{'form':<20} {'est. α':>6} {'rms pos':>9} {'max pos':>9} {'steady':>9} {'rms ψ':>9} {'peak u':>7} "
-            f"{'int. f':>8} {'step':>7}")
-    units = (f"{'':<20} {'':>6} {'[mm]':>9} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[N·m]':>7} {'[N·m]':>8} "
-             f"{'[ms]':>7}")
-    lines = [head, units]
-    for (form, gain), res in runs.items():
-        m = res.metrics()
-        lines.append(f"{form:<20} {gain:6.2f} {_error_cells(res, m)} {m['peak_torque_Nm']:7.2f} "
-                     f"{m['max_internal_force_Nm']:8.1e} {1e3 * m['mean_step_time_s']:7.2f}" + _outcome(res))
-    return "\n".join(lines)
+    """Text table: form, estimator gain α, RMS / max / steady-state position error (mm), RMS and
+    max orientation error (mrad, with angular outputs), peak drive effort and internal-force
+    measure (the robot's drive unit), mean and p99 step time (ms)."""
+    space = output_space_of(runs.values())
+    cols = [*error_columns(space, steady_state_error, ".3g"), *effort_columns(space), *step_time_columns()]
+    return text_table([("form", FORM_WIDTH), ("est. α", 6)], cols,
+                      (((form, f"{gain:6.2f}"), res) for (form, gain), res in runs.items()))
 
 
 def sensors_table(full: dict[str, SimulationResult], encoders: dict[str, SimulationResult], Ts: float) -> str:
     """Text table: each form of ``encoders`` with full-state feedback (its run in ``full``) and
     with drive encoders only (quantized readings → forward kinematics → Kalman filter), one row
-    each: RMS / max / steady-state position error (mm), RMS orientation error (mrad), mean and
-    largest step time (ms, estimation included) and the steps longer than ``Ts`` (s)."""
-    head = (f"{'form':<20} {'sensors':<16} {'rms pos':>9} {'max pos':>9} {'steady':>9} {'rms ψ':>9} {'step':>7} "
-            f"{'max':>7} {'> Ts':>5}")
-    units = f"{'':<20} {'':<16} {'[mm]':>9} {'[mm]':>9} {'[mm]':>9} {'[mrad]':>9} {'[ms]':>7} {'[ms]':>7} {'':>5}"
-    lines = [head, units]
-    for form, enc in encoders.items():
-        ref = full[form]
-        for label, res in ((f"full, α {ref.meta.get('disturbance_gain', float('nan')):g}", ref),
-                           (str(enc.meta.get("sensors_spec", "encoders")), enc)):
-            m = res.metrics()
-            lines.append(f"{form:<20} {label:<16} {_error_cells(res, m)} {1e3 * m['mean_step_time_s']:7.2f} "
-                         f"{1e3 * float(np.max(res.step_time)):7.2f} {int(np.sum(res.step_time > Ts)):5d}"
-                         + _outcome(res))
-    return "\n".join(lines)
+    each: RMS / max / steady-state position error (mm), orientation errors (mrad, with angular
+    outputs), mean and largest step time (ms, estimation included) and the steps longer than
+    ``Ts`` (s)."""
+    def rows():
+        for form, enc in encoders.items():
+            ref = full[form]
+            yield (form, f"full, α {ref.meta.get('disturbance_gain', float('nan')):g}"), ref
+            yield (form, str(enc.meta.get("sensors_spec", "encoders"))), enc
+
+    space = output_space_of(encoders.values())
+    cols = [*error_columns(space, steady_state_error, ".3g"), *step_time_columns(Ts)]
+    return text_table([("form", FORM_WIDTH), ("sensors", 16)], cols, rows())

@@ -34,6 +34,8 @@ from ..validation import finite_vector, positive
 from ..estimation import StateEstimator, SensedPlant, Sensors
 from .loop import run_loop
 from .simulation import SimulationResult, simulate
+from .tables import (FORM_WIDTH, Column, effort_columns, error_columns, gain_column, output_space_of,
+                     step_time_columns, text_table)
 
 #: plants a tracking run can drive
 PLANTS = ("own", "mujoco")
@@ -376,36 +378,19 @@ def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GP
 
 def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None = None) -> str:
     """A text table of the tracking metrics by form (position error in mm, orientation error in
-    mrad — the norm of the angular output errors, ψ on a planar robot —, drive effort in
-    ``drive_unit``, step times in ms), with the gain α of the disturbance estimate each form ran with.
+    mrad — the norm of the angular output errors, ψ on a planar robot; only with angular
+    outputs —, drive effort in ``drive_unit``, step times in ms), with the gain α of the
+    disturbance estimate each form ran with and, for runs with an estimator, its RMS error.
 
     Args:
         results: simulation results by form name.
         drive_unit: unit of the drive efforts u ("N·m" for revolute drives, "N" for prismatic
             ones); None: the results' own (``SimulationResult.outputs``, N·m without).
     """
-    first = next(iter(results.values()), None)
-    space = None if first is None else first.output_space
-    unit = f"[{drive_unit or (space.drive_unit if space else 'N·m')}]"
-    angles = space is None or space.has_angles
-    cols = [("est. α", 6, "", lambda res, m: f"{res.meta.get('disturbance_gain', float('nan')):6.2f}"),
-            ("rms pos", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_position_error_m']:9.2e}"),
-            ("max pos", 9, "[mm]", lambda res, m: f"{1e3 * m['max_position_error_m']:9.2e}")]
-    if angles:
-        cols += [("rms ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['rms_orientation_error_rad']:9.2e}"),
-                 ("max ang", 9, "[mrad]", lambda res, m: f"{1e3 * m['max_orientation_error_rad']:9.2e}")]
-    cols += [("peak u", 8, unit, lambda res, m: f"{m['peak_torque_Nm']:8.2f}"),
-             ("int. f", 8, unit, lambda res, m: f"{m['max_internal_force_Nm']:8.1e}"),
-             ("mean step", 9, "[ms]", lambda res, m: f"{1e3 * m['mean_step_time_s']:9.3f}"),
-             ("p99 step", 9, "[ms]", lambda res, m: f"{1e3 * m['p99_step_time_s']:9.3f}"),
-             ("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}")]
+    space = output_space_of(results.values())
+    cols = [gain_column(), *error_columns(space), *effort_columns(space, drive_unit), *step_time_columns(),
+            Column("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}")]
     if any(res.estimate_error is not None for res in results.values()):
-        cols.append(("est. err", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_estimate_position_error_m']:9.2e}"
-                     if "rms_estimate_position_error_m" in m else f"{'—':>9}"))
-    lines = [f"{'form':<20} " + " ".join(f"{name:>{w}}" for name, w, _, _ in cols),
-             f"{'':<20} " + " ".join(f"{u:>{w}}" for _, w, u, _ in cols)]
-    for form, res in results.items():
-        m = res.metrics()
-        lines.append(f"{form:<20} " + " ".join(get(res, m) for _, _, _, get in cols)
-                     + ("" if res.outcome == "ok" else f"  ({res.outcome})"))
-    return "\n".join(lines)
+        cols.append(Column("est. err", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_estimate_position_error_m']:9.2e}"
+                           if "rms_estimate_position_error_m" in m else f"{'—':>9}"))
+    return text_table([("form", FORM_WIDTH)], cols, (((form,), res) for form, res in results.items()))
