@@ -275,3 +275,23 @@ def test_a_branch_joint_stretched_at_home_is_refused(tmp_path):
     with pytest.raises(RobotFormatError, match=r"branch joint 'platform_psi' is at q = 0 rad at the home pose.*"
                                                r"cannot tell the assembly branch"):
         ParallelRobot.load(_write(tmp_path, URDF, toml))
+
+
+def test_the_cli_package_path_flag_resolves_package_meshes(published, tmp_path, capsys, monkeypatch):
+    """``--package-path DIR`` (repeatable) resolves a ``package://`` mesh that resolves nowhere
+    without it; a folder that does not exist is one error line, exit 2."""
+    monkeypatch.setenv(PACKAGE_PATH_ENV, "")  # the flag sets it for the process: restored after the test
+    uni, _, packages = published
+    path = str(uni.description.urdf_path)
+    uri = "package://tools/meshes/leg.stl"
+    assert cli.main(["info", path]) == 0
+    meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
+    assert uri in meshes and "2 resolved, 7 unresolved" in meshes, meshes
+    assert cli.main(["info", path, "--package-path", str(tmp_path), "--package-path", str(packages)]) == 0
+    meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
+    assert uri not in meshes and "3 resolved, 6 unresolved" in meshes, meshes
+    assert os.environ.get(PACKAGE_PATH_ENV, "").split(os.pathsep)[:2] == [str(tmp_path.resolve()),
+                                                                         str(packages.resolve())]
+    assert cli.main(["info", path, "--package-path", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert "nowhere" in err and "not an existing folder" in err and len(err.strip().splitlines()) == 1

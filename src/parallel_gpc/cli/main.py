@@ -25,6 +25,7 @@ from .robustness import register_robustness
 from .sweep import register_sweep
 from .track import register_track
 from .view import register_view
+from .vocabulary import apply_package_path
 
 #: Sub-command registrars, in help order.
 REGISTRARS = [register_robots, register_info, register_demo, register_track, register_plan, register_robustness,
@@ -63,6 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 1
+        apply_package_path(getattr(args, "package_path", None) or [])
         return int(args.func(args) or 0)
     except (ParallelGPCError, OSError) as exc:  # bad input or an unreadable/unwritable file
         if args is not None and args.debug:
