@@ -59,6 +59,9 @@ def robot_info(robot) -> list[tuple[str, str]]:
         ("model update", model.native_reason),
     ]
     d = robot.description
+    if d.locked_joints:
+        rows.append(("locked joints (idle motions)", ", ".join(
+            f"{name} = {d.q_guess[name]:.6g}" for name in d.locked_joints)))
     if d.mesh_files or d.unresolved_meshes:
         missing = f" (unresolved: {', '.join(d.unresolved_meshes)}; see --package-path)" if d.unresolved_meshes else ""
         rows.append(("meshes", f"{len(d.mesh_files)} resolved, {len(d.unresolved_meshes)} unresolved{missing}"))
