@@ -98,7 +98,8 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def _idle_locks(self, description: RobotDescription) -> list[tuple[str, float]]:
         """The joints to lock, one per idle motion (:mod:`.idle`), after a construction that failed
         as under-actuated or unassembled; empty when locking is off or nothing is idle."""
-        if description.idle_spins != "lock" or description.locked_joints or not hasattr(self, "n_z"):
+        if description.idle_spins != "lock" or description.locked_joints or not hasattr(self, "n_z") \
+                or getattr(self, "_stalled", None):  # the closures do not assemble: nothing to lock
             return []
         q = getattr(self, "q_home", None)
         if q is None:
@@ -110,7 +111,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
 
     def _construct(self, description: RobotDescription, mass_scale: float, gravity) -> None:
         """Build the model of ``description``, assemble home and check it (the constructor's work)."""
-        self.q_home = None
+        self.q_home = self._stalled = None
         mesh_files, unresolved = check_model_file(description)
         model, closures = quiet_build(build_model, description)
         check_model_inertias(model, description.urdf_path)
@@ -216,18 +217,19 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         its branch.
         """
         q0, guessed = self._start_configuration(description)
-        drawn = False
+        drawn, stalled = False, None
         if not guessed:
             try:
                 q0, drawn = self._project_closures(q0), True
-            except UnreachablePoseError:
-                pass
+            except UnreachablePoseError as exc:
+                stalled = str(exc)  # the globalized solve's finding, said if home cannot be assembled either
+        self._stalled = stalled
         if self.task_output is not None:  # the closures alone first: the output's reference is there
             if not drawn:
                 try:
                     q0 = self._newton(None, q0)
                 except UnreachablePoseError as exc:
-                    raise AssemblyError(self._assembly_failure(q0, exc, None)) from None
+                    raise AssemblyError(stalled or self._assembly_failure(q0, exc, None)) from None
             pin.framesForwardKinematics(self.model, self.data, q0)
             self.task_output.set_reference(self.data)
             y0 = self.task_output.value(self.data)
@@ -243,7 +245,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         try:
             self.q_home = self._newton(self.home_pose, q0)
         except UnreachablePoseError as exc:
-            raise AssemblyError(self._assembly_failure(q0, exc, self.home_pose)) from None
+            raise AssemblyError(stalled or self._assembly_failure(q0, exc, self.home_pose)) from None
 
     def _start_configuration(self, description: RobotDescription) -> tuple[np.ndarray, bool]:
         """((nq,) the drawn configuration with the ``home.q_guess`` values, whether any was given)."""
