@@ -126,8 +126,13 @@ def test_a_motion_that_moves_a_drive_is_not_idle_and_stays_refused(tmp_path):
 
 
 def test_info_lists_the_locked_joints(tmp_path, capsys):
+    """``info`` says what was locked: a row of its table and the notice as one line on stderr."""
     path = coaxial_fivebar(tmp_path)
-    with pytest.warns(ParallelGPCWarning):
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", ParallelGPCWarning)
         assert cli.main(["info", str(path)]) == 0
-    line = next(x for x in capsys.readouterr().out.splitlines() if x.strip().startswith("locked joints"))
-    assert "s2" in line
+    out, err = capsys.readouterr()
+    line = next(x for x in out.splitlines() if x.strip().startswith("locked joints"))
+    assert "s2 = " in line
+    notes = [x for x in err.splitlines() if "idle motion(s)" in x]
+    assert len(notes) == 1 and notes[0].startswith("parallel-gpc: note: robot 'fivebar': 1 idle motion(s)"), err

@@ -142,8 +142,7 @@ class AssemblyMixin:
                           for p, r, c in sorted(parts, key=lambda t: -max(t[0], t[1]))[:4] if max(p, r) > 1e-9)
         rank = int(np.linalg.matrix_rank(self.closure_log_error(q).jacobian, tol=None))
         raise UnreachablePoseError(
-            f"the closures of {self.name!r} cannot be assembled: Newton from the configuration the file is drawn "
-            f"at stalls ({newton_error}), and a globalized least-squares solve (Levenberg–Marquardt over all "
+            f"the closures of {self.name!r} cannot be assembled: {newton_error}, and a globalized least-squares solve (Levenberg–Marquardt over all "
             f"{model.nv} joint coordinates from the drawing and {GLOBAL_STARTS - 1} perturbed starts) gets no "
             f"closer than a residual of {err:.3g} (m, rad; Jacobian rank {rank} of {rows} rows there), missing "
             f"{worst}: no configuration near the drawing closes the {len(self.closure_frames)} closure(s) together, so "
@@ -165,8 +164,8 @@ class AssemblyMixin:
             r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s.size and s[0] > 0 else 0
             step = Vt[:r].T @ ((U[:, :r].T @ ck.residual) / s[:r])
             q = self.integrate(q, -step * min(1.0, 0.5 / max(float(np.max(np.abs(step))), 1e-300)))  # damped
-        raise UnreachablePoseError(f"the closures of {self.name!r} cannot be assembled near the configuration the "
-                                   f"file is drawn at: residual {err:.3g} after {max_iter} Newton steps")
+        raise UnreachablePoseError(f"Newton from the configuration the file is drawn at stalls at a residual of "
+                                   f"{err:.3g} after {max_iter} steps")
 
     def assemble_warm(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
                       near: bool = False, tol: float = 1e-12, max_iter: int = 8):
