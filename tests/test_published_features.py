@@ -275,3 +275,51 @@ def test_a_branch_joint_stretched_at_home_is_refused(tmp_path):
     with pytest.raises(RobotFormatError, match=r"branch joint 'platform_psi' is at q = 0 rad at the home pose.*"
                                                r"cannot tell the assembly branch"):
         ParallelRobot.load(_write(tmp_path, URDF, toml))
+
+
+def test_the_cli_package_path_flag_resolves_package_meshes(published, tmp_path, capsys, monkeypatch):
+    """``--package-path DIR`` (repeatable) resolves a ``package://`` mesh that resolves nowhere
+    without it; a folder that does not exist is one error line, exit 2."""
+    monkeypatch.setenv(PACKAGE_PATH_ENV, "")  # the flag sets it for the process: restored after the test
+    uni, _, packages = published
+    path = str(uni.description.urdf_path)
+    uri = "package://tools/meshes/leg.stl"
+    assert cli.main(["info", path]) == 0
+    meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
+    assert uri in meshes and "2 resolved, 7 unresolved" in meshes, meshes
+    assert cli.main(["info", path, "--package-path", str(tmp_path), "--package-path", str(packages)]) == 0
+    meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
+    assert uri not in meshes and "3 resolved, 6 unresolved" in meshes, meshes
+    assert os.environ.get(PACKAGE_PATH_ENV, "").split(os.pathsep)[:2] == [str(tmp_path.resolve()),
+                                                                         str(packages.resolve())]
+    assert cli.main(["info", path, "--package-path", str(tmp_path / "nowhere")]) == 2
+    err = capsys.readouterr().err
+    assert "nowhere" in err and "not an existing folder" in err and len(err.strip().splitlines()) == 1
+
+
+def test_inconsistent_welds_are_refused_with_the_globalized_minimum(tmp_path):
+    """The failure of Gepetto's kangaroo robots in small: a 6-D weld between frames drawn turned
+    by 0.3 rad about x, in a planar 5-bar whose hinges all turn about y. As a point closure it
+    loads; as a weld no configuration closes it, and the refusal says what the globalized solve
+    reached: the 0.3 rad no joint can absorb (positions met)."""
+    import re
+
+    from parallel_gpc.errors import AssemblyError
+
+    tip = '<child link="tip2"/>\n    <origin xyz="0 0 0.35"/>'
+    urdf = mech.fivebar_urdf().replace(tip, tip.replace('"/>', '" rpy="0.3 0 0"/>'))
+    assert 'rpy="0.3 0 0"' in urdf
+    sidecar = re.sub(r"\[home\]\n.*\n\[home.q_guess\]\n(?:\w+ = .*\n)+", "", mech.fivebar_sidecar(closures=False))
+    assert "q_guess" not in sidecar  # assembled from the drawing (q = 0), as the collection's files are
+
+    def closure(kind):
+        return sidecar + f'[[closures]]\nname = "close"\nkind = "{kind}"\nframes = ["ee", "tip2"]\n'
+
+    robot = ParallelRobot.load(mech.write(tmp_path, "points", urdf, closure("point")))
+    assert np.max(np.abs(robot.closure_residual(robot.q_home))) <= 1e-12
+    with pytest.raises(AssemblyError, match="globalized least-squares solve") as info:
+        ParallelRobot.load(mech.write(tmp_path, "weld", urdf, closure("weld")))
+    message = str(info.value)
+    reached = float(re.search(r"no closer than a residual of ([0-9.e+-]+)", message).group(1))
+    assert abs(reached - 0.3) <= 1e-3, message
+    assert "likely inconsistent" in message and "'close' ['ee', 'tip2']" in message

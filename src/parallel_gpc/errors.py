@@ -21,7 +21,13 @@ class RobotFormatError(ParallelGPCError, ValueError):
 
 
 class UnderactuatedError(RobotFormatError):
-    """The drives span fewer directions than the robot has DOF (rank of B_r = Tᵀ Sᵀ < n_y)."""
+    """Some motion of the mechanism is not determined by the output or not actuated by the drives
+    (fewer closure rows than dependent coordinates, or rank of B_r = Tᵀ Sᵀ < n_y)."""
+
+
+class ParallelGPCWarning(UserWarning):
+    """A notice about something parallel-gpc did on its own that changes the model (e.g. idle
+    motions locked at load)."""
 
 
 class AssemblyError(ParallelGPCError):

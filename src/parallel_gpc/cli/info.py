@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from .defaults import DEFAULT_ROBOT
+from .vocabulary import add_package_path_argument
 
 
 def _reach(robot, pose) -> str:
@@ -57,6 +58,13 @@ def robot_info(robot) -> list[tuple[str, str]]:
         ("compiled core", native_status()),
         ("model update", model.native_reason),
     ]
+    d = robot.description
+    if d.locked_joints:
+        rows.append(("locked joints (idle motions)", ", ".join(
+            f"{name} = {d.q_guess[name]:.6g}" for name in d.locked_joints)))
+    if d.mesh_files or d.unresolved_meshes:
+        missing = f" (unresolved: {', '.join(d.unresolved_meshes)}; see --package-path)" if d.unresolved_meshes else ""
+        rows.append(("meshes", f"{len(d.mesh_files)} resolved, {len(d.unresolved_meshes)} unresolved{missing}"))
     A, B = default_poses(robot)
     checks = [(f"pose {label} {np.round(pose, 4).tolist()}", _reach, (pose,))
               for label, pose in (("A", A), ("B", B)) if pose is not None]
@@ -90,4 +98,5 @@ def register_info(sub) -> None:
     p = sub.add_parser("info", help="describe a robot: DOF, drives, redundancy, conditioning, reach of A/B")
     p.add_argument("robot", nargs="?", default=DEFAULT_ROBOT,
                    help=f"embedded robot name or path to a URDF/sidecar (default {DEFAULT_ROBOT})")
+    add_package_path_argument(p)
     p.set_defaults(func=cmd_info)

@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 
 from .. import __version__
-from ..errors import InvalidParameterError, ParallelGPCError
+from ..errors import InvalidParameterError, ParallelGPCError, ParallelGPCWarning
 from .bench import register_bench
 from .demo import register_demo
 from .gallery import register_gallery
@@ -25,6 +26,7 @@ from .robustness import register_robustness
 from .sweep import register_sweep
 from .track import register_track
 from .view import register_view
+from .vocabulary import apply_package_path
 
 #: Sub-command registrars, in help order.
 REGISTRARS = [register_robots, register_info, register_demo, register_track, register_plan, register_robustness,
@@ -55,7 +57,21 @@ def build_parser(registrars=None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; returns its exit code (2: bad input, 3: a closed loop diverged, 130: interrupted)."""
+    """Run one command; returns its exit code (2: bad input, 3: a closed loop diverged, 130: interrupted).
+    The package's notices (:class:`~parallel_gpc.errors.ParallelGPCWarning`) print as one line on stderr."""
+    with warnings.catch_warnings():
+        shown = warnings.showwarning
+
+        def one_line(message, category, *args, **kwargs):
+            if not issubclass(category, ParallelGPCWarning):
+                return shown(message, category, *args, **kwargs)
+            print(f"parallel-gpc: note: {message}", file=sys.stderr)
+
+        warnings.showwarning = one_line
+        return _run(argv)
+
+
+def _run(argv: list[str] | None) -> int:
     parser = build_parser()
     args = None
     try:
@@ -63,6 +79,7 @@ def main(argv: list[str] | None = None) -> int:
         if not getattr(args, "func", None):
             parser.print_help()
             return 1
+        apply_package_path(getattr(args, "package_path", None) or [])
         return int(args.func(args) or 0)
     except (ParallelGPCError, OSError) as exc:  # bad input or an unreadable/unwritable file
         if args is not None and args.debug:

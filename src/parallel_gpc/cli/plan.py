@@ -13,7 +13,7 @@ from ..errors import InvalidParameterError
 from .defaults import DEFAULT_ROBOT
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
-from .vocabulary import add_limit_arguments
+from .vocabulary import add_limit_arguments, add_package_path_argument
 
 if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
     import numpy as np
@@ -111,6 +111,7 @@ def register_plan(sub) -> None:
                     "N := Nmax, …, Nmin (21) and stops at B at Nmax·Ts; 'once' applies the first solve open "
                     "loop (valid for linear systems only).")
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
+    add_package_path_argument(p)
     p.add_argument("--A", nargs="+", type=float, default=None, metavar="Y",
                    help="start pose, one value per output: m, angles in deg (default: the sidecar's [home] A; "
                         "planar robots: 0.2 0.2 -20)")

@@ -16,13 +16,15 @@ from pathlib import Path
 from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
-from .vocabulary import add_forms_argument, add_limit_arguments, add_reference_argument, selected_forms
+from .vocabulary import (add_forms_argument, add_limit_arguments, add_package_path_argument, add_reference_argument,
+                         selected_forms)
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     """Options shared by ``track`` and ``demo``; defaults from ``d`` (default :data:`defaults.TRACKING`)."""
     d = TRACKING if d is None else d
     p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
+    add_package_path_argument(p)
     p.add_argument("--Ts", type=float, default=d["Ts"], help=f"sample time in s (default {d['Ts']})")
     p.add_argument("--N", type=int, default=d["N"], help=f"prediction horizon (default {d['N']})")
     p.add_argument("--No", type=int, default=d["No"], help=f"insensitivity horizon (default {d['No']})")

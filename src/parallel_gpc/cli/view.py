@@ -10,6 +10,8 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
+from .vocabulary import add_package_path_argument
+
 #: How to get the view when meshcat is not installed.
 INSTALL_HINT = 'the meshcat view needs the meshcat package (a dependency of parallel-gpc): pip install "meshcat>=0.3.2"'
 
@@ -104,5 +106,6 @@ def register_view(sub) -> None:
     p.add_argument("result", metavar="RESULT.npz", help="result file (t, q, robot; the format: docs/validation.md)")
     p.add_argument("--robot", default=None,
                    help="robot name or path, overriding the file's (for files that name none)")
+    add_package_path_argument(p)
     add_view_arguments(p)
     p.set_defaults(func=cmd_view)

@@ -62,3 +62,30 @@ def add_limit_arguments(p) -> None:
                    help="output velocity limit |ẏ| ≤ V (m/s, rad/s): one value or one per output")
     p.add_argument("--hard-limits", action="store_true",
                    help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")
+
+
+def add_package_path_argument(p) -> None:
+    """``--package-path DIR`` (repeatable): folders of the packages named by ``package://`` mesh URIs,
+    searched before ``PARALLEL_GPC_PACKAGE_PATH`` and ``ROS_PACKAGE_PATH`` (applied by :func:`apply_package_path`)."""
+    p.add_argument("--package-path", action="append", default=[], metavar="DIR", dest="package_path",
+                   help="folder holding the packages of package:// mesh URIs (repeatable; searched in the order "
+                        "given, before $PARALLEL_GPC_PACKAGE_PATH and $ROS_PACKAGE_PATH); meshes only matter for "
+                        "the view")
+
+
+def apply_package_path(folders: list[str]) -> None:
+    """Put the ``--package-path`` folders in front of ``PARALLEL_GPC_PACKAGE_PATH`` for this process
+    and the workers it starts, so every robot the command loads searches them first.
+
+    Raises:
+        RobotFormatError: a folder that does not exist (naming it).
+    """
+    import os
+
+    from ..model.meshes import PACKAGE_PATH_ENV, package_roots
+
+    if not folders:
+        return
+    roots = package_roots(folders, environ={})  # validates each folder (one error naming it)
+    previous = os.environ.get(PACKAGE_PATH_ENV, "")
+    os.environ[PACKAGE_PATH_ENV] = os.pathsep.join([*map(str, roots), *([previous] if previous else [])])

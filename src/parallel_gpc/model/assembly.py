@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pinocchio as pin
 
 from ..errors import AssemblyError, InvalidParameterError, RobotFormatError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector
@@ -24,6 +25,10 @@ _NEWTON_RCOND = 1e-10
 #: smallest |sin q| of a branch joint at home: below it the joint is stretched or folded
 #: (within 0.057° of 0 or π) and the sign of sin q does not tell the assembly branch.
 BRANCH_MIN_SIN = 1e-3
+
+
+#: starts of the globalized solve of :meth:`AssemblyMixin._global_projection` (the drawing first).
+GLOBAL_STARTS = 5
 
 
 class _PathStop(Exception):
@@ -77,11 +82,76 @@ class AssemblyMixin:
     def _project_closures(self, q_start: np.ndarray, tol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
         """The assembled configuration nearest ``q_start``: Newton on the closures Φ(q) = 0 over
         all coordinates with minimum-norm steps of at most 0.5 (rad or m) per coordinate (the
-        outputs move too).
+        outputs move too). When Newton stalls, a globalized solve
+        (:meth:`_global_projection`) looks further before giving up.
 
         Raises:
-            UnreachablePoseError: no convergence in ``max_iter`` steps.
+            UnreachablePoseError: neither converges; the message gives the smallest residual the
+                globalized solve reached and the closures that miss there.
         """
+        try:
+            return self._newton_projection(q_start, tol, max_iter)
+        except UnreachablePoseError as exc:
+            newton_error = exc
+        return self._newton_projection(self._global_projection(q_start, newton_error), tol, max_iter)
+
+    def _global_projection(self, q_start: np.ndarray, newton_error: Exception):
+        """Levenberg–Marquardt (``scipy.optimize.least_squares``) on the closure residual of
+        :meth:`closure_log_error` over all joints, from ``q_start`` and :data:`GLOBAL_STARTS` − 1
+        starts perturbed by ±0.3 rad or m (a fixed seed): the (nq,) configuration of the first start
+        that closes the loops to 1e-10.
+
+        Raises:
+            UnreachablePoseError: no start does; the message gives the smallest residual reached,
+                the Jacobian rank there and the closures that miss most.
+        """
+        from scipy.optimize import least_squares
+
+        model = self.model
+        q_start = np.array(q_start, dtype=float)
+        rng = np.random.default_rng(0)
+
+        def at(dv):
+            return self.integrate(q_start, dv)
+
+        def residual(dv):
+            return self.closure_log_error(at(dv)).residual
+
+        def jacobian(dv):
+            J = self.closure_log_error(at(dv)).jacobian
+            return J if self._flat else J @ pin.dIntegrate(model, q_start, dv, pin.ArgumentPosition.ARG1)
+
+        rows = self.closure_log_error(q_start).residual.size
+        best = None
+        for k in range(GLOBAL_STARTS):
+            dv0 = np.zeros(model.nv) if k == 0 else rng.uniform(-0.3, 0.3, model.nv)
+            sol = least_squares(residual, dv0, jac=jacobian, method="lm" if rows >= model.nv else "trf",
+                                xtol=1e-15, ftol=1e-15, gtol=1e-15, max_nfev=500)
+            err = float(np.max(np.abs(sol.fun), initial=0.0))
+            if err <= 1e-10:
+                return at(sol.x)
+            if best is None or err < best[0]:
+                best = (err, at(sol.x))
+        err, q = best
+        res, parts, row = self.closure_log_error(q).residual, [], 0
+        for _, _, c in self.closure_frames:
+            n = 6 if c.kind == "weld" else 3
+            parts.append((float(np.linalg.norm(res[row:row + 3])), float(np.linalg.norm(res[row + 3:row + n])), c))
+            row += n
+        worst = "; ".join(f"{c.name!r} {list(c.frames)} by {p:.3g} m" + (f" and {r:.3g} rad" if c.kind == "weld" else "")
+                          for p, r, c in sorted(parts, key=lambda t: -max(t[0], t[1]))[:4] if max(p, r) > 1e-9)
+        rank = int(np.linalg.matrix_rank(self.closure_log_error(q).jacobian, tol=None))
+        raise UnreachablePoseError(
+            f"the closures of {self.name!r} cannot be assembled: {newton_error}, and a globalized least-squares solve (Levenberg–Marquardt over all "
+            f"{model.nv} joint coordinates from the drawing and {GLOBAL_STARTS - 1} perturbed starts) gets no "
+            f"closer than a residual of {err:.3g} (m, rad; Jacobian rank {rank} of {rows} rows there), missing "
+            f"{worst}: no configuration near the drawing closes the {len(self.closure_frames)} closure(s) together, so "
+            "they are likely inconsistent (a 6-D weld where the mechanism only lets the frames meet as points, "
+            "or frames drawn with a relative rotation the joints cannot absorb); check the closure kinds and "
+            "frames, or give home.q_guess near an assembled configuration")
+
+    def _newton_projection(self, q_start: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
+        """:meth:`_project_closures`' Newton iteration alone."""
         q = np.array(q_start, dtype=float)
         for _ in range(max_iter):
             ck = self.closure_log_error(q)
@@ -94,8 +164,8 @@ class AssemblyMixin:
             r = int(np.count_nonzero(s > _NEWTON_RCOND * s[0])) if s.size and s[0] > 0 else 0
             step = Vt[:r].T @ ((U[:, :r].T @ ck.residual) / s[:r])
             q = self.integrate(q, -step * min(1.0, 0.5 / max(float(np.max(np.abs(step))), 1e-300)))  # damped
-        raise UnreachablePoseError(f"the closures of {self.name!r} cannot be assembled near the configuration the "
-                                   f"file is drawn at: residual {err:.3g} after {max_iter} Newton steps")
+        raise UnreachablePoseError(f"Newton from the configuration the file is drawn at stalls at a residual of "
+                                   f"{err:.3g} after {max_iter} steps")
 
     def assemble_warm(self, pose: np.ndarray, q_guess: np.ndarray, pinv_hint: np.ndarray | None = None,
                       near: bool = False, tol: float = 1e-12, max_iter: int = 8):

@@ -53,7 +53,7 @@ def check_parametrization(robot) -> None:
             f"{dof} DOF (nv − rank Φ_q = {nv} − {nv - dof}) and the output has {robot.n_y} coordinates")
     _, sK, VtK = np.linalg.svd(np.vstack([Phi, H]))
     if _rank(sK) < nv:
-        raise RobotFormatError(f"{head}; the joints can move along [{describe_direction(robot, VtK[-1])}] "
+        raise UnderactuatedError(f"{head}; the joints can move along [{describe_direction(robot, VtK[-1])}] "
                                f"without changing the closures or the output (choose an output that "
                                f"moves along this direction, or fix a joint)")
     if robot.n_y != dof:

@@ -32,6 +32,7 @@ from .sidecar import (
     OUTPUT_KINDS,
     POSE_AXES,
     ROOTS,
+    IDLE_SPINS,
     SIDECAR_KEYS,
     Closure,
     check_keys,
@@ -51,7 +52,8 @@ from .sidecar import (
 
 # The sidecar vocabulary lives in .sidecar; re-exported here (robot, closures, outputs, builder import it from here).
 __all__ = ["DEFAULT_ROBOT", "MODEL_FORMATS", "SIDECAR_SUFFIXES", "urdf_dir", "embedded_robots", "RobotDescription",
-           "load_description", "CLOSURE_ROWS", "JOINT_TYPES", "OUTPUT_KINDS", "POSE_AXES", "ROOTS", "SIDECAR_KEYS",
+           "load_description", "CLOSURE_ROWS", "JOINT_TYPES", "OUTPUT_KINDS", "POSE_AXES", "ROOTS", "IDLE_SPINS",
+           "SIDECAR_KEYS",
            "Closure"]
 
 #: Folder of the embedded robot files (installed with the package or at the repo top level).
@@ -96,6 +98,12 @@ class RobotDescription:
         output_axes: task-space axes of y, a subset of :data:`POSE_AXES` in that order.
         joint_types: joint-type overrides by joint name (values in :data:`JOINT_TYPES`).
         root: ``"fixed"`` or ``"free_flyer"`` (a 6-DOF root joint named ``root_joint``).
+        idle_spins: ``"lock"`` (default) or ``"refuse"`` (sidecar ``idle_spins``): what loading does
+            with idle motions, closure motions that move neither the output nor a drive
+            (:mod:`parallel_gpc.model.idle`).
+        locked_joints: the joints loading locked, one per idle motion, at their value in the
+            assembled drawing (also in ``joint_types`` as ``FIXED`` and in ``q_guess``); empty
+            when nothing was locked.
         model_format: ``"urdf"`` or ``"mjcf"``.
         sidecar_path: the sidecar read.
         output_units: ``[output] units`` as written (checked against the output kinds at build
@@ -130,6 +138,8 @@ class RobotDescription:
     output_axes: tuple[str, ...] = ()
     joint_types: dict = field(default_factory=dict)
     root: str = "fixed"
+    idle_spins: str = "lock"
+    locked_joints: tuple[str, ...] = ()
     model_format: str = "urdf"
     sidecar_path: Path | None = None
     output_units: tuple[str, ...] | None = None
@@ -242,6 +252,9 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
     root = data.get("root", "fixed")
     if root not in ROOTS:
         raise RobotFormatError(f"sidecar {where}: root = {root!r} is not one of {list(ROOTS)}")
+    idle = data.get("idle_spins", "lock")
+    if idle not in IDLE_SPINS:
+        raise RobotFormatError(f"sidecar {where}: idle_spins = {idle!r} is not one of {list(IDLE_SPINS)}")
     n_y = len(out_joints) if kind == "joints" else len(axes)
     labels = tuple(output.get("labels", list(axes) if axes else [f"y{i}" for i in range(n_y)]))
     if len(labels) != n_y:
@@ -263,6 +276,7 @@ def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Pa
         output_axes=axes,
         joint_types=joint_types(data, where),
         root=root,
+        idle_spins=idle,
         model_format=fmt,
         sidecar_path=sidecar,
         output_units=names_field(output["units"], "output units", where) if "units" in output else None,

@@ -157,7 +157,7 @@ def check_sidecar_types(data: dict, where: str) -> None:
     Raises:
         RobotFormatError: naming the key, its value and the expected type.
     """
-    for key in ("name", "description", "output_frame", "root"):
+    for key in ("name", "description", "output_frame", "root", "idle_spins"):
         if key in data:
             _text(where, key, data[key])
     _check_nested(where, data, "output", _OUTPUT)

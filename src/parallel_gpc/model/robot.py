@@ -20,12 +20,14 @@ universal, free-flyer) nq ≠ nv: Newton steps and the warm-start predictor move
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
 
-from ..errors import AssemblyError, ParallelGPCError, RobotFormatError, UnreachablePoseError
+from ..errors import (AssemblyError, ParallelGPCError, ParallelGPCWarning, RobotFormatError, UnderactuatedError,
+                      UnreachablePoseError)
 from ..limits import Limits
 from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
@@ -34,6 +36,7 @@ from .checks import check_actuation, check_parametrization
 from .closures import ClosureKinematics, ClosureMixin  # noqa: F401  (re-exported)
 from .console import quiet_build
 from .file_checks import check_model_file, check_model_inertias
+from .idle import describe_locks, idle_locks, with_locks
 from .description import (  # noqa: F401  (re-exported for the robot's users)
     CLOSURE_ROWS as _CLOSURE_ROWS,
     DEFAULT_ROBOT,
@@ -83,6 +86,32 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             raise RobotFormatError(f"ParallelRobot takes a RobotDescription, got {type(description).__name__}; "
                                    "load a robot by name or path with ParallelRobot.load(...)")
         mass_scale = positive("mass_scale", mass_scale)
+        try:
+            self._construct(description, mass_scale, gravity)
+        except (UnderactuatedError, AssemblyError):
+            locks = self._idle_locks(description)
+            if not locks:
+                raise
+            warnings.warn(describe_locks(self, locks), ParallelGPCWarning, stacklevel=2)
+            self._construct(with_locks(description, locks), mass_scale, gravity)
+
+    def _idle_locks(self, description: RobotDescription) -> list[tuple[str, float]]:
+        """The joints to lock, one per idle motion (:mod:`.idle`), after a construction that failed
+        as under-actuated or unassembled; empty when locking is off or nothing is idle."""
+        if description.idle_spins != "lock" or description.locked_joints or not hasattr(self, "n_z") \
+                or getattr(self, "_stalled", None):  # the closures do not assemble: nothing to lock
+            return []
+        q = getattr(self, "q_home", None)
+        if q is None:
+            try:
+                q = self._project_closures(self._start_configuration(description)[0])
+            except AssemblyError:
+                return []
+        return idle_locks(self, q)
+
+    def _construct(self, description: RobotDescription, mass_scale: float, gravity) -> None:
+        """Build the model of ``description``, assemble home and check it (the constructor's work)."""
+        self.q_home = self._stalled = None
         mesh_files, unresolved = check_model_file(description)
         model, closures = quiet_build(build_model, description)
         check_model_inertias(model, description.urdf_path)
@@ -112,7 +141,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         self._setup_outputs(description)
         self._setup_fast_paths()
         if self.n_constraints + (self.n_y if self.task_output else 0) < self.n_z:
-            raise RobotFormatError(
+            raise UnderactuatedError(
                 f"{len(closures)} closures give {self.n_constraints} constraint rows, fewer than "
                 f"the {self.n_z} dependent coordinates: at least {self.n_z - self.n_constraints} joint motion(s) are "
                 "not determined by the output (a free-flyer root, an unactuated joint, or an idle rotation such as a "
@@ -187,26 +216,20 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         home (default: the output there) is reached from it by continuation and must stay on
         its branch.
         """
-        q0 = drawn_configuration(self.model)
-        guessed = False
-        for name, value in description.q_guess.items():
-            if description.joint_types.get(name) == "FIXED":
-                continue  # locked at this value by the builder
-            iq, _ = self._joint_index(name, "q_guess joint", nq=len(value) if isinstance(value, tuple) else 1)
-            q0[iq:iq + (len(value) if isinstance(value, tuple) else 1)] = value
-            guessed = True
-        drawn = False
+        q0, guessed = self._start_configuration(description)
+        drawn, stalled = False, None
         if not guessed:
             try:
                 q0, drawn = self._project_closures(q0), True
-            except UnreachablePoseError:
-                pass
+            except UnreachablePoseError as exc:
+                stalled = str(exc)  # the globalized solve's finding, said if home cannot be assembled either
+        self._stalled = stalled
         if self.task_output is not None:  # the closures alone first: the output's reference is there
             if not drawn:
                 try:
                     q0 = self._newton(None, q0)
                 except UnreachablePoseError as exc:
-                    raise AssemblyError(self._assembly_failure(q0, exc, None)) from None
+                    raise AssemblyError(stalled or self._assembly_failure(q0, exc, None)) from None
             pin.framesForwardKinematics(self.model, self.data, q0)
             self.task_output.set_reference(self.data)
             y0 = self.task_output.value(self.data)
@@ -222,7 +245,19 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         try:
             self.q_home = self._newton(self.home_pose, q0)
         except UnreachablePoseError as exc:
-            raise AssemblyError(self._assembly_failure(q0, exc, self.home_pose)) from None
+            raise AssemblyError(stalled or self._assembly_failure(q0, exc, self.home_pose)) from None
+
+    def _start_configuration(self, description: RobotDescription) -> tuple[np.ndarray, bool]:
+        """((nq,) the drawn configuration with the ``home.q_guess`` values, whether any was given)."""
+        q0 = drawn_configuration(self.model)
+        guessed = False
+        for name, value in description.q_guess.items():
+            if description.joint_types.get(name) == "FIXED":
+                continue  # locked at this value by the builder
+            iq, _ = self._joint_index(name, "q_guess joint", nq=len(value) if isinstance(value, tuple) else 1)
+            q0[iq:iq + (len(value) if isinstance(value, tuple) else 1)] = value
+            guessed = True
+        return q0, guessed
 
     def _assembly_failure(self, q0: np.ndarray, exc: Exception, pose) -> str:
         """Message for closures that cannot be assembled at the home pose: the worst closures."""

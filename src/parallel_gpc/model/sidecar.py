@@ -30,8 +30,12 @@ OUTPUT_KINDS = ("joints", "position", "pose")
 #: relative to its home orientation (rad).
 POSE_AXES = ("x", "y", "z", "rx", "ry", "rz")
 ROOTS = ("fixed", "free_flyer")
+#: what loading does with idle motions (closure motions that move neither the output nor a drive,
+#: such as a rod spinning between two ball joints): lock one joint per motion, or refuse the robot.
+IDLE_SPINS = ("lock", "refuse")
 
-_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root", "sensors", "limits"}
+_COMMON_KEYS = {"name", "description", "output", "home", "joint_name", "joint_type", "root", "sensors", "limits",
+                "idle_spins"}
 #: Every key a sidecar may hold, per table; anything else is refused (never ignored).
 SIDECAR_KEYS = {
     "toml": _COMMON_KEYS | {"closures", "drives"},
