@@ -13,7 +13,6 @@ import pytest
 from parallel_gpc import ControllerState, GPCController, GPCSettings, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.gpc.controller import LIMIT_MARGIN
-from parallel_gpc.gpc.nmpc import state_jacobians
 from parallel_gpc.limits import Limits
 
 TS = 0.002
@@ -96,7 +95,7 @@ def test_state_jacobians_match_a_finer_difference(robot4):
     model, X, plan, _ = _case("planar_4rrr")
     u = plan[:3]
     traj = model.simulate_factorized(X, u, TS)[3]
-    J = state_jacobians(model, traj, u, TS)
+    J = model.stage_jacobians(traj, u, TS)
     Ad = model.simulate_factorized(X, u, TS)[0]
     for i in range(3):
         fine = np.empty((6, 6))
