@@ -142,6 +142,39 @@ def test_converged_plan_equals_ipopts(name, limits):
     assert info.residual <= 1e-6 and not info.fallback  # the QP back end's own tolerance
 
 
+@pytest.mark.parametrize("soft", [False, True])
+def test_converged_plan_with_an_active_output_box_equals_ipopts(soft):
+    """The output box rebuilt along every iteration's trajectory: the converged plan is IPOPT's
+    with the box on the nonlinear outputs (hard; soft with its slack and exact penalty)."""
+    pytest.importorskip("casadi")
+    from nmpc_oracle import ipopt_plan
+
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    _, free = _step(model, X, plan, target, N, 50)
+    x_free = model.simulate_factorized(X, u0 + np.cumsum(free.result.v.reshape(N, -1), axis=0), TS)[3][1:, 0]
+    hi = X[0] + 0.5 * (x_free.max() - X[0])  # cuts the free motion of x in half
+    box = np.array([[-np.inf, hi], [-np.inf, np.inf], [-np.inf, np.inf]])
+    penalty = 1.0  # soft: small enough that the slack is used
+    lim = Limits(output_box=box, soft=("output_box",) if soft else (), penalty=penalty)
+    _, info = _step(model, X, plan, target, N, 50, limits=lim)
+    v, J, status, _ = ipopt_plan(model, TS, X, u0, np.tile(target, (N, 1)), QY, QU, N, output_box=box,
+                                 box_penalty=penalty if soft else None, tol=1e-10)
+    assert status == "Solve_Succeeded"
+    assert np.abs(info.result.v - v).max() <= 1e-6 * np.abs(v).max()
+    assert info.result.cost == pytest.approx(J, rel=1e-8)
+    assert info.residual <= 1e-6 and not info.fallback and info.iterations > 1
+    assert info.constraints.active == ("output_box",)
+    x = model.simulate_factorized(X, u0 + np.cumsum(info.result.v.reshape(N, -1), axis=0), TS)[3][1:, 0]
+    if soft:  # the box is broken by the slack the report gives, the paper's single step differs
+        assert info.constraints.slack["output_box"] == pytest.approx(x.max() - hi, rel=1e-6) and x.max() > hi + 1e-4
+    else:  # held on the nonlinear trajectory, touched
+        assert x.max() <= hi + 1e-9 and x.max() >= hi - 1e-9
+    _, paper = _step(model, X, plan, target, N, 1, limits=lim)
+    assert np.abs(paper.result.v - v).max() > 1e-4 * np.abs(v).max()
+
+
 def test_time_budget_stops_and_says_so(robot4):
     model, X, plan, target = _case("planar_4rrr")
     _, info = _step(model, X, plan, target, 10, 50, time_budget=1e-6)

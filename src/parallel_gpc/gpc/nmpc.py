@@ -58,6 +58,8 @@ ARMIJO = 1e-4
 BACKTRACKS = 12
 #: errors of the model away from its domain (a trial plan beyond the workspace): a shorter step.
 MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
+#: where the rows of a trajectory's own state limits (:meth:`NMPCIterations._true_rows`) are evaluated.
+AT_VALUES = np.zeros(1)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
 
@@ -72,7 +74,8 @@ class IterationReport:
             NaN when only the paper's step ran without a second linearization.
         budget_hit: True when the time budget stopped the iterations.
         converged: True when the residual fell to the tolerance.
-        cost: J(v) of the applied plan on the nonlinear model (the criterion's units).
+        cost: J(v) of the applied plan on the nonlinear model (the criterion's units), plus the
+            cost of its soft state limits' least slack (ρ s + ε s²; 0 when kept).
         stop: why the iterations ended (``"converged"``, ``"iterations"``, ``"time budget"``,
             ``"line search"``, ``"solve failed"``, ``"jacobian failed"``).
         constraints: the state limits at the applied plan's nonlinear trajectory (active kinds,
@@ -135,11 +138,12 @@ class NMPCIterations:
 
     def _true_rows(self, y_rows: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
         """The state limits at the outputs y_rows (n_rows·p,) of a nonlinear trajectory: rows with
-        no column, h = bound − value (the drive positions at the poses themselves)."""
+        one zero column (evaluated at v = :data:`AT_VALUES`), h = bound − value (the drive
+        positions at the poses themselves)."""
         if self.limits is None:
             return None
         H = self.criterion.horizons
-        at = Prediction(y_rows, np.zeros((len(y_rows), 0)), np.zeros(0), np.zeros((0, 0)), H, "simulative")
+        at = Prediction(y_rows, np.zeros((len(y_rows), 1)), np.zeros(0), np.zeros((0, 1)), H, "simulative")
         return self._rows(at, y_rows, y_now)
 
     def _slack(self, rows: ConstraintRows, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,14 +156,21 @@ class NMPCIterations:
         return viol, s
 
     def _penalty(self, rows: ConstraintRows | None, v: np.ndarray) -> float:
-        """The exact penalty of the state limits at v: ρ s + ε s² per soft pair (the QP's slack cost,
-        :func:`~parallel_gpc.gpc.constraints.constrain`) and ρ·violation per hard row (the
-        line search's merit: 0 on a feasible plan)."""
+        """The soft state limits' cost at v: ρ s + ε s² per soft pair, s its least slack (the QP's
+        slack cost, :func:`~parallel_gpc.gpc.constraints.constrain`)."""
+        if rows is None or not rows.n_slack:
+            return 0.0
+        _, s = self._slack(rows, v)
+        rho = self.limits.penalty
+        return float(rho * s.sum() + rho * SOFT_QUADRATIC * (s @ s))
+
+    @staticmethod
+    def _hard(rows: ConstraintRows | None, v: np.ndarray) -> float:
+        """The largest violation of a hard state-limit row at v (m, rad, m/s, …; 0 when kept)."""
         if rows is None or not len(rows.h):
             return 0.0
-        viol, s = self._slack(rows, v)
-        rho = self.limits.penalty
-        return float(rho * viol[rows.slack_of < 0].sum() + rho * s.sum() + rho * SOFT_QUADRATIC * (s @ s))
+        hard = rows.slack_of < 0
+        return float(max(0.0, np.max(rows.G[hard] @ v - rows.h[hard], initial=0.0)))
 
     def _model_merit(self, lin: Prediction, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
         """J + penalty of the linearization ``lin`` (and its rows) at v."""
@@ -169,8 +180,8 @@ class NMPCIterations:
         """The state limits' report at a trajectory (its rows from :meth:`_true_rows`)."""
         if rows is None or not len(rows.h):
             return None
-        _, s = self._slack(rows, np.zeros(0))
-        return constraint_report(SimpleNamespace(n_decision=0, slack_unit=None), rows, s)  # no column: the values only
+        _, s = self._slack(rows, AT_VALUES)
+        return constraint_report(SimpleNamespace(n_decision=1, slack_unit=None), rows, np.concatenate([AT_VALUES, s]))
 
     # -------------------------------------------------------------- the iterations
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
@@ -197,9 +208,9 @@ class NMPCIterations:
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
-        cost = self._cost(pred.f, w, v)
         true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
-        merit = cost + self._penalty(true_rows, np.zeros(0))
+        merit = self._cost(pred.f, w, v) + self._penalty(true_rows, AT_VALUES)
+        excess = self._hard(true_rows, AT_VALUES)
         lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
@@ -217,9 +228,11 @@ class NMPCIterations:
                 except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
                     alpha *= 0.5
                     continue
-                trial_merit = trial_cost + self._penalty(trial_rows, np.zeros(0))
-                if trial_merit <= merit - ARMIJO * alpha * decrease:
-                    accepted = (trial, traj, u_traj, y_rows, trial_cost, trial_merit, trial_rows)
+                trial_merit = trial_cost + self._penalty(trial_rows, AT_VALUES)
+                trial_excess = self._hard(trial_rows, AT_VALUES)
+                if (trial_excess <= max(excess, STATE_TOL) and trial_merit <= merit - ARMIJO * alpha * decrease) \
+                        or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
+                    accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
                     break
                 alpha *= 0.5
             scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
@@ -229,7 +242,7 @@ class NMPCIterations:
                 flat = decrease <= ROUNDING * merit
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
-            v, traj, u_traj, y_rows, cost, merit, true_rows = accepted
+            v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
             if report["iterations"] > 1 and report["residual"] <= self.tolerance:
                 report.update(stop="converged", converged=True)
                 break
@@ -264,5 +277,5 @@ class NMPCIterations:
                 report["stop"] = "solve failed"
                 break
             result, _ = split(problem, new)
-        return lin, replace(result, v=v.copy(), cost=cost), IterationReport(cost=cost, constraints=self._report(
+        return lin, replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
             true_rows), **report)
