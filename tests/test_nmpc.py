@@ -109,6 +109,23 @@ def test_state_jacobians_match_a_finer_difference(robot4):
         assert np.abs(J[i] - Ad[i]).max() > 1e-6  # the frozen A_d is not the Jacobian
 
 
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_compiled_stage_jacobians_equal_the_python_reference(name):
+    """The compiled central differences (one native call) against the Python loop of
+    ReducedModel.stage_jacobians on the Python model update, along a moving trajectory."""
+    from parallel_gpc.model.native import native_module
+    if not hasattr(native_module(), "stage_jacobians"):
+        pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    model, X, plan, _ = _case(name)
+    reference = ReducedModel(model.robot, native=False)
+    u = plan[:5]
+    traj = reference.simulate_factorized(X, u, TS)[3]
+    J = model.stage_jacobians(traj, u, TS)
+    J_ref = reference.stage_jacobians(traj, u, TS)
+    assert J.shape == J_ref.shape == (5, model.n_x, model.n_x)
+    assert np.abs(J - J_ref).max() <= 1e-7 * max(1.0, np.abs(J_ref).max())  # differences of two rounding paths
+
+
 @pytest.mark.parametrize("name,limits", [
     ("planar_4rrr", None),
     ("planar_4rrr", "torque"),
@@ -173,6 +190,37 @@ def test_converged_plan_with_an_active_output_box_equals_ipopts(soft):
         assert x.max() <= hi + 1e-9 and x.max() >= hi - 1e-9
     _, paper = _step(model, X, plan, target, N, 1, limits=lim)
     assert np.abs(paper.result.v - v).max() > 1e-4 * np.abs(v).max()
+
+
+@pytest.mark.parametrize("soft", [(), ("drive_position",)])
+def test_drive_position_limit_holds_on_the_nonlinear_trajectory(soft):
+    """A drive range rebuilt along every iteration (linearized at each plan's poses): the
+    converged plan keeps it on the drive positions of its nonlinear trajectory (assembled
+    independently), touching it."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    drives = DriveKinematics(model.robot)
+
+    def drive_positions(v):
+        Y = model.simulate_factorized(X, u0 + np.cumsum(v.reshape(N, -1), axis=0), TS)[3][1:, :model.n_y]
+        return np.array([drives(y)[0] for y in Y])
+
+    _, free = _step(model, X, plan, target, N, 50)
+    q0, q = drives(X[:model.n_y])[0], drive_positions(free.result.v)
+    j = int(np.argmax(np.abs(q - q0).max(axis=0)))  # the drive that moves most
+    moved = q[:, j] - q0[j]
+    bounds = np.tile([-np.inf, np.inf], (model.n_u, 1))
+    side = 1 if moved.max() > -moved.min() else 0
+    bounds[j, side] = q0[j] + 0.5 * (moved.max() if side else moved.min())
+    _, info = _step(model, X, plan, target, N, 50, limits=Limits(drive_position=bounds, soft=soft), tolerance=1e-8)
+    assert info.residual <= 1e-6 and not info.fallback and info.iterations > 1
+    assert info.constraints.active == ("drive_position",) and info.constraints.max_slack <= 1e-9
+    qj = drive_positions(info.result.v)[:, j]
+    reach = qj.max() if side else -qj.min()
+    assert reach == pytest.approx(bounds[j, side] if side else -bounds[j, side], abs=1e-9)
 
 
 def test_time_budget_stops_and_says_so(robot4):
