@@ -11,6 +11,8 @@ u(i) = u_sim⁰(i) + Σ_{l ≤ min(i, Nu−1)} Δu(l), i = 0..N−1 (the nonline
     minimize   J(v) = Σ_{j=No+1..N} ‖Qy (C X(j) − w(j))‖² + Σ_{i<Nu} ‖Qu Δu(i)‖²
     subject to X(0) = X(k),  X(i+1) = Φ(X(i), u(i)) + d,
                |u(i)| ≤ τ (i < N),  |u(i) − u(i−1)| ≤ δ (i < Nu, u(−1) = u(k−1)),
+               the state limits (:mod:`~parallel_gpc.gpc.constraints`) on the outputs C X(j),
+               j = No+1..N, of this trajectory (soft ones: + ρ s + ε s² in J, s their least slack),
 
 Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) the state-dependent ZOH model, the very map of the
 pre-simulation (:meth:`~parallel_gpc.model.ReducedModel.simulate_factorized`), d the
@@ -20,12 +22,17 @@ J is one fixed function of v for the whole step, and ``iterations=1`` is the pap
 
 **The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
-(Φ is affine in u) and ∂Φ/∂X by central differences of Φ (2·n_x evaluations per stage; the
-frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed
-point that is not the optimum) — and solves the same least-squares/QP problem for the total v,
-every limit of the problem included. A backtracking line search on the true J (each trial one
-pre-simulation) accepts v + α(v⁺ − v) with sufficient decrease; a convex combination of two
-feasible plans is feasible. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
+(Φ is affine in u) and ∂Φ/∂X by central differences of Φ
+(:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, 2·n_x evaluations per stage in one
+compiled call; the frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it
+stops at a fixed point that is not the optimum) — rebuilds the state limits' rows along that
+trajectory (exact at the current plan: the drive limits linearized at its poses) and solves the
+same least-squares/QP problem for the total v, every limit of the problem included. A
+backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
+by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
+violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
+else a sufficient decrease of that violation; a convex combination of two plans within the input
+limits is within them. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
 problem's), the iteration limit, a failed line search or solve (the last accepted plan is
 kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
