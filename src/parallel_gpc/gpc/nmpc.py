@@ -67,6 +67,8 @@ BACKTRACKS = 12
 MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
 #: where the rows of a trajectory's own state limits (:meth:`NMPCIterations._true_rows`) are evaluated.
 AT_VALUES = np.zeros(1)
+#: the problem shape those rows are read with (one decision variable, slack in the limits' units).
+AT_PROBLEM = SimpleNamespace(n_decision=1, slack_unit=None)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
 
@@ -172,12 +174,10 @@ class NMPCIterations:
         return float(rho * s.sum() + rho * SOFT_QUADRATIC * (s @ s))
 
     @staticmethod
-    def _hard(rows: ConstraintRows | None, v: np.ndarray) -> float:
-        """The largest violation of a hard state-limit row at v (m, rad, m/s, …; 0 when kept)."""
-        if rows is None or not len(rows.h):
-            return 0.0
-        hard = rows.slack_of < 0
-        return float(max(0.0, np.max(rows.G[hard] @ v - rows.h[hard], initial=0.0)))
+    def _hard(rows: ConstraintRows | None) -> float:
+        """The largest violation of a hard row of a trajectory's own state limits (m, rad, m/s, …;
+        0 when kept)."""
+        return hard_violation(AT_PROBLEM, rows, AT_VALUES)
 
     def _model_merit(self, lin: Prediction, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
         """J + penalty of the linearization ``lin`` (and its rows) at v."""
@@ -188,7 +188,7 @@ class NMPCIterations:
         if rows is None or not len(rows.h):
             return None
         _, s = self._slack(rows, AT_VALUES)
-        return constraint_report(SimpleNamespace(n_decision=1, slack_unit=None), rows, np.concatenate([AT_VALUES, s]))
+        return constraint_report(AT_PROBLEM, rows, np.concatenate([AT_VALUES, s]))
 
     # -------------------------------------------------------------- the iterations
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
@@ -217,7 +217,7 @@ class NMPCIterations:
         v = np.zeros_like(result.v)
         true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
         merit = self._cost(pred.f, w, v) + self._penalty(true_rows, AT_VALUES)
-        excess = self._hard(true_rows, AT_VALUES)
+        excess = self._hard(true_rows)
         lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
@@ -236,7 +236,7 @@ class NMPCIterations:
                     alpha *= 0.5
                     continue
                 trial_merit = trial_cost + self._penalty(trial_rows, AT_VALUES)
-                trial_excess = self._hard(trial_rows, AT_VALUES)
+                trial_excess = self._hard(trial_rows)
                 if (trial_excess <= max(excess, STATE_TOL) and trial_merit <= merit - ARMIJO * alpha * decrease) \
                         or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
                     accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
@@ -245,8 +245,8 @@ class NMPCIterations:
             scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
             report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / scale if report["iterations"] > 1 \
                 else float("nan")
-            if accepted is None:  # no decrease measurable above rounding: as good as converged
-                flat = decrease <= ROUNDING * merit
+            if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
+                flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
             v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
