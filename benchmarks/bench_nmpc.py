@@ -2,7 +2,10 @@
 """Converged NMPC (the nonlinear form iterated, ``GPCSettings.iterations``) against the paper's
 single step and CasADi (SQP, IPOPT) in one closed-loop run.
 
-The move: the Delta robot (``delta_3rus``) from home to 85 % of the reach along a horizontal ray
+Two cases. **planar** (the speed target of issue 25): planar_4rrr on the paper's S-curve, Ts = 2 ms,
+N = 20, torque limit 15 N·m, the first ``--steps`` samples; the table gives each method's ratio to
+IPOPT's mean step and the target line (converged ≤ 5 ms per step, ≥ 300× IPOPT). **delta** (where
+the iterations must pay off): the Delta robot (``delta_3rus``) from home to 85 % of the reach along a horizontal ray
 (near the workspace edge, :func:`~parallel_gpc.gpc.robot_references.ray_reach`) in ``--move`` s
 (quintic), held for 40 ms; Ts, N as given; Qy = 1, Qu = 1e-3 (square root, on Δu over the
 shifted previous plan); a symmetric torque limit. The plant is the full constrained model
@@ -11,8 +14,8 @@ shifted previous plan); a symmetric torque limit. The plant is the full constrai
 external callback with its own finite-difference Jacobian, limited-memory Hessian): its times
 include the Python callback, unlike a hand-written symbolic model.
 
-Usage: ``python benchmarks/bench_nmpc.py [--quick] [--no-casadi] [--out DIR]``. Prints a table
-and writes DIR/bench_nmpc.json (default DIR: benchmarks/results).
+Usage: ``python benchmarks/bench_nmpc.py [--case planar|delta|both] [--quick] [--no-casadi] [--out DIR]``.
+Prints a table per case and writes DIR/bench_nmpc.json (default DIR: benchmarks/results).
 """
 
 import os
@@ -30,7 +33,7 @@ import numpy as np  # noqa: E402
 from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, Weights  # noqa: E402
 from parallel_gpc.gpc.controller import LIMIT_MARGIN  # noqa: E402
 from parallel_gpc.gpc.references import SampledTrajectory, quintic_array  # noqa: E402
-from parallel_gpc.gpc.robot_references import ray_reach  # noqa: E402
+from parallel_gpc.gpc.robot_references import ray_reach, reference_for  # noqa: E402
 from parallel_gpc.limits import Limits  # noqa: E402
 
 QY, QU = 1.0, 1e-3
@@ -76,6 +79,7 @@ def closed_loop(robot, ref, duration, Ts, N, torque, step):
     X = np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)])
     plant = ConstrainedPlant(robot, X, Ts=Ts, torque_limit=Limits(torque=torque))
     K = int(round(duration / Ts))
+    ny = robot.n_y
     times, errors, peaks, iters = [], [], [], []
     for k in range(K):
         w = ref.sample(k * Ts + Ts * np.arange(1, N + 1))
@@ -86,7 +90,7 @@ def closed_loop(robot, ref, duration, Ts, N, torque, step):
             return {"failed": f"step {k}: {type(exc).__name__}: {' '.join(str(exc).split())[:160]}", "steps": k}
         times.append(time.perf_counter() - t0)
         X = plant.step(u)
-        errors.append(float(np.linalg.norm(X[:3] - ref.pose((k + 1) * Ts))))
+        errors.append(float(np.linalg.norm(X[:ny] - ref.pose((k + 1) * Ts))))
         peaks.append(float(np.max(np.abs(u))))
         iters.append(it)
     e = np.array(errors)
@@ -95,42 +99,86 @@ def closed_loop(robot, ref, duration, Ts, N, torque, step):
             "peak_torque_Nm": float(max(peaks)), "mean_iterations": float(np.mean(iters)), "steps": K}
 
 
-def main(argv=None) -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true", help="Ts = 5 ms, N = 10 (about a minute with CasADi)")
-    ap.add_argument("--no-casadi", action="store_true", help="only the GPC iterations")
-    ap.add_argument("--move", type=float, default=0.12, help="duration of the move in s (default 0.12)")
-    ap.add_argument("--torque", type=float, default=None, help="torque limit in N·m (default: 1.2 × the peak of "
-                                                                 "the converged run without limit, so that it binds)")
-    ap.add_argument("--out", default=str(HERE / "results"))
-    args = ap.parse_args(argv)
-    Ts, N = (0.005, 10) if args.quick else (0.002, 20)
-    robot = ParallelRobot.load("delta_3rus")
-    ref, reach = delta_move(robot, args.move)
-    duration = args.move + 0.04
-    torque = args.torque
-    if torque is None:  # a limit that binds: 80 % of the converged run's peak without one
-        free = closed_loop(robot, ref, duration, Ts, N, 1e6, gpc_method(ReducedModel(robot), Ts, N, 1e6, 50))
-        torque = 0.8 * free["peak_torque_Nm"]
+TARGET_MS, TARGET_RATIO = 5.0, 300.0  # issue 25: converged NMPC on planar_4rrr at N = 20
+CONVERGED = "GPC nonlinear, converged (tol 1e-8)"
+IPOPT = "CasADi IPOPT"
+
+
+def run_case(name, robot, ref, duration, Ts, N, torque, casadi: bool, sqp: bool) -> dict:
+    """One closed loop per method on one case; prints each row as it ends and the ratio to IPOPT."""
     methods = {f"GPC nonlinear, {n} iteration{'s' if n > 1 else ''}": (gpc_method, n) for n in (1, 2, 3)}
-    methods["GPC nonlinear, converged (tol 1e-8)"] = (gpc_method, 50)
-    if not args.no_casadi:
-        methods.update({"CasADi SQP, 1 iteration": (casadi_method, ("sqpmethod", 1)),
-                        "CasADi SQP, converged": (casadi_method, ("sqpmethod", None)),
-                        "CasADi IPOPT": (casadi_method, ("ipopt", None))})
+    methods[CONVERGED] = (gpc_method, 50)
+    if casadi:
+        if sqp:
+            methods.update({"CasADi SQP, 1 iteration": (casadi_method, ("sqpmethod", 1)),
+                            "CasADi SQP, converged": (casadi_method, ("sqpmethod", None))})
+        methods[IPOPT] = (casadi_method, ("ipopt", None))
     rows = {}
-    for name, (make, arg) in methods.items():
+    print(f"-- {name}: {robot.name}, Ts = {Ts * 1e3:g} ms, N = {N}, torque limit {torque:.4g} N·m, "
+          f"{int(round(duration / Ts))} steps", flush=True)
+    for label, (make, arg) in methods.items():
         model = ReducedModel(robot)
         step = make(model, Ts, N, torque, arg) if make is gpc_method else make(model, Ts, N, torque, *arg)
-        rows[name] = closed_loop(robot, ref, duration, Ts, N, torque, step)
-        print(f"{name:40s} " + "  ".join(f"{k} {v:.4g}" if not isinstance(v, str) else f"{k}: {v}"
-                                          for k, v in rows[name].items()), flush=True)
-    meta = {"robot": "delta_3rus", "Ts": Ts, "N": N, "move_s": args.move, "distance_m": 0.85 * reach,
-            "torque_limit_Nm": torque, "Qy": QY, "Qu": QU}
+        rows[label] = closed_loop(robot, ref, duration, Ts, N, torque, step)
+        print(f"{label:40s} " + "  ".join(f"{k} {v:.4g}" if not isinstance(v, str) else f"{k}: {v}"
+                                           for k, v in rows[label].items()), flush=True)
+    ipopt_ms = rows.get(IPOPT, {}).get("mean_step_ms")
+    if ipopt_ms is not None:
+        for label, row in rows.items():
+            if "mean_step_ms" in row:
+                row["ipopt_ratio"] = ipopt_ms / row["mean_step_ms"]
+                print(f"{label:40s} {row['mean_step_ms']:9.3f} ms per step  {row['ipopt_ratio']:9.1f}× faster than "
+                      "IPOPT")
+    return rows
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--case", choices=("planar", "delta", "both"), default="both")
+    ap.add_argument("--quick", action="store_true", help="delta: Ts = 5 ms, N = 10 (about a minute with CasADi); "
+                                                         "planar: 10 steps")
+    ap.add_argument("--no-casadi", action="store_true", help="only the GPC iterations")
+    ap.add_argument("--steps", type=int, default=None, help="planar: samples of the S-curve (default 25 with CasADi, "
+                                                            "150 without; IPOPT takes seconds per step)")
+    ap.add_argument("--move", type=float, default=0.12, help="delta: duration of the move in s (default 0.12)")
+    ap.add_argument("--torque", type=float, default=None, help="delta: torque limit in N·m (default: 0.8 × the peak "
+                                                                 "of the converged run without limit, so that it binds)")
+    ap.add_argument("--out", default=str(HERE / "results"))
+    args = ap.parse_args(argv)
+    out_json = {}
+    if args.case in ("planar", "both"):
+        robot = ParallelRobot.load("planar_4rrr")
+        Ts, N, torque = 0.002, 20, 15.0
+        steps = args.steps or (10 if args.quick else 25 if not args.no_casadi else 150)
+        rows = run_case("planar", robot, reference_for("s-curve", robot, 1.0), steps * Ts, Ts, N, torque,
+                        not args.no_casadi, sqp=False)
+        conv = rows[CONVERGED]
+        line = (f"target: converged NMPC on planar_4rrr at N = {N}: {conv['mean_step_ms']:.2f} ms mean, "
+                f"{conv['median_step_ms']:.2f} ms median per step (≤ {TARGET_MS:g} ms: "
+                f"{'met' if conv['median_step_ms'] <= TARGET_MS else 'missed'})")
+        if "ipopt_ratio" in conv:
+            line += (f"; {conv['ipopt_ratio']:.0f}× IPOPT (≥ {TARGET_RATIO:g}×: "
+                     f"{'met' if conv['ipopt_ratio'] >= TARGET_RATIO else 'missed'})")
+        print(line, flush=True)
+        out_json["planar"] = {"meta": {"robot": "planar_4rrr", "reference": "s-curve", "Ts": Ts, "N": N, "steps": steps,
+                                       "torque_limit_Nm": torque, "Qy": QY, "Qu": QU}, "rows": rows, "target": line}
+    if args.case in ("delta", "both"):
+        Ts, N = (0.005, 10) if args.quick else (0.002, 20)
+        robot = ParallelRobot.load("delta_3rus")
+        ref, reach = delta_move(robot, args.move)
+        duration = args.move + 0.04
+        torque = args.torque
+        if torque is None:  # a limit that binds: 80 % of the converged run's peak without one
+            free = closed_loop(robot, ref, duration, Ts, N, 1e6, gpc_method(ReducedModel(robot), Ts, N, 1e6, 50))
+            torque = 0.8 * free["peak_torque_Nm"]
+        rows = run_case("delta", robot, ref, duration, Ts, N, torque, not args.no_casadi, sqp=True)
+        meta = {"robot": "delta_3rus", "Ts": Ts, "N": N, "move_s": args.move, "distance_m": 0.85 * reach,
+                "torque_limit_Nm": torque, "Qy": QY, "Qu": QU}
+        out_json["delta"] = {"meta": meta, "rows": rows}
+        print(json.dumps(meta))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "bench_nmpc.json").write_text(json.dumps({"meta": meta, "rows": rows}, indent=1))
-    print(json.dumps(meta))
+    (out / "bench_nmpc.json").write_text(json.dumps(out_json, indent=1))
     return 0
 
 

@@ -4,7 +4,9 @@ The discrete map Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) enters CasADi as an ext
 ``casadi.Callback`` whose Jacobian is its own (five-point central differences in X, step 1e-3;
 central differences in u, exact for a map affine in u) — not the library's Jacobians. The
 problem is written from its definition (single shooting over v = Δu, u = u_sim⁰ + cumsum(v),
-Qy-weighted outputs and Qu-weighted v), the limits as linear constraints on u, and solved by
+Qy-weighted outputs and Qu-weighted v), the input limits as linear constraints on u, an output box
+as nonlinear constraints on the outputs of the rollout (a soft one with its own slack variables
+and their exact penalty, as the library defines it), and solved by
 IPOPT (limited-memory Hessian, tight tolerances). The benchmark benchmarks/bench_nmpc.py
 runs the same formulation in closed loop (IPOPT and CasADi's SQP).
 """
@@ -88,27 +90,33 @@ class _Phi(ca.Callback):
 
 
 def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_prev=None, disturbance=None,
-               method="ipopt", max_iter=None, tol=1e-14):
+               method="ipopt", max_iter=None, tol=1e-14, output_box=None, box_penalty=None):
     """The optimal v (Nu = N) of the NMPC problem by IPOPT (or CasADi's SQP, ``method="sqpmethod"``).
 
     Args:
         model: the reduced model; Ts: s; X0: (n_x,); u0: (N, m) u_sim⁰; w: (N − No, p) reference;
         Qy, Qu: scalar square-root weights; torque, du: scalars or (m,) (already tightened), or None;
         u_prev: (m,) u(k−1) for the du limit; disturbance: (n_x,) d or None.
+        output_box: (p, 2) [lo, hi] per output (m, rad; ±inf: that side free) on the predicted
+            outputs k+No+1..k+N, or None. box_penalty: None (a hard box) or ρ: the box is soft, one
+            slack s ≥ 0 per output and step (lo − s ≤ y ≤ hi + s) costing ρ s + ρ·SOFT_QUADRATIC·s².
         method: "ipopt" (tight tolerances) or "sqpmethod" (qpOASES subproblems); max_iter: None
             (to convergence) or a cap (``1``: one SQP iteration); tol: IPOPT's tolerance (the
             oracle: 1e-14; the benchmark a control-rate 1e-8).
 
     Returns:
-        (v (N·m,), J(v), the solver's return status, its iteration count).
+        (v (N·m,), J(v) (with the slack's penalty when soft), the solver's return status, its
+        iteration count).
     """
     n, m = model.n_x, model.n_u
     phi = _Phi("phi", model, Ts)
-    V = ca.MX.sym("v", N * m)
+    p = w.shape[1]
+    n_s = (N - No) * p if output_box is not None and box_penalty is not None else 0
+    V = ca.MX.sym("v", N * m + n_s)
     d = np.zeros(n) if disturbance is None else np.asarray(disturbance, dtype=float)
     x = ca.DM(X0)
     cost = 0
-    us = []
+    us, ys = [], []
     acc = ca.DM.zeros(m)
     for i in range(N):
         acc = acc + V[i * m:(i + 1) * m]
@@ -116,9 +124,14 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
         us.append(u)
         x = phi(x, u) + ca.DM(d)
         if i + 1 > No:
-            e = Qy * (x[: w.shape[1]] - ca.DM(w[i - No]))
+            e = Qy * (x[:p] - ca.DM(w[i - No]))
             cost = cost + ca.dot(e, e)
-    cost = cost + Qu ** 2 * ca.dot(V, V)
+            ys.append(x[:p])
+    cost = cost + Qu ** 2 * ca.dot(V[:N * m], V[:N * m])
+    S = V[N * m:]
+    if n_s:
+        from parallel_gpc.limits import SOFT_QUADRATIC
+        cost = cost + box_penalty * ca.sum1(S) + box_penalty * SOFT_QUADRATIC * ca.dot(S, S)
     g, lbg, ubg = [], [], []
     if torque is not None:
         tau = np.broadcast_to(torque, (m,))
@@ -134,8 +147,19 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
             lbg += list(-delta)
             ubg += list(delta)
             prev = u
+    if output_box is not None:
+        box = np.asarray(output_box, dtype=float)
+        for j, y in enumerate(ys):
+            s = S[j * p:(j + 1) * p] if n_s else 0
+            for side, sign in ((0, -1.0), (1, 1.0)):  # sign·(y − bound) − s ≤ 0
+                keep = np.isfinite(box[:, side])
+                if keep.any():
+                    rows = np.flatnonzero(keep).tolist()
+                    g.append(sign * (y[rows] - ca.DM(box[rows, side])) - (s[rows] if n_s else 0))
+                    lbg += [-np.inf] * len(rows)
+                    ubg += [0.0] * len(rows)
     f0 = ca.Function("f", [V], [cost])
-    scale = float(f0(np.zeros(N * m)))
+    scale = float(f0(np.zeros(N * m + n_s)))
     nlp = {"x": V, "f": cost / scale, "g": ca.vertcat(*g) if g else ca.MX(0, 1)}
     if method == "ipopt":
         opts = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": tol, "ipopt.acceptable_iter": 0,
@@ -146,7 +170,7 @@ def ipopt_plan(model, Ts, X0, u0, w, Qy, Qu, N, No=0, torque=None, du=None, u_pr
                 "hessian_approximation": "limited-memory", "max_iter": max_iter or 200, "error_on_fail": False,
                 "qpsol_options": {"printLevel": "none", "error_on_fail": False}}
     solver = ca.nlpsol("oracle", method, nlp, opts)
-    sol = solver(x0=np.zeros(N * m), lbg=lbg, ubg=ubg)
+    sol = solver(x0=np.zeros(N * m + n_s), lbg=lbg, ubg=ubg, lbx=[-np.inf] * (N * m) + [0.0] * n_s)
     stats = solver.stats()
-    return (np.array(sol["x"]).ravel(), float(sol["f"]) * scale, stats["return_status"],
+    return (np.array(sol["x"]).ravel()[:N * m], float(sol["f"]) * scale, stats["return_status"],
             int(stats.get("iter_count", 0)))

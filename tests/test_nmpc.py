@@ -13,7 +13,6 @@ import pytest
 from parallel_gpc import ControllerState, GPCController, GPCSettings, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.gpc.controller import LIMIT_MARGIN
-from parallel_gpc.gpc.nmpc import state_jacobians
 from parallel_gpc.limits import Limits
 
 TS = 0.002
@@ -96,7 +95,7 @@ def test_state_jacobians_match_a_finer_difference(robot4):
     model, X, plan, _ = _case("planar_4rrr")
     u = plan[:3]
     traj = model.simulate_factorized(X, u, TS)[3]
-    J = state_jacobians(model, traj, u, TS)
+    J = model.stage_jacobians(traj, u, TS)
     Ad = model.simulate_factorized(X, u, TS)[0]
     for i in range(3):
         fine = np.empty((6, 6))
@@ -108,6 +107,23 @@ def test_state_jacobians_match_a_finer_difference(robot4):
             fine[:, k] = (-f(x + 2 * e) + 8 * f(x + e) - 8 * f(x - e) + f(x - 2 * e)) / 12e-3
         assert np.abs(J[i] - fine).max() <= 1e-8
         assert np.abs(J[i] - Ad[i]).max() > 1e-6  # the frozen A_d is not the Jacobian
+
+
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_compiled_stage_jacobians_equal_the_python_reference(name):
+    """The compiled central differences (one native call) against the Python loop of
+    ReducedModel.stage_jacobians on the Python model update, along a moving trajectory."""
+    from parallel_gpc.model.native import native_module
+    if not hasattr(native_module(), "stage_jacobians"):
+        pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    model, X, plan, _ = _case(name)
+    reference = ReducedModel(model.robot, native=False)
+    u = plan[:5]
+    traj = reference.simulate_factorized(X, u, TS)[3]
+    J = model.stage_jacobians(traj, u, TS)
+    J_ref = reference.stage_jacobians(traj, u, TS)
+    assert J.shape == J_ref.shape == (5, model.n_x, model.n_x)
+    assert np.abs(J - J_ref).max() <= 1e-7 * max(1.0, np.abs(J_ref).max())  # differences of two rounding paths
 
 
 @pytest.mark.parametrize("name,limits", [
@@ -141,6 +157,70 @@ def test_converged_plan_equals_ipopts(name, limits):
     assert np.abs(info.result.v - v).max() <= 1e-6 * np.abs(v).max()
     assert info.result.cost == pytest.approx(J, rel=1e-9)
     assert info.residual <= 1e-6 and not info.fallback  # the QP back end's own tolerance
+
+
+@pytest.mark.parametrize("soft", [False, True])
+def test_converged_plan_with_an_active_output_box_equals_ipopts(soft):
+    """The output box rebuilt along every iteration's trajectory: the converged plan is IPOPT's
+    with the box on the nonlinear outputs (hard; soft with its slack and exact penalty)."""
+    pytest.importorskip("casadi")
+    from nmpc_oracle import ipopt_plan
+
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    _, free = _step(model, X, plan, target, N, 50)
+    x_free = model.simulate_factorized(X, u0 + np.cumsum(free.result.v.reshape(N, -1), axis=0), TS)[3][1:, 0]
+    hi = X[0] + 0.5 * (x_free.max() - X[0])  # cuts the free motion of x in half
+    box = np.array([[-np.inf, hi], [-np.inf, np.inf], [-np.inf, np.inf]])
+    penalty = 1.0  # soft: small enough that the slack is used
+    lim = Limits(output_box=box, soft=("output_box",) if soft else (), penalty=penalty)
+    _, info = _step(model, X, plan, target, N, 50, limits=lim)
+    v, J, status, _ = ipopt_plan(model, TS, X, u0, np.tile(target, (N, 1)), QY, QU, N, output_box=box,
+                                 box_penalty=penalty if soft else None, tol=1e-10)
+    assert status == "Solve_Succeeded"
+    assert np.abs(info.result.v - v).max() <= 1e-6 * np.abs(v).max()
+    assert info.result.cost == pytest.approx(J, rel=1e-8)
+    assert info.residual <= 1e-6 and not info.fallback and info.iterations > 1
+    assert info.constraints.active == ("output_box",)
+    x = model.simulate_factorized(X, u0 + np.cumsum(info.result.v.reshape(N, -1), axis=0), TS)[3][1:, 0]
+    if soft:  # the box is broken by the slack the report gives, the paper's single step differs
+        assert info.constraints.slack["output_box"] == pytest.approx(x.max() - hi, rel=1e-6) and x.max() > hi + 1e-4
+    else:  # held on the nonlinear trajectory, touched
+        assert x.max() <= hi + 1e-9 and x.max() >= hi - 1e-9
+    _, paper = _step(model, X, plan, target, N, 1, limits=lim)
+    assert np.abs(paper.result.v - v).max() > 1e-4 * np.abs(v).max()
+
+
+@pytest.mark.parametrize("soft", [(), ("drive_position",)])
+def test_drive_position_limit_holds_on_the_nonlinear_trajectory(soft):
+    """A drive range rebuilt along every iteration (linearized at each plan's poses): the
+    converged plan keeps it on the drive positions of its nonlinear trajectory (assembled
+    independently), touching it."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    drives = DriveKinematics(model.robot)
+
+    def drive_positions(v):
+        Y = model.simulate_factorized(X, u0 + np.cumsum(v.reshape(N, -1), axis=0), TS)[3][1:, :model.n_y]
+        return np.array([drives(y)[0] for y in Y])
+
+    _, free = _step(model, X, plan, target, N, 50)
+    q0, q = drives(X[:model.n_y])[0], drive_positions(free.result.v)
+    j = int(np.argmax(np.abs(q - q0).max(axis=0)))  # the drive that moves most
+    moved = q[:, j] - q0[j]
+    bounds = np.tile([-np.inf, np.inf], (model.n_u, 1))
+    side = 1 if moved.max() > -moved.min() else 0
+    bounds[j, side] = q0[j] + 0.5 * (moved.max() if side else moved.min())
+    _, info = _step(model, X, plan, target, N, 50, limits=Limits(drive_position=bounds, soft=soft), tolerance=1e-8)
+    assert info.residual <= 1e-6 and not info.fallback and info.iterations > 1
+    assert info.constraints.active == ("drive_position",) and info.constraints.max_slack <= 1e-9
+    qj = drive_positions(info.result.v)[:, j]
+    reach = qj.max() if side else -qj.min()
+    assert reach == pytest.approx(bounds[j, side] if side else -bounds[j, side], abs=1e-9)
 
 
 def test_time_budget_stops_and_says_so(robot4):

@@ -6,6 +6,7 @@ NB_MODULE(_native, m) {
   m.doc() = "parallel-gpc compiled core (Pinocchio C++ API); the Python modules are the reference";
   m.attr("pinocchio_version") = PGPC_PINOCCHIO_VERSION;
   pgpc::bind_model_update(m);
+  pgpc::bind_stage_jacobian(m);
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
 }

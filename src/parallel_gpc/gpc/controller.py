@@ -146,7 +146,8 @@ class GPCController:
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
-            self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget)
+            self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
+            drives)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -315,7 +316,7 @@ class GPCController:
         X = finite_vector("measured state X", X, self.n_x)
         w = self._reference_rows(w)
         t0 = time.perf_counter()
-        constraint_report = None
+        constraint_report, rows = None, None
         self._update_disturbance(X)
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
@@ -346,7 +347,9 @@ class GPCController:
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
             pred, result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0)
+                self._backend.solve, self.disturbance, t0, rows)
+            if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
+                constraint_report = iterations.constraints
         violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
         if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
             result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")

@@ -11,6 +11,8 @@ u(i) = u_sim⁰(i) + Σ_{l ≤ min(i, Nu−1)} Δu(l), i = 0..N−1 (the nonline
     minimize   J(v) = Σ_{j=No+1..N} ‖Qy (C X(j) − w(j))‖² + Σ_{i<Nu} ‖Qu Δu(i)‖²
     subject to X(0) = X(k),  X(i+1) = Φ(X(i), u(i)) + d,
                |u(i)| ≤ τ (i < N),  |u(i) − u(i−1)| ≤ δ (i < Nu, u(−1) = u(k−1)),
+               the state limits (:mod:`~parallel_gpc.gpc.constraints`) on the outputs C X(j),
+               j = No+1..N, of this trajectory (soft ones: + ρ s + ε s² in J, s their least slack),
 
 Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) the state-dependent ZOH model, the very map of the
 pre-simulation (:meth:`~parallel_gpc.model.ReducedModel.simulate_factorized`), d the
@@ -20,12 +22,17 @@ J is one fixed function of v for the whole step, and ``iterations=1`` is the pap
 
 **The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
-(Φ is affine in u) and ∂Φ/∂X by central differences of Φ (2·n_x evaluations per stage; the
-frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed
-point that is not the optimum) — and solves the same least-squares/QP problem for the total v,
-every limit of the problem included. A backtracking line search on the true J (each trial one
-pre-simulation) accepts v + α(v⁺ − v) with sufficient decrease; a convex combination of two
-feasible plans is feasible. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
+(Φ is affine in u) and ∂Φ/∂X by central differences of Φ
+(:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, 2·n_x evaluations per stage in one
+compiled call; the frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it
+stops at a fixed point that is not the optimum) — rebuilds the state limits' rows along that
+trajectory (exact at the current plan: the drive limits linearized at its poses) and solves the
+same least-squares/QP problem for the total v, every limit of the problem included. A
+backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
+by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
+violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
+else a sufficient decrease of that violation; a convex combination of two plans within the input
+limits is within them. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
 problem's), the iteration limit, a failed line search or solve (the last accepted plan is
 kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
@@ -39,12 +46,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from types import SimpleNamespace
+
 from ..errors import AssemblyError, NonFiniteError, SingularPoseError
+from ..limits import SOFT_QUADRATIC, Limits
 from ..solvers import SolveResult
+from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_violation,
+                          split, stage_constraints)
+from .constraints import report as constraint_report
 from .criterion import Criterion
 from .prediction import Prediction, simulative_prediction
 
-__all__ = ["NMPCIterations", "IterationReport", "state_jacobians", "ARMIJO", "BACKTRACKS"]
+__all__ = ["NMPCIterations", "IterationReport", "ARMIJO", "BACKTRACKS"]
 
 #: sufficient-decrease factor of the line search (fraction of the Gauss–Newton model's decrease).
 ARMIJO = 1e-4
@@ -52,10 +65,12 @@ ARMIJO = 1e-4
 BACKTRACKS = 12
 #: errors of the model away from its domain (a trial plan beyond the workspace): a shorter step.
 MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
+#: where the rows of a trajectory's own state limits (:meth:`NMPCIterations._true_rows`) are evaluated.
+AT_VALUES = np.zeros(1)
+#: the problem shape those rows are read with (one decision variable, slack in the limits' units).
+AT_PROBLEM = SimpleNamespace(n_decision=1, slack_unit=None)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
-#: relative step of the central differences of Φ (per state entry, times max(1, |X_k|)).
-FD_STEP = 1e-5
 
 
 @dataclass(frozen=True)
@@ -68,9 +83,12 @@ class IterationReport:
             NaN when only the paper's step ran without a second linearization.
         budget_hit: True when the time budget stopped the iterations.
         converged: True when the residual fell to the tolerance.
-        cost: J(v) of the applied plan on the nonlinear model (the criterion's units).
+        cost: J(v) of the applied plan on the nonlinear model (the criterion's units), plus the
+            cost of its soft state limits' least slack (ρ s + ε s²; 0 when kept).
         stop: why the iterations ended (``"converged"``, ``"iterations"``, ``"time budget"``,
             ``"line search"``, ``"solve failed"``, ``"jacobian failed"``).
+        constraints: the state limits at the applied plan's nonlinear trajectory (active kinds,
+            slack of the soft ones), or None without state limits.
     """
 
     iterations: int = 1
@@ -79,59 +97,38 @@ class IterationReport:
     converged: bool = False
     cost: float = float("nan")
     stop: str = "iterations"
-
-
-def state_jacobians(model, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = FD_STEP) -> np.ndarray:
-    """∂Φ/∂X at each stage of a trajectory, Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X).
-
-    Central differences of the model's own ZOH map (:meth:`discrete`), step h_k =
-    ``step``·max(1, |X_k|): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11 relative.
-
-    Args:
-        model: a model with ``discrete(X, Ts)`` (a :class:`~parallel_gpc.model.ReducedModel`).
-        X_seq: (≥ K, n_x) states X(0..K−1); u_seq: (K, n_u) inputs (N·m); Ts: sample time (s).
-
-    Returns:
-        (K, n_x, n_x) Jacobians.
-    """
-    K, n = len(u_seq), model.n_x
-    J = np.empty((K, n, n))
-    for i in range(K):
-        x, u = X_seq[i], u_seq[i]
-        for k in range(n):
-            h = step * max(1.0, abs(x[k]))
-            xp, xm = x.copy(), x.copy()
-            xp[k] += h
-            xm[k] -= h
-            Ap, Bp, cp = model.discrete(xp, Ts)
-            Am, Bm, cm = model.discrete(xm, Ts)
-            J[i, :, k] = (Ap @ xp + Bp @ u + cp - (Am @ xm + Bm @ u + cm)) / (xp[k] - xm[k])
-    return J
+    constraints: ConstraintReport | None = None
 
 
 class NMPCIterations:
     """Gauss–Newton iterations of the nonlinear form to the optimum of its discrete problem.
 
     Args:
-        model: the controller's model (``simulate_factorized``, ``discrete``, ``C``).
+        model: the controller's model (``simulate_factorized``, ``stage_jacobians``, ``C``).
         criterion: the controller's :class:`~parallel_gpc.gpc.criterion.Criterion`.
         Ts: sample time (s). iterations: the largest number of iterations (≥ 1).
         tolerance: the step tolerance (relative). time_budget: s per control step, or None.
+        limits: the controller's limits sized to the model (their state kinds are rebuilt along
+            every iteration's trajectory), or None. drives: the robot's drive kinematics (needed
+            by drive_position and drive_rate), or None.
     """
 
     def __init__(self, model, criterion: Criterion, Ts: float, iterations: int, tolerance: float,
-                 time_budget: float | None):
+                 time_budget: float | None, limits: Limits | None = None, drives: DriveKinematics | None = None):
         self.model, self.criterion, self.Ts = model, criterion, Ts
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
+        self.limits = limits if limits is not None and limits.has_state_limits else None
+        self.drives = drives
 
     # -------------------------------------------------------------- the true problem
     def _rollout(self, X, w, u0, u_map, v, d):
-        """(trajectory, inputs (N, m), J(v)) on the nonlinear model; trajectory = simulate_factorized's output."""
+        """(trajectory, inputs (N, m), outputs (n_rows·p,), J(v)) on the nonlinear model;
+        trajectory = simulate_factorized's output."""
         H, m = self.criterion.horizons, self.model.n_u
         u = (u0 + u_map @ v).reshape(-1, m)
         traj = self.model.simulate_factorized(X, u, self.Ts, d)
-        y = traj[3][1:] @ self.model.C.T
-        return traj, u, self._cost(y[H.No:].reshape(-1), w, v)
+        y = (traj[3][1:] @ self.model.C.T)[H.No:].reshape(-1)
+        return traj, u, y, self._cost(y, w, v)
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
         """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,))."""
@@ -140,17 +137,72 @@ class NMPCIterations:
         q = c.Qu_block @ v
         return float(e.reshape(-1) @ e.reshape(-1) + q @ q)
 
+    # -------------------------------------------------------------- state limits
+    def _rows(self, lin: Prediction, y_lin: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
+        """The state limits' rows G v ≤ h of the prediction ``lin``, the drive limits linearized at
+        the outputs y_lin (n_rows·p,) (m, rad); None without state limits."""
+        if self.limits is None:
+            return None
+        return stage_constraints(lin, self.limits, self.Ts, y_now, y_lin, self.drives)
+
+    def _true_rows(self, y_rows: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
+        """The state limits at the outputs y_rows (n_rows·p,) of a nonlinear trajectory: rows with
+        one zero column (evaluated at v = :data:`AT_VALUES`), h = bound − value (the drive
+        positions at the poses themselves)."""
+        if self.limits is None:
+            return None
+        H = self.criterion.horizons
+        at = Prediction(y_rows, np.zeros((len(y_rows), 1)), np.zeros(0), np.zeros((0, 1)), H, "simulative")
+        return self._rows(at, y_rows, y_now)
+
+    def _slack(self, rows: ConstraintRows, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(violation of each row (k,), the least slack of each soft pair (n_s,)) at v, in the
+        limits' units (m, rad, m/s, …)."""
+        viol = np.maximum(rows.G @ v - rows.h, 0.0)
+        s = np.zeros(rows.n_slack)
+        soft = rows.slack_of >= 0
+        np.maximum.at(s, rows.slack_of[soft], viol[soft])
+        return viol, s
+
+    def _penalty(self, rows: ConstraintRows | None, v: np.ndarray) -> float:
+        """The soft state limits' cost at v: ρ s + ε s² per soft pair, s its least slack (the QP's
+        slack cost, :func:`~parallel_gpc.gpc.constraints.constrain`)."""
+        if rows is None or not rows.n_slack:
+            return 0.0
+        _, s = self._slack(rows, v)
+        rho = self.limits.penalty
+        return float(rho * s.sum() + rho * SOFT_QUADRATIC * (s @ s))
+
+    @staticmethod
+    def _hard(rows: ConstraintRows | None) -> float:
+        """The largest violation of a hard row of a trajectory's own state limits (m, rad, m/s, …;
+        0 when kept)."""
+        return hard_violation(AT_PROBLEM, rows, AT_VALUES)
+
+    def _model_merit(self, lin: Prediction, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
+        """J + penalty of the linearization ``lin`` (and its rows) at v."""
+        return self._cost(lin.f + lin.G @ v, w, v) + self._penalty(rows, v)
+
+    def _report(self, rows: ConstraintRows | None) -> ConstraintReport | None:
+        """The state limits' report at a trajectory (its rows from :meth:`_true_rows`)."""
+        if rows is None or not len(rows.h):
+            return None
+        _, s = self._slack(rows, AT_VALUES)
+        return constraint_report(AT_PROBLEM, rows, np.concatenate([AT_VALUES, s]))
+
     # -------------------------------------------------------------- the iterations
-    def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float):
+    def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
+            rows: ConstraintRows | None = None):
         """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
             X: (n_x,) measured state. w: (n_rows, p) reference rows (m, rad).
             pred: the paper's prediction (frozen Jacobians along the pre-simulation of u_sim⁰).
-            result: its solve (v = the paper's increments).
-            problem_of: Prediction → LeastSquaresProblem with the controller's limits.
-            solve: (problem, warm start v) → SolveResult (the controller's back end).
+            result: its solve (v = the paper's increments, without slack variables).
+            problem_of: Prediction → LeastSquaresProblem with the controller's input limits.
+            solve: (problem, warm start) → SolveResult (the controller's back end).
             disturbance: (n_x,) d of the step. start: time.perf_counter() at the step's start.
+            rows: the paper's step's state-limit rows (None without state limits).
 
         Returns:
             (prediction of the last linearization in the total v, its result with v the accepted
@@ -160,37 +212,44 @@ class NMPCIterations:
         if not result.ok:
             return pred, result, IterationReport(stop="solve failed")
         H, C = self.criterion.horizons, self.model.C
+        y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
-        cost = self._cost(pred.f, w, v)
-        lin = pred  # the linearization that produced `result`
+        true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
+        merit = self._cost(pred.f, w, v) + self._penalty(true_rows, AT_VALUES)
+        excess = self._hard(true_rows)
+        lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
-            decrease = max(self._cost(lin.f + lin.G @ v, w, v) - self._cost(lin.f + lin.G @ v_new, w, v_new), 0.0)
+            decrease = max(self._model_merit(lin, lin_rows, w, v) - self._model_merit(lin, lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
                 try:
-                    traj, u_traj, trial_cost = self._rollout(X, w, u0, u_map, trial, disturbance)
+                    traj, u_traj, y_rows, trial_cost = self._rollout(X, w, u0, u_map, trial, disturbance)
+                    trial_rows = self._true_rows(y_rows, y_now)
                 except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
                     alpha *= 0.5
                     continue
-                if trial_cost <= cost - ARMIJO * alpha * decrease:
-                    accepted = (trial, traj, u_traj, trial_cost)
+                trial_merit = trial_cost + self._penalty(trial_rows, AT_VALUES)
+                trial_excess = self._hard(trial_rows)
+                if (trial_excess <= max(excess, STATE_TOL) and trial_merit <= merit - ARMIJO * alpha * decrease) \
+                        or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
+                    accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
                     break
                 alpha *= 0.5
             scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
             report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / scale if report["iterations"] > 1 \
                 else float("nan")
-            if accepted is None:  # no decrease measurable above rounding: as good as converged
-                flat = decrease <= ROUNDING * cost
+            if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
+                flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
-            v, traj, u_traj, cost = accepted
+            v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
             if report["iterations"] > 1 and report["residual"] <= self.tolerance:
                 report.update(stop="converged", converged=True)
                 break
@@ -203,19 +262,27 @@ class NMPCIterations:
             last = now
             A_seq, B_seq, _, X_seq = traj
             try:
-                JX = state_jacobians(self.model, X_seq, u_traj, self.Ts)
+                JX = self.model.stage_jacobians(X_seq, u_traj, self.Ts)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
             y_traj = X_seq[1:] @ C.T
             G = simulative_prediction(JX, B_seq, C, y_traj, u_traj, H).G
-            lin = Prediction(y_traj[H.No:].reshape(-1) - G @ v, G, u0, u_map, H, "simulative")
+            lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
+            try:  # the state limits linearized along this plan's trajectory (exact at v)
+                lin_rows = self._rows(lin, y_rows, y_now)
+            except MODEL_ERRORS:
+                report["stop"] = "jacobian failed"
+                break
+            problem = constrain(problem_of(lin), lin_rows, self.limits)
+            warm = v if not problem.n_slack else np.concatenate([v, np.zeros(problem.n_slack)])
             try:
-                new = solve(problem_of(lin), v)
+                new = solve(problem, warm)
             except Exception as exc:  # a back end's own exception ends the iterations, never leaks
-                new = SolveResult(v, np.inf, "failed", "", message=f"{type(exc).__name__}: {exc}")
-            if not new.ok:
+                new = SolveResult(warm, np.inf, "failed", "", message=f"{type(exc).__name__}: {exc}")
+            if not new.ok or hard_violation(problem, lin_rows, new.v) > STATE_TOL:
                 report["stop"] = "solve failed"
                 break
-            result = new
-        return lin, replace(result, v=v.copy(), cost=cost), IterationReport(cost=cost, **report)
+            result, _ = split(problem, new)
+        return lin, replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
+            true_rows), **report)

@@ -129,10 +129,6 @@ def check_iterations(settings: "GPCSettings") -> None:
     if n > 1 and settings.solver == "riccati":
         raise InvalidParameterError(f"iterations = {n} needs a dense back end (e.g. 'qr'); solver 'riccati' "
                                     "solves the paper's single step only")
-    if n > 1 and settings.limits.has_state_limits:
-        raise InvalidParameterError(f"iterations = {n} takes torque and du limits inside every iteration; the state "
-                                    "and output limits (drive_position, drive_rate, output_box, output_velocity) "
-                                    "enter the paper's single step only so far: use iterations=1 with them")
 
 
 def check_form_limits(form: str, limits: Limits) -> None:

@@ -26,12 +26,16 @@ import pinocchio as pin
 
 from .discretization import discretize_zoh, expm, rk4_step, zoh_split
 from .linalg import spd_solve
+from .native import native_module
 from .native_update import compiled_model_update, model_update_status, use_native
 from .robot import ParallelRobot
 from ..validation import finite_vector, positive
 
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
-__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step"]
+__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP"]
+
+#: relative step of the central differences of the stage map (:meth:`ReducedModel.stage_jacobians`).
+JACOBIAN_STEP = 1e-5
 
 
 @dataclass
@@ -276,6 +280,40 @@ class ReducedModel:
         if self.native:
             return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
+
+    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
+        """∂Φ/∂X of the stage map Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) (:meth:`discrete`, the
+        pre-simulation's map (10)) at each stage of a trajectory.
+
+        Central differences of Φ, step h_k = ``step``·max(1, |X_k|): truncation O(h²) ≈ 1e-10,
+        rounding ≈ 1e-11 relative. The compiled core runs all K·2·n_x evaluations in one call
+        (``_native.stage_jacobians``); this method's loop is its reference.
+
+        Args:
+            X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
+            Ts: sample time (s); step: relative difference step.
+
+        Returns:
+            (K, n_x, n_x) Jacobians.
+        """
+        X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
+        K, n = len(u_seq), self.n_x
+        compiled = native_module() if self.native else None
+        if compiled is not None and hasattr(compiled, "stage_jacobians"):
+            return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
+                                            Ts, step).reshape(K, n, n)
+        J = np.empty((K, n, n))
+        for i in range(K):
+            x, u = X_seq[i], u_seq[i]
+            for k in range(n):
+                h = step * max(1.0, abs(x[k]))
+                xp, xm = x.copy(), x.copy()
+                xp[k] += h
+                xm[k] -= h
+                Ap, Bp, cp = self.discrete(xp, Ts)
+                Am, Bm, cm = self.discrete(xm, Ts)
+                J[i, :, k] = (Ap @ xp + Bp @ u + cp - (Am @ xm + Bm @ u + cm)) / (xp[k] - xm[k])
+        return J
 
     def _zoh_augmented(self, X: np.ndarray, Ts: float) -> np.ndarray:
         """The (n_x + n_u + 1)² matrix [[A, B, c], [0, 0, 0]]·Ts of the factorization at X."""
