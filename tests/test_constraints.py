@@ -175,7 +175,7 @@ def test_bad_limits_get_one_clear_error_each():
     with pytest.raises(InfeasibleLimitsError, match=r"y\[0\] = 0.7.*outside \[0, 0.5\]"):
         Limits(output_box=[[0, 0.5], [0, 1]]).check_pose([0.7, 0.2])
     A, B, C = double_integrator()
-    with pytest.raises(InvalidParameterError, match="drive kinematics"):
+    with pytest.raises(InvalidParameterError, match="drive_position limits need a robot.s model"):
         GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(5),
                             limits=Limits(drive_position=[0, 1]))
     with pytest.raises(InvalidParameterError, match="box limits only"):
@@ -352,3 +352,97 @@ def test_drive_rows_are_the_inverse_kinematics_to_first_order(model4):
     q_prev = np.vstack([robot.inverse_kinematics(X[:3]), q1[:-1]])
     np.testing.assert_allclose(rows.G[rate] @ v + (50.0 * TS - rows.h[rate]), (q1 - q_prev).reshape(-1),
                                atol=2e-3 * np.abs(q1 - q_prev).max())
+
+
+# ---------------------------------------------------------------------------- passive joint ranges
+def test_joint_rows_are_the_closure_solution_to_first_order(model4):
+    """joint_position rows against the robot's own assembly (Newton on the closures) at the
+    predicted poses, by finite differences: value at v = 0 and first-order change."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    robot = model4.robot
+    H = Horizons(6)
+    X = np.concatenate([robot.home_pose, [0.05, -0.02, 0.1]])
+    Ad, Bd, cd = model4.discrete(X, TS)
+    pred = absolute_prediction(Ad, Bd, cd, model4.C, X, H)
+    names = ("elbow_1", "elbow_3")
+    lim = Limits(joint_position={n: [-10.0, 10.0] for n in names})
+    rows = stage_constraints(pred, lim, TS, X[:3], drives=DriveKinematics(robot, names))
+    iq = [robot.passive_joints[n][0] for n in names]
+
+    def joints(poses):  # the oracle: full assembly of each pose, the named coordinates
+        return np.array([robot.assemble(y, robot.q_home)[iq] for y in poses.reshape(-1, robot.n_y)])
+
+    q0 = joints(pred.f)
+    hi_rows = np.flatnonzero(rows.kind == "joint_position")[: q0.size]  # the upper side comes first
+    np.testing.assert_allclose(10.0 - rows.h[hi_rows], q0.reshape(-1), atol=1e-9)
+    v = np.random.default_rng(2).normal(size=pred.G.shape[1]) * 0.5
+    dq = (joints(pred.outputs(v)) - q0).reshape(-1)
+    assert np.abs(dq).max() > 1e-5
+    np.testing.assert_allclose(rows.G[hi_rows] @ v, dq, atol=1e-3 * np.abs(dq).max())
+
+
+def test_a_hard_joint_range_holds_in_closed_loop():
+    """planar_4rrr on the S-curve: elbow_2 would reach 2.55 rad; with its range capped at 2.47 rad
+    (hard) the plant's elbow stays below it (linearization error ≤ 1e-5 rad) and the platform bends
+    away from the path only while the range binds."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+    from parallel_gpc.gpc.robot_references import reference_for
+    from parallel_gpc.model import ConstrainedPlant, ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = reference_for("s-curve", robot, 1.0)
+    kin = DriveKinematics(robot, ("elbow_2",))
+    along = np.array([kin(ref.pose(t))[0][-1] for t in np.linspace(0.0, 1.2, 61)])
+    assert along.max() > 2.54 and along[0] < 2.4 and along[-1] < 2.4  # the path breaks the range, its ends do not
+    Ts, N, hi = 0.004, 8, 2.47
+    ctl = GPCController.build(ReducedModel(robot), Ts=Ts, horizons=Horizons(N), form="nonlinear",
+                              limits=Limits(torque=1000.0, joint_position={"elbow_2": [-10.0, hi]}, soft=()))
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=Ts)
+    X, elbow, err, active = plant.X, [], [], []
+    iq = robot.passive_joints["elbow_2"][0]
+    for k in range(300):
+        info = ctl.step(X, ref.sample((k + 1 + np.arange(N)) * Ts))
+        assert not info.fallback
+        X = plant.step(info.u)
+        elbow.append(plant.q[iq])
+        err.append(np.linalg.norm(X[:2] - ref.pose((k + 1) * Ts)[:2]))
+        active.append("joint_position" in info.constraints.active)
+    elbow, err, active = np.array(elbow), np.array(err), np.array(active)
+    assert active.any() and elbow.max() <= hi + 1e-5
+    assert err.max() > 1e-2  # it had to leave the path
+    assert err[-50:].max() < 1e-4  # and returns to it once the range is free
+
+
+def test_joint_ranges_come_from_the_robot_file_and_bad_names_are_refused(tmp_path):
+    from parallel_gpc.errors import RobotFormatError
+    from parallel_gpc.model import ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("hexapod_6ups")
+    with pytest.raises(InvalidParameterError, match=r"'u_c_1'.*valid joint names: \['platform_x'.*'u_a_1', 'u_b_1'"):
+        GPCController.build(ReducedModel(robot), Ts=0.002, horizons=Horizons(4),
+                            limits=Limits(joint_position={"u_c_1": [-1, 1]}))
+    with pytest.raises(InvalidParameterError, match="'drive_1', which is a drive.*drive_position"):
+        GPCController.build(ReducedModel(robot), Ts=0.002, horizons=Horizons(4),
+                            limits=Limits(joint_position={"drive_1": [-1, 1]}))
+    with pytest.raises(InfeasibleLimitsError, match=r"joint_position\['u_a_1'\]"):
+        Limits(joint_position={"u_a_1": [1, -1]})
+    # a copy of the hexapod's files with the URDF ranges and one explicit range
+    src = robot.description.sidecar_path
+    text = src.read_text()
+    for name in ("joint_ranges = \"urdf\"\njoint_position = { u_a_1 = [-0.4, 0.4] }", "joint_position = { u_z_1 = [0, 1] }"):
+        folder = tmp_path / str(len(name))
+        folder.mkdir()
+        for f in src.parent.glob(src.stem + ".*"):
+            (folder / f.name).write_text(f.read_text())
+        (folder / src.name).write_text(text.replace("[limits]", "[limits]\n" + name, 1))
+        if "u_z_1" in name:
+            with pytest.raises(RobotFormatError, match=r"\['u_z_1'\].*valid: \["):
+                ParallelRobot.load(folder / src.name).state_limits
+            continue
+        limits = ParallelRobot.load(folder / src.name).state_limits
+        ranges = limits.joint_position
+        iq = robot.passive_joints["u_b_1"][0]
+        assert ranges["u_a_1"] == (-0.4, 0.4)  # the explicit range replaces the file's
+        assert ranges["u_b_1"] == (robot.model.lowerPositionLimit[iq], robot.model.upperPositionLimit[iq])
+        assert "drive_1" not in ranges and not limits.is_soft("joint_position")  # the file's soft = []

@@ -135,13 +135,7 @@ class GPCController:
         """Check ``settings`` against the model's sizes and make them current."""
         criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
         limits = settings.limits.for_drives(self.n_u, self.n_y)
-        drives = None
-        if limits.drive_position is not None or limits.drive_rate is not None:
-            drives = DriveKinematics.of(self.model)
-            if drives is None:
-                raise InvalidParameterError(f"drive_position and drive_rate limits need a robot's model (drive "
-                                            f"kinematics); {type(self.model).__name__} has none")
-        self._drives = drives
+        self._drives = DriveKinematics.needed(self.model, limits)
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
