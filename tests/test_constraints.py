@@ -446,3 +446,95 @@ def test_joint_ranges_come_from_the_robot_file_and_bad_names_are_refused(tmp_pat
         assert ranges["u_a_1"] == (-0.4, 0.4)  # the explicit range replaces the file's
         assert ranges["u_b_1"] == (robot.model.lowerPositionLimit[iq], robot.model.upperPositionLimit[iq])
         assert "drive_1" not in ranges and not limits.is_soft("joint_position")  # the file's soft = []
+
+
+# ---------------------------------------------------------------------------- terminal weight and equality
+def closed_loop_plans(form, weights, steps=40, **settings):
+    A, B, C = double_integrator()
+    ctl = GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(12), form=form,
+                              weights=weights, **settings)
+    X, w, plans = np.array([0.3, -0.1, 2.0, -0.5]), np.tile([1.0, -0.6], (12, 1)), []
+    for _ in range(steps):
+        info = ctl.step(X, w)
+        assert not info.fallback
+        plans.append(ctl.plan.copy())
+        X = A @ X + B @ info.u
+    return np.array(plans)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+def test_a_terminal_weight_of_one_is_the_paper_criterion(form):
+    base = closed_loop_plans(form, Weights([1.0, 2.0], 0.05))
+    np.testing.assert_allclose(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=1.0)), base, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=[1.0, 1.0])), base, atol=1e-12,
+                               rtol=0)
+    assert np.abs(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=5.0)) - base).max() > 1e-3  # it acts
+
+
+@pytest.mark.parametrize("Qy", [[1.0, 2.0], [[2.0, 0.5], [0.5, 1.0]]])
+def test_the_terminal_weight_scales_the_last_predicted_error(Qy):
+    """The stacked problem against one written here: the last block's rows times diag(Qf) Qy."""
+    H = Horizons(8, 2)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    pred = one_step("absolute", X, None, H)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    Qf = np.array([3.0, 0.5])
+    prob = build_problem(pred, w, Weights(Qy, 0.05, Qf), 2, 2)
+    Wy = np.diag(Qy) if np.ndim(Qy) == 1 else np.array(Qy)
+    blocks = [Wy] * (H.n_rows - 1) + [np.diag(Qf) @ Wy]
+    W = np.zeros((2 * H.n_rows, 2 * H.n_rows))
+    for i, Wi in enumerate(blocks):
+        W[2 * i:2 * i + 2, 2 * i:2 * i + 2] = Wi
+    A = np.vstack([W @ pred.G, 0.05 * np.eye(pred.G.shape[1])])
+    b = np.concatenate([W @ (w.reshape(-1) - pred.f), np.zeros(pred.G.shape[1])])
+    v = np.linalg.lstsq(A, b, rcond=None)[0]
+    np.testing.assert_allclose(make_solver("qr").solve(prob).v, v, atol=1e-10 * np.abs(v).max())
+    with pytest.raises(InvalidParameterError, match="Qf"):
+        Weights(1.0, 0.0, -1.0)
+    with pytest.raises(ShapeError, match="Qf"):
+        build_problem(pred, w, Weights(1.0, 0.0, [1.0, 2.0, 3.0]), 2, 2)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+@pytest.mark.parametrize("terminal", ["pose", "stop"])
+def test_the_terminal_equality_holds_in_the_plan_and_is_kkt_optimal(form, terminal):
+    A, B, C = double_integrator()
+    H = Horizons(12)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    ctl = GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=H, form=form,
+                              weights=Weights(1.0, 0.05), terminal=terminal)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    info = ctl.step(X, w)
+    assert not info.fallback and info.result.ok
+    pred = one_step(form, X, np.zeros(2), H)  # the controller's own prediction at its first step
+    v = info.result.v
+    y = pred.outputs(v).reshape(-1, 2)
+    np.testing.assert_allclose(y[-1], w[-1], atol=1e-8)
+    free = np.linalg.lstsq(np.vstack([pred.G, 0.05 * np.eye(24)]),
+                           np.concatenate([w.reshape(-1) - pred.f, np.zeros(24)]), rcond=None)[0]
+    assert np.abs(pred.outputs(free).reshape(-1, 2)[-1] - w[-1]).max() > 1e-2  # the equality binds
+    # the oracle: the equality-constrained QP's KKT system, solved here
+    P = 2 * (pred.G.T @ pred.G + 0.05 ** 2 * np.eye(24))
+    q = 2 * pred.G.T @ (pred.f - w.reshape(-1))
+    E, e = pred.G[-2:], w[-1] - pred.f[-2:]
+    if terminal == "stop":
+        np.testing.assert_allclose(y[-1] - y[-2], 0.0, atol=1e-8)
+        E, e = np.vstack([E, pred.G[-2:] - pred.G[-4:-2]]), np.concatenate([e, pred.f[-4:-2] - pred.f[-2:]])
+    K = np.block([[P, E.T], [E, np.zeros((len(e), len(e)))]])
+    x = np.linalg.solve(K, np.concatenate([-q, e]))[:24]
+    np.testing.assert_allclose(v, x, atol=1e-6 * np.abs(x).max())
+    lam = np.linalg.lstsq(E.T, -(P @ v + q), rcond=None)[0]  # stationarity: P v + q + Eᵀλ = 0
+    assert np.linalg.norm(P @ v + q + E.T @ lam) < 1e-6 * np.linalg.norm(q)
+
+
+def test_terminal_settings_are_refused_once_where_they_enter():
+    A, B, C = double_integrator()
+    model = DiscreteLinearModel(A, B, C, Ts=TS)
+    for kwargs, needle in ((dict(terminal="end"), r"terminal = 'end' is not one of \['pose', 'stop'\]"),
+                           (dict(terminal="stop", horizons=Horizons(5, 4)), "N − No ≥ 2"),
+                           (dict(terminal="pose", solver="qr"), "cannot enforce the terminal equality"),
+                           (dict(terminal="pose", solver="riccati"), "cannot enforce the terminal equality"),
+                           (dict(weights=Weights(1.0, 0.1, 2.0), solver="riccati"), "terminal weight Qf")):
+        kwargs.setdefault("horizons", Horizons(5))
+        with pytest.raises(InvalidParameterError, match=needle):
+            GPCController.build(model, Ts=TS, **kwargs)

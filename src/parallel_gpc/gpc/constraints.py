@@ -30,11 +30,11 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
-from ..solvers import LeastSquaresProblem, SolveResult, with_inequalities
+from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
-__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "constrain", "report", "split",
-           "hard_violation", "STATE_TOL"]
+__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "terminal_rows", "constrain",
+           "report", "split", "hard_violation", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
 ACTIVE_TOL = 1e-7
@@ -247,11 +247,38 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
                           np.concatenate(slack_of).astype(int), n_slack)
 
 
-def constrain(problem: LeastSquaresProblem, rows: ConstraintRows | None, limits: Limits) -> LeastSquaresProblem:
-    """``problem`` with the state constraint ``rows`` added (slack variables for the soft ones)."""
-    if rows is None or not len(rows.h):
-        return problem
-    return with_inequalities(problem, rows.G, rows.h, rows.slack_of, limits.penalty, limits.penalty * SOFT_QUADRATIC)
+def terminal_rows(pred: Prediction, w: np.ndarray, terminal: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The terminal equality rows ``E v = e`` of one step, or None.
+
+    Args:
+        pred: the prediction ŷ = f + G v. w: (n_rows, p) or (n_rows·p,) reference (m, rad).
+        terminal: None, ``"pose"`` (ŷ(k+N) = w(k+N)) or ``"stop"`` (also ŷ(k+N) = ŷ(k+N−1):
+            zero mean velocity over the last predicted sample; needs two predicted rows).
+
+    Returns:
+        (E (k, n), e (k,)), k = p (pose) or 2p (stop); None without a terminal equality.
+    """
+    if terminal is None:
+        return None
+    w = np.asarray(w, dtype=float).reshape(-1)
+    p = len(w) // pred.horizons.n_rows
+    E, e = [pred.G[-p:]], [w[-p:] - pred.f[-p:]]
+    if terminal == "stop":
+        E.append(pred.G[-p:] - pred.G[-2 * p:-p])
+        e.append(pred.f[-2 * p:-p] - pred.f[-p:])
+    return np.vstack(E), np.concatenate(e)
+
+
+def constrain(problem: LeastSquaresProblem, rows: ConstraintRows | None, limits: Limits,
+              terminal: tuple[np.ndarray, np.ndarray] | None = None) -> LeastSquaresProblem:
+    """``problem`` with the state constraint ``rows`` added (slack variables for the soft ones) and
+    the hard terminal equality rows ``terminal`` = (E, e) (:func:`terminal_rows`)."""
+    if rows is not None and len(rows.h):
+        problem = with_inequalities(problem, rows.G, rows.h, rows.slack_of, limits.penalty,
+                                    limits.penalty * SOFT_QUADRATIC)
+    if terminal is not None:
+        problem = with_equalities(problem, *terminal)
+    return problem
 
 
 def report(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndarray) -> ConstraintReport | None:

@@ -32,7 +32,7 @@ from ..solvers import QRSolver, SolveResult, make_solver, from_cumulative
 from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
 from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrain, hard_violation, report, split,
-                          stage_constraints)
+                          stage_constraints, terminal_rows)
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
 from .nmpc import IterationReport, NMPCIterations
@@ -326,7 +326,7 @@ class GPCController:
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             warm = self._warm_start(pred, problem.n)
             rows = self._stage_rows(pred, X, warm)
-            full = constrain(problem, rows, self._limits)
+            full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
             result = self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:
