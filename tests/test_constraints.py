@@ -538,3 +538,59 @@ def test_terminal_settings_are_refused_once_where_they_enter():
         kwargs.setdefault("horizons", Horizons(5))
         with pytest.raises(InvalidParameterError, match=needle):
             GPCController.build(model, Ts=TS, **kwargs)
+
+
+# ---------------------------------------------------------------------------- back ends with general rows
+BACKENDS = ["daqp-direct", "proxqp-direct", "osqp-direct", "qpsolvers:daqp", "qpsolvers:proxqp", "qpsolvers:osqp",
+            "qpsolvers:highs", "qpsolvers:clarabel"]
+
+
+def constrained_problems():
+    """The constrained problems of this file: hard box and velocity, the same soft, an infeasible
+    box made soft (slack used), a hard box with the torque limit, a terminal equality with a soft box."""
+    from parallel_gpc.gpc.constraints import terminal_rows
+
+    out = {}
+    X, u_prev = np.array([0.3, -0.1, 2.0, -0.5]), np.array([1.0, -2.0])
+    box = [[-1.0, 0.45], [-0.3, 1.0]]
+    for form in ("absolute", "incremental"):
+        H = Horizons(12)
+        pred = one_step(form, X, u_prev, H)
+        w = np.tile([1.0, -0.6], (H.n_rows, 1))
+        for name, lim, terminal in (
+                ("hard", Limits(output_box=box, output_velocity=[1.5, 2.5], soft=()), None),
+                ("soft", Limits(output_box=box, output_velocity=[1.5, 2.5]), None),
+                ("soft infeasible", Limits(torque=100.0, output_box=[[-1.0, 0.25], [-1.0, 1.0]]), None),
+                ("hard with torque", Limits(torque=100.0, output_box=[[-1.0, 0.45], [-1.0, 1.0]], soft=()), None),
+                ("terminal", Limits(output_box=[[-1.0, 1.2], [-1.0, 1.0]]), "stop")):
+            lim = lim.for_drives(2, 2)
+            problem = build_problem(pred, w, Weights(1.0, 0.05), 2, 2, lim.only("torque"), u_prev)
+            out[f"{form} {name}"] = constrain(problem, stage_constraints(pred, lim, TS, X[:2]), lim,
+                                              terminal_rows(pred, w, terminal))
+    return out
+
+
+@pytest.mark.parametrize("solver", BACKENDS)
+def test_every_qp_back_end_solves_the_constrained_problems_to_the_kkt_tolerance(solver):
+    """Each back end's answer passes the KKT check (its status "optimal" says so) and agrees with
+    DAQP's; ProxQP and OSQP polish their point on its active set when it does not pass as it is."""
+    from parallel_gpc.solvers import available_solvers, kkt_residuals, KKT_TOL
+
+    if solver not in available_solvers():
+        pytest.skip(f"{solver} is not installed here")
+    for name, problem in constrained_problems().items():
+        res = make_solver(solver).solve(problem)
+        ref = make_solver("daqp-direct").solve(problem)
+        assert ref.ok, name
+        assert res.ok, f"{name}: {res.status}: {res.message}"
+        assert kkt_residuals(problem, res.v, None, KKT_TOL).passes(KKT_TOL), name  # multipliers estimated here
+        np.testing.assert_allclose(res.v, ref.v, atol=1e-6 * max(1.0, np.abs(ref.v).max()), err_msg=name)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_proxqp_keeps_hard_rows_in_closed_loop_without_fallbacks(form):
+    """ProxQP warm-started from its previous result once reported these feasible problems
+    infeasible (a fallback every few runs); a failed warm solve is now repeated cold."""
+    _, ys, infos = run(form, Limits(output_box=[[-1, 0.5], [-1, 1]], output_velocity=3.0, soft=()), "proxqp-direct")
+    assert not any(i.fallback for i in infos), [i.result.message for i in infos if i.fallback][:1]
+    assert ys[:, 0].max() <= 0.5 + 1e-6

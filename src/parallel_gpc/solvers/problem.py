@@ -353,7 +353,7 @@ def iterations_from_extras(extras) -> int | None:
     return None
 
 
-def _stacked_constraints(problem: LeastSquaresProblem):
+def stacked_constraints(problem: LeastSquaresProblem):
     """All limits as lo ≤ C v ≤ hi (box rows first), with ±1e20 where unbounded."""
     rows, lo, hi = [], [], []
     if problem.lb is not None:
@@ -409,6 +409,6 @@ class PersistentQPBackend:
         """(P, q, C, lo, hi, shape): scaled Hessian and gradient, stacked limits ``lo ≤ C v ≤ hi``
         and the (P, C) shapes that identify the problem structure."""
         P, q, _ = scaled_qp(problem)
-        C, lo, hi = _stacked_constraints(problem)
+        C, lo, hi = stacked_constraints(problem)
         return P, q, C, lo, hi, (P.shape, C.shape)
 
