@@ -594,3 +594,37 @@ def test_proxqp_keeps_hard_rows_in_closed_loop_without_fallbacks(form):
     _, ys, infos = run(form, Limits(output_box=[[-1, 0.5], [-1, 1]], output_velocity=3.0, soft=()), "proxqp-direct")
     assert not any(i.fallback for i in infos), [i.result.message for i in infos if i.fallback][:1]
     assert ys[:, 0].max() <= 0.5 + 1e-6
+
+
+# ---------------------------------------------------------------------------- drive rates in closed loop
+def test_a_hard_drive_rate_limit_holds_in_closed_loop():
+    """planar_4rrr on the 1 s S-curve (nonlinear form): the drives would turn at up to 3.84 rad/s;
+    with |q̇_a| ≤ 70 % of the free run's peak (hard) the plant's drive rates, both the mean over
+    each sample (what the rows bound) and the rate at the sample instants, stay within it to the
+    linearization's error (≤ 0.1 %, ≤ 0.5 %)."""
+    from parallel_gpc.gpc.robot_references import reference_for
+    from parallel_gpc.model import ConstrainedPlant, ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = reference_for("s-curve", robot, 1.0)
+    Ts, N = 0.004, 8
+
+    def rates(limits):
+        ctl = GPCController.build(ReducedModel(robot), Ts=Ts, horizons=Horizons(N), form="nonlinear",
+                                  weights=Weights(1.0, 1e-4), limits=limits)
+        plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=Ts)
+        X, q, now, active = plant.X, [plant.q[robot.drive_q_indices].copy()], [], 0
+        for k in range(300):
+            info = ctl.step(X, ref.sample((k + 1 + np.arange(N)) * Ts))
+            assert not info.fallback
+            X = plant.step(info.u)
+            q.append(plant.q[robot.drive_q_indices].copy())
+            now.append(robot.velocity_map_nocopy(plant.q)[0][robot.drive_idx] @ X[3:])  # q̇_a = T_a ẏ
+            active += info.constraints is not None and "drive_rate" in info.constraints.active
+        return np.abs(np.diff(q, axis=0)).max() / Ts, np.abs(np.array(now)).max(), active
+
+    mean_free, now_free, _ = rates(Limits(torque=1000.0))
+    limit = 0.7 * mean_free
+    mean, now, active = rates(Limits(torque=1000.0, drive_rate=limit, soft=()))
+    assert now_free > 1.3 * limit and active > 50  # the limit binds over much of the run
+    assert mean <= limit * (1 + 1e-3) and now <= limit * (1 + 5e-3)

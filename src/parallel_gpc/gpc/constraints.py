@@ -10,7 +10,10 @@ variables v, so every limit on the predicted motion is a set of rows ``G_c v ≤
   expects, ȳ(k+i) (the previous plan's prediction: f + G v_warm, the nonlinear form's
   pre-simulated trajectory): q_a(ŷ) ≈ q_a(ȳ) + J(ȳ)(ŷ − ȳ), J = ∂q_a/∂y the drive rows of the
   velocity map (q̇ = T ẏ);
-* ``drive_rate``: |J(ȳ(k+i)) (ŷ(k+i) − ŷ(k+i−1))| ≤ r·Ts;
+* ``drive_rate``: |J̄ᵢ (ŷ(k+i) − ŷ(k+i−1))| ≤ r·Ts, J̄ᵢ = (J(ȳ(k+i)) + J(ȳ(k+i−1)))/2 (the
+  trapezoid rule: q_a(ŷ(k+i)) − q_a(ŷ(k+i−1)) to second order; ȳ(k) = y(k)). This bounds the
+  mean drive rate over each sample; within a sample the rate can exceed it (a sampled input
+  that alternates makes it ring), so leave margin when the instantaneous rate matters;
 * ``joint_position``: q_lo ≤ q_j(ŷ(k+i)) ≤ q_hi for each named passive one-DOF joint, linearized
   like the drive positions through the joint's row of the velocity map (q_j = q_j(y) through
   the closure solution; a universal joint is two revolute joints, two ranges). A spherical
@@ -223,7 +226,11 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
         ranges = np.array([limits.joint_position[name] for name in joints])
         blocks.append(("joint_position", M, value, *_pairs(ranges, n_rows)))
     if limits.drive_rate is not None:
-        J = jac if H.No == 0 else jac[1:]
+        if H.No == 0:  # the first difference is from y(k): its Jacobian too
+            J_now = drives(np.asarray(y_now, dtype=float))[1][:n_u]
+            J = 0.5 * (jac + np.concatenate([J_now[None], jac[:-1]]))
+        else:
+            J = 0.5 * (jac[1:] + jac[:-1])
         rmax = limits.drive_rate * Ts
         M = np.einsum("imp,ipn->imn", J, dG).reshape(-1, n)
         value = np.einsum("imp,ip->im", J, df).reshape(-1)
