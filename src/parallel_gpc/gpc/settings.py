@@ -54,7 +54,8 @@ class GPCSettings:
             :data:`DEFAULT_LIMITED_SOLVER` (incremental forms, and any form with state limits).
         limits: the :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
             |u(k) − u(k−1)| ≤ δ, incremental forms only; the state kinds drive_position,
-            drive_rate, output_box, output_velocity, hard or soft, :mod:`parallel_gpc.gpc.constraints`);
+            drive_rate, output_box, output_velocity, joint_position, hard or soft,
+            :mod:`parallel_gpc.gpc.constraints`);
             None = ``Limits()``, no limit.
         disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
             d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the horizon
