@@ -175,7 +175,7 @@ def test_bad_limits_get_one_clear_error_each():
     with pytest.raises(InfeasibleLimitsError, match=r"y\[0\] = 0.7.*outside \[0, 0.5\]"):
         Limits(output_box=[[0, 0.5], [0, 1]]).check_pose([0.7, 0.2])
     A, B, C = double_integrator()
-    with pytest.raises(InvalidParameterError, match="drive kinematics"):
+    with pytest.raises(InvalidParameterError, match="drive_position limits need a robot.s model"):
         GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(5),
                             limits=Limits(drive_position=[0, 1]))
     with pytest.raises(InvalidParameterError, match="box limits only"):
@@ -352,3 +352,279 @@ def test_drive_rows_are_the_inverse_kinematics_to_first_order(model4):
     q_prev = np.vstack([robot.inverse_kinematics(X[:3]), q1[:-1]])
     np.testing.assert_allclose(rows.G[rate] @ v + (50.0 * TS - rows.h[rate]), (q1 - q_prev).reshape(-1),
                                atol=2e-3 * np.abs(q1 - q_prev).max())
+
+
+# ---------------------------------------------------------------------------- passive joint ranges
+def test_joint_rows_are_the_closure_solution_to_first_order(model4):
+    """joint_position rows against the robot's own assembly (Newton on the closures) at the
+    predicted poses, by finite differences: value at v = 0 and first-order change."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+
+    robot = model4.robot
+    H = Horizons(6)
+    X = np.concatenate([robot.home_pose, [0.05, -0.02, 0.1]])
+    Ad, Bd, cd = model4.discrete(X, TS)
+    pred = absolute_prediction(Ad, Bd, cd, model4.C, X, H)
+    names = ("elbow_1", "elbow_3")
+    lim = Limits(joint_position={n: [-10.0, 10.0] for n in names})
+    rows = stage_constraints(pred, lim, TS, X[:3], drives=DriveKinematics(robot, names))
+    iq = [robot.passive_joints[n][0] for n in names]
+
+    def joints(poses):  # the oracle: full assembly of each pose, the named coordinates
+        return np.array([robot.assemble(y, robot.q_home)[iq] for y in poses.reshape(-1, robot.n_y)])
+
+    q0 = joints(pred.f)
+    hi_rows = np.flatnonzero(rows.kind == "joint_position")[: q0.size]  # the upper side comes first
+    np.testing.assert_allclose(10.0 - rows.h[hi_rows], q0.reshape(-1), atol=1e-9)
+    v = np.random.default_rng(2).normal(size=pred.G.shape[1]) * 0.5
+    dq = (joints(pred.outputs(v)) - q0).reshape(-1)
+    assert np.abs(dq).max() > 1e-5
+    np.testing.assert_allclose(rows.G[hi_rows] @ v, dq, atol=1e-3 * np.abs(dq).max())
+
+
+def test_a_hard_joint_range_holds_in_closed_loop():
+    """planar_4rrr on the S-curve: elbow_2 would reach 2.55 rad; with its range capped at 2.47 rad
+    (hard) the plant's elbow stays below it (linearization error ≤ 1e-5 rad) and the platform bends
+    away from the path only while the range binds."""
+    from parallel_gpc.gpc.constraints import DriveKinematics
+    from parallel_gpc.gpc.robot_references import reference_for
+    from parallel_gpc.model import ConstrainedPlant, ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = reference_for("s-curve", robot, 1.0)
+    kin = DriveKinematics(robot, ("elbow_2",))
+    along = np.array([kin(ref.pose(t))[0][-1] for t in np.linspace(0.0, 1.2, 61)])
+    assert along.max() > 2.54 and along[0] < 2.4 and along[-1] < 2.4  # the path breaks the range, its ends do not
+    Ts, N, hi = 0.004, 8, 2.47
+    ctl = GPCController.build(ReducedModel(robot), Ts=Ts, horizons=Horizons(N), form="nonlinear",
+                              limits=Limits(torque=1000.0, joint_position={"elbow_2": [-10.0, hi]}, soft=()))
+    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=Ts)
+    X, elbow, err, active = plant.X, [], [], []
+    iq = robot.passive_joints["elbow_2"][0]
+    for k in range(300):
+        info = ctl.step(X, ref.sample((k + 1 + np.arange(N)) * Ts))
+        assert not info.fallback
+        X = plant.step(info.u)
+        elbow.append(plant.q[iq])
+        err.append(np.linalg.norm(X[:2] - ref.pose((k + 1) * Ts)[:2]))
+        active.append("joint_position" in info.constraints.active)
+    elbow, err, active = np.array(elbow), np.array(err), np.array(active)
+    assert active.any() and elbow.max() <= hi + 1e-5
+    assert err.max() > 1e-2  # it had to leave the path
+    assert err[-50:].max() < 1e-4  # and returns to it once the range is free
+
+
+def test_joint_ranges_come_from_the_robot_file_and_bad_names_are_refused(tmp_path):
+    from parallel_gpc.errors import RobotFormatError
+    from parallel_gpc.model import ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("hexapod_6ups")
+    with pytest.raises(InvalidParameterError, match=r"'u_c_1'.*valid joint names: \['platform_x'.*'u_a_1', 'u_b_1'"):
+        GPCController.build(ReducedModel(robot), Ts=0.002, horizons=Horizons(4),
+                            limits=Limits(joint_position={"u_c_1": [-1, 1]}))
+    with pytest.raises(InvalidParameterError, match="'drive_1', which is a drive.*drive_position"):
+        GPCController.build(ReducedModel(robot), Ts=0.002, horizons=Horizons(4),
+                            limits=Limits(joint_position={"drive_1": [-1, 1]}))
+    with pytest.raises(InfeasibleLimitsError, match=r"joint_position\['u_a_1'\]"):
+        Limits(joint_position={"u_a_1": [1, -1]})
+    # a copy of the hexapod's files with the URDF ranges and one explicit range
+    src = robot.description.sidecar_path
+    text = src.read_text()
+    for name in ("joint_ranges = \"urdf\"\njoint_position = { u_a_1 = [-0.4, 0.4] }", "joint_position = { u_z_1 = [0, 1] }"):
+        folder = tmp_path / str(len(name))
+        folder.mkdir()
+        for f in src.parent.glob(src.stem + ".*"):
+            (folder / f.name).write_text(f.read_text())
+        (folder / src.name).write_text(text.replace("[limits]", "[limits]\n" + name, 1))
+        if "u_z_1" in name:
+            with pytest.raises(RobotFormatError, match=r"\['u_z_1'\].*valid: \["):
+                ParallelRobot.load(folder / src.name).state_limits
+            continue
+        limits = ParallelRobot.load(folder / src.name).state_limits
+        ranges = limits.joint_position
+        iq = robot.passive_joints["u_b_1"][0]
+        assert ranges["u_a_1"] == (-0.4, 0.4)  # the explicit range replaces the file's
+        assert ranges["u_b_1"] == (robot.model.lowerPositionLimit[iq], robot.model.upperPositionLimit[iq])
+        assert "drive_1" not in ranges and not limits.is_soft("joint_position")  # the file's soft = []
+
+
+# ---------------------------------------------------------------------------- terminal weight and equality
+def closed_loop_plans(form, weights, steps=40, **settings):
+    A, B, C = double_integrator()
+    ctl = GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=Horizons(12), form=form,
+                              weights=weights, **settings)
+    X, w, plans = np.array([0.3, -0.1, 2.0, -0.5]), np.tile([1.0, -0.6], (12, 1)), []
+    for _ in range(steps):
+        info = ctl.step(X, w)
+        assert not info.fallback
+        plans.append(ctl.plan.copy())
+        X = A @ X + B @ info.u
+    return np.array(plans)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental", "nonlinear"])
+def test_a_terminal_weight_of_one_is_the_paper_criterion(form):
+    base = closed_loop_plans(form, Weights([1.0, 2.0], 0.05))
+    np.testing.assert_allclose(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=1.0)), base, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=[1.0, 1.0])), base, atol=1e-12,
+                               rtol=0)
+    assert np.abs(closed_loop_plans(form, Weights([1.0, 2.0], 0.05, Qf=5.0)) - base).max() > 1e-3  # it acts
+
+
+@pytest.mark.parametrize("Qy", [[1.0, 2.0], [[2.0, 0.5], [0.5, 1.0]]])
+def test_the_terminal_weight_scales_the_last_predicted_error(Qy):
+    """The stacked problem against one written here: the last block's rows times diag(Qf) Qy."""
+    H = Horizons(8, 2)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    pred = one_step("absolute", X, None, H)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    Qf = np.array([3.0, 0.5])
+    prob = build_problem(pred, w, Weights(Qy, 0.05, Qf), 2, 2)
+    Wy = np.diag(Qy) if np.ndim(Qy) == 1 else np.array(Qy)
+    blocks = [Wy] * (H.n_rows - 1) + [np.diag(Qf) @ Wy]
+    W = np.zeros((2 * H.n_rows, 2 * H.n_rows))
+    for i, Wi in enumerate(blocks):
+        W[2 * i:2 * i + 2, 2 * i:2 * i + 2] = Wi
+    A = np.vstack([W @ pred.G, 0.05 * np.eye(pred.G.shape[1])])
+    b = np.concatenate([W @ (w.reshape(-1) - pred.f), np.zeros(pred.G.shape[1])])
+    v = np.linalg.lstsq(A, b, rcond=None)[0]
+    np.testing.assert_allclose(make_solver("qr").solve(prob).v, v, atol=1e-10 * np.abs(v).max())
+    with pytest.raises(InvalidParameterError, match="Qf"):
+        Weights(1.0, 0.0, -1.0)
+    with pytest.raises(ShapeError, match="Qf"):
+        build_problem(pred, w, Weights(1.0, 0.0, [1.0, 2.0, 3.0]), 2, 2)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+@pytest.mark.parametrize("terminal", ["pose", "stop"])
+def test_the_terminal_equality_holds_in_the_plan_and_is_kkt_optimal(form, terminal):
+    A, B, C = double_integrator()
+    H = Horizons(12)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    ctl = GPCController.build(DiscreteLinearModel(A, B, C, Ts=TS), Ts=TS, horizons=H, form=form,
+                              weights=Weights(1.0, 0.05), terminal=terminal)
+    w = np.tile([1.0, -0.6], (H.n_rows, 1))
+    info = ctl.step(X, w)
+    assert not info.fallback and info.result.ok
+    pred = one_step(form, X, np.zeros(2), H)  # the controller's own prediction at its first step
+    v = info.result.v
+    y = pred.outputs(v).reshape(-1, 2)
+    np.testing.assert_allclose(y[-1], w[-1], atol=1e-8)
+    free = np.linalg.lstsq(np.vstack([pred.G, 0.05 * np.eye(24)]),
+                           np.concatenate([w.reshape(-1) - pred.f, np.zeros(24)]), rcond=None)[0]
+    assert np.abs(pred.outputs(free).reshape(-1, 2)[-1] - w[-1]).max() > 1e-2  # the equality binds
+    # the oracle: the equality-constrained QP's KKT system, solved here
+    P = 2 * (pred.G.T @ pred.G + 0.05 ** 2 * np.eye(24))
+    q = 2 * pred.G.T @ (pred.f - w.reshape(-1))
+    E, e = pred.G[-2:], w[-1] - pred.f[-2:]
+    if terminal == "stop":
+        np.testing.assert_allclose(y[-1] - y[-2], 0.0, atol=1e-8)
+        E, e = np.vstack([E, pred.G[-2:] - pred.G[-4:-2]]), np.concatenate([e, pred.f[-4:-2] - pred.f[-2:]])
+    K = np.block([[P, E.T], [E, np.zeros((len(e), len(e)))]])
+    x = np.linalg.solve(K, np.concatenate([-q, e]))[:24]
+    np.testing.assert_allclose(v, x, atol=1e-6 * np.abs(x).max())
+    lam = np.linalg.lstsq(E.T, -(P @ v + q), rcond=None)[0]  # stationarity: P v + q + Eᵀλ = 0
+    assert np.linalg.norm(P @ v + q + E.T @ lam) < 1e-6 * np.linalg.norm(q)
+
+
+def test_terminal_settings_are_refused_once_where_they_enter():
+    A, B, C = double_integrator()
+    model = DiscreteLinearModel(A, B, C, Ts=TS)
+    for kwargs, needle in ((dict(terminal="end"), r"terminal = 'end' is not one of \['pose', 'stop'\]"),
+                           (dict(terminal="stop", horizons=Horizons(5, 4)), "N − No ≥ 2"),
+                           (dict(terminal="pose", solver="qr"), "cannot enforce the terminal equality"),
+                           (dict(terminal="pose", solver="riccati"), "cannot enforce the terminal equality"),
+                           (dict(weights=Weights(1.0, 0.1, 2.0), solver="riccati"), "terminal weight Qf")):
+        kwargs.setdefault("horizons", Horizons(5))
+        with pytest.raises(InvalidParameterError, match=needle):
+            GPCController.build(model, Ts=TS, **kwargs)
+
+
+# ---------------------------------------------------------------------------- back ends with general rows
+BACKENDS = ["daqp-direct", "proxqp-direct", "osqp-direct", "qpsolvers:daqp", "qpsolvers:proxqp", "qpsolvers:osqp",
+            "qpsolvers:highs", "qpsolvers:clarabel"]
+
+
+def constrained_problems():
+    """The constrained problems of this file: hard box and velocity, the same soft, an infeasible
+    box made soft (slack used), a hard box with the torque limit, a terminal equality with a soft box."""
+    from parallel_gpc.gpc.constraints import terminal_rows
+
+    out = {}
+    X, u_prev = np.array([0.3, -0.1, 2.0, -0.5]), np.array([1.0, -2.0])
+    box = [[-1.0, 0.45], [-0.3, 1.0]]
+    for form in ("absolute", "incremental"):
+        H = Horizons(12)
+        pred = one_step(form, X, u_prev, H)
+        w = np.tile([1.0, -0.6], (H.n_rows, 1))
+        for name, lim, terminal in (
+                ("hard", Limits(output_box=box, output_velocity=[1.5, 2.5], soft=()), None),
+                ("soft", Limits(output_box=box, output_velocity=[1.5, 2.5]), None),
+                ("soft infeasible", Limits(torque=100.0, output_box=[[-1.0, 0.25], [-1.0, 1.0]]), None),
+                ("hard with torque", Limits(torque=100.0, output_box=[[-1.0, 0.45], [-1.0, 1.0]], soft=()), None),
+                ("terminal", Limits(output_box=[[-1.0, 1.2], [-1.0, 1.0]]), "stop")):
+            lim = lim.for_drives(2, 2)
+            problem = build_problem(pred, w, Weights(1.0, 0.05), 2, 2, lim.only("torque"), u_prev)
+            out[f"{form} {name}"] = constrain(problem, stage_constraints(pred, lim, TS, X[:2]), lim,
+                                              terminal_rows(pred, w, terminal))
+    return out
+
+
+@pytest.mark.parametrize("solver", BACKENDS)
+def test_every_qp_back_end_solves_the_constrained_problems_to_the_kkt_tolerance(solver):
+    """Each back end's answer passes the KKT check (its status "optimal" says so) and agrees with
+    DAQP's; ProxQP and OSQP polish their point on its active set when it does not pass as it is."""
+    from parallel_gpc.solvers import available_solvers, kkt_residuals, KKT_TOL
+
+    if solver not in available_solvers():
+        pytest.skip(f"{solver} is not installed here")
+    for name, problem in constrained_problems().items():
+        res = make_solver(solver).solve(problem)
+        ref = make_solver("daqp-direct").solve(problem)
+        assert ref.ok, name
+        assert res.ok, f"{name}: {res.status}: {res.message}"
+        assert kkt_residuals(problem, res.v, None, KKT_TOL).passes(KKT_TOL), name  # multipliers estimated here
+        np.testing.assert_allclose(res.v, ref.v, atol=1e-6 * max(1.0, np.abs(ref.v).max()), err_msg=name)
+
+
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_proxqp_keeps_hard_rows_in_closed_loop_without_fallbacks(form):
+    """ProxQP warm-started from its previous result once reported these feasible problems
+    infeasible (a fallback every few runs); a failed warm solve is now repeated cold."""
+    _, ys, infos = run(form, Limits(output_box=[[-1, 0.5], [-1, 1]], output_velocity=3.0, soft=()), "proxqp-direct")
+    assert not any(i.fallback for i in infos), [i.result.message for i in infos if i.fallback][:1]
+    assert ys[:, 0].max() <= 0.5 + 1e-6
+
+
+# ---------------------------------------------------------------------------- drive rates in closed loop
+def test_a_hard_drive_rate_limit_holds_in_closed_loop():
+    """planar_4rrr on the 1 s S-curve (nonlinear form): the drives would turn at up to 3.84 rad/s;
+    with |q̇_a| ≤ 70 % of the free run's peak (hard) the plant's drive rates, both the mean over
+    each sample (what the rows bound) and the rate at the sample instants, stay within it to the
+    linearization's error (≤ 0.1 %, ≤ 0.5 %)."""
+    from parallel_gpc.gpc.robot_references import reference_for
+    from parallel_gpc.model import ConstrainedPlant, ParallelRobot, ReducedModel
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ref = reference_for("s-curve", robot, 1.0)
+    Ts, N = 0.004, 8
+
+    def rates(limits):
+        ctl = GPCController.build(ReducedModel(robot), Ts=Ts, horizons=Horizons(N), form="nonlinear",
+                                  weights=Weights(1.0, 1e-4), limits=limits)
+        plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=Ts)
+        X, q, now, active = plant.X, [plant.q[robot.drive_q_indices].copy()], [], 0
+        for k in range(300):
+            info = ctl.step(X, ref.sample((k + 1 + np.arange(N)) * Ts))
+            assert not info.fallback
+            X = plant.step(info.u)
+            q.append(plant.q[robot.drive_q_indices].copy())
+            now.append(robot.velocity_map_nocopy(plant.q)[0][robot.drive_idx] @ X[3:])  # q̇_a = T_a ẏ
+            active += info.constraints is not None and "drive_rate" in info.constraints.active
+        return np.abs(np.diff(q, axis=0)).max() / Ts, np.abs(np.array(now)).max(), active
+
+    mean_free, now_free, _ = rates(Limits(torque=1000.0))
+    limit = 0.7 * mean_free
+    mean, now, active = rates(Limits(torque=1000.0, drive_rate=limit, soft=()))
+    assert now_free > 1.3 * limit and active > 50  # the limit binds over much of the run
+    assert mean <= limit * (1 + 1e-3) and now <= limit * (1 + 5e-3)

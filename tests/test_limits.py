@@ -127,6 +127,26 @@ def test_flat_keywords_round_trip():
         TrackingSettings.from_flat(bogus=1)
 
 
+def test_flat_keywords_carry_every_limit_field():
+    """Every Limits field (input and state kinds, joint ranges, soft kinds, penalty) survives
+    flat() → from_flat(), and each flat keyword reaches its own field."""
+    from parallel_gpc.limits import KINDS
+
+    full = Limits(torque=[30.0, 40.0, 50.0], drive_position=[[-1.0, 1.0], [-2.0, 2.0], [-3.0, np.inf]],
+                  drive_rate=2.0, output_box=[[-0.1, 0.2], [-0.3, 0.4], [-np.inf, 1.0]], output_velocity=[0.5, 0.6, 3.0],
+                  joint_position={"elbow_2": [-10.0, 2.47]}, soft=("output_box", "joint_position"), penalty=250.0)
+    assert set(full.values()) == set(KINDS) - {"du"}  # every kind set (du: incremental forms)
+    s = TrackingSettings(limits=full, Ts=0.004)
+    back = TrackingSettings.from_flat(**s.flat())
+    assert back.limits == full and back.limits.soft == full.soft and back.limits.penalty == 250.0
+    assert back.flat() == s.flat()
+    du = TrackingSettings(limits=Limits(du=1.0, soft=()))
+    assert TrackingSettings.from_flat(**du.flat()).limits == du.limits
+    one = TrackingSettings.from_flat(output_velocity=0.5, limit_penalty=10.0, soft_limits=[])
+    assert one.limits == Limits(output_velocity=0.5, penalty=10.0, soft=())
+    assert TrackingSettings().flat()["soft_limits"] == sorted(Limits().soft)  # the default: every state kind soft
+
+
 def test_a_du_limit_with_the_absolute_form_is_refused_before_any_run():
     with pytest.raises(InvalidParameterError, match="incremental forms"):
         run_tracking(TrackingSettings.from_flat(du_limit=1.0, duration=0.01), forms=("nonlinear", "absolute"))

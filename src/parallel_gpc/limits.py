@@ -22,7 +22,11 @@ soft by default, see :data:`SOFT_DEFAULT`):
 * ``drive_rate``: |q̇_a| ≤ r per drive (m/s or rad/s), q̇_a ≈ ∂q_a/∂y (ŷ(k+i) − ŷ(k+i−1)) / Ts;
 * ``output_box``: y_lo ≤ ŷ(k+i) ≤ y_hi, (n_y, 2) bounds (m, rad; ±inf: that side free) — the
   workspace;
-* ``output_velocity``: |ẏ| ≤ v per output (m/s, rad/s), ẏ ≈ (ŷ(k+i) − ŷ(k+i−1)) / Ts.
+* ``output_velocity``: |ẏ| ≤ v per output (m/s, rad/s), ẏ ≈ (ŷ(k+i) − ŷ(k+i−1)) / Ts;
+* ``joint_position``: q_lo ≤ q_j(ŷ(k+i)) ≤ q_hi per named passive one-DOF joint (revolute: rad,
+  prismatic: m; a universal joint is two such joints, two ranges), ``{joint_name: (lo, hi)}``,
+  linearized through the joint's row of the velocity map ∂q_j/∂y. The names are checked against
+  the robot where the robot is known (the controller, the planner, the robot file).
 
 A soft kind is relaxed by slack variables s ≥ 0 (one per bound and step) at the exact L1 cost
 ``penalty``·s plus a small quadratic ``penalty``·:data:`SOFT_QUADRATIC`·s²: the problem is
@@ -36,13 +40,14 @@ that the plants (``model``) and the controller (``gpc``) take the same type.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from types import MappingProxyType
 
 import numpy as np
 
 from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 
 __all__ = ["Limits", "KINDS", "INPUT_KINDS", "STATE_KINDS", "SOFT_DEFAULT", "DEFAULT_PENALTY", "SOFT_QUADRATIC",
-           "as_limits", "symmetric_limit", "bound_pairs"]
+           "as_limits", "symmetric_limit", "bound_pairs", "joint_ranges"]
 
 #: the limit kinds a :class:`Limits` holds, by field name, with their meaning and unit.
 KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)",
@@ -50,11 +55,12 @@ KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic driv
          "drive_position": "drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)",
          "drive_rate": "drive rate limit |q̇_a| ≤ r (m/s or rad/s)",
          "output_box": "workspace box y_lo ≤ y ≤ y_hi (m, rad)",
-         "output_velocity": "output velocity limit |ẏ| ≤ v (m/s, rad/s)"}
+         "output_velocity": "output velocity limit |ẏ| ≤ v (m/s, rad/s)",
+         "joint_position": "passive joint ranges q_lo ≤ q_j ≤ q_hi by joint name (m or rad)"}
 #: kinds on the inputs (hard: the QP enforces them exactly, every applied input is checked).
 INPUT_KINDS = ("torque", "du")
 #: kinds on the predicted motion (stage-wise, linearized along the prediction).
-STATE_KINDS = ("drive_position", "drive_rate", "output_box", "output_velocity")
+STATE_KINDS = ("drive_position", "drive_rate", "output_box", "output_velocity", "joint_position")
 #: kinds given as (lower, upper) pairs; the others are symmetric ±value.
 BOUND_KINDS = ("drive_position", "output_box")
 #: kinds sized by the outputs (n_y); the others by the drives (n_u).
@@ -149,8 +155,39 @@ def bound_pairs(name: str, value, size: int | None = None) -> np.ndarray | None:
     return arr
 
 
+def joint_ranges(value) -> MappingProxyType | None:
+    """Ranges of named joints as a read-only ``{name: (lo, hi)}`` mapping, sorted by name; None stays None.
+
+    Args:
+        value: a mapping ``{joint_name: [lo, hi]}`` (rad for a revolute joint, m for a prismatic
+            one; lo < hi, either may be ±inf), or its items as pairs ``[(name, [lo, hi]), …]``.
+
+    Raises:
+        InvalidParameterError: not a mapping of names, empty. ShapeError: a range that is not a pair.
+        InfeasibleLimitsError: a lower bound not below its upper bound.
+    """
+    if value is None:
+        return None
+    try:
+        items = dict(value)
+    except (TypeError, ValueError):
+        items = None
+    if not items or not all(isinstance(k, str) and k for k in items):
+        raise InvalidParameterError(f"joint_position = {value!r} must be a non-empty mapping "
+                                    "{joint_name: [lower, upper]} (rad or m)")
+    out = {}
+    for name in sorted(items):
+        pair = bound_pairs(f"joint_position[{name!r}]", items[name])
+        if pair.shape != (1, 2):
+            raise ShapeError(f"joint_position[{name!r}] = {items[name]!r}: expected one pair [lower, upper]")
+        out[name] = (float(pair[0, 0]), float(pair[0, 1]))
+    return MappingProxyType(out)
+
+
 def _check_value(kind: str, value, size: int | None = None):
-    """A kind's value validated (and sized when ``size`` is given)."""
+    """A kind's value validated (and sized when ``size`` is given; joint ranges are by name)."""
+    if kind == "joint_position":
+        return joint_ranges(value)
     if kind in BOUND_KINDS:
         return bound_pairs(kind, value, size)
     return symmetric_limit(kind, value, size, "output" if kind in OUTPUT_KINDS else "drive")
@@ -173,6 +210,8 @@ class Limits:
         drive_rate: symmetric drive rate limit, () or (n_u,) (m/s or rad/s), or None.
         output_box: (1, 2) or (n_y, 2) output bounds [lo, hi] (m, rad; ±inf: free), or None.
         output_velocity: symmetric output velocity limit, () or (n_y,) (m/s, rad/s), or None.
+        joint_position: read-only ``{joint_name: (lo, hi)}`` ranges of passive one-DOF joints
+            (rad or m), sorted by name, or None.
         soft: the state kinds relaxed by slack variables (frozenset of names of
             :data:`STATE_KINDS`); default :data:`SOFT_DEFAULT` (every state kind), ``()``: all hard.
         penalty: exact L1 penalty weight ρ > 0 of the soft kinds (criterion units per unit of
@@ -191,6 +230,7 @@ class Limits:
     drive_rate: np.ndarray | None = None
     output_box: np.ndarray | None = None
     output_velocity: np.ndarray | None = None
+    joint_position: MappingProxyType | None = None
     soft: frozenset = SOFT_DEFAULT
     penalty: float = DEFAULT_PENALTY
 
@@ -199,7 +239,7 @@ class Limits:
         for kind in KINDS:
             arr = _check_value(kind, getattr(self, kind))
             object.__setattr__(self, kind, arr)
-            per_entry = arr is not None and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)
+            per_entry = arr is not None and kind != "joint_position" and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)
             if per_entry:
                 sizes["outputs" if kind in OUTPUT_KINDS else "drives"].add(arr.shape[0])
         for what, found in sizes.items():
@@ -258,7 +298,7 @@ class Limits:
     @property
     def n_drives(self) -> int | None:
         """The drive count the per-drive values fix, or None (one value for all, or no limit)."""
-        return next((arr.shape[0] for kind, arr in self.values().items() if kind not in OUTPUT_KINDS
+        return next((arr.shape[0] for kind, arr in self.values().items() if kind not in OUTPUT_KINDS + ("joint_position",)
                      and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)), None)
 
     def _options(self) -> dict:
@@ -273,7 +313,7 @@ class Limits:
             ShapeError: per-drive (per-output) values that are not n_u (n_y) long.
         """
         sizes = {kind: (n_y if kind in OUTPUT_KINDS else n_u) for kind in self.values()}
-        sized = {kind: arr if sizes[kind] is None else _check_value(kind, arr, sizes[kind])
+        sized = {kind: arr if sizes[kind] is None or kind == "joint_position" else _check_value(kind, arr, sizes[kind])
                  for kind, arr in self.values().items()}
         if all(sized[k] is self.values()[k] or sized[k].shape == self.values()[k].shape for k in sized):
             return self
@@ -311,7 +351,7 @@ class Limits:
     def to_dict(self) -> dict:
         """Plain-Python values by kind (the input kinds always, None when unset; a state kind when
         set, with the soft kinds and the penalty): JSON and result-file metadata."""
-        out = {kind: None if getattr(self, kind) is None else getattr(self, kind).tolist() for kind in KINDS
+        out = {kind: None if getattr(self, kind) is None else _plain(getattr(self, kind)) for kind in KINDS
                if kind in INPUT_KINDS or getattr(self, kind) is not None}
         if self.has_state_limits:
             out["soft"] = sorted(k for k in self.soft if getattr(self, k) is not None)
@@ -323,7 +363,10 @@ class Limits:
         or ``"none"``."""
         parts = []
         for kind, arr in self.values().items():
-            if kind in BOUND_KINDS:
+            if kind == "joint_position":
+                text = "; ".join(f"{name} [{lo:g}, {hi:g}]" for name, (lo, hi) in arr.items()) if len(arr) <= 4 \
+                    else f"{len(arr)} joints"
+            elif kind in BOUND_KINDS:
                 rows = np.unique(arr, axis=0)
                 shown = rows if len(rows) <= 2 else arr
                 text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in shown) if len(shown) <= 6 else f"{len(arr)} ranges"
@@ -338,18 +381,25 @@ class Limits:
         if not isinstance(other, Limits):
             return NotImplemented
         return self._options() == other._options() and all(
-            (a is None and b is None) or (a is not None and b is not None and a.shape == b.shape
-                                          and bool(np.array_equal(a, b)))
-            for a, b in ((getattr(self, k), getattr(other, k)) for k in KINDS))
+            (a is None and b is None) or (a is not None and b is not None and (
+                dict(a) == dict(b) if k == "joint_position" else a.shape == b.shape and bool(np.array_equal(a, b))))
+            for k, a, b in ((k, getattr(self, k), getattr(other, k)) for k in KINDS))
 
     def __hash__(self) -> int:
         return hash((tuple(sorted(self.soft)), self.penalty) + tuple(
-            (k, None if v is None else (v.shape, v.tobytes())) for k, v in ((k, getattr(self, k)) for k in KINDS)))
+            (k, None if v is None else tuple(v.items()) if k == "joint_position" else (v.shape, v.tobytes()))
+            for k, v in ((k, getattr(self, k)) for k in KINDS)))
 
     def __repr__(self) -> str:
         return "Limits(" + ", ".join(f"{k}={v!r}" for k, v in self.to_dict().items()
                                      if v is not None and k in KINDS) + ")"
 
+
+def _plain(value):
+    """A kind's value as plain Python (lists; joint ranges as ``{name: [lo, hi]}``)."""
+    if isinstance(value, MappingProxyType):
+        return {name: list(pair) for name, pair in value.items()}
+    return value.tolist()
 
 
 def as_limits(value) -> Limits:

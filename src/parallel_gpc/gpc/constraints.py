@@ -10,7 +10,15 @@ variables v, so every limit on the predicted motion is a set of rows ``G_c v ≤
   expects, ȳ(k+i) (the previous plan's prediction: f + G v_warm, the nonlinear form's
   pre-simulated trajectory): q_a(ŷ) ≈ q_a(ȳ) + J(ȳ)(ŷ − ȳ), J = ∂q_a/∂y the drive rows of the
   velocity map (q̇ = T ẏ);
-* ``drive_rate``: |J(ȳ(k+i)) (ŷ(k+i) − ŷ(k+i−1))| ≤ r·Ts.
+* ``drive_rate``: |J̄ᵢ (ŷ(k+i) − ŷ(k+i−1))| ≤ r·Ts, J̄ᵢ = (J(ȳ(k+i)) + J(ȳ(k+i−1)))/2 (the
+  trapezoid rule: q_a(ŷ(k+i)) − q_a(ŷ(k+i−1)) to second order; ȳ(k) = y(k)). This bounds the
+  mean drive rate over each sample; within a sample the rate can exceed it (a sampled input
+  that alternates makes it ring), so leave margin when the instantaneous rate matters;
+* ``joint_position``: q_lo ≤ q_j(ŷ(k+i)) ≤ q_hi for each named passive one-DOF joint, linearized
+  like the drive positions through the joint's row of the velocity map (q_j = q_j(y) through
+  the closure solution; a universal joint is two revolute joints, two ranges). A spherical
+  joint's cone limit is not supported (our robot files cut their loops at the spherical joints,
+  which then have no coordinate).
 
 Soft kinds (``Limits.soft``) get one slack variable per bound pair and step (exact L1 penalty,
 :func:`~parallel_gpc.solvers.problem.with_inequalities`); hard ones are plain rows. A kind whose
@@ -25,11 +33,11 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
-from ..solvers import LeastSquaresProblem, SolveResult, with_inequalities
+from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
-__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "constrain", "report", "split",
-           "hard_violation", "STATE_TOL"]
+__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "terminal_rows", "constrain",
+           "report", "split", "hard_violation", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
 ACTIVE_TOL = 1e-7
@@ -38,18 +46,38 @@ STATE_TOL = 1e-7
 
 
 class DriveKinematics:
-    """Drive positions q_a(y) and their Jacobian ∂q_a/∂y of a robot, warm-started pose to pose.
+    """Drive positions q_a(y), the positions of named passive joints q_j(y), and their Jacobians
+    ∂q/∂y of a robot (rows of the velocity map q̇ = T ẏ), warm-started pose to pose.
 
     Args:
         robot: a :class:`~parallel_gpc.model.ParallelRobot` (assembly, velocity map, drive indices).
+        joints: names of passive one-DOF joints whose positions are wanted too (joint ranges).
+
+    Raises:
+        InvalidParameterError: a joint name that is not a passive one-DOF joint of the robot
+            (naming it and the valid names).
     """
 
-    def __init__(self, robot):
+    def __init__(self, robot, joints=()):
         self.robot = robot
         self._q = robot.q_home.copy()
+        self.joints = tuple(joints)
+        found = robot.passive_joints if self.joints else {}
+        for name in self.joints:
+            if name not in found:
+                drive = name in robot.description.drive_joints
+                raise InvalidParameterError(
+                    f"joint_position names joint {name!r}, which is " + ("a drive (limit it by drive_position)"
+                                                                          if drive else "not a passive one-DOF joint "
+                                                                          f"of {robot.name}") +
+                    f"; valid joint names: {list(found)}")
+        idx = [found[n] for n in self.joints]
+        self._iq = np.concatenate([robot.drive_q_indices, np.array([i for i, _ in idx], dtype=int)]).astype(int)
+        self._iv = np.concatenate([np.asarray(robot.drive_idx), np.array([i for _, i in idx], dtype=int)]).astype(int)
 
     def __call__(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """((n_u,) drive positions (m or rad), (n_u, n_y) Jacobian ∂q_a/∂y) at pose y (m, rad).
+        """((n_u + n_j,) drive then joint positions (m or rad), (n_u + n_j, n_y) Jacobian ∂q/∂y)
+        at pose y (m, rad); n_j = len(joints).
 
         Raises:
             AssemblyError, SingularPoseError: y cannot be assembled on the robot's branch.
@@ -62,13 +90,34 @@ class DriveKinematics:
         else:
             q, T, _ = out
         self._q = q
-        return q[r.drive_q_indices].copy(), T[r.drive_idx].copy()
+        return q[self._iq], T[self._iv]
 
     @classmethod
-    def of(cls, model) -> "DriveKinematics | None":
-        """The drive kinematics of a controller's model (a robot's reduced model), or None."""
+    def of(cls, model, joints=()) -> "DriveKinematics | None":
+        """The drive (and ``joints``') kinematics of a controller's model (a robot's reduced model), or None."""
         robot = getattr(model, "robot", None)
-        return None if robot is None or not hasattr(robot, "assemble_warm") else cls(robot)
+        return None if robot is None or not hasattr(robot, "assemble_warm") else cls(robot, joints)
+
+    @classmethod
+    def needed(cls, model, limits: Limits) -> "DriveKinematics | None":
+        """The kinematics ``limits`` need (drive_position, drive_rate, joint_position), None when they need none.
+
+        Raises:
+            InvalidParameterError: such limits on a model that is not a robot's, or an unknown joint name.
+        """
+        if not any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
+            return None
+        joints = tuple(limits.joint_position or ())
+        kin = cls.of(model, joints)
+        if kin is None:
+            raise InvalidParameterError(f"{', '.join(k for k in KINEMATIC_KINDS if getattr(limits, k) is not None)} "
+                                        f"limits need a robot's model (drive and joint kinematics); "
+                                        f"{type(model).__name__} has none")
+        return kin
+
+
+#: the state kinds computed through the robot's kinematics (positions and Jacobians of joints).
+KINEMATIC_KINDS = ("drive_position", "drive_rate", "joint_position")
 
 
 @dataclass
@@ -142,14 +191,20 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
     else:
         dG, df = np.diff(Gy, axis=0), np.diff(fy, axis=0)
     jac = None
-    if limits.drive_position is not None or limits.drive_rate is not None:
+    if any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
         if drives is None:
-            raise InvalidParameterError("drive_position and drive_rate limits need the robot's drive kinematics "
-                                        "(a controller of a robot's reduced model); this model has none")
+            raise InvalidParameterError("drive_position, drive_rate and joint_position limits need the robot's "
+                                        "kinematics (a controller of a robot's reduced model); this model has none")
+        joints = tuple(limits.joint_position or ())
+        if joints and drives.joints != joints:
+            raise InvalidParameterError(f"the kinematics give the joints {list(drives.joints)}; the joint_position "
+                                        f"limits name {list(joints)}")
         ybar = (pred.f if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(n_rows, p)
         qj = [drives(y) for y in ybar]
-        qbar = np.array([a for a, _ in qj])
-        jac = np.array([J for _, J in qj])  # (n_rows, m, p)
+        qall = np.array([a for a, _ in qj])
+        jall = np.array([J for _, J in qj])  # (n_rows, n_u + n_j, p)
+        n_u = qall.shape[1] - len(drives.joints)
+        qbar, jac = qall[:, :n_u], jall[:, :n_u]
     blocks = []  # (kind, M (rows, n), value at v = 0 (rows,), lower (rows,), upper (rows,))
     if limits.output_box is not None:
         box = limits.output_box
@@ -163,8 +218,19 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
         M = np.einsum("imp,ipn->imn", jac, Gy).reshape(-1, n)
         value = (qbar + np.einsum("imp,ip->im", jac, fy - ybar)).reshape(-1)
         blocks.append(("drive_position", M, value, *_pairs(limits.drive_position, n_rows)))
+    if limits.joint_position is not None:
+        sel = [drives.joints.index(name) for name in joints]
+        Jj = jall[:, n_u:][:, sel]
+        M = np.einsum("imp,ipn->imn", Jj, Gy).reshape(-1, n)
+        value = (qall[:, n_u:][:, sel] + np.einsum("imp,ip->im", Jj, fy - ybar)).reshape(-1)
+        ranges = np.array([limits.joint_position[name] for name in joints])
+        blocks.append(("joint_position", M, value, *_pairs(ranges, n_rows)))
     if limits.drive_rate is not None:
-        J = jac if H.No == 0 else jac[1:]
+        if H.No == 0:  # the first difference is from y(k): its Jacobian too
+            J_now = drives(np.asarray(y_now, dtype=float))[1][:n_u]
+            J = 0.5 * (jac + np.concatenate([J_now[None], jac[:-1]]))
+        else:
+            J = 0.5 * (jac[1:] + jac[:-1])
         rmax = limits.drive_rate * Ts
         M = np.einsum("imp,ipn->imn", J, dG).reshape(-1, n)
         value = np.einsum("imp,ip->im", J, df).reshape(-1)
@@ -188,11 +254,38 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
                           np.concatenate(slack_of).astype(int), n_slack)
 
 
-def constrain(problem: LeastSquaresProblem, rows: ConstraintRows | None, limits: Limits) -> LeastSquaresProblem:
-    """``problem`` with the state constraint ``rows`` added (slack variables for the soft ones)."""
-    if rows is None or not len(rows.h):
-        return problem
-    return with_inequalities(problem, rows.G, rows.h, rows.slack_of, limits.penalty, limits.penalty * SOFT_QUADRATIC)
+def terminal_rows(pred: Prediction, w: np.ndarray, terminal: str | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The terminal equality rows ``E v = e`` of one step, or None.
+
+    Args:
+        pred: the prediction ŷ = f + G v. w: (n_rows, p) or (n_rows·p,) reference (m, rad).
+        terminal: None, ``"pose"`` (ŷ(k+N) = w(k+N)) or ``"stop"`` (also ŷ(k+N) = ŷ(k+N−1):
+            zero mean velocity over the last predicted sample; needs two predicted rows).
+
+    Returns:
+        (E (k, n), e (k,)), k = p (pose) or 2p (stop); None without a terminal equality.
+    """
+    if terminal is None:
+        return None
+    w = np.asarray(w, dtype=float).reshape(-1)
+    p = len(w) // pred.horizons.n_rows
+    E, e = [pred.G[-p:]], [w[-p:] - pred.f[-p:]]
+    if terminal == "stop":
+        E.append(pred.G[-p:] - pred.G[-2 * p:-p])
+        e.append(pred.f[-2 * p:-p] - pred.f[-p:])
+    return np.vstack(E), np.concatenate(e)
+
+
+def constrain(problem: LeastSquaresProblem, rows: ConstraintRows | None, limits: Limits,
+              terminal: tuple[np.ndarray, np.ndarray] | None = None) -> LeastSquaresProblem:
+    """``problem`` with the state constraint ``rows`` added (slack variables for the soft ones) and
+    the hard terminal equality rows ``terminal`` = (E, e) (:func:`terminal_rows`)."""
+    if rows is not None and len(rows.h):
+        problem = with_inequalities(problem, rows.G, rows.h, rows.slack_of, limits.penalty,
+                                    limits.penalty * SOFT_QUADRATIC)
+    if terminal is not None:
+        problem = with_equalities(problem, *terminal)
+    return problem
 
 
 def report(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndarray) -> ConstraintReport | None:

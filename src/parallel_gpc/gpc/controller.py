@@ -32,7 +32,7 @@ from ..solvers import QRSolver, SolveResult, make_solver, from_cumulative
 from ..validation import all_finite, check_sample_time, finite_vector
 from ..limits import Limits
 from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrain, hard_violation, report, split,
-                          stage_constraints)
+                          stage_constraints, terminal_rows)
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
 from .nmpc import IterationReport, NMPCIterations
@@ -135,13 +135,7 @@ class GPCController:
         """Check ``settings`` against the model's sizes and make them current."""
         criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
         limits = settings.limits.for_drives(self.n_u, self.n_y)
-        drives = None
-        if limits.drive_position is not None or limits.drive_rate is not None:
-            drives = DriveKinematics.of(self.model)
-            if drives is None:
-                raise InvalidParameterError(f"drive_position and drive_rate limits need a robot's model (drive "
-                                            f"kinematics); {type(self.model).__name__} has none")
-        self._drives = drives
+        self._drives = DriveKinematics.needed(self.model, limits)
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
@@ -333,7 +327,7 @@ class GPCController:
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             warm = self._warm_start(pred, problem.n)
             rows = self._stage_rows(pred, X, warm)
-            full = constrain(problem, rows, self._limits)
+            full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
             result = self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:

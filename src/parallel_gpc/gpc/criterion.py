@@ -55,23 +55,44 @@ def _weight_block(name: str, value, size: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Weights:
-    """Square-root weights of the criterion (5): J = Σ‖Qy (ŷ − w)‖² + Σ‖Qu v‖².
+    """Square-root weights of the criterion (5): J = Σ‖Qy (ŷ − w)‖² + Σ‖Qu v‖², the last
+    predicted error weighted by Qf·Qy (a terminal weight).
 
     Attributes:
         Qy: output weight: scalar, (p,) per channel, or (p, p) symmetric PSD matrix.
         Qu: input (absolute form) or increment (incremental forms) weight, same forms, (m,).
+        Qf: terminal factor ≥ 0 on the last predicted step's square-root output weight: its term is
+            ‖diag(Qf) Qy (ŷ(k+N) − w(k+N))‖²; a scalar or (p,) per channel. Default 1: the paper's
+            criterion, the same problem to the last bit.
     """
 
     Qy: object = 1.0
     Qu: object = 0.0
+    Qf: object = 1.0
 
     def __post_init__(self):
         _weight_array("Qy", self.Qy)
         _weight_array("Qu", self.Qu)
+        qf = _weight_array("Qf", self.Qf)
+        if qf.ndim > 1 or not np.all(np.isfinite(qf)) or np.any(qf < 0):
+            raise InvalidParameterError(f"terminal weight Qf = {self.Qf!r} must be a number or one per output, "
+                                        "finite and ≥ 0 (1: no extra terminal weight)")
 
     def blocks(self, p: int, m: int) -> tuple[np.ndarray, np.ndarray]:
         """(p, p) and (m, m) square-root weight matrices (validated)."""
         return _weight_block("Qy", self.Qy, p), _weight_block("Qu", self.Qu, m)
+
+    def terminal(self, p: int) -> np.ndarray | None:
+        """(p,) the terminal factor per output, or None when it is 1 for every output (no terminal weight).
+
+        Raises:
+            ShapeError: a vector Qf that is not p long.
+        """
+        qf = np.asarray(self.Qf, dtype=float)
+        if qf.ndim == 1 and qf.shape != (p,):
+            raise ShapeError(f"terminal weight Qf has shape {qf.shape}; expected a scalar or ({p},)")
+        qf = np.broadcast_to(qf, (p,)).copy()
+        return None if np.all(qf == 1.0) else qf
 
 
 # ---------------------------------------------------------------------------- problem
@@ -103,7 +124,9 @@ class Criterion:
         n_outputs, n_inputs: p and m.
 
     Attributes (derived, read-only arrays):
-        Wy: (p, p) output weight; wy: (n_rows·p,) its diagonal tiled when Wy is diagonal, else None.
+        Wy: (p, p) output weight; wy: (n_rows·p,) its diagonal tiled when Wy is diagonal (the last
+        block times the terminal factor Qf), else None. Wf: (p, p) diag(Qf) Wy, the last predicted
+        step's weight, or None when Qf = 1.
         Qu_block: (Nu·m, Nu·m) kron(I, Qu); qu_diag: (Nu·m,) its diagonal when Qu is diagonal, else None.
         qu_zero: Qu = 0 (the regularization rows of A are zero).
 
@@ -121,10 +144,14 @@ class Criterion:
         p, m, H = self.n_outputs, self.n_inputs, self.horizons
         check_problem_size(H, p, m)
         Wy, Wu = self.weights.blocks(p, m)
+        qf = self.weights.terminal(p)
         diag_y = not np.any(Wy - np.diag(np.diag(Wy)))
         diag_u = not np.any(Wu - np.diag(np.diag(Wu)))
         qu_diag = np.tile(np.diag(Wu), H.Nu) if diag_u else None
-        derived = {"Wy": Wy, "wy": np.tile(np.diag(Wy), H.n_rows) if diag_y else None, "qu_diag": qu_diag,
+        wy = np.tile(np.diag(Wy), H.n_rows) if diag_y else None
+        if wy is not None and qf is not None:
+            wy[-p:] *= qf
+        derived = {"Wy": Wy, "wy": wy, "qu_diag": qu_diag, "Wf": None if qf is None else qf[:, None] * Wy,
                    "Qu_block": np.diag(qu_diag) if diag_u else np.kron(np.eye(H.Nu), Wu)}
         for name, arr in derived.items():
             if arr is not None:
@@ -169,6 +196,9 @@ class Criterion:
         else:
             A[:r] = (self.Wy @ pred.G.reshape(H.n_rows, p, n)).reshape(r, n)
             b[:r] = (self.Wy @ (w.reshape(H.n_rows, p) - pred.f.reshape(H.n_rows, p)).T).T.reshape(-1)
+            if self.Wf is not None:  # the last predicted step: diag(Qf) Wy
+                A[r - p:r] = self.Wf @ pred.G[r - p:]
+                b[r - p:r] = self.Wf @ (w.reshape(-1)[r - p:] - pred.f[r - p:])
         A[r:] = self.Qu_block
         b[r:] = 0.0
         prob = LeastSquaresProblem(A, b, nonzero_rows=r if self.qu_zero else r + n, tail_diag=self.qu_diag,

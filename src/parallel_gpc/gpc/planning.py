@@ -113,7 +113,7 @@ def end_point_problem(model, X, target, N: int, settings: PlanSettings,
     if limits.has_state_limits:
         limits = limits.for_drives(model.n_u, model.n_y)
         y_lin = whole.f if warm_start is None or warm_start.shape != (whole.G.shape[1],) else whole.outputs(warm_start)
-        rows = stage_constraints(whole, limits, settings.Ts, model.C @ X, y_lin, DriveKinematics.of(model))
+        rows = stage_constraints(whole, limits, settings.Ts, model.C @ X, y_lin, DriveKinematics.needed(model, limits))
         problem = constrain(problem, rows, limits)
     return problem, pred
 

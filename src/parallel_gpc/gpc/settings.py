@@ -26,6 +26,9 @@ DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
 #: the square-root form (KKT residual ≤ 4e-15 relative on the benchmark problems of every robot,
 #: DAQP's regularized QP ≤ 2e-10) and no dense QP setup.
 DEFAULT_BOX_SOLVER = "qr-first:bvls"
+#: terminal equalities of the tracking forms: ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: that and
+#: ŷ(k+N) = ŷ(k+N−1) (zero mean velocity over the last predicted sample).
+TERMINALS = ("pose", "stop")
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,7 +54,8 @@ class GPCSettings:
             :data:`DEFAULT_LIMITED_SOLVER` (incremental forms, and any form with state limits).
         limits: the :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
             |u(k) − u(k−1)| ≤ δ, incremental forms only; the state kinds drive_position,
-            drive_rate, output_box, output_velocity, hard or soft, :mod:`parallel_gpc.gpc.constraints`);
+            drive_rate, output_box, output_velocity, joint_position, hard or soft,
+            :mod:`parallel_gpc.gpc.constraints`);
             None = ``Limits()``, no limit.
         disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate
             d ← (1 − α) d + α (X(k) − X̂(k|k−1)) added to the model's affine term over the horizon
@@ -73,6 +77,10 @@ class GPCSettings:
             (> 0, relative; default 1e-8).
         time_budget: s per control step (> 0) for the iterations (real-time mode): no iteration
             starts that would end past it (the step record says so), or None (no budget).
+        terminal: an optional terminal equality, hard rows of the QP (:data:`TERMINALS`):
+            ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: also ŷ(k+N) = ŷ(k+N−1) (the mean velocity over
+            the last predicted sample is zero: stop at the target; needs N − No ≥ 2); None
+            (default): none. The terminal weight is the weights' ``Qf``.
 
     Raises:
         InvalidParameterError: bad Ts, form, horizons, weights or limits type, solver/limits
@@ -90,6 +98,7 @@ class GPCSettings:
     iterations: int = 1
     tolerance: float = 1e-8
     time_budget: float | None = None
+    terminal: str | None = None
 
     def __post_init__(self):
         def put(name, value):
@@ -107,7 +116,11 @@ class GPCSettings:
             raise InvalidParameterError(
                 f"form 'incremental-delayed' needs N ≥ 2 (its increment acts from k+2 on); got N = {self.horizons.N}")
         check_form_limits(self.form, self.limits)
-        put("solver", resolve_solver(self.solver, self.form, self.limits))
+        check_terminal(self)
+        put("solver", resolve_solver(self.solver, self.form, self.limits, self.terminal))
+        if self.solver == "riccati" and self.weights.Qf is not None and np.any(np.asarray(self.weights.Qf) != 1.0):
+            raise InvalidParameterError(f"solver 'riccati' takes the paper's criterion; the terminal weight "
+                                        f"Qf = {self.weights.Qf!r} needs a dense back end such as 'qr'")
         if self.disturbance_gain is None:
             put("disturbance_gain", 0.0 if self.form == "absolute" else 0.5)
         put("disturbance_gain", unit_interval("disturbance_gain", self.disturbance_gain))
@@ -131,6 +144,23 @@ def check_iterations(settings: "GPCSettings") -> None:
                                     "solves the paper's single step only")
 
 
+def check_terminal(settings: "GPCSettings") -> None:
+    """Refuse a terminal equality that is not one of :data:`TERMINALS`, a ``"stop"`` with fewer than
+    two predicted rows, or one with the iterated nonlinear form."""
+    t = settings.terminal
+    if t is None:
+        return
+    if t not in TERMINALS:
+        raise InvalidParameterError(f"terminal = {t!r} is not one of {list(TERMINALS)} (or None: no terminal "
+                                    "equality)")
+    H = settings.horizons
+    if t == "stop" and H.n_rows < 2:
+        raise InvalidParameterError(f"terminal 'stop' sets ŷ(k+N) = ŷ(k+N−1): it needs N − No ≥ 2 predicted rows; "
+                                    f"got N = {H.N}, No = {H.No}")
+    if settings.iterations > 1:
+        raise InvalidParameterError(f"terminal = {t!r} enters the paper's single step only so far: use iterations=1")
+
+
 def check_form_limits(form: str, limits: Limits) -> None:
     """Refuse an increment limit on the absolute form (v = u has no increments)."""
     if limits.du is not None and form == "absolute":
@@ -138,17 +168,22 @@ def check_form_limits(form: str, limits: Limits) -> None:
                                     "form is 'absolute'")
 
 
-def resolve_solver(solver: str | None, form: str, limits: Limits) -> str:
-    """The back end of a form with these limits: None resolves to the default; a back end that
-    cannot enforce the limits is refused.
+def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str | None = None) -> str:
+    """The back end of a form with these limits (and terminal equality): None resolves to the
+    default; a back end that cannot enforce them is refused.
 
     Raises:
         InvalidParameterError: not a name, or a name that cannot enforce ``limits`` (qr, cholesky,
-            riccati with any input limit; bvls with the incremental forms' torque limit).
+            riccati with any input limit or a terminal equality; bvls with the incremental forms'
+            torque limit, state limits or a terminal equality).
     """
-    limited = limits.needs_qp
+    limited = limits.needs_qp or terminal is not None
+    if terminal is not None and solver is not None and isinstance(solver, str) and (
+            solver in ("qr", "cholesky", "riccati") or solver.endswith("bvls")):
+        raise InvalidParameterError(f"solver {solver!r} cannot enforce the terminal equality {terminal!r} (general "
+                                    f"equality rows); use {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
     if solver is None:
-        box_only = form == "absolute" and not limits.has_state_limits
+        box_only = form == "absolute" and not limits.has_state_limits and terminal is None
         return "qr" if not limited else DEFAULT_BOX_SOLVER if box_only else DEFAULT_LIMITED_SOLVER
     if not isinstance(solver, str):
         raise InvalidParameterError(f"solver {solver!r} must be a back-end name such as 'qr'")

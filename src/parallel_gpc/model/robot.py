@@ -332,7 +332,9 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
         velocities; hard or soft) as a :class:`~parallel_gpc.limits.Limits` sized to the drives
         and outputs; ``Limits()`` when the file declares none. ``drive_position = "urdf"`` takes
         the drives' ranges of the model file, a table ``{drive_joint = [lo, hi]}`` sets those drives
-        (the others free).
+        (the others free); ``joint_ranges = "urdf"`` takes every passive one-DOF joint's finite range of
+        the model file (:meth:`joint_ranges`), a table ``joint_position = {joint = [lo, hi]}`` sets
+        (or replaces) those joints' ranges.
 
         Raises:
             RobotFormatError: a value the Limits type refuses (naming the sidecar).
@@ -348,6 +350,16 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             for name, pair in dp.items():
                 pairs[list(self.description.drive_joints).index(name)] = pair
             table["drive_position"] = pairs
+        ranges = self.joint_ranges() if table.pop("joint_ranges", None) == "urdf" else {}
+        if isinstance(table.get("joint_position"), dict):
+            valid = self.passive_joints
+            unknown = sorted(set(table["joint_position"]) - set(valid))
+            if unknown:
+                raise RobotFormatError(f"sidecar {str(self.description.sidecar_path)!r}: [limits] joint_position names "
+                                       f"{unknown}, which are not passive one-DOF joints; valid: {list(valid)}")
+            ranges.update(table["joint_position"])
+        if ranges:
+            table["joint_position"] = ranges
         if "soft" in table:
             table["soft"] = tuple(table["soft"])
         try:
@@ -396,6 +408,22 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def drive_position_units(self) -> tuple[str, ...]:
         """Unit of each drive position: ``"rad"`` or ``"m"``."""
         return tuple("rad" if a else "m" for a in self.drive_angular)
+
+    @property
+    def passive_joints(self) -> dict[str, tuple[int, int]]:
+        """The passive one-DOF (revolute or prismatic) joints: ``{name: (idx_q, idx_v)}`` in model
+        order (every joint with nq = nv = 1 that is not a drive; a universal joint is two of them)."""
+        model, drives = self.model, set(self.description.drive_joints)
+        return {str(model.names[j]): (int(model.joints[j].idx_q), int(model.joints[j].idx_v))
+                for j in range(1, model.njoints)
+                if model.joints[j].nq == 1 and model.joints[j].nv == 1 and str(model.names[j]) not in drives}
+
+    def joint_ranges(self) -> dict[str, tuple[float, float]]:
+        """The model file's ``<limit lower upper>`` range (rad or m) of every passive one-DOF joint
+        whose range is finite: ``{name: (lo, hi)}``."""
+        lo, hi = self.model.lowerPositionLimit, self.model.upperPositionLimit
+        return {name: (float(lo[iq]), float(hi[iq])) for name, (iq, _) in self.passive_joints.items()
+                if np.isfinite(lo[iq]) and np.isfinite(hi[iq]) and lo[iq] < hi[iq]}
 
     @property
     def drive_range(self) -> tuple[np.ndarray, np.ndarray]:

@@ -46,7 +46,8 @@ SIDECAR_KEYS = {
     "output": {"joints", "frame", "kind", "axes", "labels", "units"},
     "home": {"pose", "q_guess", "branch_joints", "A", "B"},
     "sensors": {"counts_per_rev", "counts_per_m", "rates"},
-    "limits": {"drive_position", "drive_rate", "output_box", "output_velocity", "soft", "penalty"},
+    "limits": {"drive_position", "drive_rate", "output_box", "output_velocity", "joint_position", "joint_ranges",
+               "soft", "penalty"},
 }
 
 
@@ -244,6 +245,9 @@ def read_limits(raw, drives: tuple[str, ...], where: str) -> dict:
       ``[lo, hi]`` for every drive, one pair per drive, or a table ``{drive_joint = [lo, hi]}``
       (m or rad); ``drive_rate`` (m/s or rad/s), ``output_box`` (pairs, m and rad),
       ``output_velocity`` (m/s, rad/s) as in :class:`~parallel_gpc.limits.Limits`;
+    * ``joint_ranges``: ``"urdf"`` (every passive one-DOF joint's ``<limit>`` range of the model
+      file; opt-in) and/or ``joint_position``: a table ``{joint = [lo, hi]}`` (rad or m; the
+      names are checked against the model's passive joints when the robot makes its limits);
     * ``soft``: the kinds relaxed by slack variables (default every state kind), ``penalty`` ρ.
 
     Raises:
@@ -261,6 +265,13 @@ def read_limits(raw, drives: tuple[str, ...], where: str) -> dict:
         if unknown:
             raise RobotFormatError(f"sidecar {where}: limits.drive_position names {unknown}, which are not drive "
                                    f"joints; the drives are {list(drives)}")
+    if "joint_ranges" in table and table["joint_ranges"] != "urdf":
+        raise RobotFormatError(f"sidecar {where}: limits.joint_ranges = {table['joint_ranges']!r}; valid: \"urdf\" "
+                               "(the model file's passive joint ranges), or leave it out")
+    jp = table.get("joint_position")
+    if jp is not None and not isinstance(jp, dict):
+        raise RobotFormatError(f"sidecar {where}: limits.joint_position = {jp!r} must be a table "
+                               "{joint_name = [lo, hi]} (rad or m)")
     if "soft" in table and (not isinstance(table["soft"], list) or not all(isinstance(k, str) for k in table["soft"])):
         raise RobotFormatError(f"sidecar {where}: limits.soft = {table['soft']!r} must be a list of kind names")
     return out

@@ -41,6 +41,7 @@ from .problem import (
     MinNormOf,
     SolveResult,
     from_cumulative,
+    with_equalities,
     with_inequalities,
 )
 from .riccati import lq_tracking
@@ -51,7 +52,7 @@ from .qr import QRSolver, qr_least_squares
 from .qr_first import QRFirst
 
 __all__ = [
-    "from_cumulative", "with_inequalities", "lq_tracking",
+    "from_cumulative", "with_inequalities", "with_equalities", "lq_tracking",
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
     "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",
     "available_solvers", "installed_qp_solvers", "make_solver",

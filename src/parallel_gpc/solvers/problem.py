@@ -118,9 +118,10 @@ class LeastSquaresProblem:
         added by :func:`with_inequalities` each relative to its own bound, and slack ≥ 0)."""
         if self.base is not None:
             n, k = self.base.n, 0 if self.base.L is None else self.base.L.shape[0]
-            added = self.L[k:] @ v - self.hi[k:]
+            Lv = self.L[k:] @ v
             return (self.base.feasible(v[:n]) and bool(np.all(v[n:] >= 0.0))
-                    and bool(np.all(added <= LIMIT_TOL * (1.0 + np.abs(self.hi[k:])))))
+                    and bool(np.all(Lv - self.hi[k:] <= LIMIT_TOL * (1.0 + np.abs(self.hi[k:]))))
+                    and bool(np.all(self.lo[k:] - Lv <= LIMIT_TOL * (1.0 + np.abs(self.lo[k:])))))
         scale = 1.0
         for arr in (self.ub, self.hi):
             finite = None if arr is None else np.abs(arr[np.abs(arr) < UNBOUNDED])
@@ -216,6 +217,37 @@ def with_inequalities(problem: LeastSquaresProblem, G: np.ndarray, h: np.ndarray
                                min_norm_of=None, nonzero_rows=None, tail_diag=tail,
                                tail_positive=problem.tail_positive and quadratic > 0, c=c, n_slack=ns,
                                slack_unit=unit, base=problem)
+
+
+def with_equalities(problem: LeastSquaresProblem, E: np.ndarray, e: np.ndarray) -> LeastSquaresProblem:
+    """``problem`` with the hard equality rows ``E v = e`` added (rows of L with lo = hi), each
+    divided by its norm in v.
+
+    Args:
+        problem: the problem in x = [v; s] (slack columns, if any, get zero coefficients).
+        E: (k, n_decision); e: (k,) finite.
+
+    Returns:
+        A new problem with the same columns; its ``base`` is the problem before any row was added.
+    """
+    E = np.asarray(E, dtype=float)
+    n, nd = problem.n, problem.n_decision
+    if E.ndim != 2 or E.shape[1] != nd:
+        raise InvalidParameterError(f"equality rows have shape {E.shape}; expected (k, {nd})")
+    norm = np.linalg.norm(E, axis=1)
+    norm[norm == 0.0] = 1.0
+    rows = np.zeros((E.shape[0], n))
+    rows[:, :nd] = E / norm[:, None]
+    e = np.asarray(e, dtype=float) / norm
+    L = rows if problem.L is None else np.vstack([problem.L, rows])
+    lo = e if problem.lo is None else np.concatenate([problem.lo, e])
+    hi = e.copy() if problem.hi is None else np.concatenate([problem.hi, e])
+    base = problem.base if problem.base is not None else problem
+    return LeastSquaresProblem(problem.A, problem.b, problem.lb, problem.ub, L, lo, hi,
+                               min_norm_of=problem.min_norm_of if problem.base is None else None,
+                               nonzero_rows=problem.nonzero_rows, tail_diag=problem.tail_diag,
+                               tail_positive=problem.tail_positive, c=problem.c, n_slack=problem.n_slack,
+                               slack_unit=problem.slack_unit, base=base)
 
 
 def refuse_limits(solver: str, problem: LeastSquaresProblem) -> None:
@@ -321,7 +353,7 @@ def iterations_from_extras(extras) -> int | None:
     return None
 
 
-def _stacked_constraints(problem: LeastSquaresProblem):
+def stacked_constraints(problem: LeastSquaresProblem):
     """All limits as lo ≤ C v ≤ hi (box rows first), with ±1e20 where unbounded."""
     rows, lo, hi = [], [], []
     if problem.lb is not None:
@@ -377,6 +409,6 @@ class PersistentQPBackend:
         """(P, q, C, lo, hi, shape): scaled Hessian and gradient, stacked limits ``lo ≤ C v ≤ hi``
         and the (P, C) shapes that identify the problem structure."""
         P, q, _ = scaled_qp(problem)
-        C, lo, hi = _stacked_constraints(problem)
+        C, lo, hi = stacked_constraints(problem)
         return P, q, C, lo, hi, (P.shape, C.shape)
 

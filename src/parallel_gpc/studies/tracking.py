@@ -28,7 +28,7 @@ from ..gpc import (
     GPCSettings,
     unit_interval,
 )
-from ..limits import Limits, as_limits, symmetric_limit
+from ..limits import STATE_KINDS, Limits, as_limits, symmetric_limit
 from ..model import ReducedModel, ConstrainedPlant, DEFAULT_ROBOT, ParallelRobot
 from ..validation import finite_vector, positive
 from ..estimation import StateEstimator, SensedPlant, Sensors
@@ -41,9 +41,14 @@ from .tables import (FORM_WIDTH, Column, effort_columns, error_columns, gain_col
 PLANTS = ("own", "mujoco")
 
 
+#: The flat keywords of :meth:`TrackingSettings.from_flat` that stand for the fields of the
+#: embedded Limits: the input kinds as ``torque_limit``, ``du_limit``, every state kind by its own
+#: name, the soft kinds and the penalty as ``soft_limits``, ``limit_penalty``.
+LIMIT_KEYS = {"torque_limit": "torque", "du_limit": "du", **{kind: kind for kind in STATE_KINDS},
+              "soft_limits": "soft", "limit_penalty": "penalty"}
 #: The flat keywords of :meth:`TrackingSettings.from_flat` that stand for the embedded
 #: Horizons, Weights and Limits (the CLI's options and a sweep's parameters are flat).
-EMBEDDED_KEYS = ("N", "No", "Nu", "Qy", "Qu", "torque_limit", "du_limit")
+EMBEDDED_KEYS = ("N", "No", "Nu", "Qy", "Qu") + tuple(LIMIT_KEYS)
 #: What ``plant_torque_limit`` may name besides a limit: the controller's or the robot file's.
 PLANT_LIMIT_SOURCES = ("controller", "robot")
 
@@ -52,8 +57,8 @@ PLANT_LIMIT_SOURCES = ("controller", "robot")
 class TrackingSettings:
     """Settings of a tracking run (SI units), validated when built.
 
-    :meth:`from_flat` builds one from flat keywords (N, No, Nu, Qy, Qu, torque_limit, du_limit
-    and the other fields); :meth:`flat` gives them back.
+    :meth:`from_flat` builds one from flat keywords (N, No, Nu, Qy, Qu, the limits'
+    :data:`LIMIT_KEYS` and the other fields); :meth:`flat` gives them back, every one.
 
     Attributes:
         robot: embedded robot name or path.
@@ -171,20 +176,33 @@ class TrackingSettings:
 
     @classmethod
     def from_flat(cls, *, N: int | None = None, No: int | None = None, Nu: int | None = None, Qy=None, Qu=None,
-                  torque_limit=None, du_limit=None, **fields) -> "TrackingSettings":
-        """Settings from flat keywords: N, No, Nu make the horizons, Qy, Qu the weights, torque_limit,
-        du_limit the limits (each unset one: the default's); ``fields`` are the other fields."""
+                  **fields) -> "TrackingSettings":
+        """Settings from flat keywords: N, No, Nu make the horizons, Qy, Qu the weights, the
+        :data:`LIMIT_KEYS` (``torque_limit``, ``du_limit``, ``drive_position``, ``drive_rate``,
+        ``output_box``, ``output_velocity``, ``joint_position``, ``soft_limits``, ``limit_penalty``)
+        the limits (each unset or None one: the default's); the other keywords are the other fields."""
         default = cls()
         H, W = default.horizons, default.weights
         horizons = Horizons(H.N if N is None else N, H.No if No is None else No, Nu)
         weights = Weights(W.Qy if Qy is None else Qy, W.Qu if Qu is None else Qu)
-        return cls(horizons=horizons, weights=weights, limits=Limits(torque=torque_limit, du=du_limit), **fields)
+        limits = {LIMIT_KEYS[key]: fields.pop(key) for key in list(fields) if key in LIMIT_KEYS}
+        limits = {kind: value for kind, value in limits.items() if value is not None}
+        return cls(horizons=horizons, weights=weights, limits=Limits(**limits), **fields)
 
     def flat(self) -> dict:
-        """The settings as the flat keywords of :meth:`from_flat` (limits as numbers or lists)."""
+        """The settings as the flat keywords of :meth:`from_flat`: every field, every limit (numbers,
+        lists, a ``{joint: [lo, hi]}`` dict; None when unset), so that ``from_flat(**s.flat())``
+        equals ``s``."""
         H, W = self.horizons, self.weights
-        out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu, "torque_limit": self.limits.to_dict()["torque"],
-               "du_limit": self.limits.to_dict()["du"]}
+        lim = self.limits
+        out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu}
+        for key, kind in LIMIT_KEYS.items():
+            if kind == "soft":
+                out[key] = sorted(lim.soft)
+            elif kind == "penalty":
+                out[key] = lim.penalty
+            else:
+                out[key] = lim.to_dict().get(kind)
         out.update({f.name: getattr(self, f.name) for f in fields(self)
                     if f.name not in ("horizons", "weights", "limits", "extra")})
         return out
