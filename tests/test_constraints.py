@@ -628,3 +628,18 @@ def test_a_hard_drive_rate_limit_holds_in_closed_loop():
     mean, now, active = rates(Limits(torque=1000.0, drive_rate=limit, soft=()))
     assert now_free > 1.3 * limit and active > 50  # the limit binds over much of the run
     assert mean <= limit * (1 + 1e-3) and now <= limit * (1 + 5e-3)
+
+
+def test_terminal_settings_reach_the_controllers_through_tracking_and_flat():
+    """Qf and the terminal equality enter a tracking run (CLI, sweeps) through TrackingSettings:
+    flat() round-trips them, a bad terminal is one error, and the run's controller uses both
+    (oracle: the controller built directly from GPCSettings with the same fields)."""
+    from parallel_gpc.errors import InvalidParameterError
+    from parallel_gpc.studies import TrackingSettings
+
+    s = TrackingSettings.from_flat(robot="planar_4rrr", N=8, Qu=1e-3, Qf=3.0, terminal="pose")
+    assert TrackingSettings.from_flat(**s.flat()).flat() == s.flat()
+    c = s.controller_settings("absolute")
+    assert c.terminal == "pose" and float(np.asarray(c.weights.Qf).ravel()[0]) == 3.0
+    with pytest.raises(InvalidParameterError, match="terminal"):
+        TrackingSettings(terminal="halt")

@@ -32,6 +32,11 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--Qy", type=float, default=d["Qy"], help=f"square-root output weight (default {d['Qy']:g})")
     p.add_argument("--Qu", type=float, default=d["Qu"],
                    help=f"square-root input / increment weight (default {d['Qu']:g})")
+    p.add_argument("--Qf", type=float, default=1.0,
+                   help="terminal factor on the last predicted error's weight (default 1: the paper's criterion)")
+    p.add_argument("--terminal", choices=["pose", "stop"], default=None,
+                   help="terminal equality: the last predicted pose on the reference (pose), and at rest (stop); "
+                        "hard rows, solved by a QP back end (default none)")
     p.add_argument("--solver", default=None,
                    help="back end: qr, riccati (unconstrained, Qu > 0: the Riccati recursion, no condensing), "
                    "osqp-direct, proxqp-direct, daqp-direct, "
@@ -73,8 +78,8 @@ def settings_from_args(args):
     from ..studies import TrackingSettings
 
     settings = TrackingSettings.from_flat(
-        robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu,
-        solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
+        robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu, Qf=args.Qf,
+        terminal=args.terminal, solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,
         disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
         reference=args.reference, duration=args.duration, sensors=args.sensors, plant=args.plant,

@@ -5,7 +5,7 @@ from .criterion import Criterion, Weights, build_problem
 from .protocol import ControlModel
 from .linear_model import DiscreteLinearModel
 from ..limits import Limits
-from .settings import PAPER_FORMS, ControllerState, GPCSettings, unit_interval
+from .settings import PAPER_FORMS, TERMINALS, ControllerState, GPCSettings, unit_interval
 from .controller import FORMS, GPCController, StepInfo
 from .references import Helix, Hold, OutputPath, Reference, SampledTrajectory, SCurve, path_for, pose_error_norms
 from .robot_references import (REFERENCE_KINDS, check_reference, check_times, is_file_reference, reference_for,
@@ -15,7 +15,7 @@ from .plan_result import plan_table
 from .plan_settings import INTERRUPTED
 
 __all__ = [
-    "pose_error_norms", "check_times", "is_file_reference", "PAPER_FORMS", "unit_interval", "INTERRUPTED",
+    "pose_error_norms", "check_times", "is_file_reference", "PAPER_FORMS", "TERMINALS", "unit_interval", "INTERRUPTED",
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
     "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
     "FORMS", "GPCController", "StepInfo", "Helix", "Hold", "OutputPath", "Reference", "SampledTrajectory", "SCurve",

@@ -26,6 +26,7 @@ from ..gpc import (
     is_file_reference,
     reference_for,
     GPCSettings,
+    TERMINALS,
     unit_interval,
 )
 from ..limits import STATE_KINDS, Limits, as_limits, symmetric_limit
@@ -48,7 +49,7 @@ LIMIT_KEYS = {"torque_limit": "torque", "du_limit": "du", **{kind: kind for kind
               "soft_limits": "soft", "limit_penalty": "penalty"}
 #: The flat keywords of :meth:`TrackingSettings.from_flat` that stand for the embedded
 #: Horizons, Weights and Limits (the CLI's options and a sweep's parameters are flat).
-EMBEDDED_KEYS = ("N", "No", "Nu", "Qy", "Qu") + tuple(LIMIT_KEYS)
+EMBEDDED_KEYS = ("N", "No", "Nu", "Qy", "Qu", "Qf") + tuple(LIMIT_KEYS)
 #: What ``plant_torque_limit`` may name besides a limit: the controller's or the robot file's.
 PLANT_LIMIT_SOURCES = ("controller", "robot")
 
@@ -57,14 +58,17 @@ PLANT_LIMIT_SOURCES = ("controller", "robot")
 class TrackingSettings:
     """Settings of a tracking run (SI units), validated when built.
 
-    :meth:`from_flat` builds one from flat keywords (N, No, Nu, Qy, Qu, the limits'
+    :meth:`from_flat` builds one from flat keywords (N, No, Nu, Qy, Qu, Qf, the limits'
     :data:`LIMIT_KEYS` and the other fields); :meth:`flat` gives them back, every one.
 
     Attributes:
         robot: embedded robot name or path.
         Ts: sample time in s (default 2 ms), of the controllers and the plant.
         horizons: N, No, Nu (default ``Horizons(20)``).
-        weights: square-root weights (default ``Weights(1.0, 0.0)``: paper Fig. 2, Qy = 1, Qu = 0).
+        weights: square-root weights (default ``Weights(1.0, 0.0)``: paper Fig. 2, Qy = 1, Qu = 0;
+            its ``Qf`` is the terminal factor on the last predicted error, default 1).
+        terminal: the controllers' optional terminal equality (``"pose"`` or ``"stop"``,
+            :data:`~parallel_gpc.gpc.settings.TERMINALS`; hard rows, a QP back end), or None.
         limits: the controllers' input :class:`~parallel_gpc.limits.Limits` (a du limit: incremental
             forms only); default none.
         solver: back-end name or None (each form's default: QR without limits).
@@ -109,6 +113,7 @@ class TrackingSettings:
     horizons: Horizons = field(default_factory=lambda: Horizons(20))
     weights: Weights = field(default_factory=lambda: Weights(1.0, 0.0))
     limits: Limits = field(default_factory=Limits)
+    terminal: str | None = None
     solver: str | None = None
     disturbance_gain: float | None = None
     mass_scale: float = 1.0
@@ -137,6 +142,8 @@ class TrackingSettings:
         if not isinstance(self.weights, Weights):
             raise InvalidParameterError(f"weights must be a Weights(Qy, Qu), got {self.weights!r}")
         put("limits", as_limits(self.limits))
+        if self.terminal is not None and self.terminal not in TERMINALS:
+            raise InvalidParameterError(f"terminal = {self.terminal!r} is not one of {list(TERMINALS)} or None")
         if self.solver is not None and not isinstance(self.solver, str):
             raise InvalidParameterError(f"solver {self.solver!r} must be a back-end name such as 'qr', or None")
         if self.disturbance_gain is not None:
@@ -176,15 +183,15 @@ class TrackingSettings:
 
     @classmethod
     def from_flat(cls, *, N: int | None = None, No: int | None = None, Nu: int | None = None, Qy=None, Qu=None,
-                  **fields) -> "TrackingSettings":
-        """Settings from flat keywords: N, No, Nu make the horizons, Qy, Qu the weights, the
+                  Qf=None, **fields) -> "TrackingSettings":
+        """Settings from flat keywords: N, No, Nu make the horizons, Qy, Qu, Qf the weights, the
         :data:`LIMIT_KEYS` (``torque_limit``, ``du_limit``, ``drive_position``, ``drive_rate``,
         ``output_box``, ``output_velocity``, ``joint_position``, ``soft_limits``, ``limit_penalty``)
         the limits (each unset or None one: the default's); the other keywords are the other fields."""
         default = cls()
         H, W = default.horizons, default.weights
         horizons = Horizons(H.N if N is None else N, H.No if No is None else No, Nu)
-        weights = Weights(W.Qy if Qy is None else Qy, W.Qu if Qu is None else Qu)
+        weights = Weights(W.Qy if Qy is None else Qy, W.Qu if Qu is None else Qu, W.Qf if Qf is None else Qf)
         limits = {LIMIT_KEYS[key]: fields.pop(key) for key in list(fields) if key in LIMIT_KEYS}
         limits = {kind: value for kind, value in limits.items() if value is not None}
         return cls(horizons=horizons, weights=weights, limits=Limits(**limits), **fields)
@@ -195,7 +202,7 @@ class TrackingSettings:
         equals ``s``."""
         H, W = self.horizons, self.weights
         lim = self.limits
-        out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu}
+        out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu, "Qf": W.Qf}
         for key, kind in LIMIT_KEYS.items():
             if kind == "soft":
                 out[key] = sorted(lim.soft)
@@ -230,7 +237,7 @@ class TrackingSettings:
     def controller_settings(self, form: str) -> GPCSettings:
         """The validated :class:`~parallel_gpc.gpc.GPCSettings` of ``form`` in this run."""
         return GPCSettings(self.Ts, self.horizons, self.weights, form, self.solver, self.limits,
-                           self.disturbance_gain)
+                           self.disturbance_gain, terminal=self.terminal)
 
     @property
     def run_duration(self) -> float:
