@@ -7,10 +7,10 @@
 //
 // Faster than the Python loop, not different: the solution of the last call is kept, so a call
 // warm-started at its configuration (the estimator's case) skips the start's assembly; a trial
-// pose is assembled from the first-order prediction q ⊕ T δy with the current K⁺ as the Newton
-// preconditioner (one or two kinematics passes instead of three or four); the Gauss-Newton step
-// is a Householder QR of the weighted drive Jacobian when its diagonal shows it well conditioned,
-// the SVD (lstsq's rcond) otherwise.
+// pose is assembled from the first-order prediction q ⊕ T δy (off the closures by O(δy²), not
+// O(δy)) with the current K⁺ as the Newton preconditioner; the Gauss-Newton step is a Householder
+// QR of the weighted drive Jacobian when the |R_ii| ratio shows it well conditioned (the unique
+// least-squares step, as lstsq's), the SVD with lstsq's rcond otherwise (rank-deficient drives).
 #include <Eigen/QR>
 #include <Eigen/SVD>
 #include <algorithm>
