@@ -1,11 +1,13 @@
-"""The compiled forward kinematics (``_native.ModelUpdate.forward``) against the Python reference.
+"""The compiled forward kinematics (``_native.ModelUpdate.solve_forward``) against the Python reference.
 
 Oracle: :func:`~parallel_gpc.model.forward.solve_forward` with ``compiled=None`` (the Python
 Gauss-Newton loop) on the same readings, resolution and warm start: the same pose, configuration,
 drive Jacobian and residual, on every embedded robot and the special robots of
 the suite (task-space output, free-flyer root, spherical joint), at random poses with readings
 ±10 counts off, cold from home and warm; the same SensorError for readings no pose explains; and
-a start the compiled warm Newton cannot assemble handed back to the Python loop. Without the
+a start the compiled warm Newton cannot assemble handed back to the Python loop; warm-started
+sample after sample along a path (the compiled loop's kept last solution and first-order trial
+starts); bad readings, resolutions and starts refused with the Python path's errors. Without the
 compiled core the tests skip with the reason, except under CI.
 """
 
@@ -16,8 +18,8 @@ import os
 import numpy as np
 import pytest
 
-from parallel_gpc import ParallelRobot
-from parallel_gpc.errors import SensorError
+from parallel_gpc import ParallelRobot, path_for
+from parallel_gpc.errors import ParallelGPCError, SensorError
 from parallel_gpc.model.description import embedded_robots
 from parallel_gpc.model.forward import drive_resolution, solve_forward
 from parallel_gpc.model.native import native_module, native_status
@@ -29,7 +31,7 @@ from test_forward_kinematics import random_configurations
 
 _module = native_module()
 STATUS = native_status() if _module is None else (
-    "ok" if hasattr(_module.ModelUpdate, "forward") else "the compiled core predates forward kinematics: rebuild it")
+    "ok" if hasattr(_module.ModelUpdate, "solve_forward") else "the compiled core predates forward kinematics: rebuild it")
 if STATUS != "ok":
     if os.environ.get("CI"):
         raise RuntimeError(f"CI must test the compiled forward kinematics, but: {STATUS}")
@@ -117,7 +119,7 @@ def test_a_start_off_the_closures_is_handed_to_python(robot4):
     bad = q.copy()
     bad[robot4.z_idx] += 0.5
     readings = q[robot4.drive_q_indices]
-    assert compiled.forward(readings, res, bad, 50) is None
+    assert compiled.solve_forward(readings, res, bad, 50, 50.0)[:2] == (1, None)  # status 1: the Python path
     py, cc = both(robot4, compiled, readings, res, bad)
     assert_same(py, cc, atol=0)
     np.testing.assert_allclose(cc.pose, y, atol=1e-9)
@@ -136,3 +138,50 @@ def test_a_broken_encoder_raises_the_same_error(name, drive, offset):
             solve_forward(robot, drives, res, robot.q_home, robot.home_pose, compiled=c)
         messages.append(str(info.value).split("drives [")[1].split("]")[0])
     assert messages[0] == messages[1] and f"'drive_{drive + 1}'" in messages[0]
+
+
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus", "hexapod_6ups"])
+def test_warm_started_along_a_path_equals_python(name):
+    """The estimator's use: each call starts at the previous solution's configuration (the compiled
+    loop then reuses its kept pose, T and K⁺), on quantized readings along the robot's path; every
+    tenth call starts at a configuration the compiled loop has not seen (a cache miss)."""
+    robot = ParallelRobot.load(name)
+    compiled = compiled_forward(robot)
+    res = drive_resolution(robot)
+    kind = "s-curve" if name.startswith("planar") else "helix"
+    ref = path_for(kind, robot.home_pose, robot.output_angular, 0.4)
+    q_true, q_py, q_cc = robot.q_home, robot.q_home, robot.q_home
+    for k in range(200):
+        q_true = robot.assemble(ref.pose(k * 0.002), q_true)
+        readings = np.round(q_true[robot.drive_q_indices] / res) * res
+        if k % 10 == 9:
+            q_py = q_cc = robot.assemble(robot.platform_pose(q_cc) + 1e-4, q_cc)
+        py = solve_forward(robot, readings, res, q_py, compiled=None)
+        cc = solve_forward(robot, readings, res, q_cc, compiled=compiled)
+        assert_same(py, cc)
+        q_py, q_cc = py.q, cc.q
+
+
+def _message(robot, monkeypatch, native, *args):
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "1" if native else "0")
+    with pytest.raises(ParallelGPCError) as info:
+        robot.forward_solution(*args)
+    return type(info.value), str(info.value)
+
+
+def test_bad_input_gives_the_python_paths_error(robot4, monkeypatch):
+    """What the compiled checks refuse is redone on the Python path: the same error and message."""
+    readings = robot4.inverse_kinematics(robot4.home_pose)
+    nan, far, bad_q = readings.copy(), readings.copy(), robot4.q_home.copy()
+    nan[1] = np.nan
+    far[0] = robot4.drive_range[1][0] + 1.0
+    bad_q[3] = np.inf
+    cases = [(nan,), (far,), (readings, bad_q), (readings, None, -1e-6), (readings, None, [1e-6, np.nan, 1e-6, 1e-6]),
+             (readings[:3],)]
+    calls = []
+    real = solve_forward.__globals__["_gauss_newton"]
+    monkeypatch.setitem(solve_forward.__globals__, "_gauss_newton", lambda *a: calls.append(1) or real(*a))
+    for args in cases:
+        compiled = _message(robot4, monkeypatch, True, *args)
+        assert compiled == _message(robot4, monkeypatch, False, *args)
+    assert calls == []  # the errors came from the checks, not from a loop on bad input

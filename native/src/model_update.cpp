@@ -188,9 +188,9 @@ PyType_Slot gc_slots[] = {{Py_tp_traverse, reinterpret_cast<void *>(traverse)},
 }  // namespace
 
 void bind_model_update(nb::module_ &m) {
-  nb::class_<ModelUpdate>(m, "ModelUpdate",
-                          "Compiled model update of one robot (see parallel_gpc.model.native_update)",
-                          nb::type_slots(gc_slots))
+  auto cls = nb::class_<ModelUpdate>(m, "ModelUpdate",
+                                     "Compiled model update of one robot (see parallel_gpc.model.native_update)",
+                                     nb::type_slots(gc_slots))
       .def(nb::new_(&make), nb::arg("model"), nb::arg("closure_frames"), nb::arg("jac_rows"), nb::arg("n_y"),
            nb::arg("n_u"), nb::arg("y_q"), nb::arg("y_idx"), nb::arg("z_idx"), nb::arg("drive_idx"),
            nb::arg("task_frame"), nb::arg("task_rows"), nb::arg("R_ref"), nb::arg("branch_q"),
@@ -237,24 +237,8 @@ void bind_model_update(nb::module_ &m) {
            nb::arg("q"), nb::arg("v"), nb::arg("pinv_hint"),
            "(q, v, T, K⁺) projected onto the closures keeping the output pose and velocity (the first "
            "Newton step preconditioned by pinv_hint, the previous K⁺), or None: take the validated path")
-      .def("forward",
-           [](ModelUpdate &self, const Vec &readings, const Vec &resolution, const Vec &q_guess,
-              long max_iter) -> nb::object {
-             if (readings.size() != self.n_u || resolution.size() != self.n_u ||
-                 q_guess.size() != self.kin.model.nq || static_cast<long>(self.drive_q.size()) != self.n_u)
-               throw std::invalid_argument("forward: readings and resolution must be (n_u,), q_guess (nq,), "
-                                           "and drive_q set");
-             Vec pose, q, e;
-             Mat J;
-             const long it = self.forward(readings, resolution, q_guess, max_iter, pose, q, J, e);
-             if (it < 0) return nb::none();
-             return nb::make_tuple(pose, q, J, e, it);
-           },
-           nb::arg("readings"), nb::arg("resolution"), nb::arg("q_guess"), nb::arg("max_iter"),
-           "(pose, q, J, residual, iterations) of forward kinematics from drive readings (the Gauss-Newton "
-           "loop of forward.solve_forward), or None: take the Python reference path")
-      .def_rw("drive_q", &ModelUpdate::drive_q, "q indices of the drives (for forward)")
       .def("reset", &ModelUpdate::reset, "forget the warm starts (back to the home configuration)")
       .def_prop_ro("q_last", [](ModelUpdate &self) { return Vec(self.q_last); });
+  bind_forward(cls);
 }
 }  // namespace pgpc

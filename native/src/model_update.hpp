@@ -4,6 +4,7 @@
 #pragma once
 
 #include <array>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -79,7 +80,11 @@ class Kinematics {
   Eigen::Matrix<double, 6, Eigen::Dynamic> Jt_, dJt_;
 };
 
+struct ForwardSolver;  // forward kinematics from drive readings (forward.cpp)
+
 class ModelUpdate {
+  friend struct ForwardSolver;
+
  public:
   ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
   // ReducedModel._factor_rows: Z = M_r⁻¹ [−C_r | B_r | −g_r] at X; base: explicit warm start or null
@@ -92,12 +97,6 @@ class ModelUpdate {
   // pinv_hint: K⁺ of the previous projection (or null). False when the warm Newton meets anything
   // unusual (the caller takes the validated path); else T and K⁺ at q_out in velocity_map/pinv
   bool project(const Vec &q, const Vec &v, const Mat *pinv_hint, Vec &q_out, Vec &v_out);
-  // forward.solve_forward's Gauss-Newton loop (forward.cpp): the pose (n_y), q (nq), drive Jacobian
-  // J (n_u × n_y) and residual e = q_drive − readings (n_u) from the readings (n_u, rad or m) with
-  // weights σ (n_u), warm-started at q_guess; returns the iterations, or −1 when q_guess's pose does
-  // not assemble by the warm Newton (the caller takes the Python reference path)
-  long forward(const Vec &readings, const Vec &sigma, const Vec &q_guess, long max_iter, Vec &pose, Vec &q, Mat &J,
-               Vec &e);
   const Mat &velocity_map() const { return T_; }
   const Mat &pinv() const { return pinv_; }
   void reset();
@@ -107,7 +106,7 @@ class ModelUpdate {
   Kinematics kin;
   long n_y, n_u, n_x, n_aug, nv, n_z;
   Vec q_last;
-  std::vector<long> drive_q;  // q indices of the drives (robot.drive_q_indices), for forward
+  std::shared_ptr<ForwardSolver> forward_;  // forward kinematics' workspace (forward.cpp), made on first use
 
  private:
   // ReducedModel._kinematics: (q, T, K⁺) at pose y from the warm start; sets warm_
@@ -117,10 +116,6 @@ class ModelUpdate {
   // AssemblyMixin._map_from into T_, pinv_; exact: decide the rank by SVD (as Python) only
   bool map_from(const Mat &jac, bool exact);
   void lstsq_z(const Mat &jac, const Vec &res, Vec &out);
-  // forward._assembled into q_, T_: the warm Newton, then (validated) handler.assembled
-  bool assembled(const Vec &pose, const Vec &q_guess, bool validated);
-  // e = q_drive(q_) − readings, J = T_[drives], cost = ‖e / σ‖²
-  void drive_state(const Vec &readings, const Vec &sigma, Vec &e, Mat &J, double &cost) const;
   void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
   void fallback(const Vec &y);             // the validated Python path (raises the package errors)
   void zoh(const Mat &Z, double Ts);       // exp of the augmented ZOH matrix, top rows into E_
@@ -133,5 +128,8 @@ class ModelUpdate {
   Mat aug_, E_;
   TopRowsExpm expm_;
 };
+
+// the forward-kinematics methods of the ModelUpdate class (forward.cpp)
+void bind_forward(nb::class_<ModelUpdate> &cls);
 
 }  // namespace pgpc

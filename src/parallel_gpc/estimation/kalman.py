@@ -9,10 +9,24 @@ tracking comes from one estimator. The model is the controller's, discretized at
     z(k+1) = [[A_d, E], [0, I]] z(k) + [B_d; 0] u(k) + [c_d; 0] + w,   E = [0; I]
 
 with process noise w: white acceleration of standard deviation ``accel_std`` over a sample on
-[y, ẏ] and a random walk of ``disturbance_std`` per sample on d. The measurement is the pose
+[y, ẏ] and a random walk of σ_d per sample on d. The measurement is the pose
 from forward kinematics of the encoder readings, y_m = y + v, with covariance
 (Jᵀ Σ⁻¹ J)⁻¹ (J the drive Jacobian, Σ the readings' quantization and noise variance);
 drive rates, when measured, add ẏ_m = ẏ + v' through the same Jacobian.
+
+The disturbance model is set by its bandwidth ω_d (rad/s), not by σ_d: with readings much finer
+than the acceleration noise over a sample (encoders: Δ ≪ accel_std Ts²), the disturbance
+estimate follows a step of d as e^{−ω_d t} — the slowest pole of the steady-state filter is
+e^{−ω_d Ts} — when
+
+    σ_d = ω_d Ts² accel_std
+
+(the random walk of d seen through the velocity increments, whose noise is Ts accel_std: a
+scalar Kalman gain σ_d / (Ts accel_std) per sample). So the filter rejects a load or a mass
+mismatch equally fast at any Ts. The default, :data:`DISTURBANCE_BANDWIDTH`, is 10 rad/s
+(time constant 0.1 s, a fifth of the shortest move of the built-in references); a fixed σ_d of
+2e-5 m/s per sample, the earlier default, was 2.5 rad/s at Ts = 2 ms but 0.1 rad/s at 10 ms
+(a 10 s time constant: the encoder loop of ``parallel-gpc demo`` ended ~1 mm off).
 """
 
 from __future__ import annotations
@@ -22,6 +36,9 @@ import numpy as np
 from ..errors import InvalidParameterError, SensorError
 from ..validation import finite_vector, positive
 from .sensors import Measurement, Sensors
+
+#: default bandwidth ω_d of the disturbance estimate (rad/s): it follows a step of d as e^{−ω_d t}
+DISTURBANCE_BANDWIDTH = 10.0
 
 
 class StateEstimator:
@@ -34,16 +51,19 @@ class StateEstimator:
         sensors: what is measured (:class:`Sensors`, kind ``"encoders"``).
         X0: (2 n_y,) initial estimate [y, ẏ] (m, rad, m/s, rad/s), e.g. the start pose at rest.
         accel_std: process noise, standard deviation of the unmodelled acceleration (m/s², rad/s²).
-        disturbance_std: random-walk standard deviation of d per sample (m/s, rad/s).
+        disturbance_bandwidth: ω_d > 0 (rad/s), how fast the estimate of d follows a change of the
+            disturbance (see the module docstring): d's random walk is σ_d = ω_d Ts² accel_std per
+            sample (m/s, rad/s).
         initial_std: standard deviations of the initial [y, ẏ, d] errors.
 
     Attributes:
         z: (3 n_y,) current estimate [y, ẏ, d]. P: (3 n_y, 3 n_y) its covariance.
+        disturbance_std: σ_d, the random-walk standard deviation of d per sample (m/s, rad/s).
         q: (nq,) configuration of the last forward kinematics (the warm start of the next).
     """
 
     def __init__(self, model, Ts: float, sensors: Sensors, X0, accel_std: float = 2.0,
-                 disturbance_std: float = 2e-5, initial_std=(1e-3, 1e-2, 1e-3)):
+                 disturbance_bandwidth: float = DISTURBANCE_BANDWIDTH, initial_std=(1e-3, 1e-2, 1e-3)):
         if not isinstance(sensors, Sensors) or sensors.kind != "encoders":
             raise InvalidParameterError(f"StateEstimator needs encoder Sensors, got {sensors!r}")
         self.model = model
@@ -56,14 +76,16 @@ class StateEstimator:
         self._reading_std = sensors.reading_std(self.robot)
         self._rates = sensors.measures_rates(self.robot)
         accel_std = positive("accel_std", accel_std)
-        disturbance_std = positive("disturbance_std", disturbance_std)
+        bandwidth = positive("disturbance_bandwidth", disturbance_bandwidth, " rad/s")
         Ts = self.Ts
+        self.disturbance_std = bandwidth * Ts * Ts * accel_std
         G = np.array([0.5 * Ts * Ts, Ts]) * accel_std
         Q = np.zeros((3 * n, 3 * n))
         eye = np.eye(n)
         Q[:2 * n, :2 * n] = np.kron(np.outer(G, G), eye)
-        Q[2 * n:, 2 * n:] = disturbance_std**2 * eye
+        Q[2 * n:, 2 * n:] = self.disturbance_std**2 * eye
         self.Q = Q
+        self._eye = np.eye(3 * n)
         self.z = np.concatenate([X0, np.zeros(n)])
         self.P = np.diag(np.repeat(np.asarray(initial_std, dtype=float) ** 2, n))
         self.q = self.robot.assemble(X0[:n])
@@ -127,23 +149,20 @@ class StateEstimator:
         self.q = sol.q
         Jw = sol.jacobian / self._reading_std[:, None]
         R = np.linalg.inv(Jw.T @ Jw)
-        H = np.zeros((n, 3 * n))
-        H[:, :n] = np.eye(n)
         innovation = sol.pose - self.z[:n]
+        m = n  # measured: y (H = [I 0 0]), and ẏ (H = [0 I 0]) when the drive rates are
         if self._rates and measurement.rates is not None:
             std = np.full(self.robot.n_u, max(self.sensors.rate_noise, 1e-12))
             ydot = self.robot.forward_velocity(sol, measurement.rates, std)
             Jr = sol.jacobian / std[:, None]
-            Rv = np.linalg.inv(Jr.T @ Jr)
-            Hv = np.zeros((n, 3 * n))
-            Hv[:, n:2 * n] = np.eye(n)
-            H = np.vstack([H, Hv])
-            R = np.block([[R, np.zeros((n, n))], [np.zeros((n, n)), Rv]])
+            R = np.block([[R, np.zeros((n, n))], [np.zeros((n, n)), np.linalg.inv(Jr.T @ Jr)]])
             innovation = np.concatenate([innovation, ydot - self.z[n:2 * n]])
-        PHt = self.P @ H.T
-        S = H @ PHt + R
-        K = np.linalg.solve(S, PHt.T).T
+            m = 2 * n
+        # H selects the first m components: P Hᵀ = P[:, :m], H P Hᵀ = P[:m, :m], K H = [K 0]
+        PHt = self.P[:, :m]
+        K = np.linalg.solve(self.P[:m, :m] + R, PHt.T).T
         self.z = self.z + K @ innovation
-        IKH = np.eye(3 * n) - K @ H
+        IKH = self._eye.copy()
+        IKH[:, :m] -= K
         self.P = IKH @ self.P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric positive
         return self.state

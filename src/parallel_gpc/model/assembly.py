@@ -12,10 +12,11 @@ import math
 import numpy as np
 import pinocchio as pin
 
-from ..errors import AssemblyError, InvalidParameterError, RobotFormatError, SingularPoseError, UnreachablePoseError
+from ..errors import AssemblyError, RobotFormatError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector
-from .forward import check_readings, drive_resolution, rates_to_velocity, solve_forward
+from .forward import rates_to_velocity, resolution_array, solve_forward
 from .linalg import svd_thin
+from .native import native_enabled
 from .native_update import compiled_forward, use_native
 
 #: K smallest/largest singular value below which the legs count as singular.
@@ -372,22 +373,17 @@ class AssemblyMixin:
                          max_residual: float = 50.0):
         """:meth:`forward_kinematics` with the configuration, drive Jacobian and residuals
         (a :class:`~parallel_gpc.model.forward.ForwardSolution`)."""
-        res = drive_resolution(self) if resolution is None else np.broadcast_to(
-            np.asarray(resolution, dtype=float), (self.n_u,))
-        if not (np.all(np.isfinite(res)) and np.all(res > 0)):
-            raise InvalidParameterError(f"encoder resolution {np.asarray(resolution).tolist()} must be finite and > 0 "
-                                        f"(rad or m per count, a scalar or {self.n_u} values)")
-        readings = check_readings(self, drives, res)
         if q_guess is None:
-            q0, pose0 = self.q_home, self.home_pose
+            q_guess, pose_guess = self.q_home, self.home_pose
         else:
-            q0, pose0 = finite_vector("q_guess", q_guess, self.model.nq), None
+            pose_guess = None
         compiled = None
-        if use_native(None):  # the compiled loop unless PARALLEL_GPC_NATIVE=0 or not built
-            if self._forward_compiled is None:
-                self._forward_compiled = compiled_forward(self) or False
+        if native_enabled():  # the compiled loop unless PARALLEL_GPC_NATIVE=0 (per call) or not built
+            if self._forward_compiled is None:  # built once: False when the compiled core lacks it
+                self._forward_compiled = (use_native(None) and compiled_forward(self)) or False
             compiled = self._forward_compiled or None
-        return solve_forward(self, readings, res, q0, pose0, max_residual=float(max_residual), compiled=compiled)
+        return solve_forward(self, drives, resolution_array(self, resolution), q_guess, pose_guess,
+                             max_residual=float(max_residual), compiled=compiled)
 
     def forward_velocity(self, solution, rates, rate_resolution=None) -> np.ndarray:
         """(n_y,) ẏ (m/s, rad/s) from (n_u,) drive rates (rad/s or m/s) at a

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import AssemblyError, SensorError, ShapeError, SingularPoseError
+from ..errors import AssemblyError, InvalidParameterError, SensorError, ShapeError, SingularPoseError
+from ..validation import finite_vector
 
 #: default encoder resolution of a revolute drive: 2^20 counts per revolution
 DEFAULT_COUNTS_PER_REV = 2.0**20
@@ -33,6 +34,9 @@ DEFAULT_COUNTS_PER_M = 1e7
 MAX_DRIVE_STEP = 0.1
 #: step halvings tried before an iteration gives up
 _HALVINGS = 30
+#: statuses of the compiled loop (native/src/forward.cpp): a solution, the best pose of readings no
+#: pose explains; any other status hands the call to this module
+SOLVED, INCONSISTENT = 0, 2
 
 
 @dataclass(frozen=True)
@@ -66,6 +70,32 @@ def drive_resolution(robot, counts_per_rev: float | None = None, counts_per_m: f
     cpr = counts_per_rev if counts_per_rev is not None else sidecar.get("counts_per_rev", DEFAULT_COUNTS_PER_REV)
     cpm = counts_per_m if counts_per_m is not None else sidecar.get("counts_per_m", DEFAULT_COUNTS_PER_M)
     return np.where(robot.drive_angular, 2.0 * np.pi / cpr, 1.0 / cpm)
+
+
+def resolution_array(robot, resolution) -> np.ndarray:
+    """(n_u,) encoder resolutions (rad or m) from ``resolution``: None = :func:`drive_resolution`,
+    a scalar or n_u values; finite and > 0 is checked by :func:`check_resolution` (the compiled
+    loop checks it too and hands a bad one to it)."""
+    if resolution is None:
+        return drive_resolution(robot)
+    if type(resolution) is np.ndarray and resolution.shape == (robot.n_u,) and resolution.dtype == float:
+        return resolution  # the estimator's case: no copy, no broadcast (a hot path)
+    try:
+        return np.broadcast_to(np.asarray(resolution, dtype=float), (robot.n_u,))
+    except (TypeError, ValueError):
+        raise _resolution_error(robot, resolution) from None
+
+
+def check_resolution(robot, resolution: np.ndarray) -> np.ndarray:
+    """``resolution`` ((n_u,) from :func:`resolution_array`) if every entry is finite and > 0."""
+    if not (np.all(np.isfinite(resolution)) and np.all(resolution > 0)):
+        raise _resolution_error(robot, resolution)
+    return resolution
+
+
+def _resolution_error(robot, resolution) -> InvalidParameterError:
+    return InvalidParameterError(f"encoder resolution {np.asarray(resolution).tolist()} must be finite and > 0 "
+                                 f"(rad or m per count, a scalar or {robot.n_u} values)")
 
 
 def check_readings(robot, readings, resolution: np.ndarray, what: str = "drive readings") -> np.ndarray:
@@ -111,31 +141,48 @@ def _assembled(robot, pose: np.ndarray, q_guess: np.ndarray):
     return assemble_validated(robot, pose, q_guess)
 
 
-def solve_forward(robot, readings: np.ndarray, resolution: np.ndarray, q_guess: np.ndarray,
-                  pose_guess: np.ndarray | None = None, max_residual: float = 50.0, max_iter: int = 50,
-                  compiled=None) -> ForwardSolution:
+def solve_forward(robot, readings, resolution: np.ndarray, q_guess, pose_guess: np.ndarray | None = None,
+                  max_residual: float = 50.0, max_iter: int = 50, compiled=None) -> ForwardSolution:
     """Weighted least-squares forward kinematics (see the module docstring).
 
     Args:
         robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
-        readings: (n_u,) drive positions (rad or m), already checked (:func:`check_readings`).
-        resolution: (n_u,) σ_i > 0, the resolution of each drive's encoder (rad or m): the weights.
+        readings: (n_u,) drive positions (rad or m), checked here (:func:`check_readings`).
+        resolution: (n_u,) σ_i, the resolution of each drive's encoder (rad or m): the weights;
+            checked here (:func:`check_resolution`).
         q_guess: (nq,) start configuration (the last one for a warm start, else home).
         pose_guess: (n_y,) its output (default ``robot.platform_pose(q_guess)``).
         max_residual: largest accepted |residual_i| / σ_i (counts) at the solution.
         max_iter: Gauss-Newton iterations.
-        compiled: the robot's compiled model update with ``drive_q`` set
-            (:func:`~parallel_gpc.model.native_update.compiled_forward`): runs the same
-            Gauss-Newton loop in C++; None = this module's Python loop (the reference). A start
-            the compiled warm Newton cannot assemble is solved here.
+        compiled: the robot's compiled model update with its drives set
+            (:func:`~parallel_gpc.model.native_update.compiled_forward`): the checks, the same
+            Gauss-Newton loop and the residual test in C++; None = this module (the reference).
+            What the compiled checks refuse, and a start its warm Newton cannot assemble, is
+            redone here, so the errors are this module's.
 
     Raises:
-        SensorError: the best pose leaves a drive more than ``max_residual`` counts from its
-            reading (the message names the worst drive), or the start does not assemble.
+        ShapeError, InvalidParameterError, NonFiniteError: readings, resolution or q_guess of
+            the wrong shape, a resolution not finite and > 0, a q_guess with NaN or inf.
+        SensorError: a reading that is NaN or out of range, readings no pose explains within
+            ``max_residual`` counts (the message names the worst drive), or a start that does not
+            assemble.
     """
-    out = None if compiled is None else compiled.forward(readings, resolution, q_guess, max_iter)
-    sol = _gauss_newton(robot, readings, resolution, q_guess, pose_guess, max_iter) if out is None \
-        else ForwardSolution(*out)
+    readings, resolution = np.asarray(readings, dtype=float), np.asarray(resolution, dtype=float)
+    q_guess = np.asarray(q_guess, dtype=float)
+    if compiled is not None and readings.shape == resolution.shape == (robot.n_u,) \
+            and q_guess.shape == (robot.model.nq,):
+        status, out, iterations = compiled.solve_forward(readings, resolution, q_guess, max_iter, max_residual)
+        if status == SOLVED or status == INCONSISTENT:
+            n_y, n_u = robot.n_y, robot.n_u
+            a, b = n_y + robot.model.nq, n_y + robot.model.nq + n_u * n_y  # out = [pose, q, J, residual]
+            sol = ForwardSolution(out[:n_y], out[n_y:a], out[a:b].reshape(n_u, n_y), out[b:], iterations)
+            if status == SOLVED:
+                return sol
+            raise SensorError(_inconsistency(robot, readings, sol, resolution, max_residual))
+    resolution = check_resolution(robot, resolution)
+    readings = check_readings(robot, readings, resolution)
+    q_guess = finite_vector("q_guess", q_guess, robot.model.nq)
+    sol = _gauss_newton(robot, readings, resolution, q_guess, pose_guess, max_iter)
     counts = np.abs(sol.weighted_residual(resolution))
     if not counts.max() <= max_residual:
         raise SensorError(_inconsistency(robot, readings, sol, resolution, max_residual))

@@ -110,15 +110,16 @@ def compiled_model_update(robot):
 
 
 def compiled_forward(robot):
-    """A ``_native.ModelUpdate`` of ``robot`` for the compiled loop of
+    """A ``_native.ModelUpdate`` of ``robot`` for the compiled path of
     :func:`~parallel_gpc.model.forward.solve_forward` (the compiled core must be available, see
-    :func:`use_native`): its own instance with the drives' q indices set, so forward kinematics
-    never disturbs the warm starts of a model or plant. None when the compiled core predates
-    forward kinematics (a build older than its sources: the Python loop runs)."""
-    if not hasattr(native_module().ModelUpdate, "forward"):
+    :func:`use_native`): its own instance with the drives' q indices and ranges set, so forward
+    kinematics never disturbs the warm starts of a model or plant. None when the compiled core
+    predates this forward kinematics (a build older than its sources: the Python loop runs)."""
+    if not hasattr(native_module().ModelUpdate, "solve_forward"):
         return None
     update = compiled_model_update(robot)
-    update.drive_q = [int(i) for i in robot.drive_q_indices]
+    lower, upper = robot.drive_range
+    update.set_drives([int(i) for i in robot.drive_q_indices], lower, upper)
     return update
 
 
@@ -128,6 +129,6 @@ def forward_status() -> str:
     module = native_module()
     if module is None:
         return f"Python loop ({native_status()})"
-    if not hasattr(getattr(module, "ModelUpdate", None), "forward"):
+    if not hasattr(getattr(module, "ModelUpdate", None), "solve_forward"):
         return "Python loop (the compiled core predates forward kinematics: rebuild it)"
     return "compiled"
