@@ -33,7 +33,7 @@ from ..errors import SolverError
 __all__ = ["StageQP", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER"]
 
 #: stopping tolerance, relative to the problem's scale (largest gradient/penalty entry, ≥ 1).
-IPM_TOL = 1e-9
+IPM_TOL = 1e-10
 #: iteration cap: a problem still not converged is reported (hard limits infeasible, typically).
 IPM_MAX_ITER = 60
 #: fraction of the step to the boundary of the positive orthant.
@@ -44,7 +44,7 @@ _REFINE = 2
 #: a badly scaled problem sits above IPM_TOL); above it the problem is reported infeasible.
 _ACCEPT = 1e-6
 #: the iterations stop after this many without a better iterate (the rounding floor reached).
-_STALL = 4
+_STALL = 3
 
 
 @dataclass
@@ -109,6 +109,7 @@ class _Riccati:
         self.fac = [None] * nd   # Cholesky of Hvv_i
         self.Hvz = [None] * nd
         self.K = [None] * nd
+        self.h_max = 0.0  # the largest diagonal entry of the input Hessians R + BᵀPB (+ rows)
         WFz = W[:, :, None] * qp.Fz
         P = qp.Q[N]
         for i in range(N - 1, -1, -1):
@@ -121,6 +122,7 @@ class _Riccati:
                 PB = P @ B
                 Hvv = qp.R + Fv.T @ (W[i][:, None] * Fv) + B.T @ PB
                 Hvz = Fv.T @ WFz[i] + PB.T @ A
+                self.h_max = max(self.h_max, float(np.max(np.diag(Hvv))))
                 try:
                     self.fac[i] = sla.cho_factor(Hvv, check_finite=True)
                 except (np.linalg.LinAlgError, ValueError) as exc:
@@ -176,17 +178,20 @@ def _rows_transpose(qp: StageQP, y: np.ndarray):
     return gz, np.einsum("ikm,ik->im", qp.Fv[:nd], y[:nd])
 
 
-def costates(qp: StageQP, z, v, lam) -> tuple[np.ndarray, np.ndarray]:
+def costates(qp: StageQP, z, v, lam, linear: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """The costates ν that make the Lagrangian stationary in z(1..N) (a backward recursion,
     ν_N = Q_N z_N + q_N, ν_i = Q_i z_i + q_i + A_iᵀ ν_{i+1} + F_{z,i}ᵀ λ_i) and the remaining
     gradient in v, R v(i) + B_iᵀ ν_{i+1} + F_{v,i}ᵀ λ_i, (n_decide, m): zero at the optimum.
+    ``linear=False``: without q (the change of both along a step (dz, dv, dλ)).
 
     Returns:
         (ν (N + 1, nz) with ν_0 = 0, the v-gradient (n_decide, m)).
     """
     N, nd = qp.A.shape[0], qp.n_decide
     gz, gv = _rows_transpose(qp, lam)
-    g = np.einsum("inm,im->in", qp.Q, z) + qp.q + gz
+    g = np.einsum("inm,im->in", qp.Q, z) + gz
+    if linear:
+        g += qp.q
     nu = np.zeros_like(z)
     nu[N] = g[N]
     for i in range(N - 1, 0, -1):
@@ -197,6 +202,12 @@ def costates(qp: StageQP, z, v, lam) -> tuple[np.ndarray, np.ndarray]:
 
 def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_ITER) -> StageQPSolution:
     """Solve a :class:`StageQP` by Mehrotra's predictor-corrector, one Riccati factorization per iteration.
+
+    The objective is first divided by the largest diagonal entry σ of the unconstrained input
+    Hessians R + BᵀPB (the plan's curvature: a controller's ŷ moves by ~Ts² per N·m, so Φ's
+    curvature in v can be 1e-10 while its gradient in z is O(1)); the tolerances are relative
+    to the reduced gradient at v = 0 and to the rows' bounds. The multipliers are returned in
+    the problem's own units.
 
     Args:
         qp: the problem. tol: stopping tolerance relative to the scale. max_iter: iteration cap.
@@ -210,89 +221,166 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
     """
     N, nd = qp.A.shape[0], qp.n_decide
     used = np.isfinite(qp.f)
+    zero_gv = np.zeros((nd, qp.R.shape[0]))
+    free = _Riccati(qp, np.zeros(used.shape))
+    z, v = free.solve(qp.q, zero_gv)
+    sigma = free.h_max if free.h_max > 0.0 and np.isfinite(free.h_max) else 1.0
+    if not used.any():  # an unconstrained problem: the one Riccati solve
+        nu, rv = costates(qp, z, v, np.zeros(used.shape))
+        res = float(np.max(np.abs(rv), initial=0.0)) / max(sigma * float(np.max(np.abs(v), initial=0.0)), 1e-300)
+        return StageQPSolution(v, z, np.zeros(used.shape), np.zeros(used.shape), nu, 0, "optimal", res)
+    scaled = StageQP(qp.A, qp.B, qp.c, qp.z0, qp.Q / sigma, qp.q / sigma, qp.R / sigma, nd, qp.Fz, qp.Fv, qp.f,
+                     qp.soft, qp.rho / sigma, qp.kappa / sigma)
+    sol = _solve_scaled(scaled, z, v, tol, max_iter)
+    sol.lam *= sigma
+    sol.nu *= sigma
+    return sol
+
+
+class _Newton:
+    """One Newton system of the iterate (z, v, t, λ, s, π) on the rows ``used`` (soft ones ``soft``):
+    its residuals, merit and Riccati factorization; :meth:`direction` solves it in delta form."""
+
+    def __init__(self, qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float, factor: bool = True):
+        self.qp, self.used, self.soft, self.scale = qp, used, soft, scale
+        z, v, t, lam, s, pi = point
+        self.point = point
+        self.f = f = np.where(used, qp.f, 0.0)
+        Fx = _rows_times(qp, z, v)
+        self.r_t = r_t = np.where(used, Fx - s + t - f, 0.0)
+        self.r_s = np.where(soft, qp.rho + qp.kappa * s - lam - pi, 0.0)
+        n_ineq = max(int(used.sum() + soft.sum()), 1)
+        self.mu = (float(np.sum(t * lam, where=used)) + float(np.sum(s * pi, where=soft))) / n_ineq
+        self.nu, self.rv = costates(qp, z, v, lam)
+        res = max(float(np.max(np.abs(self.rv), initial=0.0)), float(np.max(np.abs(self.r_s)))) / scale
+        self.merit = max(self.mu / (scale * f_scale), float(np.max(np.abs(r_t))) / f_scale, res)
+        if not factor:
+            return
+        self.d = np.where(used, lam / t, 0.0)
+        self.sp = np.where(soft, pi / np.where(soft, s, 1.0), 0.0)
+        self.a = np.where(soft, qp.kappa + self.d + self.sp, 1.0)
+        self.W = np.where(soft, self.d * (qp.kappa + self.sp) / self.a, self.d)  # d (1 − d / a), no cancellation
+        self.ric = _Riccati(qp, self.W)
+
+    def direction(self, r_tl, r_sp):
+        """(dz, dv, dt, dλ, ds, dπ) for the complementarity targets t λ − r_tl and s π − r_sp."""
+        qp, used, soft, W, d, a, sp = self.qp, self.used, self.soft, self.W, self.d, self.a, self.sp
+        z, v, t, lam, s, pi = self.point
+        s_safe = np.where(soft, s, 1.0)
+        gam = np.where(used, (-r_tl + lam * self.r_t) / t, 0.0)
+        beta = np.where(soft, -self.r_s + gam - r_sp / s_safe, 0.0)
+        w0 = np.where(soft, (gam * (qp.kappa + sp) + d * (self.r_s + r_sp / s_safe)) / a, gam)
+        # delta form: the step's errors scale with the step (not with the iterate), so the
+        # multipliers' rounding (row weights W ~ 1/μ) vanishes as the iterations converge
+        gz, gv = _rows_transpose(qp, w0)
+        dz, dv = self.ric.solve(gz, gv + self.rv, homogeneous=True)
+        for _ in range(_REFINE):  # iterative refinement on the Newton system's own residual
+            Fdx = _rows_times(qp, dz, dv)
+            _, rv1 = costates(qp, dz, dv, W * Fdx + w0, linear=False)
+            rv1 += self.rv
+            if not np.max(np.abs(rv1), initial=0.0) > 1e-15 * self.scale:
+                break
+            cz, cv = self.ric.solve(np.zeros_like(qp.q), rv1, homogeneous=True)
+            dz, dv = dz + cz, dv + cv
+        Fdx = _rows_times(qp, dz, dv)
+        ds = np.where(soft, (beta + d * Fdx) / a, 0.0)
+        dl = np.where(used, W * Fdx + w0, 0.0)
+        dt = np.where(used, -self.r_t - Fdx + ds, 0.0)
+        dp = np.where(soft, (-r_sp - pi * ds) / s_safe, 0.0)
+        return dz, dv, dt, dl, ds, dp
+
+    def max_step(self, dt, dl, ds, dp, frac: float) -> float:
+        """The largest step ≤ 1 keeping t, λ, s, π positive (a fraction ``frac`` of the way to the boundary)."""
+        _, _, t, lam, s, pi = self.point
+        alpha = 1.0
+        for x, dx, mask in ((t, dt, self.used), (lam, dl, self.used), (s, ds, self.soft), (pi, dp, self.soft)):
+            neg = mask & (dx < 0)
+            if neg.any():
+                alpha = min(alpha, frac * float(np.min(-x[neg] / dx[neg])))
+        return alpha
+
+    def moved(self, step: tuple, alpha: float) -> tuple:
+        """The iterate moved by alpha along ``step``."""
+        z, v, t, lam, s, pi = self.point
+        dz, dv, dt, dl, ds, dp = step
+        used, soft = self.used, self.soft
+        return (z + alpha * dz, v + alpha * dv, np.where(used, t + alpha * dt, 1.0),
+                np.where(used, lam + alpha * dl, 0.0), np.where(soft, s + alpha * ds, 0.0),
+                np.where(soft, pi + alpha * dp, 1.0))
+
+
+def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float, merit: float):
+    """One Newton step (σ = 0, full length) with the rows that are inactive at ``point`` (t > λ)
+    dropped: their barrier no longer pushes the plan along the problem's flat directions. Kept
+    when the dropped rows still hold, the multipliers stay ≥ 0 and the KKT residual of the full
+    problem does not grow; else None."""
+    z, v, t, lam, s, pi = point
+    active = used & (lam > t)
+    keep_soft = soft & active
+    start = (z, v, np.where(active, t, 1.0), np.where(active, lam, 0.0), np.where(keep_soft, s, 0.0),
+             np.where(keep_soft, pi, 1.0))
+    try:
+        newton = _Newton(qp, start, active, keep_soft, scale, f_scale)
+    except SolverError:
+        return None
+    step = newton.direction(np.where(active, start[2] * start[3], 0.0), np.where(keep_soft, start[4] * start[5], 0.0))
+    z, v, t, lam, s, pi = newton.moved(step, 1.0)
+    f = np.where(used, qp.f, 0.0)
+    gap = f + s - _rows_times(qp, z, v)  # the full problem's row slacks at the polished plan
+    if np.any(used & (gap < -1e-12 * f_scale)) or np.any(active & (lam < 0.0)) or np.any(keep_soft & (s < 0.0)):
+        return None
+    t = np.where(active, np.maximum(t, 0.0), np.where(used, gap, 1.0))
+    pi = np.where(soft & ~keep_soft, qp.rho + qp.kappa * s - lam, pi)  # dropped soft rows: s = 0, λ = 0
+    point = (z, v, t, np.maximum(lam, 0.0), s, np.where(soft, np.maximum(pi, 0.0), 1.0))
+    polished = _Newton(qp, point, used, soft, scale, f_scale, factor=False)
+    return (polished.merit, point, polished.nu) if polished.merit <= max(merit, IPM_TOL) else None
+
+
+def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int) -> StageQPSolution:
+    """The interior-point iterations on a scaled problem from the unconstrained plan (z, v)."""
+    used = np.isfinite(qp.f)
     soft = qp.soft & used
     f = np.where(used, qp.f, 0.0)
     n_ineq = int(used.sum() + soft.sum())
-    scale = max(1.0, float(np.max(np.abs(qp.q), initial=0.0)), qp.rho if soft.any() else 0.0)
-    zero_gv = np.zeros((nd, qp.R.shape[0]))
-    z, v = _Riccati(qp, np.zeros(used.shape)).solve(qp.q, zero_gv)
-    lam = np.zeros(used.shape)
-    s = np.zeros(used.shape)
-    if not used.any():  # an unconstrained problem: the one Riccati solve
-        nu, rv = costates(qp, z, v, lam)
-        res = float(np.max(np.abs(rv), initial=0.0)) / scale
-        return StageQPSolution(v, z, s, lam, nu, 0, "optimal", res)
+    _, rv0 = costates(qp, z, np.zeros_like(v), np.zeros(used.shape))  # the gradient's scale at v = 0
+    scale = max(float(np.max(np.abs(rv0), initial=0.0)), qp.rho if soft.any() else 0.0, 1e-300)
+    f_scale = max(float(np.max(np.abs(f[used]))), 1e-12)
     Fx = _rows_times(qp, z, v)
-    s = np.where(soft, np.maximum(Fx - f, 0.0) + 1.0, 0.0)
-    t = np.where(used, np.maximum(f + s - Fx, 1.0), 1.0)
-    lam = np.where(used, 1.0, 0.0)
-    pi = np.where(soft, 1.0, 1.0)
-    best = None  # (merit, iterate): the iterations stop at the tolerance or at the rounding floor
-    res = np.inf
-    for it in range(1, max_iter + 1):
-        Fx = _rows_times(qp, z, v)
-        r_t = np.where(used, Fx - s + t - f, 0.0)
-        r_s = np.where(soft, qp.rho + qp.kappa * s - lam - pi, 0.0)
-        mu = (float(np.sum(t * lam, where=used)) + float(np.sum(s * pi, where=soft))) / n_ineq
-        nu, rv = costates(qp, z, v, lam)
-        res = max(float(np.max(np.abs(rv), initial=0.0)), float(np.max(np.abs(r_s)))) / scale
-        res_p = float(np.max(np.abs(r_t))) / max(1.0, float(np.max(np.abs(f))))
-        merit = max(mu / scale, res, res_p)
-        if best is None or merit < best[0]:
-            best = (merit, it - 1, (v, z, np.where(soft, s, 0.0), lam, nu))
-        if merit <= tol:
+    s = np.where(soft, np.maximum(Fx - f, 0.0) + f_scale, 0.0)
+    point = (z, v, np.where(used, np.maximum(f + s - Fx, f_scale), 1.0), np.where(used, scale, 0.0), s,
+             np.where(soft, scale, 1.0))
+    best = None  # (merit, iterations, point, ν): the iterations stop at the tolerance or at the rounding floor
+    for it in range(max_iter + 1):
+        try:
+            newton = _Newton(qp, point, used, soft, scale, f_scale, factor=True)
+        except SolverError:
+            if best is not None and best[0] <= _ACCEPT:  # row weights beyond the factorization's precision
+                break
+            raise
+        if best is None or newton.merit < best[0]:
+            best = (newton.merit, it, point, newton.nu)
+        if newton.merit <= tol or it == max_iter:
             break
-        if it - 1 - best[1] >= _STALL and best[0] <= _ACCEPT:
-            break  # the Newton steps' rounding (row weights λ/t ~ 1/μ) has taken over: keep the best iterate
-        d = np.where(used, lam / t, 0.0)
-        sp = np.where(soft, pi / np.where(soft, s, 1.0), 0.0)
-        a = np.where(soft, qp.kappa + d + sp, 1.0)
-        W = np.where(soft, d * (qp.kappa + sp) / a, d)  # d (1 − d / a) without its cancellation
-        ric = _Riccati(qp, W)
-
-        def direction(r_tl, r_sp):
-            gam = np.where(used, (-r_tl + lam * r_t) / t, 0.0)
-            beta = np.where(soft, -r_s + gam - r_sp / np.where(soft, s, 1.0), 0.0)
-            w0 = np.where(soft, (gam * (qp.kappa + sp) + d * (r_s + r_sp / np.where(soft, s, 1.0))) / a, gam)
-            gz, gv = _rows_transpose(qp, lam + w0 - W * Fx)
-            zp, vp = ric.solve(qp.q + gz, gv)
-            for _ in range(_REFINE):  # iterative refinement of the Newton step on its reduced gradient
-                Fdx = _rows_times(qp, zp - z, vp - v)
-                _, rv1 = costates(qp, zp, vp, lam + W * Fdx + w0)
-                if not np.max(np.abs(rv1), initial=0.0) > 1e-3 * tol * scale:
-                    break
-                cz, cv = ric.solve(np.zeros_like(qp.q), rv1, homogeneous=True)
-                zp, vp = zp + cz, vp + cv
-            Fdx = _rows_times(qp, zp - z, vp - v)
-            ds = np.where(soft, (beta + d * Fdx) / a, 0.0)
-            dl = np.where(used, W * Fdx + w0, 0.0)
-            dt = np.where(used, -r_t - Fdx + ds, 0.0)
-            dp = np.where(soft, (-r_sp - pi * ds) / np.where(soft, s, 1.0), 0.0)
-            return zp - z, vp - v, dt, dl, ds, dp
-
-        def max_step(dt, dl, ds, dp, frac):
-            alpha = 1.0
-            for x, dx, mask in ((t, dt, used), (lam, dl, used), (s, ds, soft), (pi, dp, soft)):
-                neg = mask & (dx < 0)
-                if neg.any():
-                    alpha = min(alpha, frac * float(np.min(-x[neg] / dx[neg])))
-            return alpha
-
-        aff = direction(np.where(used, t * lam, 0.0), np.where(soft, s * pi, 0.0))
+        if it - best[1] >= _STALL and best[0] <= _ACCEPT:
+            break  # the rounding floor: keep the best iterate
+        t, lam, s, pi = point[2:]
+        aff = newton.direction(np.where(used, t * lam, 0.0), np.where(soft, s * pi, 0.0))
         dt, dl, ds, dp = aff[2:]
-        alpha = max_step(dt, dl, ds, dp, 1.0)
+        alpha = newton.max_step(dt, dl, ds, dp, 1.0)
         mu_aff = (float(np.sum((t + alpha * dt) * (lam + alpha * dl), where=used))
                   + float(np.sum((s + alpha * ds) * (pi + alpha * dp), where=soft))) / n_ineq
-        sigma = (mu_aff / mu) ** 3
-        dz, dv, dt, dl, ds, dp = direction(np.where(used, t * lam + dt * dl - sigma * mu, 0.0),
-                                                np.where(soft, s * pi + ds * dp - sigma * mu, 0.0))
-        alpha = max_step(dt, dl, ds, dp, _TAU)
-        z, v = z + alpha * dz, v + alpha * dv
-        t, lam = np.where(used, t + alpha * dt, 1.0), np.where(used, lam + alpha * dl, 0.0)
-        s, pi = np.where(soft, s + alpha * ds, 0.0), np.where(soft, pi + alpha * dp, 1.0)
-    merit, iterations, (v, z, s, lam, nu) = best
+        sigma = (mu_aff / newton.mu) ** 3
+        step = newton.direction(np.where(used, t * lam + dt * dl - sigma * newton.mu, 0.0),
+                                np.where(soft, s * pi + ds * dp - sigma * newton.mu, 0.0))
+        point = newton.moved(step, newton.max_step(*step[2:], _TAU))
+    merit, iterations, point, nu = best
     if merit <= _ACCEPT:
-        return StageQPSolution(v, z, s, lam, nu, iterations, "optimal", merit)
+        polished = _polish(qp, point, used, soft, scale, f_scale, merit)
+        if polished is not None:
+            merit, point, nu = polished
+    z, v, t, lam, s, _ = point
+    if merit <= _ACCEPT:
+        return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, nu, iterations, "optimal", merit)
     Fx = _rows_times(qp, z, v)
     hard = used & ~soft
     excess = np.where(hard, Fx - f, -np.inf)
@@ -300,4 +388,4 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
     message = (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}); the largest "
                f"hard-row violation is {max(float(excess[i, j]), 0.0):.3g} at stage {i}, row {j}: the hard limits "
                "cannot all hold (infeasible)")
-    return StageQPSolution(v, z, s, lam, nu, iterations, "infeasible", merit, message)
+    return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, nu, iterations, "infeasible", merit, message)
