@@ -13,7 +13,7 @@ from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, W
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.limits import Limits
-from parallel_gpc.solvers import StageQP, make_solver, solve_stage_qp
+from parallel_gpc.solvers import QRSolver, StageQP, make_solver, solve_stage_qp
 from parallel_gpc.solvers.problem import UNBOUNDED
 
 TS = 0.002
@@ -79,15 +79,15 @@ def _x_of(full, v, ctl):
     return np.concatenate([v, X])
 
 
-CASES = {  # name: (Limits builder from the unconstrained plan's largest |u| and the motion, forms)
-    "torque": lambda u, y: Limits(torque=0.4 * u),
-    "torque-inactive": lambda u, y: Limits(torque=10.0 * u),
-    "du": lambda u, y: Limits(du=0.05 * u),
-    "torque+du": lambda u, y: Limits(torque=0.5 * u, du=0.1 * u),
-    "box-soft": lambda u, y: Limits(output_box=y, penalty=50.0),
-    "box-hard": lambda u, y: Limits(output_box=y, soft=()),
-    "velocity-soft": lambda u, y: Limits(output_velocity=0.02, torque=2.0 * u),
-    "velocity-hard": lambda u, y: Limits(output_velocity=0.05, soft=()),
+CASES = {  # name: Limits from the unconstrained plan's largest |u|, a box halving its motion, its speed
+    "torque": lambda u, box, speed: Limits(torque=0.4 * u),
+    "torque-inactive": lambda u, box, speed: Limits(torque=10.0 * u),
+    "du": lambda u, box, speed: Limits(du=0.05 * u),
+    "torque+du": lambda u, box, speed: Limits(torque=0.5 * u, du=0.1 * u),
+    "box-soft": lambda u, box, speed: Limits(output_box=box, penalty=1e-3),
+    "box-hard": lambda u, box, speed: Limits(output_box=box, soft=()),
+    "velocity-soft": lambda u, box, speed: Limits(output_velocity=0.5 * speed, torque=2.0 * u, penalty=1e-3),
+    "velocity-hard": lambda u, box, speed: Limits(output_velocity=0.5 * speed, soft=()),
 }
 
 
@@ -101,10 +101,15 @@ def _setup(robot, form, case, N=12, No=0, Nu=None):
     step[0] = 0.01
     w = np.tile(robot.home_pose + step, (N, 1))
     free = GPCController.build(model, TS, H, weights, form=form, solver="qr")
-    u_free = np.abs(free.step(X, w).u).max()
-    y = np.array([[robot.home_pose[i] - 1.0, robot.home_pose[i] + (0.004 if i == 0 else 1.0)]
-                  for i in range(robot.n_y)])
-    limits = CASES[case](u_free, y)
+    free.step(X, w)
+    u_free = np.abs(free.plan).max()
+    free = GPCController.build(model, TS, H, weights, form=form, solver="qr")
+    pred = free.predict(X)
+    y_free = pred.outputs(QRSolver().solve(free._criterion.problem(pred, w[H.No:])).v).reshape(-1, robot.n_y)
+    box = np.array([[-1.0, 1.0]] * robot.n_y) + robot.home_pose[:, None]
+    box[0, 1] = 0.5 * (robot.home_pose[0] + y_free[:, 0].max())
+    speed = np.abs(np.diff(np.vstack([robot.home_pose, y_free]), axis=0)).max(axis=0) / TS
+    limits = CASES[case](u_free, box, np.maximum(speed, 1e-3))
     if form == "absolute" and limits.du is not None:
         return None
     ctl = GPCController.build(model, TS, H, weights, form=form, solver="riccati", limits=limits)

@@ -45,6 +45,12 @@ _REFINE = 2
 _ACCEPT = 1e-6
 #: the iterations stop after this many without a better iterate (the rounding floor reached).
 _STALL = 3
+#: how far (relative to the largest bound) a polished plan may sit beyond a row: rounding only.
+_POLISH_TOL = 1e-9
+#: active-set corrections of the polishing step.
+_POLISH_ROUNDS = 3
+#: Newton steps per polishing round.
+_POLISH_STEPS = 2
 
 
 @dataclass
@@ -310,28 +316,43 @@ class _Newton:
 
 
 def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float, merit: float):
-    """One Newton step (σ = 0, full length) with the rows that are inactive at ``point`` (t > λ)
-    dropped: their barrier no longer pushes the plan along the problem's flat directions. Kept
-    when the dropped rows still hold, the multipliers stay ≥ 0 and the KKT residual of the full
+    """Newton steps (σ = 0, full length) with the rows that are inactive at ``point`` dropped
+    (λ/scale < t/f_scale): their barrier no longer pushes the plan along the problem's flat
+    directions. A kept row whose multiplier turns negative is dropped, a dropped row that the
+    plan breaks is kept, and the step is retaken (at most :data:`_POLISH_ROUNDS` times). The
+    result is kept when every row holds, the multipliers are ≥ 0 and the KKT residual of the full
     problem does not grow; else None."""
-    z, v, t, lam, s, pi = point
-    active = used & (lam > t)
-    keep_soft = soft & active
-    start = (z, v, np.where(active, t, 1.0), np.where(active, lam, 0.0), np.where(keep_soft, s, 0.0),
-             np.where(keep_soft, pi, 1.0))
-    try:
-        newton = _Newton(qp, start, active, keep_soft, scale, f_scale)
-    except SolverError:
-        return None
-    step = newton.direction(np.where(active, start[2] * start[3], 0.0), np.where(keep_soft, start[4] * start[5], 0.0))
-    z, v, t, lam, s, pi = newton.moved(step, 1.0)
+    active = used & (point[3] * f_scale > point[2] * scale)  # λ and t each against its own scale
     f = np.where(used, qp.f, 0.0)
-    gap = f + s - _rows_times(qp, z, v)  # the full problem's row slacks at the polished plan
-    if np.any(used & (gap < -1e-12 * f_scale)) or np.any(active & (lam < 0.0)) or np.any(keep_soft & (s < 0.0)):
+    for _ in range(_POLISH_ROUNDS):
+        keep_soft = soft & active
+        current = point
+        for _ in range(_POLISH_STEPS):  # Newton steps on the kept rows (their weights grow as t → 0)
+            z, v, t, lam, s, pi = current
+            start = (z, v, np.where(active, np.maximum(t, 1e-300), 1.0),
+                     np.where(active, np.maximum(lam, 1e-300), 0.0), np.where(keep_soft, np.maximum(s, 1e-300), 0.0),
+                     np.where(keep_soft, np.maximum(pi, 1e-300), 1.0))
+            try:
+                newton = _Newton(qp, start, active, keep_soft, scale, f_scale)
+            except SolverError:
+                break
+            step = newton.direction(np.where(active, start[2] * start[3], 0.0),
+                                    np.where(keep_soft, start[4] * start[5], 0.0))
+            current = newton.moved(step, 1.0)
+        z, v, t, lam, s, pi = current
+        gap = f + s - _rows_times(qp, z, v)  # the full problem's row slacks at the polished plan
+        broken = used & ~active & (gap < -_POLISH_TOL * f_scale)
+        negative = active & ((lam < -_POLISH_TOL * scale) | (keep_soft & (s < -_POLISH_TOL * f_scale)))
+        if not broken.any() and not negative.any():
+            break
+        active = (active & ~negative) | broken
+    else:
         return None
-    t = np.where(active, np.maximum(t, 0.0), np.where(used, gap, 1.0))
+    if np.any(used & (gap < -_POLISH_TOL * f_scale)):
+        return None
+    t = np.where(used, np.maximum(gap, 0.0), 1.0)
     pi = np.where(soft & ~keep_soft, qp.rho + qp.kappa * s - lam, pi)  # dropped soft rows: s = 0, λ = 0
-    point = (z, v, t, np.maximum(lam, 0.0), s, np.where(soft, np.maximum(pi, 0.0), 1.0))
+    point = (z, v, t, np.maximum(lam, 0.0), np.maximum(s, 0.0), np.where(soft, np.maximum(pi, 0.0), 1.0))
     polished = _Newton(qp, point, used, soft, scale, f_scale, factor=False)
     return (polished.merit, point, polished.nu) if polished.merit <= max(merit, IPM_TOL) else None
 
