@@ -5,7 +5,7 @@ GPC. The problem, over stages i = 0..N−1 of a linear time-varying model with a
 (the structure HPIPM's ``ocp_qp_ipm`` solves; this is an independent implementation),
 
     z(i+1) = A_i z(i) + B_i v(i) + c_i,   z(0) = z0 given     (v(i) exists for i < n_decide)
-    Φ = Σ_{i=0..N} ½ z(i)ᵀ Q_i z(i) + q_iᵀ z(i) + Σ_{i<n_decide} ½ v(i)ᵀ R v(i)
+    Φ = Σ_{i=0..N} ½ z(i)ᵀ Q_i z(i) + q_iᵀ z(i) + Σ_{i<n_decide} ½ v(i)ᵀ R v(i) + v(i)ᵀ S z(i)
         + Σ_soft (ρ s_j + ½ κ s_j²)
     F_i [z(i); v(i)] ≤ f_i (+ s_j, s_j ≥ 0, on a soft row j),
 
@@ -33,7 +33,7 @@ from ..errors import SolverError
 __all__ = ["StageQP", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER"]
 
 #: stopping tolerance, relative to the problem's scale (largest gradient/penalty entry, ≥ 1).
-IPM_TOL = 1e-10
+IPM_TOL = 1e-13
 #: iteration cap: a problem still not converged is reported (hard limits infeasible, typically).
 IPM_MAX_ITER = 60
 #: fraction of the step to the boundary of the positive orthant.
@@ -49,6 +49,8 @@ _STALL = 3
 _POLISH_TOL = 1e-9
 #: active-set corrections of the polishing step.
 _POLISH_ROUNDS = 3
+#: the smallest t, s (relative to the bounds) and λ, π (relative to the gradient) a polishing step starts from.
+_POLISH_FLOOR = 1e-16
 #: Newton steps per polishing round.
 _POLISH_STEPS = 2
 
@@ -64,6 +66,7 @@ class StageQP:
         Fz: (N, k, nz); Fv: (N, k, m) (zero on stages ≥ n_decide); f: (N, k), +inf on an unused
             row. soft: (N, k) bool, True on a soft row.
         rho: ρ > 0 and kappa: κ > 0 of the soft rows' slack cost ρ s + ½ κ s².
+        S: (m, nz) cross weight of the decision stages, or None (zero).
     """
 
     A: np.ndarray
@@ -80,6 +83,7 @@ class StageQP:
     soft: np.ndarray
     rho: float = 1.0
     kappa: float = 1.0
+    S: np.ndarray | None = None
 
 
 @dataclass
@@ -128,6 +132,8 @@ class _Riccati:
                 PB = P @ B
                 Hvv = qp.R + Fv.T @ (W[i][:, None] * Fv) + B.T @ PB
                 Hvz = Fv.T @ WFz[i] + PB.T @ A
+                if qp.S is not None:
+                    Hvz = Hvz + qp.S
                 self.h_max = max(self.h_max, float(np.max(np.diag(Hvv))))
                 try:
                     self.fac[i] = sla.cho_factor(Hvv, check_finite=True)
@@ -198,11 +204,15 @@ def costates(qp: StageQP, z, v, lam, linear: bool = True) -> tuple[np.ndarray, n
     g = np.einsum("inm,im->in", qp.Q, z) + gz
     if linear:
         g += qp.q
+    if qp.S is not None:
+        g[:nd] += v @ qp.S
     nu = np.zeros_like(z)
     nu[N] = g[N]
     for i in range(N - 1, 0, -1):
         nu[i] = g[i] + qp.A[i].T @ nu[i + 1]
     rv = v @ qp.R.T + gv + np.einsum("imk,im->ik", qp.B[:nd], nu[1:nd + 1])
+    if qp.S is not None:
+        rv += z[:nd] @ qp.S.T
     return nu, rv
 
 
@@ -236,7 +246,7 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
         res = float(np.max(np.abs(rv), initial=0.0)) / max(sigma * float(np.max(np.abs(v), initial=0.0)), 1e-300)
         return StageQPSolution(v, z, np.zeros(used.shape), np.zeros(used.shape), nu, 0, "optimal", res)
     scaled = StageQP(qp.A, qp.B, qp.c, qp.z0, qp.Q / sigma, qp.q / sigma, qp.R / sigma, nd, qp.Fz, qp.Fv, qp.f,
-                     qp.soft, qp.rho / sigma, qp.kappa / sigma)
+                     qp.soft, qp.rho / sigma, qp.kappa / sigma, None if qp.S is None else qp.S / sigma)
     sol = _solve_scaled(scaled, z, v, tol, max_iter)
     sol.lam *= sigma
     sol.nu *= sigma
@@ -329,9 +339,9 @@ def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float,
         current = point
         for _ in range(_POLISH_STEPS):  # Newton steps on the kept rows (their weights grow as t → 0)
             z, v, t, lam, s, pi = current
-            start = (z, v, np.where(active, np.maximum(t, 1e-300), 1.0),
-                     np.where(active, np.maximum(lam, 1e-300), 0.0), np.where(keep_soft, np.maximum(s, 1e-300), 0.0),
-                     np.where(keep_soft, np.maximum(pi, 1e-300), 1.0))
+            tf, lf = _POLISH_FLOOR * f_scale, _POLISH_FLOOR * scale  # row weights λ/t stay finite
+            start = (z, v, np.where(active, np.maximum(t, tf), 1.0), np.where(active, np.maximum(lam, lf), 0.0),
+                     np.where(keep_soft, np.maximum(s, tf), 0.0), np.where(keep_soft, np.maximum(pi, lf), 1.0))
             try:
                 newton = _Newton(qp, start, active, keep_soft, scale, f_scale)
             except SolverError:
