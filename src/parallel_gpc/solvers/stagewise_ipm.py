@@ -116,7 +116,7 @@ class _Riccati:
         N, nd = qp.A.shape[0], qp.n_decide
         self.qp = qp
         self.Pn = [None] * N     # P_{i+1}
-        self.fac = [None] * nd   # Hvv_i⁻¹ (checked positive definite by its Cholesky factorization)
+        self.fac = [None] * nd   # Cholesky of Hvv_i
         self.Hvz = [None] * nd
         self.K = [None] * nd
         self.h_max = 0.0  # the largest diagonal entry of the input Hessians R + BᵀPB (+ rows)
@@ -140,8 +140,7 @@ class _Riccati:
                 except (np.linalg.LinAlgError, ValueError) as exc:
                     raise SolverError(f"stage-wise IPM: the input Hessian at stage {i} is not positive definite "
                                       f"({exc})") from None
-                self.fac[i] = sla.cho_solve(self.fac[i], np.eye(len(Hvv)))  # H⁻¹ (m × m): matmuls from here
-                self.Hvz[i], self.K[i] = Hvz, -self.fac[i] @ Hvz
+                self.Hvz[i], self.K[i] = Hvz, -sla.cho_solve(self.fac[i], Hvz, check_finite=False)
                 P = Qi + A.T @ PA + Hvz.T @ self.K[i]
             else:
                 P = Qi + A.T @ PA
@@ -159,7 +158,7 @@ class _Riccati:
         for i in range(N - 1, -1, -1):
             w = self.Pn[i] @ c[i] + p
             if i < nd:
-                kk[i] = -self.fac[i] @ (gv[i] + qp.B[i].T @ w)
+                kk[i] = -sla.cho_solve(self.fac[i], gv[i] + qp.B[i].T @ w, check_finite=False)
                 p = gz[i] + qp.A[i].T @ w + self.Hvz[i].T @ kk[i]
             else:
                 p = gz[i] + qp.A[i].T @ w
