@@ -31,7 +31,8 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
     p.add_argument("--Qu", type=float, default=d["Qu"],
                    help=f"square-root input / increment weight (default {d['Qu']:g})")
     p.add_argument("--solver", default=None,
-                   help="back end: qr, riccati (unconstrained, Qu > 0: the Riccati recursion, no condensing), "
+                   help="back end: qr, riccati (Qu > 0, stage-wise, no condensing: the Riccati recursion, with "
+                   "torque/du/output limits an interior point), "
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
