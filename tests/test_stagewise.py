@@ -73,7 +73,7 @@ def _kkt_residual(full, x) -> float:
     return res / max(1.0, float(np.linalg.norm(2.0 * full.A.T @ full.b)))
 
 
-def _x_of(full, v, ctl):
+def _x_of(full, v):
     """[v; s]: the slacks of the condensed problem at v (its optimum given v: the largest violation
     of each soft pair, in the problem's slack unit)."""
     if not full.n_slack:
@@ -139,7 +139,7 @@ def test_stagewise_equals_daqp_on_the_condensed_problem(robot, form, case):
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
     full, x_ref = _condensed(ctl, X, w)
     assert result.status == "optimal", result.message
-    x = _x_of(full, result.v, ctl)
+    x = _x_of(full, result.v)
     kkt = _kkt_residual(full, x)
     assert kkt <= 1e-9, kkt
     if x_ref is not None:  # DAQP's answer passed its own KKT check

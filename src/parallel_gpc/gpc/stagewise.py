@@ -86,8 +86,7 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
             else:
                 Fz, Fv = mem, (eye if i < Nu else zero_v)
                 off = u_sim[i] if form == "nonlinear" else 0.0
-            M = np.hstack([Fz, Fv])
-            F, f = _pair_rows(M, -tau - off, tau - off)
+            F, f = _pair_rows(np.hstack([Fz, Fv]), -tau - off, tau - off)
             add(i, F[:, :nz], F[:, nz:], f, False, "torque")
     if delta is not None:
         drift = np.zeros((Nu, m))
@@ -110,7 +109,7 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
             add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_box"), "output_box")
     if limits.output_velocity is not None:
         vmax = limits.output_velocity * Ts
-        for i in range(max(No + 1, 1) if No == 0 else No + 2, N + 1):
+        for i in range(1 if No == 0 else No + 2, N + 1):  # the first from y(k) when No = 0
             Yz, Yv, y0 = output_rows(i)
             if i == 1:
                 prev_z, prev0 = np.zeros((p, nz)), y_now
