@@ -11,10 +11,15 @@ GPC. The problem, over stages i = 0..N−1 of a linear time-varying model with a
 
 is solved by Mehrotra's predictor-corrector. Every iteration factorizes ONE Riccati recursion
 of the Newton system (the inequalities enter as the diagonal row weights W = Λ T⁻¹, the soft
-rows' slacks eliminated row by row) and back-substitutes it twice (predictor and corrector):
-the work per iteration grows linearly with N. The equality (dynamics) rows are satisfied by
-every iterate (the forward sweep simulates them), so only the stationarity, inequality and
-complementarity residuals are driven to zero.
+rows' slacks eliminated row by row) and back-substitutes it for the predictor and the corrector
+(plus at most :data:`_REFINE` refinement passes each): the work per iteration grows linearly
+with N. The equality (dynamics) rows are satisfied by every iterate (the forward sweep simulates
+them), so only the stationarity, inequality and complementarity residuals are driven to zero.
+Accuracy: the Newton steps are solved in delta form (their rounding scales with the step, not
+with the iterate: W ~ 1/μ would otherwise amplify it into the multipliers), the objective is
+scaled to unit curvature in v first, and the converged iterate is polished by Newton steps on
+its active rows alone (the inactive rows' barrier no longer bends the plan along the flat
+directions of a redundant robot's criterion).
 
 Newton system (rows t = f + S s − F x ≥ 0 with multipliers λ, slacks s ≥ 0 with π):
     dλ = W F dx + w0,  W = d (hard) or d (κ + π / s) / a = d (1 − d / a) (soft),  d = λ / t,  a = κ + d + π / s,
