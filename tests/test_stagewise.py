@@ -4,6 +4,8 @@ that condensed problem computed here, a dense QP of a random stage problem, and 
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import qpsolvers
@@ -12,6 +14,8 @@ from scipy.optimize import nnls
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
 from parallel_gpc.gpc.constraints import constrain
+from parallel_gpc.gpc.riccati import RiccatiPath
+from parallel_gpc.model.native import native_module
 from parallel_gpc.limits import Limits
 from parallel_gpc.solvers import QRSolver, StageQP, make_solver, solve_stage_qp
 from parallel_gpc.solvers.problem import UNBOUNDED
@@ -292,3 +296,31 @@ def test_drive_limits_with_riccati_are_a_clear_error():
     with pytest.raises(InvalidParameterError, match="drive limits"):
         GPCController.build(ReducedModel(robot), TS, Horizons(10), Weights(1.0, 1e-3), solver="riccati",
                             limits=Limits(drive_rate=1.0))
+
+
+HAS_COMPILED = native_module() is not None and hasattr(native_module(), "stagewise_ipm")
+if not HAS_COMPILED and os.environ.get("CI"):
+    raise RuntimeError("CI must test the compiled stage-wise interior point (parallel_gpc._native.stagewise_ipm)")
+
+
+@pytest.mark.skipif(not HAS_COMPILED, reason="the compiled core has no stagewise_ipm")
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("form", FORMS)
+def test_compiled_equals_the_python_reference(robot, form, case):
+    made = _setup(robot, form, case)
+    if made is None:
+        pytest.skip("du applies to the incremental forms")
+    ctl, X, w = made
+    H = ctl.horizons
+    stages = ctl._riccati.stages(ctl, X, w[H.No:])
+    results = []
+    for native in (False, True):
+        path = RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+        path._extra = ctl._riccati._extra
+        assert path.constrained.native is native
+        results.append(path.solve(*stages))
+    python, compiled = results
+    assert python.status == compiled.status == "optimal", (python.message, compiled.message)
+    tol = 1e-5 if (robot.name, form, case) in FLAT else 1e-9
+    assert np.abs(compiled.v - python.v).max() <= tol * np.abs(python.v).max()
+    assert compiled.active_limits is python.active_limits

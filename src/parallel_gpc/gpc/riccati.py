@@ -172,7 +172,7 @@ class RiccatiPath:
         self.solver = RiccatiSolver(Wy, Wu, C, criterion.horizons, form, native)
         self.form, self.horizons, self.m = form, criterion.horizons, criterion.n_inputs
         self.constrained = None if limits is None or not limits.needs_qp else StagewiseSolver(
-            Wy, Wu, criterion.horizons, form, limits, Ts)
+            Wy, Wu, criterion.horizons, form, limits, Ts, native)
         self.report = None
         self._u_sim = None
         self._extra = {}

@@ -31,7 +31,8 @@ import numpy as np
 
 from ..errors import SolverError
 from ..limits import SOFT_QUADRATIC, Limits
-from ..solvers import SolveResult, StageQP, solve_stage_qp
+from ..model import compiled_part
+from ..solvers import SolveResult, StageQP, StageQPSolution, solve_stage_qp
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport
 from .prediction import Horizons
 
@@ -138,13 +139,35 @@ class StagewiseSolver:
         Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). horizons: N, No, Nu.
         form: the controller's form. limits: sized to the drives and outputs (input kinds
             tightened by the controller's margin). Ts: sample time (s).
+        native: None = the compiled ``_native.stagewise_ipm`` when available, False = the Python
+            reference :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
     """
 
     name = "riccati"
 
-    def __init__(self, Wy, Wu, horizons: Horizons, form: str, limits: Limits, Ts: float):
+    def __init__(self, Wy, Wu, horizons: Horizons, form: str, limits: Limits, Ts: float,
+                 native: bool | None = None):
         self.Wy, self.Wu = np.asarray(Wy, float), np.asarray(Wu, float)
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
+        self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
+        self.native = self._compiled is not None
+
+    def _solve(self, qp: StageQP) -> StageQPSolution:
+        """The compiled solve, or the Python reference."""
+        if self._compiled is None:
+            return solve_stage_qp(qp)
+        try:
+            c = np.ascontiguousarray
+            v, z, s, lam, iterations, ok, merit = self._compiled(
+                c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
+                c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.Fv, float), c(qp.f, float), c(qp.soft, bool),
+                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float))
+        except RuntimeError as exc:
+            raise SolverError(str(exc)) from None
+        status = "optimal" if ok else "infeasible"
+        message = "" if ok else (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}): "
+                                 "the hard limits cannot all hold (infeasible)")
+        return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
     def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None
               ) -> tuple[SolveResult, ConstraintReport | None]:
@@ -164,7 +187,7 @@ class StagewiseSolver:
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
                                   y_now, y_sim, u_sim, u_prev)
         try:
-            sol = solve_stage_qp(qp)
+            sol = self._solve(qp)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None
