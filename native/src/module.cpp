@@ -8,4 +8,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_model_update(m);
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
+  pgpc::bind_stagewise_ipm(m);
 }
