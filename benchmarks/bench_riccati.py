@@ -2,6 +2,7 @@
 """Time the absolute and incremental steps with ``solver="riccati"`` against ``"qr"``.
 
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
+``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
 absolute form, on the full plant) are recorded; then every configuration steps through the same
@@ -25,6 +26,7 @@ from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.gpc.prediction import Horizons
 from parallel_gpc.gpc.references import SCurve, path_for
+from parallel_gpc.limits import Limits
 from parallel_gpc.model.dynamics import ReducedModel
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.model.robot import ParallelRobot
@@ -82,12 +84,62 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
               f"max|u − u_qr|/max|u_qr| = {diff:.1e}")
 
 
+def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None:
+    """``--limited``: the torque-limited step (τ = half the unconstrained run's largest |u|) with
+    ``solver="riccati"`` (the stage-wise interior point) against the condensed default of the
+    form, and against the unconstrained Riccati step of the same form; per N, then the fitted
+    exponent of the step time in N."""
+    robot = ParallelRobot.load(name)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    model = ReducedModel(robot)
+    rows = {}
+    for N in horizons:
+        Xs, ws = _states(robot, ref, N, samples)
+        for form in ("absolute", "incremental"):
+            free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
+            tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
+            configs = {"unconstrained riccati": free}
+            for solver in ("riccati", None):
+                configs[f"limited {solver or 'default'}"] = GPCController.build(
+                    model, TS, Horizons(N), WEIGHTS, form=form, solver=solver, limits=Limits(torque=tau))
+            times = {key: [] for key in configs}
+            us = {key: [] for key in configs}
+            for _ in range(reps):
+                for key, ctl in configs.items():
+                    ctl.reset()
+                    us[key] = []
+                    for X, w in zip(Xs, ws):
+                        t0 = time.perf_counter()
+                        info = ctl.step(X, w)
+                        times[key].append(time.perf_counter() - t0)
+                        us[key].append(info.u)
+            med = {key: 1e6 * float(np.median(t)) for key, t in times.items()}
+            lim, dflt = np.array(us["limited riccati"]), np.array(us["limited default"])
+            rows[(form, N)] = med
+            print(f"{name} {form:11s} N = {N:3d}: limited riccati {med['limited riccati']:9.1f} µs, limited default "
+                  f"({configs['limited default'].solver}) {med['limited default']:8.1f} µs, unconstrained riccati "
+                  f"{med['unconstrained riccati']:7.1f} µs; limited/unconstrained "
+                  f"{med['limited riccati'] / med['unconstrained riccati']:5.2f}, default/riccati "
+                  f"{med['limited default'] / med['limited riccati']:5.2f}; max|Δu|/τ {np.abs(lim - dflt).max() / tau:.1e}")
+    for form in ("absolute", "incremental"):
+        for key in ("limited riccati", "limited default", "unconstrained riccati"):
+            t = [rows[(form, N)][key] for N in horizons]
+            slope = np.polyfit(np.log(horizons), np.log(t), 1)[0]
+            print(f"{form:11s} {key:22s} time ∝ N^{slope:.2f} over N = {horizons}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=7)
     parser.add_argument("--samples", type=int, default=60)
     parser.add_argument("--cases", default="planar_4rrr:10,planar_4rrr:20,planar_4rrr:40,hexapod_8ups:20")
+    parser.add_argument("--limited", action="store_true", help="the torque-limited step (stage-wise interior point)")
+    parser.add_argument("--horizons", default="20,40,80,160", help="N values of --limited")
+    parser.add_argument("--robot", default="planar_4rrr", help="robot of --limited")
     args = parser.parse_args()
+    if args.limited:
+        run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples)
+        return
     for case in args.cases.split(","):
         name, N = case.split(":")
         run_case(name, int(N), args.reps, args.samples)

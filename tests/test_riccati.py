@@ -129,17 +129,18 @@ def test_closed_loop_inputs_and_plans_match_qr(name, form):
 
 def test_uncovered_cases_are_clear_errors():
     model = DiscreteLinearModel(A, B, np.eye(4), Ts=0.1)
-    with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati", limits=Limits(torque=1.0))
-    with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), form="incremental", solver="riccati", limits=Limits(du=1.0))
+    with pytest.raises(InvalidParameterError, match="riccati.*drive limits"):  # torque, du: tests/test_stagewise.py
+        GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati",
+                            limits=Limits(drive_position=[0.0, 1.0]))
     with pytest.raises(InvalidParameterError, match="nonsingular input weight Qu"):
         GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.0), solver="riccati")  # the paper's Qu = 0
     with pytest.raises(InvalidParameterError, match="nonsingular input weight Qu"):
         GPCController.build(model, 0.1, Horizons(10), Weights(1.0, [0.1, 0.0]), solver="riccati")
     ctl = GPCController.build(model, 0.1, Horizons(10), Weights(1.0, 0.1), solver="riccati")
-    with pytest.raises(InvalidParameterError, match="riccati.*unconstrained"):
-        ctl.limits = Limits(torque=2.0)  # a limit added later is refused the same way
+    with pytest.raises(InvalidParameterError, match="riccati.*drive limits"):
+        ctl.limits = Limits(drive_rate=2.0)  # a limit added later is refused the same way
+    ctl.limits = Limits(torque=2.0)  # a torque limit added later: the stage-wise interior point
+    assert ctl._riccati.constrained is not None
     with pytest.raises(InvalidParameterError, match="form"):
         RiccatiSolver(np.eye(4), np.eye(2), np.eye(4), Horizons(10), "bogus")
     with pytest.raises(SolverNotFoundError, match="path of the GPC controller.*use 'qr' here"):

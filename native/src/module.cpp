@@ -9,4 +9,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_stage_jacobian(m);
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
+  pgpc::bind_stagewise_ipm(m);
 }

@@ -38,7 +38,8 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    help="terminal equality: the last predicted pose on the reference (pose), and at rest (stop); "
                         "hard rows, solved by a QP back end (default none)")
     p.add_argument("--solver", default=None,
-                   help="back end: qr, riccati (unconstrained, Qu > 0: the Riccati recursion, no condensing), "
+                   help="back end: qr, riccati (Qu > 0, stage-wise, no condensing: the Riccati recursion, with "
+                   "torque/du/output limits an interior point), "
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")

@@ -136,12 +136,13 @@ class GPCController:
         criterion = Criterion(settings.weights, settings.horizons, self.n_y, self.n_u)
         limits = settings.limits.for_drives(self.n_u, self.n_y)
         self._drives = DriveKinematics.needed(self.model, limits)
-        self._riccati = None if settings.solver != "riccati" else RiccatiPath(criterion, self.model.C, settings.form)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
+        self._riccati = None if settings.solver != "riccati" else RiccatiPath(
+            criterion, self.model.C, settings.form, limits=self._qp_limits, Ts=settings.Ts)
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
-            drives)
+            self._drives)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -322,6 +323,7 @@ class GPCController:
         result = None if stages is None else self._riccati.solve(*stages)
         if result is not None and result.ok:
             pred, t2 = self._riccati.input_map(self, stages), t1
+            constraint_report = self._riccati.report
         else:  # the dense path (and a failed Riccati solve's visible replacement: QR, with its reason)
             pred = self.predict(X) if pred is None else pred
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
@@ -385,7 +387,10 @@ class GPCController:
         """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),
         QR's, with the Riccati failure in the message. A back end's exception becomes a failed result.
         ``warm``: the warm start in the decision variables proper (slack variables start at 0)."""
-        backend = self._backend if failed is None else QRSolver()
+        if failed is None:
+            backend = self._backend
+        else:  # a failed stage-wise solve: the condensed default of these limits, or QR without any
+            backend = make_solver(DEFAULT_LIMITED_SOLVER) if self._limits.needs_qp else QRSolver()
         if warm is not None and problem.n_slack:
             warm = np.concatenate([warm, np.zeros(problem.n_slack)])
         try:
@@ -393,7 +398,9 @@ class GPCController:
         except Exception as exc:  # a back end's own exception: report it and fall back, never leak it
             return SolveResult(np.full(problem.n, np.nan), np.inf, "failed", backend.name,
                                message=f"{type(exc).__name__}: {exc}")
-        return result if failed is None else replace(result, message=f"riccati failed ({failed.message}); solved by QR")
+        return result if failed is None else replace(
+            result, message=f"riccati failed ({failed.message}); solved by "
+                            f"{'QR' if isinstance(backend, QRSolver) else backend.name}")
 
     def _warm_start(self, pred: Prediction, n: int) -> np.ndarray | None:
         """The previous plan shifted by one sample, as v: absolute, v shifted; incremental and

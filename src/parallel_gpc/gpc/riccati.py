@@ -16,8 +16,10 @@ Stage models z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, output ŷ = C̄ z, C̄ = [
   Ā_i = [[A_i, B_i], [0, I]], B̄_i = [B_i; I], no affine term, targets w − ŷ_sim.
 
 The minimizer equals the QR back end's whenever it is unique: Qu nonsingular (R = QuᵀQu ≻ 0).
-Not covered (a clear :class:`~parallel_gpc.errors.InvalidParameterError` when requested):
-Qu singular (redundant drives need the minimum-norm QR answer) and torque/Δu limits.
+With limits (torque, Δu, output box and velocity) the same stage models feed the stage-wise
+interior point of :mod:`parallel_gpc.gpc.stagewise`. Not covered (a clear
+:class:`~parallel_gpc.errors.InvalidParameterError` when requested): Qu singular (redundant
+drives need the minimum-norm QR answer) and the drive limits (drive_position, drive_rate).
 """
 
 from __future__ import annotations
@@ -27,9 +29,11 @@ import time
 import numpy as np
 
 from ..errors import InvalidParameterError, SolverError
+from ..limits import Limits
 from ..model import compiled_part, cached_identity
 from ..solvers import SolveResult, lq_tracking
 from .prediction import Horizons, Prediction, cumulative_map
+from .stagewise import StagewiseSolver
 
 __all__ = ["RiccatiPath", "RiccatiSolver", "stage_models", "FORM_CODES"]
 
@@ -151,29 +155,49 @@ class RiccatiPath:
         criterion: the controller's :class:`~parallel_gpc.gpc.criterion.Criterion`.
         C: (p, n) output matrix of the model. form: the controller's form.
         native: as in :class:`RiccatiSolver`.
+        limits: the controller's limits sized to its drives and outputs, input kinds tightened
+            by its margin (None or no limit: the unconstrained recursion). Ts: sample time (s),
+            needed with limits.
+
+    Attributes:
+        report: what the state limits did in the last constrained solve (None without them).
 
     Raises:
         InvalidParameterError: Qu singular (see :class:`RiccatiSolver`).
     """
 
-    def __init__(self, criterion, C, form: str, native: bool | None = None):
+    def __init__(self, criterion, C, form: str, native: bool | None = None, limits: Limits | None = None,
+                 Ts: float | None = None):
         Wy, Wu = criterion.weights.blocks(criterion.n_outputs, criterion.n_inputs)
         self.solver = RiccatiSolver(Wy, Wu, C, criterion.horizons, form, native)
         self.form, self.horizons, self.m = form, criterion.horizons, criterion.n_inputs
+        self.constrained = None if limits is None or not limits.needs_qp else StagewiseSolver(
+            Wy, Wu, criterion.horizons, form, limits, Ts, native)
+        self.report = None
         self._u_sim = None
+        self._extra = {}
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
         keeps the controller's one-step model (and, nonlinear, the pre-simulated inputs)."""
         if self.form == "nonlinear":
-            A_seq, B_seq, _, y_sim, self._u_sim = ctl.presimulate(X)
+            A_seq, B_seq, C, y_sim, self._u_sim = ctl.presimulate(X)
+            if self.constrained is not None:
+                self._extra = {"y_now": C @ X, "y_sim": y_sim, "u_sim": self._u_sim, "u_prev": ctl.u_prev}
             return A_seq, B_seq, None, X, None, w - y_sim[self.horizons.No:]
         Ad, Bd, cd, base = ctl.linear_stages(X)
+        if self.constrained is not None:
+            self._extra = {"y_now": ctl.model.C @ X}
         return Ad, Bd, cd, X, base, w
 
     def solve(self, A, B, c, x0, u0, r) -> SolveResult:
-        """:meth:`RiccatiSolver.solve`."""
-        return self.solver.solve(A, B, c, x0, u0, r)
+        """:meth:`RiccatiSolver.solve`, or with limits the stage-wise interior point
+        (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set)."""
+        if self.constrained is None:
+            return self.solver.solve(A, B, c, x0, u0, r)
+        models = stage_models(self.form, A, B, c, self.solver.C, x0, u0, self.horizons)
+        result, self.report = self.constrained.solve(models, r, **self._extra)
+        return result
 
     def input_map(self, ctl, stages: tuple) -> Prediction:
         """A :class:`~parallel_gpc.gpc.prediction.Prediction` carrying only the input map of the

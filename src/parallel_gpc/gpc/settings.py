@@ -48,8 +48,10 @@ class GPCSettings:
             ``"incremental-delayed"`` (8)–(9) as printed: state [X; u(k)], B̄ = [0; I], the
             increment realized one sample later (needs N ≥ 2), or ``"nonlinear"`` (10)–(12).
         solver: back-end name (:func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``: the
-            unconstrained problem by the Riccati recursion, no condensing (needs Qu nonsingular and
-            no limits; :mod:`parallel_gpc.gpc.riccati`); None resolves to ``"qr"`` without limits;
+            problem solved stage-wise, no condensing (needs Qu nonsingular; the Riccati recursion
+            without limits, :mod:`parallel_gpc.gpc.riccati`; with torque, du, output_box and
+            output_velocity limits a stage-wise interior point, :mod:`parallel_gpc.gpc.stagewise`;
+            not with drive limits); None resolves to ``"qr"`` without limits;
             with input limits only :data:`DEFAULT_BOX_SOLVER` (absolute form) or
             :data:`DEFAULT_LIMITED_SOLVER` (incremental forms, and any form with state limits).
         limits: the :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
@@ -174,8 +176,8 @@ def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str 
 
     Raises:
         InvalidParameterError: not a name, or a name that cannot enforce ``limits`` (qr, cholesky,
-            riccati with any input limit or a terminal equality; bvls with the incremental forms'
-            torque limit, state limits or a terminal equality).
+            riccati with a drive or joint limit, a terminal equality or Qf ≠ 1; bvls with the incremental
+            forms' torque limit, state limits or a terminal equality).
     """
     limited = limits.needs_qp or terminal is not None
     if terminal is not None and solver is not None and isinstance(solver, str) and (
@@ -191,9 +193,11 @@ def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str 
         raise InvalidParameterError(
             f"solver {solver!r} cannot enforce the limits {limits!r}; use a QP back end such as "
             f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'")
-    if solver == "riccati" and limited:
+    if solver == "riccati" and any(getattr(limits, kind) is not None
+                                   for kind in ("drive_position", "drive_rate", "joint_position")):
         raise InvalidParameterError(
-            f"solver 'riccati' solves the unconstrained problem only; with the limits {limits!r} use a QP back end "
+            f"solver 'riccati' enforces torque, du, output_box and output_velocity limits stage-wise; the drive and "
+            f"joint limits in {limits.describe()} are linearized along the condensed prediction: use a QP back end "
             f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
     if solver.endswith("bvls") and limits.has_state_limits:
         raise InvalidParameterError(

@@ -1,0 +1,441 @@
+// The stage-wise interior point of solvers/stagewise_ipm.py (solve_stage_qp), compiled: Mehrotra's
+// predictor-corrector with one Riccati factorization per iteration, Newton steps in delta form with
+// iterative refinement, the objective scaled to unit curvature in v, and the active-set polish. The
+// Python module is the reference; this file follows it function by function (same names).
+#include <Eigen/Cholesky>
+#include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <vector>
+
+#include "bindings.hpp"
+#include "zoh.hpp"
+
+namespace pgpc {
+namespace {
+using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
+using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
+
+constexpr double IPM_TOL = 1e-13, ACCEPT = 1e-6, POLISH_TOL = 1e-9, POLISH_FLOOR = 1e-16, TAU = 0.995;
+constexpr int MAX_ITER = 60, REFINE = 2, STALL = 3, POLISH_ROUNDS = 3, POLISH_STEPS = 2;
+
+struct QP {
+  long N, nz, m, nd, k;
+  std::vector<Mat> A, B, Q, Fz, Fv;
+  std::vector<Vec> c, q;
+  Vec z0;
+  Mat R, S;
+  bool has_S = false;
+  Arr f;                                       // +inf on an unused row
+  Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic> used, soft;
+  double rho = 1.0, kappa = 1.0;
+};
+
+using Traj = std::vector<Vec>;
+
+struct Riccati {
+  const QP &qp;
+  std::vector<Mat> Pn, Hvz, K;
+  std::vector<Eigen::LLT<Mat>> llt;
+  double h_max = 0.0;
+
+  Riccati(const QP &qp, const Arr &W) : qp(qp), Pn(qp.N), Hvz(qp.nd), K(qp.nd), llt(qp.nd) {
+    Mat P = qp.Q[qp.N];
+    for (long i = qp.N - 1; i >= 0; --i) {
+      const Mat &A = qp.A[i], &Fz = qp.Fz[i];
+      Pn[i] = P;
+      Mat WFz = W.row(i).matrix().asDiagonal() * Fz;
+      Mat Qi = qp.Q[i] + Fz.transpose() * WFz;
+      Mat PA = P * A;
+      if (i < qp.nd) {
+        const Mat &B = qp.B[i], &Fv = qp.Fv[i];
+        Mat PB = P * B;
+        Mat Hvv = qp.R + Fv.transpose() * W.row(i).matrix().asDiagonal() * Fv + B.transpose() * PB;
+        Mat H = Fv.transpose() * WFz + PB.transpose() * A;
+        if (qp.has_S) H += qp.S;
+        h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
+        llt[i].compute(Hvv);
+        if (llt[i].info() != Eigen::Success || !Hvv.allFinite())
+          throw std::runtime_error("stage-wise IPM: the input Hessian is not positive definite");
+        Hvz[i] = H;
+        K[i] = -llt[i].solve(H);
+        P = Qi + A.transpose() * PA + H.transpose() * K[i];
+      } else {
+        P = Qi + A.transpose() * PA;
+      }
+      Mat T = P.transpose();
+      P = 0.5 * (P + T);
+    }
+  }
+
+  void solve(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) const {
+    const long N = qp.N, nd = qp.nd;
+    Traj kk(nd);
+    Vec p = gz[N];
+    for (long i = N - 1; i >= 0; --i) {
+      Vec w = p;
+      if (!homogeneous) w.noalias() += Pn[i] * qp.c[i];
+      if (i < nd) {
+        kk[i] = -llt[i].solve(gv[i] + qp.B[i].transpose() * w);
+        p = gz[i] + qp.A[i].transpose() * w + Hvz[i].transpose() * kk[i];
+      } else {
+        p = gz[i] + qp.A[i].transpose() * w;
+      }
+    }
+    z.assign(N + 1, Vec::Zero(qp.nz));
+    v.assign(nd, Vec::Zero(qp.m));
+    if (!homogeneous) z[0] = qp.z0;
+    for (long i = 0; i < N; ++i) {
+      z[i + 1] = qp.A[i] * z[i];
+      if (i < nd) {
+        v[i] = K[i] * z[i] + kk[i];
+        z[i + 1].noalias() += qp.B[i] * v[i];
+      }
+      if (!homogeneous) z[i + 1] += qp.c[i];
+    }
+  }
+};
+
+Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
+  Arr out(qp.N, qp.k);
+  for (long i = 0; i < qp.N; ++i) {
+    Vec r = qp.Fz[i] * z[i];
+    if (i < qp.nd) r.noalias() += qp.Fv[i] * v[i];
+    out.row(i) = r.transpose().array();
+  }
+  return out;
+}
+
+void rows_transpose(const QP &qp, const Arr &y, Traj &gz, Traj &gv) {
+  gz.assign(qp.N + 1, Vec::Zero(qp.nz));
+  gv.assign(qp.nd, Vec::Zero(qp.m));
+  for (long i = 0; i < qp.N; ++i) {
+    Vec yi = y.row(i).transpose().matrix();
+    gz[i] = qp.Fz[i].transpose() * yi;
+    if (i < qp.nd) gv[i] = qp.Fv[i].transpose() * yi;
+  }
+}
+
+// ν and the v-gradient (costates in the Python module); linear = false: without q
+void costates(const QP &qp, const Traj &z, const Traj &v, const Arr &lam, bool linear, Traj &nu, Traj &rv) {
+  Traj gz, gv;
+  rows_transpose(qp, lam, gz, gv);
+  const long N = qp.N, nd = qp.nd;
+  Traj g(N + 1);
+  for (long i = 0; i <= N; ++i) {
+    g[i] = qp.Q[i] * z[i] + gz[i];
+    if (linear) g[i] += qp.q[i];
+    if (qp.has_S && i < nd) g[i].noalias() += qp.S.transpose() * v[i];
+  }
+  nu.assign(N + 1, Vec::Zero(qp.nz));
+  nu[N] = g[N];
+  for (long i = N - 1; i >= 1; --i) nu[i] = g[i] + qp.A[i].transpose() * nu[i + 1];
+  rv.assign(nd, Vec());
+  for (long i = 0; i < nd; ++i) {
+    rv[i] = qp.R * v[i] + gv[i] + qp.B[i].transpose() * nu[i + 1];
+    if (qp.has_S) rv[i].noalias() += qp.S * z[i];
+  }
+}
+
+double max_abs(const Traj &x) {
+  double out = 0.0;
+  for (const Vec &e : x) if (e.size()) out = std::max(out, e.cwiseAbs().maxCoeff());
+  return out;
+}
+
+struct Point {
+  Traj z, v;
+  Arr t, lam, s, pi;
+};
+
+using Mask = Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic>;
+
+Arr where(const Mask &mask, const Arr &a, double other) { return mask.select(a, Arr::Constant(a.rows(), a.cols(), other)); }
+
+struct Newton {
+  const QP &qp;
+  Mask used, soft;
+  double scale, f_scale;
+  Point pt;
+  Arr f, r_t, r_s, d, sp, a, W;
+  double mu = 0.0, merit = 0.0;
+  Traj nu, rv;
+  std::unique_ptr<Riccati> ric;
+
+  Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
+         bool factor)
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
+    f = where(used, qp.f, 0.0);
+    Arr Fx = rows_times(qp, pt.z, pt.v);
+    r_t = where(used, Fx - pt.s + pt.t - f, 0.0);
+    r_s = where(soft, qp.rho + qp.kappa * pt.s - pt.lam - pt.pi, 0.0);
+    const double n_ineq = std::max(1.0, double(used.count() + soft.count()));
+    mu = (where(used, pt.t * pt.lam, 0.0).sum() + where(soft, pt.s * pt.pi, 0.0).sum()) / n_ineq;
+    costates(qp, pt.z, pt.v, pt.lam, true, nu, rv);
+    const double res = std::max(max_abs(rv), r_s.abs().maxCoeff()) / scale;
+    merit = std::max({mu / (scale * f_scale), r_t.abs().maxCoeff() / f_scale, res});
+    if (!factor) return;
+    d = where(used, pt.lam / pt.t, 0.0);
+    Arr s_safe = where(soft, pt.s, 1.0);
+    sp = where(soft, pt.pi / s_safe, 0.0);
+    a = where(soft, qp.kappa + d + sp, 1.0);
+    W = soft.select(d * (qp.kappa + sp) / a, d);
+    ric = std::make_unique<Riccati>(qp, W);
+  }
+
+  // (dz, dv, dt, dλ, ds, dπ)
+  void direction(const Arr &r_tl, const Arr &r_sp, Point &step) const {
+    Arr s_safe = where(soft, pt.s, 1.0);
+    Arr gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
+    Arr beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
+    Arr w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
+    Traj gz, gv, dz, dv;
+    rows_transpose(qp, w0, gz, gv);
+    for (long i = 0; i < qp.nd; ++i) gv[i] += rv[i];
+    ric->solve(gz, gv, true, dz, dv);
+    Traj zero_z(qp.N + 1, Vec::Zero(qp.nz)), nu1, rv1, cz, cv;
+    for (int r = 0; r < REFINE; ++r) {
+      Arr Fdx = rows_times(qp, dz, dv);
+      costates(qp, dz, dv, W * Fdx + w0, false, nu1, rv1);
+      for (long i = 0; i < qp.nd; ++i) rv1[i] += rv[i];
+      if (!(max_abs(rv1) > 1e-15 * scale)) break;
+      ric->solve(zero_z, rv1, true, cz, cv);
+      for (long i = 0; i <= qp.N; ++i) dz[i] += cz[i];
+      for (long i = 0; i < qp.nd; ++i) dv[i] += cv[i];
+    }
+    Arr Fdx = rows_times(qp, dz, dv);
+    step.z = dz;
+    step.v = dv;
+    step.s = where(soft, (beta + d * Fdx) / a, 0.0);
+    step.lam = where(used, W * Fdx + w0, 0.0);
+    step.t = where(used, -r_t - Fdx + step.s, 0.0);
+    step.pi = where(soft, (-r_sp - pt.pi * step.s) / s_safe, 0.0);
+  }
+
+  double max_step(const Point &st, double frac) const {
+    double alpha = 1.0;
+    auto limit = [&](const Arr &x, const Arr &dx, const Mask &mask) {
+      for (long i = 0; i < x.rows(); ++i)
+        for (long j = 0; j < x.cols(); ++j)
+          if (mask(i, j) && dx(i, j) < 0) alpha = std::min(alpha, frac * (-x(i, j) / dx(i, j)));
+    };
+    limit(pt.t, st.t, used);
+    limit(pt.lam, st.lam, used);
+    limit(pt.s, st.s, soft);
+    limit(pt.pi, st.pi, soft);
+    return alpha;
+  }
+
+  Point moved(const Point &st, double alpha) const {
+    Point out;
+    out.z = pt.z;
+    out.v = pt.v;
+    for (long i = 0; i <= qp.N; ++i) out.z[i] += alpha * st.z[i];
+    for (long i = 0; i < qp.nd; ++i) out.v[i] += alpha * st.v[i];
+    out.t = where(used, pt.t + alpha * st.t, 1.0);
+    out.lam = where(used, pt.lam + alpha * st.lam, 0.0);
+    out.s = where(soft, pt.s + alpha * st.s, 0.0);
+    out.pi = where(soft, pt.pi + alpha * st.pi, 1.0);
+    return out;
+  }
+};
+
+struct Result {
+  Point pt;
+  Traj nu;
+  double merit;
+  int iterations;
+  bool ok;
+};
+
+bool polish(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
+            double merit, Result &out) {
+  Mask active = used && (point.lam * f_scale > point.t * scale);
+  Arr f = where(used, qp.f, 0.0);
+  Point cur;
+  Mask keep_soft;
+  Arr gap;
+  bool settled = false;
+  for (int round = 0; round < POLISH_ROUNDS; ++round) {
+    keep_soft = soft && active;
+    cur = point;
+    for (int k = 0; k < POLISH_STEPS; ++k) {
+      const double tf = POLISH_FLOOR * f_scale, lf = POLISH_FLOOR * scale;
+      Point start;
+      start.z = cur.z;
+      start.v = cur.v;
+      start.t = where(active, cur.t.max(tf), 1.0);
+      start.lam = where(active, cur.lam.max(lf), 0.0);
+      start.s = where(keep_soft, cur.s.max(tf), 0.0);
+      start.pi = where(keep_soft, cur.pi.max(lf), 1.0);
+      try {
+        Newton newton(qp, start, active, keep_soft, scale, f_scale, true);
+        Point step;
+        newton.direction(where(active, start.t * start.lam, 0.0), where(keep_soft, start.s * start.pi, 0.0), step);
+        cur = newton.moved(step, 1.0);
+      } catch (const std::runtime_error &) {
+        break;
+      }
+    }
+    gap = f + cur.s - rows_times(qp, cur.z, cur.v);
+    Mask broken = used && (!active) && (gap < -POLISH_TOL * f_scale);
+    Mask negative = active && ((cur.lam < -POLISH_TOL * scale) || (keep_soft && (cur.s < -POLISH_TOL * f_scale)));
+    if (!broken.any() && !negative.any()) {
+      settled = true;
+      break;
+    }
+    active = (active && !negative) || broken;
+  }
+  if (!settled || (used && (gap < -POLISH_TOL * f_scale)).any()) return false;
+  Point pt = cur;
+  pt.t = where(used, gap.max(0.0), 1.0);
+  Mask dropped_soft = soft && !keep_soft;
+  pt.pi = dropped_soft.select(qp.rho + qp.kappa * cur.s - cur.lam, cur.pi);
+  pt.lam = cur.lam.max(0.0);
+  pt.s = cur.s.max(0.0);
+  pt.pi = where(soft, pt.pi.max(0.0), 1.0);
+  Newton polished(qp, pt, used, soft, scale, f_scale, false);
+  if (!(polished.merit <= std::max(merit, IPM_TOL))) return false;
+  out.pt = pt;
+  out.nu = polished.nu;
+  out.merit = polished.merit;
+  return true;
+}
+
+Result solve_scaled(const QP &qp, Traj z, Traj v) {
+  Mask used = qp.used, soft = qp.soft && qp.used;
+  Arr f = where(used, qp.f, 0.0);
+  const double n_ineq = double(used.count() + soft.count());
+  Traj zero_v(qp.nd, Vec::Zero(qp.m)), nu0, rv0;
+  costates(qp, z, zero_v, Arr::Zero(qp.N, qp.k), true, nu0, rv0);
+  const double scale = std::max({max_abs(rv0), soft.any() ? qp.rho : 0.0, 1e-300});
+  double f_scale = 0.0;
+  for (long i = 0; i < qp.N; ++i)
+    for (long j = 0; j < qp.k; ++j)
+      if (used(i, j)) f_scale = std::max(f_scale, std::abs(f(i, j)));
+  f_scale = std::max(f_scale, 1e-12);
+  Arr Fx = rows_times(qp, z, v);
+  Point pt;
+  pt.z = z;
+  pt.v = v;
+  pt.s = where(soft, (Fx - f).max(0.0) + f_scale, 0.0);
+  pt.t = where(used, (f + pt.s - Fx).max(f_scale), 1.0);
+  pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale), 0.0);
+  pt.pi = where(soft, Arr::Constant(qp.N, qp.k, scale), 1.0);
+  Result best{pt, {}, std::numeric_limits<double>::infinity(), 0, false};
+  bool have = false;
+  for (int it = 0; it <= MAX_ITER; ++it) {
+    std::unique_ptr<Newton> newton;
+    try {
+      newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, true);
+    } catch (const std::runtime_error &) {
+      if (have && best.merit <= ACCEPT) break;
+      throw;
+    }
+    if (!have || newton->merit < best.merit) {
+      best = Result{pt, newton->nu, newton->merit, it, false};
+      have = true;
+    }
+    if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
+    if (it - best.iterations >= STALL && best.merit <= ACCEPT) break;
+    Point aff;
+    newton->direction(where(used, pt.t * pt.lam, 0.0), where(soft, pt.s * pt.pi, 0.0), aff);
+    double alpha = newton->max_step(aff, 1.0);
+    const double mu_aff = (where(used, (pt.t + alpha * aff.t) * (pt.lam + alpha * aff.lam), 0.0).sum() +
+                           where(soft, (pt.s + alpha * aff.s) * (pt.pi + alpha * aff.pi), 0.0).sum()) / n_ineq;
+    const double sigma = std::pow(mu_aff / newton->mu, 3);
+    Point step;
+    newton->direction(where(used, pt.t * pt.lam + aff.t * aff.lam - sigma * newton->mu, 0.0),
+                      where(soft, pt.s * pt.pi + aff.s * aff.pi - sigma * newton->mu, 0.0), step);
+    pt = newton->moved(step, newton->max_step(step, TAU));
+  }
+  if (best.merit <= ACCEPT) {
+    Result polished = best;
+    if (polish(qp, best.pt, used, soft, scale, f_scale, best.merit, polished)) best = polished;
+  }
+  best.ok = best.merit <= ACCEPT;
+  best.pt.s = where(soft, best.pt.s, 0.0);
+  return best;
+}
+
+template <class T>
+Mat block(const T &arr, long i) {  // (N, a, b) row-major → stage i as a Mat
+  const long a = long(arr.shape(1)), b = long(arr.shape(2));
+  return Eigen::Map<const RowMat>(arr.data() + i * a * b, a, b);
+}
+}  // namespace
+
+void bind_stagewise_ipm(nb::module_ &m) {
+  m.def(
+      "stagewise_ipm",
+      [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In3 Fv, In2 f, InB soft, double rho,
+         double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S) {
+        QP qp;
+        qp.N = long(A.shape(0));
+        qp.nz = long(A.shape(1));
+        qp.m = long(B.shape(2));
+        qp.nd = n_decide;
+        qp.k = long(f.shape(1));
+        if (qp.nd < 1 || qp.nd > qp.N || long(Q.shape(0)) != qp.N + 1 || long(Fz.shape(0)) != qp.N ||
+            long(f.shape(0)) != qp.N || long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k)
+          throw std::invalid_argument("stagewise_ipm: inconsistent stage shapes");
+        for (long i = 0; i < qp.N; ++i) {
+          qp.A.push_back(block(A, i));
+          qp.B.push_back(block(B, i));
+          qp.Fz.push_back(block(Fz, i));
+          qp.Fv.push_back(block(Fv, i));
+          qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
+        }
+        for (long i = 0; i <= qp.N; ++i) {
+          qp.Q.push_back(block(Q, i));
+          qp.q.push_back(Eigen::Map<const Vec>(q.data() + i * qp.nz, qp.nz));
+        }
+        qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
+        qp.R = Eigen::Map<const RowMat>(R.data(), qp.m, qp.m);
+        qp.has_S = S.size() == size_t(qp.m * qp.nz);
+        if (qp.has_S) qp.S = Eigen::Map<const RowMat>(S.data(), qp.m, qp.nz);
+        qp.f = Eigen::Map<const RowMat>(f.data(), qp.N, qp.k).array();
+        qp.used = qp.f.isFinite();
+        qp.soft.resize(qp.N, qp.k);
+        for (long i = 0; i < qp.N; ++i)
+          for (long j = 0; j < qp.k; ++j) qp.soft(i, j) = soft.data()[i * qp.k + j];
+        qp.rho = rho;
+        qp.kappa = kappa;
+        // the unconstrained plan, the scale σ of the curvature in v, then the scaled problem
+        Riccati free(qp, Arr::Zero(qp.N, qp.k));
+        Traj z, v;
+        Traj qz(qp.q.begin(), qp.q.end()), zero_v(qp.nd, Vec::Zero(qp.m));
+        free.solve(qz, zero_v, false, z, v);
+        const double sigma = free.h_max > 0.0 && std::isfinite(free.h_max) ? free.h_max : 1.0;
+        Result res{{z, v, Arr::Ones(qp.N, qp.k), Arr::Zero(qp.N, qp.k), Arr::Zero(qp.N, qp.k),
+                    Arr::Ones(qp.N, qp.k)}, {}, 0.0, 0, true};
+        if (qp.used.any()) {
+          for (auto &x : qp.Q) x /= sigma;
+          for (auto &x : qp.q) x /= sigma;
+          qp.R /= sigma;
+          if (qp.has_S) qp.S /= sigma;
+          qp.rho /= sigma;
+          qp.kappa /= sigma;
+          res = solve_scaled(qp, z, v);
+          res.pt.lam *= sigma;
+        }
+        RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
+        for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.pt.v[i].transpose();
+        for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.pt.z[i].transpose();
+        RowMat sout = res.pt.s.matrix(), lout = res.pt.lam.matrix();
+        return nb::make_tuple(Mat(vout), Mat(zout), Mat(sout), Mat(lout), res.iterations, res.ok, res.merit);
+      },
+      nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
+      nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
+      nb::arg("kappa"), nb::arg("S"),
+      "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module)");
+}
+}  // namespace pgpc

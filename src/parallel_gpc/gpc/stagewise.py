@@ -1,0 +1,214 @@
+"""The controller's constrained problems solved stage-wise (``solver="riccati"`` with limits).
+
+The same stage models as the unconstrained Riccati path (:func:`~parallel_gpc.gpc.riccati.stage_models`:
+z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinear]) and the same criterion
+(5), Φ = J + const: Q_i = 2 C̄ᵀ Qyᵀ Qy C̄ on the penalized steps i = No+1..N, R = 2 Quᵀ Qu. The
+limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on, solved by the interior point
+of :mod:`parallel_gpc.solvers.stagewise_ipm` (work linear in N):
+
+* torque |u| ≤ τ: absolute, a box on v(i) = u(i), i < Nu; incremental forms,
+  u(i) = z(i)[n:] + v(i) (the input memory plus the increment), i < Nu; nonlinear,
+  u(i) = u_sim(i) + z(i)[n:] + v(i), every pre-simulated step i < N (v = 0 after Nu);
+* du |Δu| ≤ δ: a box on v(i) (nonlinear: shifted by the drift u_sim(i) − u_sim(i−1), u_sim(−1) =
+  u(k−1)), as in :meth:`~parallel_gpc.gpc.criterion.Criterion.problem`;
+* output_box y_lo ≤ ŷ(i) ≤ y_hi (i = No+1..N) and output_velocity |ŷ(i) − ŷ(i−1)| ≤ v·Ts (the
+  first difference from the measured y(k) when No = 0), as in
+  :func:`~parallel_gpc.gpc.constraints.stage_constraints`: ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)]
+  is a row of stage i − 1; soft kinds get a slack s ≥ 0 costing ρ s + SOFT_QUADRATIC·ρ s² (the
+  condensed path's penalty; one slack per side instead of one per pair: the same optimum, the two
+  sides never both bind).
+
+Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
+(drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
+plan — the condensed back ends take them.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from ..errors import SolverError
+from ..limits import SOFT_QUADRATIC, Limits
+from ..model import compiled_part
+from ..solvers import SolveResult, StageQP, StageQPSolution, solve_stage_qp
+from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport
+from .prediction import Horizons
+
+__all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
+
+#: the limit kinds the stage-wise path enforces.
+STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
+
+
+def _pair_rows(M: np.ndarray, lo: np.ndarray, hi: np.ndarray):
+    """(±M rows, bounds): M x ≤ hi and −M x ≤ −lo, ±inf bounds kept (an unused row)."""
+    return np.concatenate([M, -M]), np.concatenate([hi, -lo])
+
+
+def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
+                  y_now, y_sim=None, u_sim=None, u_prev=None) -> tuple[StageQP, np.ndarray]:
+    """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring).
+
+    Args:
+        form: the controller's form. Ab, Bb, cb, Cz, z0: :func:`~parallel_gpc.gpc.riccati.stage_models`.
+        r: (N − No, p) targets (nonlinear: w − ŷ_sim). Wy (p, p), Wu (m, m): square-root weights.
+        horizons: N, No, Nu. limits: sized to the drives and outputs, input kinds tightened by the
+            controller's margin. Ts: sample time (s). y_now: (p,) measured output y(k) (m, rad).
+        y_sim: (N, p) pre-simulated outputs ŷ_sim(k+1..k+N) (nonlinear form), else None.
+        u_sim: (N, m) pre-simulated inputs (nonlinear form). u_prev: (m,) u(k−1) (nonlinear du).
+
+    Returns:
+        (the problem, kinds (N, k) object array: the limit kind of every row, None on an unused one).
+    """
+    H = horizons
+    N, No, Nu = H.N, H.No, H.Nu
+    nz, m, p = Ab.shape[1], Bb.shape[2], Cz.shape[0]
+    Qy = Wy.T @ Wy
+    Q, q = np.zeros((N + 1, nz, nz)), np.zeros((N + 1, nz))
+    CQ = Cz.T @ Qy
+    Q[No + 1:] = 2.0 * CQ @ Cz
+    q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
+    eye, zero_z, zero_v = np.eye(m), np.zeros((m, nz)), np.zeros((m, m))
+    mem = np.zeros((m, nz))  # z(i)[n:], the input memory of the incremental forms' state [x; u]
+    if form != "absolute":
+        mem[:, nz - m:] = np.eye(m)
+    blocks = [[] for _ in range(N)]  # per stage: (Fz, Fv, f, soft, kind)
+
+    def add(i, Fz, Fv, f, soft, kind):
+        blocks[i].append((Fz, Fv if i < Nu else np.zeros_like(Fv), f, np.full(len(f), soft), [kind] * len(f)))
+
+    tau, delta = limits.torque, limits.du
+    if tau is not None:
+        for i in range(N if form == "nonlinear" else Nu):
+            if form == "absolute":
+                Fz, Fv, off = zero_z, eye, 0.0
+            else:
+                Fz, Fv = mem, (eye if i < Nu else zero_v)
+                off = u_sim[i] if form == "nonlinear" else 0.0
+            F, f = _pair_rows(np.hstack([Fz, Fv]), -tau - off, tau - off)
+            add(i, F[:, :nz], F[:, nz:], f, False, "torque")
+    if delta is not None:
+        drift = np.zeros((Nu, m))
+        if form == "nonlinear":
+            drift = np.diff(np.vstack([u_prev, u_sim[:Nu]]), axis=0)
+        for i in range(Nu):
+            F, f = _pair_rows(np.hstack([zero_z, eye]), -delta - drift[i], delta - drift[i])
+            add(i, F[:, :nz], F[:, nz:], f, False, "du")
+    y_off = np.zeros((N + 1, p)) if y_sim is None else np.vstack([np.zeros((1, p)), y_sim])
+    y_now = np.asarray(y_now, float)
+
+    def output_rows(i):  # ŷ(i) = Yz z(i−1) + Yv v(i−1) + y0 as a row block of stage i − 1
+        return Cz @ Ab[i - 1], Cz @ Bb[i - 1], Cz @ cb[i - 1] + y_off[i]
+
+    if limits.output_box is not None:
+        box = limits.output_box
+        for i in range(No + 1, N + 1):
+            Yz, Yv, y0 = output_rows(i)
+            F, f = _pair_rows(np.hstack([Yz, Yv]), box[:, 0] - y0, box[:, 1] - y0)
+            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_box"), "output_box")
+    if limits.output_velocity is not None:
+        vmax = limits.output_velocity * Ts
+        for i in range(1 if No == 0 else No + 2, N + 1):  # the first from y(k) when No = 0
+            Yz, Yv, y0 = output_rows(i)
+            if i == 1:
+                prev_z, prev0 = np.zeros((p, nz)), y_now
+            else:
+                prev_z, prev0 = Cz, y_off[i - 1]
+            F, f = _pair_rows(np.hstack([Yz - prev_z, Yv]), -vmax - y0 + prev0, vmax - y0 + prev0)
+            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_velocity"), "output_velocity")
+    k = max((sum(len(b[2]) for b in stage) for stage in blocks), default=0)
+    Fz, Fv = np.zeros((N, k, nz)), np.zeros((N, k, m))
+    f, soft, kinds = np.full((N, k), np.inf), np.zeros((N, k), bool), np.full((N, k), None, dtype=object)
+    for i, stage in enumerate(blocks):
+        j = 0
+        for bz, bv, bf, bs, bk in stage:
+            rows = slice(j, j + len(bf))
+            Fz[i, rows], Fv[i, rows], f[i, rows], soft[i, rows], kinds[i, rows] = bz, bv, bf, bs, bk
+            j += len(bf)
+    rho = limits.penalty
+    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, soft, rho, 2.0 * SOFT_QUADRATIC * rho)
+    return qp, kinds
+
+
+class StagewiseSolver:
+    """Stage-wise interior-point solve of one controller's constrained problem.
+
+    Args:
+        Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). horizons: N, No, Nu.
+        form: the controller's form. limits: sized to the drives and outputs (input kinds
+            tightened by the controller's margin). Ts: sample time (s).
+        native: None = the compiled ``_native.stagewise_ipm`` when available, False = the Python
+            reference :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+    """
+
+    name = "riccati"
+
+    def __init__(self, Wy, Wu, horizons: Horizons, form: str, limits: Limits, Ts: float,
+                 native: bool | None = None):
+        self.Wy, self.Wu = np.asarray(Wy, float), np.asarray(Wu, float)
+        self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
+        self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
+        self.native = self._compiled is not None
+
+    def _solve(self, qp: StageQP) -> StageQPSolution:
+        """The compiled solve, or the Python reference."""
+        if self._compiled is None:
+            return solve_stage_qp(qp)
+        try:
+            c = np.ascontiguousarray
+            v, z, s, lam, iterations, ok, merit = self._compiled(
+                c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
+                c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.Fv, float), c(qp.f, float), c(qp.soft, bool),
+                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float))
+        except RuntimeError as exc:
+            raise SolverError(str(exc)) from None
+        status = "optimal" if ok else "infeasible"
+        message = "" if ok else (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}): "
+                                 "the hard limits cannot all hold (infeasible)")
+        return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
+
+    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None
+              ) -> tuple[SolveResult, ConstraintReport | None]:
+        """(the plan v (Nu·m,) as a SolveResult, what the state limits did or None without them).
+
+        Args:
+            stage_models: (Ā, B̄, c̄, C̄, z0) of :func:`~parallel_gpc.gpc.riccati.stage_models`.
+            r, y_now, y_sim, u_sim, u_prev: as in :func:`stage_problem`.
+
+        Returns:
+            status ``optimal`` (``active_limits`` when a row binds), ``infeasible`` (hard limits
+            that cannot all hold: the message names the row) or ``failed``.
+        """
+        t0 = time.perf_counter()
+        Ab, Bb, cb, Cz, z0 = stage_models
+        H, m = self.horizons, self.Wu.shape[0]
+        qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
+                                  y_now, y_sim, u_sim, u_prev)
+        try:
+            sol = self._solve(qp)
+        except SolverError as exc:
+            return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
+                               time.perf_counter() - t0, False, str(exc)), None
+        v = sol.v.reshape(-1)
+        e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
+        J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
+        used = np.isfinite(qp.f)
+        F_x = np.einsum("ikn,in->ik", qp.Fz, sol.z[:-1])
+        F_x[:H.Nu] += np.einsum("ikm,im->ik", qp.Fv[:H.Nu], sol.v)
+        f = np.where(used, qp.f, 0.0)
+        gap = np.where(used, f + sol.s - F_x, np.inf)
+        active = used & (gap <= ACTIVE_TOL * (1.0 + np.abs(f)))
+        state = used & np.isin(kinds, ("output_box", "output_velocity"))
+        report = None
+        if state.any():
+            slack = {str(kd): float(np.max(sol.s[state & (kinds == kd) & qp.soft], initial=0.0))
+                     for kd in ("output_box", "output_velocity") if (state & (kinds == kd) & qp.soft).any()}
+            report = ConstraintReport(tuple(sorted({str(kd) for kd in kinds[active & state]})), slack)
+        status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
+        hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
+        if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):
+            status, message = "infeasible", f"a hard limit is exceeded by {hard_excess:.3g} (infeasible)"
+        return SolveResult(v, J, status, self.name, sol.iterations, time.perf_counter() - t0,
+                           bool(active.any()), message), report

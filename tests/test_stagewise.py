@@ -1,0 +1,326 @@
+"""solver="riccati" with limits: the stage-wise interior point (gpc/stagewise.py,
+solvers/stagewise_ipm.py) against DAQP on the controller's condensed problem, KKT conditions of
+that condensed problem computed here, a dense QP of a random stage problem, and its clear refusals."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+import qpsolvers
+from scipy.optimize import nnls
+
+from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
+from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.gpc.constraints import constrain
+from parallel_gpc.gpc.riccati import RiccatiPath
+from parallel_gpc.model.native import native_module
+from parallel_gpc.limits import Limits
+from parallel_gpc.solvers import QRSolver, StageQP, make_solver, solve_stage_qp
+from parallel_gpc.solvers.problem import UNBOUNDED
+
+TS = 0.002
+FORMS = ["absolute", "incremental", "incremental-delayed", "nonlinear"]
+
+
+@pytest.fixture(scope="module", params=["planar_4rrr", "delta_3rus"])
+def robot(request) -> ParallelRobot:
+    return ParallelRobot.load(request.param)
+
+
+def _condensed(ctl: GPCController, X, w):
+    """The controller's condensed problem (with its state rows) and DAQP's solution [v; s] (None
+    when DAQP's answer fails its KKT check)."""
+    pred = ctl.predict(X)
+    problem = ctl._criterion.problem(pred, w[ctl.horizons.No:], ctl._qp_limits, ctl.u_prev)
+    full = constrain(problem, ctl._stage_rows(pred, X, None), ctl._limits)
+    result = make_solver("daqp-direct").solve(full)
+    return full, result.v if result.ok else None
+
+
+def _objective(full, x) -> float:
+    """‖A x − b‖² + cᵀx of the condensed problem."""
+    return float(np.sum((full.A @ x - full.b) ** 2) + (0.0 if full.c is None else full.c @ x))
+
+
+#: the delayed form on these cases: the plan is determined only to ~1e-6 relative (a flat
+#: criterion: the objective agrees to 1e-12, the KKT residual is at the rounding floor)
+FLAT = {("planar_4rrr", "incremental-delayed", "torque"), ("planar_4rrr", "incremental-delayed", "torque+du"),
+        ("delta_3rus", "incremental-delayed", "torque+du")}
+
+
+def _kkt_residual(full, x) -> float:
+    """max |∇f + Σ λ a| over λ ≥ 0 on the active rows (NNLS), relative to the gradient's scale:
+    f = ‖A x − b‖² + cᵀx, rows L x ≤ hi / ≥ lo, boxes lb ≤ x ≤ ub (an independent KKT check)."""
+    g = 2.0 * full.A.T @ (full.A @ x - full.b) + (0.0 if full.c is None else full.c)
+    normals, tol = [], 1e-7
+    if full.L is not None:
+        Lx = full.L @ x
+        for i in range(full.L.shape[0]):
+            scale = 1.0 + abs(full.hi[i] if full.hi[i] < UNBOUNDED else full.lo[i])
+            if full.hi[i] < UNBOUNDED and Lx[i] >= full.hi[i] - tol * scale:
+                normals.append(full.L[i])
+            if full.lo[i] > -UNBOUNDED and Lx[i] <= full.lo[i] + tol * scale:
+                normals.append(-full.L[i])
+    n = len(x)
+    for bound, sign in ((full.ub, 1.0), (full.lb, -1.0)):
+        if bound is None:
+            continue
+        for j in np.flatnonzero(np.abs(bound) < UNBOUNDED):
+            if abs(x[j] - bound[j]) <= tol * (1.0 + abs(bound[j])):
+                normals.append(sign * np.eye(n)[j])
+    if not normals:
+        return float(np.max(np.abs(g))) / max(1.0, float(np.max(np.abs(2.0 * full.A.T @ full.b))))
+    M = np.array(normals).T
+    _, res = nnls(M, -g, maxiter=50 * M.shape[1])
+    return res / max(1.0, float(np.linalg.norm(2.0 * full.A.T @ full.b)))
+
+
+def _x_of(full, v):
+    """[v; s]: the slacks of the condensed problem at v (its optimum given v: the largest violation
+    of each soft pair, in the problem's slack unit)."""
+    if not full.n_slack:
+        return v
+    X = np.zeros(full.n_slack)
+    n = len(v)
+    L = full.L[:, :n]
+    S = full.L[:, n:]
+    viol = L @ v - full.hi
+    for i in range(L.shape[0]):
+        j = np.flatnonzero(S[i])
+        if j.size:
+            X[j[0]] = max(X[j[0]], viol[i] / -S[i, j[0]])
+    return np.concatenate([v, X])
+
+
+CASES = {  # name: Limits from the unconstrained plan's largest |u|, a box halving its motion, its speed
+    "torque": lambda u, box, speed: Limits(torque=0.4 * u),
+    "torque-inactive": lambda u, box, speed: Limits(torque=10.0 * u),
+    "du": lambda u, box, speed: Limits(du=0.05 * u),
+    "torque+du": lambda u, box, speed: Limits(torque=0.5 * u, du=0.1 * u),
+    "box-soft": lambda u, box, speed: Limits(output_box=box, penalty=1e-3),
+    "box-hard": lambda u, box, speed: Limits(output_box=box, soft=()),
+    "velocity-soft": lambda u, box, speed: Limits(output_velocity=0.5 * speed, torque=2.0 * u, penalty=1e-3),
+    "velocity-hard": lambda u, box, speed: Limits(output_velocity=0.5 * speed, soft=()),
+}
+
+
+def _setup(robot, form, case, N=12, No=0, Nu=None):
+    model = ReducedModel(robot)
+    rng = np.random.default_rng(7)
+    H = Horizons(N, No, Nu or N)
+    weights = Weights(1.0, 1e-3)
+    X = np.concatenate([robot.home_pose, np.zeros(robot.n_y)])
+    step = np.zeros(robot.n_y)
+    step[0] = 0.01
+    w = np.tile(robot.home_pose + step, (N, 1))
+    free = GPCController.build(model, TS, H, weights, form=form, solver="qr")
+    free.step(X, w)
+    u_free = np.abs(free.plan).max()
+    free = GPCController.build(model, TS, H, weights, form=form, solver="qr")
+    pred = free.predict(X)
+    y_free = pred.outputs(QRSolver().solve(free._criterion.problem(pred, w[H.No:])).v).reshape(-1, robot.n_y)
+    box = np.array([[-1.0, 1.0]] * robot.n_y) + robot.home_pose[:, None]
+    box[0, 1] = 0.5 * (robot.home_pose[0] + y_free[:, 0].max())
+    speed = np.abs(np.diff(np.vstack([robot.home_pose, y_free]), axis=0)).max(axis=0) / TS
+    limits = CASES[case](u_free, box, np.maximum(speed, 1e-3))
+    if form == "absolute" and limits.du is not None:
+        return None
+    ctl = GPCController.build(model, TS, H, weights, form=form, solver="riccati", limits=limits)
+    ctl.u_prev = 0.01 * u_free * rng.standard_normal(robot.n_u)
+    return ctl, X, w
+
+
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("form", FORMS)
+def test_stagewise_equals_daqp_on_the_condensed_problem(robot, form, case):
+    made = _setup(robot, form, case)
+    if made is None:
+        pytest.skip("du applies to the incremental forms")
+    ctl, X, w = made
+    path = ctl._riccati
+    result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
+    full, x_ref = _condensed(ctl, X, w)
+    assert result.status == "optimal", result.message
+    x = _x_of(full, result.v)
+    kkt = _kkt_residual(full, x)
+    assert kkt <= 1e-9, kkt
+    if x_ref is not None:  # DAQP's answer passed its own KKT check
+        v_ref = x_ref[:full.n_decision]
+        err = np.abs(result.v - v_ref).max() / np.abs(v_ref).max()
+        assert err <= (1e-5 if (robot.name, form, case) in FLAT else 1e-8), err
+        assert _objective(full, x) == pytest.approx(_objective(full, x_ref), rel=1e-10)
+    active = case not in ("torque-inactive",)
+    assert result.active_limits is active
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_stagewise_with_short_control_and_insensitivity_horizons(robot, form):
+    made = _setup(robot, form, "torque", N=15, No=2, Nu=5)
+    ctl, X, w = made
+    path = ctl._riccati
+    result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
+    full, x_ref = _condensed(ctl, X, w)
+    v_ref = x_ref[:full.n_decision]
+    assert result.status == "optimal" and result.active_limits
+    tol = 1e-5 if (robot.name, form, "torque") in FLAT else 1e-8
+    assert np.abs(result.v - v_ref).max() <= tol * np.abs(v_ref).max()
+
+
+def test_closed_loop_torque_limited_matches_the_condensed_default():
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    runs, fell_back = [], []
+    for solver in ("riccati", None):
+        ctl = GPCController.build(model, TS, Horizons(10), Weights(1.0, 1e-4), form="incremental", solver=solver,
+                                  limits=Limits(torque=3.0))
+        X = np.concatenate([robot.home_pose, np.zeros(robot.n_y)])
+        us, fell = [], []
+        for k in range(6):
+            w = np.tile(robot.home_pose + np.array([0.01, 0.0, 0.0]), (10, 1))
+            info = ctl.step(X, w)
+            us.append(info.u)
+            fell.append(info.fallback)
+            X = X + np.concatenate([X[3:] * TS, np.zeros(3)])  # a coarse plant: what matters is the same X
+        runs.append(np.array(us))
+        fell_back.append(np.array(fell))
+    assert not fell_back[0].any()  # the stage-wise path never falls back (the condensed DAQP did, here)
+    assert np.abs(runs[0]).max() == pytest.approx(3.0 * (1 - 1e-6), rel=1e-6)  # the limit binds
+    same = ~fell_back[1]
+    assert same.sum() >= 3
+    assert np.abs(runs[0][same] - runs[1][same]).max() <= 1e-7 * 3.0
+
+
+def _random_stage_qp(seed, Fz_zero=False):
+    rng = np.random.default_rng(seed)
+    N, nz, m, k, nd = 8, 4, 2, 3, 6
+    A = np.eye(nz) + 0.1 * rng.standard_normal((N, nz, nz))
+    B, c = rng.standard_normal((N, nz, m)), 0.1 * rng.standard_normal((N, nz))
+    Cm = rng.standard_normal((nz, nz))
+    Q, q = np.array([Cm.T @ Cm] * (N + 1)), rng.standard_normal((N + 1, nz))
+    Fz, Fv = rng.standard_normal((N, k, nz)), rng.standard_normal((N, k, m))
+    Fv[nd:] = 0.0
+    if Fz_zero:
+        Fz[:] = 0.0
+    f = 0.3 + 0.2 * rng.random((N, k))
+    f[2, 1] = np.inf
+    soft = rng.random((N, k)) < 0.4
+    return StageQP(A, B, c, rng.standard_normal(nz), Q, q, 0.5 * np.eye(m), nd, Fz, Fv, f, soft, 5.0, 0.1)
+
+
+def _dense(qp: StageQP):
+    """The stage problem as one dense QP in [z(1..N), v, s], solved by DAQP through qpsolvers."""
+    N, nz = qp.A.shape[:2]
+    m, nd = qp.R.shape[0], qp.n_decide
+    si = [tuple(ij) for ij in np.argwhere(qp.soft & np.isfinite(qp.f))]
+    n = N * nz + nd * m + len(si)
+    Z = lambda i: slice((i - 1) * nz, i * nz)  # noqa: E731
+    V = lambda i: slice(N * nz + i * m, N * nz + (i + 1) * m)  # noqa: E731
+    P, g = np.zeros((n, n)), np.zeros(n)
+    for i in range(1, N + 1):
+        P[Z(i), Z(i)] += qp.Q[i]
+        g[Z(i)] += qp.q[i]
+    for i in range(nd):
+        P[V(i), V(i)] += qp.R
+    for j in range(len(si)):
+        P[N * nz + nd * m + j, N * nz + nd * m + j], g[N * nz + nd * m + j] = qp.kappa, qp.rho
+    Aeq, beq = np.zeros((N * nz, n)), np.zeros(N * nz)
+    for i in range(N):
+        rows = slice(i * nz, (i + 1) * nz)
+        Aeq[rows, Z(i + 1)] = -np.eye(nz)
+        if i:
+            Aeq[rows, Z(i)] = qp.A[i]
+        else:
+            beq[rows] -= qp.A[0] @ qp.z0
+        if i < nd:
+            Aeq[rows, V(i)] = qp.B[i]
+        beq[rows] -= qp.c[i]
+    G, h = [], []
+    for i, j in np.argwhere(np.isfinite(qp.f)):
+        row, rhs = np.zeros(n), qp.f[i, j]
+        if i:
+            row[Z(i)] = qp.Fz[i, j]
+        else:
+            rhs -= qp.Fz[i, j] @ qp.z0
+        if i < nd:
+            row[V(i)] = qp.Fv[i, j]
+        if (i, j) in si:
+            row[N * nz + nd * m + si.index((i, j))] = -1.0
+        G.append(row)
+        h.append(rhs)
+    lb = np.full(n, -np.inf)
+    lb[N * nz + nd * m:] = 0.0
+    x = qpsolvers.solve_qp(P, g, np.array(G), np.array(h), Aeq, beq, lb=lb, solver="daqp")
+    return x[N * nz:N * nz + nd * m].reshape(nd, m), x[:N * nz].reshape(N, nz)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_stage_problem_equals_a_dense_qp(seed):
+    """Box rows on v (the input limits' kind): the interior point reaches the dense QP's solution."""
+    qp = _random_stage_qp(seed, Fz_zero=True)
+    sol = solve_stage_qp(qp)
+    v, z = _dense(qp)
+    assert sol.status == "optimal"
+    assert np.abs(sol.v - v).max() <= 1e-8 * max(1.0, np.abs(v).max())
+    assert np.abs(sol.z[1:] - z).max() <= 1e-8 * max(1.0, np.abs(z).max())
+
+
+def test_random_mixed_rows_reach_the_dense_qp_closely():
+    """Dense random rows in z and v (harder than any controller's): agreement to 1e-6."""
+    qp = _random_stage_qp(0)
+    sol = solve_stage_qp(qp)
+    v, _ = _dense(qp)
+    assert sol.status == "optimal"
+    assert np.abs(sol.v - v).max() <= 1e-6 * max(1.0, np.abs(v).max())
+
+
+def test_infeasible_hard_limits_are_reported():
+    """A hard output box the motion cannot reach in time: status infeasible, the message says why;
+    in the controller a visible replacement by the condensed default."""
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    y0 = robot.home_pose
+    box = np.array([[y0[0] + 0.02, y0[0] + 0.03]] + [[y - 1.0, y + 1.0] for y in y0[1:]])
+    limits = Limits(output_box=box, torque=1.0, soft=())
+    ctl = GPCController.build(model, TS, Horizons(5), Weights(1.0, 1e-3), solver="riccati", limits=limits)
+    X = np.concatenate([y0, np.zeros(3)])
+    w = np.tile(y0, (5, 1))
+    path = ctl._riccati
+    result = path.solve(*path.stages(ctl, X, w))
+    assert result.status == "infeasible" and "infeasible" in result.message
+
+
+def test_drive_limits_with_riccati_are_a_clear_error():
+    robot = ParallelRobot.load("planar_4rrr")
+    with pytest.raises(InvalidParameterError, match="drive limits"):
+        GPCController.build(ReducedModel(robot), TS, Horizons(10), Weights(1.0, 1e-3), solver="riccati",
+                            limits=Limits(drive_rate=1.0))
+
+
+HAS_COMPILED = native_module() is not None and hasattr(native_module(), "stagewise_ipm")
+if not HAS_COMPILED and os.environ.get("CI"):
+    raise RuntimeError("CI must test the compiled stage-wise interior point (parallel_gpc._native.stagewise_ipm)")
+
+
+@pytest.mark.skipif(not HAS_COMPILED, reason="the compiled core has no stagewise_ipm")
+@pytest.mark.parametrize("case", list(CASES))
+@pytest.mark.parametrize("form", FORMS)
+def test_compiled_equals_the_python_reference(robot, form, case):
+    made = _setup(robot, form, case)
+    if made is None:
+        pytest.skip("du applies to the incremental forms")
+    ctl, X, w = made
+    H = ctl.horizons
+    stages = ctl._riccati.stages(ctl, X, w[H.No:])
+    results = []
+    for native in (False, True):
+        path = RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+        path._extra = ctl._riccati._extra
+        assert path.constrained.native is native
+        results.append(path.solve(*stages))
+    python, compiled = results
+    assert python.status == compiled.status == "optimal", (python.message, compiled.message)
+    tol = 1e-5 if (robot.name, form, case) in FLAT else 1e-9
+    assert np.abs(compiled.v - python.v).max() <= tol * np.abs(python.v).max()
+    assert compiled.active_limits is python.active_limits
