@@ -9,7 +9,9 @@ round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`
 LocalCluster: start-up, in-process probe and shutdown included) and on a running LocalCluster
 (``scheduler=client``, workers warmed up), interleaved, and checks that every path gives the
 serial metrics. Then it times 64 no-op cells through ``run_sweep`` and 64 bare ``client.submit``
-tasks. Prints a Markdown table (medians over the rounds, the speed-ups' range) and writes it to
+tasks. Prints a Markdown table (medians over the rounds, the speed-ups' range, the speed-up per
+worker and the ideal one: serial / W, plus the measured cluster start-up for ``run_sweep``'s own
+cluster) and writes it to
 DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
 """
 
@@ -120,8 +122,11 @@ def main() -> int:
                            ("running", f"running LocalCluster({w})")):
             ratios = [s / d for s, d in zip(t["serial"], t[key])]
             speedup = statistics.median(ratios)
+            # the best a cluster of w workers can do: serial / w, plus its start-up when run_sweep starts its own
+            ideal = serial / (serial / w + (t_start if key == "own" else 0.0))
             rows.append((f"  {label}", f"{statistics.median(t[key]):.2f} s: speed-up {speedup:.2f}× "
-                                       f"({min(ratios):.2f}–{max(ratios):.2f}×), {speedup / w:.2f} per worker"))
+                                       f"({min(ratios):.2f}–{max(ratios):.2f}×), {speedup / w:.2f} per worker; "
+                                       f"ideal {ideal:.2f}× ({speedup / ideal:.0%} of it)"))
     rows += [
         ("cluster start-up (incl. imports on the workers)", f"{t_start:.2f} s"),
         (f"64 no-op cells through run_sweep (median of {REPEATS})",

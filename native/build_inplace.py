@@ -14,6 +14,7 @@ import argparse
 import shutil
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -29,7 +30,9 @@ def main() -> None:
     subprocess.run(["cmake", "-S", str(ROOT), "-B", str(build), *gen,
                     f"-DPython_EXECUTABLE={sys.executable}",
                     f"-DCMAKE_BUILD_TYPE={'Debug' if args.debug else 'Release'}"], check=True)
+    start = time.perf_counter()
     subprocess.run(["cmake", "--build", str(build), "-j", "2"], check=True)
+    print(f"built in {(time.perf_counter() - start) / 60:.1f} min (wall; docs/performance.md#building-the-core)")
     built = sorted(build.glob("_native*.so"))
     if not built:
         sys.exit(f"no _native*.so in {build}")

@@ -32,8 +32,10 @@ namespace {
 
 namespace pin = pinocchio;
 using Eigen::VectorXd;
-using ConstraintModels = std::vector<pin::RigidConstraintModel, Eigen::aligned_allocator<pin::RigidConstraintModel>>;
-using ConstraintDatas = std::vector<pin::RigidConstraintData, Eigen::aligned_allocator<pin::RigidConstraintData>>;
+// The argument types of Pinocchio's precompiled constraintDynamics (libpinocchio_default): with them
+// the call links to the library instead of instantiating the algorithm here (build time, CMakeLists.txt)
+using ConstraintModels = pin::RigidConstraintModelVector;
+using ConstraintDatas = pin::RigidConstraintDataVector;
 using CRef = nb::DRef<const VectorXd>;
 
 /// A force f on a task-space output y = rows of [p; log3(R_refᵀ R)] of one frame acts as Hᵀ f
@@ -46,7 +48,7 @@ struct TaskForce {
   pin::Data::Matrix6x J;
 
   /// tau += Hᵀ f at q (updates the placements in data).
-  void add(const pin::Model &model, pin::Data &data, const Eigen::Ref<const VectorXd> &q, const CRef &f, VectorXd &tau) {
+  void add(const pin::Model &model, pin::Data &data, const VectorXd &q, const CRef &f, VectorXd &tau) {
     J.setZero(6, model.nv);
     pin::computeFrameJacobian(model, data, q, frame, pin::LOCAL_WORLD_ALIGNED, J);
     const Eigen::Matrix3d &R = data.oMf[frame].rotation();
@@ -116,7 +118,7 @@ class Plant {
   /// q̈ (nv,) of the constrained dynamics for the generalized force tau (+ Hᵀ f_task).
   VectorXd accelerations(CRef q, CRef v, CRef tau, CRef f_task) {
     check_sizes(q, v, tau, f_task);
-    return acc(q, v, tau, f_task);
+    return acc(VectorXd(q), VectorXd(v), tau, f_task);
   }
 
   /// One sample of length Ts: `substeps` RK4 steps with tau (and f_task) held; returns (q, v).
@@ -162,13 +164,10 @@ class Plant {
     }
   }
 
-  const VectorXd &acc(const Eigen::Ref<const VectorXd> &q, const Eigen::Ref<const VectorXd> &v, const CRef &tau,
-                      const CRef &f_task) {
-    if (f_task.size() == 0) {
-      return pin::constraintDynamics(model_, data_, q, v, tau, cms_, cds_, prox_);
-    }
+  // q, v, tau_ as VectorXd: Pinocchio's precompiled instantiation (see ConstraintModels)
+  const VectorXd &acc(const VectorXd &q, const VectorXd &v, const CRef &tau, const CRef &f_task) {
     tau_ = tau;
-    task_.add(model_, data_, q, f_task, tau_);
+    if (f_task.size() != 0) task_.add(model_, data_, q, f_task, tau_);
     return pin::constraintDynamics(model_, data_, q, v, tau_, cms_, cds_, prox_);
   }
 
