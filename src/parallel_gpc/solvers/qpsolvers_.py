@@ -48,7 +48,7 @@ class QpsolversBackend:
         "osqp": dict(eps_abs=1e-10, eps_rel=1e-10, polishing=True, max_iter=20000, verbose=False),
         "proxqp": dict(eps_abs=1e-10, eps_rel=0.0, check_duality_gap=True, eps_duality_gap_abs=1e-10,
                        eps_duality_gap_rel=0.0),
-        "clarabel": dict(tol_gap_abs=1e-12, tol_gap_rel=1e-12, tol_feas=1e-12, tol_ktratio=1e-10),
+        "clarabel": dict(tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10, tol_ktratio=1e-8),
         "scs": dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=100000),
         "highs": dict(qp_regularization_value=1e-12),
         "daqp": dict(primal_tol=1e-9),
