@@ -106,7 +106,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     H, W = settings.horizons, settings.weights
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {H.N}, No = {H.No}, "
           f"Nu = {H.Nu}, Qy = {W.Qy:g}, Qu = {W.Qu:g}, "
-          f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force)}, "
+          f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force) if any(settings.platform_force) else 'none'}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
     print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
