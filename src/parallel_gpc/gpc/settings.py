@@ -196,8 +196,8 @@ def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str 
     if solver == "riccati" and any(getattr(limits, kind) is not None
                                    for kind in ("drive_position", "drive_rate", "joint_position")):
         raise InvalidParameterError(
-            f"solver 'riccati' enforces torque, du, output_box and output_velocity limits stage-wise; the drive and "
-            f"joint limits in {limits.describe()} are linearized along the condensed prediction: use a QP back end "
+            f"solver 'riccati' enforces torque, du, output_box and output_velocity limits stage-wise; the drive limits "
+            f"or joint ranges in {limits.describe()} are linearized along the condensed prediction: use a QP back end "
             f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
     if solver.endswith("bvls") and limits.has_state_limits:
         raise InvalidParameterError(
