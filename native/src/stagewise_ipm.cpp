@@ -50,13 +50,14 @@ struct Riccati {
   std::vector<Mat> Pn, Hvz, K;
   std::vector<Eigen::LLT<Mat>> llt;
   double h_max = 0.0;
-  Mat P, WFz, Qi, PA, PB, Hvv, H, T;
+  Mat P, WFz, WFv, Qi, PA, PB, Hvv, H, T;
   Traj kk;
   Vec p, w, tmp;
 
   explicit Riccati(const QP &qp)
       : qp(qp), Pn(qp.N, Mat(qp.nz, qp.nz)), Hvz(qp.nd, Mat(qp.m, qp.nz)), K(qp.nd, Mat(qp.m, qp.nz)),
-        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), P(qp.nz, qp.nz), WFz(qp.k, qp.nz), Qi(qp.nz, qp.nz), PA(qp.nz, qp.nz),
+        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), P(qp.nz, qp.nz), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), Qi(qp.nz, qp.nz),
+        PA(qp.nz, qp.nz),
         PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
         w(qp.nz), tmp(qp.m) {}
 
@@ -66,18 +67,20 @@ struct Riccati {
     for (long i = qp.N - 1; i >= 0; --i) {
       const Mat &A = qp.A[i], &Fz = qp.Fz[i];
       Pn[i] = P;
+      // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
       WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
       Qi = qp.Q[i];
-      Qi.noalias() += Fz.transpose() * WFz;
-      PA.noalias() = P * A;
+      Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      PA.noalias() = P.lazyProduct(A);
       if (i < qp.nd) {
         const Mat &B = qp.B[i], &Fv = qp.Fv[i];
-        PB.noalias() = P * B;
+        PB.noalias() = P.lazyProduct(B);
+        WFv.noalias() = W.row(i).matrix().asDiagonal() * Fv;
         Hvv = qp.R;
-        Hvv.noalias() += Fv.transpose() * W.row(i).matrix().asDiagonal() * Fv;
-        Hvv.noalias() += B.transpose() * PB;
-        H.noalias() = Fv.transpose() * WFz;
-        H.noalias() += PB.transpose() * A;
+        Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
+        Hvv.noalias() += B.transpose().lazyProduct(PB);
+        H.noalias() = Fv.transpose().lazyProduct(WFz);
+        H.noalias() += PB.transpose().lazyProduct(A);
         if (qp.has_S) H += qp.S;
         h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
         llt[i].compute(Hvv);
@@ -87,11 +90,11 @@ struct Riccati {
         K[i] = llt[i].solve(H);
         K[i] *= -1.0;
         P = Qi;
-        P.noalias() += A.transpose() * PA;
-        P.noalias() += H.transpose() * K[i];
+        P.noalias() += A.transpose().lazyProduct(PA);
+        P.noalias() += H.transpose().lazyProduct(K[i]);
       } else {
         P = Qi;
-        P.noalias() += A.transpose() * PA;
+        P.noalias() += A.transpose().lazyProduct(PA);
       }
       T = P.transpose();
       P = 0.5 * (P + T);
@@ -103,29 +106,29 @@ struct Riccati {
     p = gz[N];
     for (long i = N - 1; i >= 0; --i) {
       w = p;
-      if (!homogeneous) w.noalias() += Pn[i] * qp.c[i];
+      if (!homogeneous) w.noalias() += Pn[i].lazyProduct(qp.c[i]);
       if (i < nd) {
         tmp = gv[i];
-        tmp.noalias() += qp.B[i].transpose() * w;
+        tmp.noalias() += qp.B[i].transpose().lazyProduct(w);
         kk[i] = llt[i].solve(tmp);
         kk[i] *= -1.0;
         p = gz[i];
-        p.noalias() += qp.A[i].transpose() * w;
-        p.noalias() += Hvz[i].transpose() * kk[i];
+        p.noalias() += qp.A[i].transpose().lazyProduct(w);
+        p.noalias() += Hvz[i].transpose().lazyProduct(kk[i]);
       } else {
         p = gz[i];
-        p.noalias() += qp.A[i].transpose() * w;
+        p.noalias() += qp.A[i].transpose().lazyProduct(w);
       }
     }
     z.resize(N + 1);
     v.resize(nd);
     if (homogeneous) z[0].setZero(qp.nz); else z[0] = qp.z0;
     for (long i = 0; i < N; ++i) {
-      z[i + 1].noalias() = qp.A[i] * z[i];
+      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
       if (i < nd) {
-        v[i].noalias() = K[i] * z[i];
+        v[i].noalias() = K[i].lazyProduct(z[i]);
         v[i] += kk[i];
-        z[i + 1].noalias() += qp.B[i] * v[i];
+        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
       }
       if (!homogeneous) z[i + 1] += qp.c[i];
     }
@@ -135,41 +138,49 @@ struct Riccati {
 Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
   Arr out(qp.N, qp.k);
   for (long i = 0; i < qp.N; ++i) {
-    Vec r = qp.Fz[i] * z[i];
-    if (i < qp.nd) r.noalias() += qp.Fv[i] * v[i];
-    out.row(i) = r.transpose().array();
+    auto r = out.row(i).matrix().transpose();
+    r.noalias() = qp.Fz[i].lazyProduct(z[i]);
+    if (i < qp.nd) r.noalias() += qp.Fv[i].lazyProduct(v[i]);
   }
   return out;
 }
 
+// (gz, gv) = Fᵀ y stage by stage; the outputs keep their storage from call to call
 void rows_transpose(const QP &qp, const Arr &y, Traj &gz, Traj &gv) {
-  gz.assign(qp.N + 1, Vec::Zero(qp.nz));
-  gv.assign(qp.nd, Vec::Zero(qp.m));
+  gz.resize(qp.N + 1);
+  gv.resize(qp.nd);
   for (long i = 0; i < qp.N; ++i) {
-    Vec yi = y.row(i).transpose().matrix();
-    gz[i] = qp.Fz[i].transpose() * yi;
-    if (i < qp.nd) gv[i] = qp.Fv[i].transpose() * yi;
+    gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
+    if (i < qp.nd) gv[i].noalias() = qp.Fv[i].transpose().lazyProduct(y.row(i).matrix().transpose());
   }
+  gz[qp.N].setZero(qp.nz);
 }
 
 // ν and the v-gradient (costates in the Python module); linear = false: without q
+// (the buffers are per thread and keep their storage: no allocation once the sizes are seen)
 void costates(const QP &qp, const Traj &z, const Traj &v, const Arr &lam, bool linear, Traj &nu, Traj &rv) {
-  Traj gz, gv;
+  thread_local Traj gz, gv;
   rows_transpose(qp, lam, gz, gv);
   const long N = qp.N, nd = qp.nd;
-  Traj g(N + 1);
-  for (long i = 0; i <= N; ++i) {
-    g[i] = qp.Q[i] * z[i] + gz[i];
-    if (linear) g[i] += qp.q[i];
-    if (qp.has_S && i < nd) g[i].noalias() += qp.S.transpose() * v[i];
+  nu.resize(N + 1);
+  for (long i = N; i >= 0; --i) {  // ν(i) = g(i) + Aᵀ ν(i+1), g the stage gradient; ν(0) unused (0)
+    if (i == 0) {
+      nu[0].setZero(qp.nz);
+      break;
+    }
+    Vec &g = nu[i];
+    g.noalias() = qp.Q[i].lazyProduct(z[i]);
+    g += gz[i];
+    if (linear) g += qp.q[i];
+    if (qp.has_S && i < nd) g.noalias() += qp.S.transpose().lazyProduct(v[i]);
+    if (i < N) g.noalias() += qp.A[i].transpose().lazyProduct(nu[i + 1]);
   }
-  nu.assign(N + 1, Vec::Zero(qp.nz));
-  nu[N] = g[N];
-  for (long i = N - 1; i >= 1; --i) nu[i] = g[i] + qp.A[i].transpose() * nu[i + 1];
-  rv.assign(nd, Vec());
+  rv.resize(nd);
   for (long i = 0; i < nd; ++i) {
-    rv[i] = qp.R * v[i] + gv[i] + qp.B[i].transpose() * nu[i + 1];
-    if (qp.has_S) rv[i].noalias() += qp.S * z[i];
+    rv[i].noalias() = qp.R.lazyProduct(v[i]);
+    rv[i] += gv[i];
+    rv[i].noalias() += qp.B[i].transpose().lazyProduct(nu[i + 1]);
+    if (qp.has_S) rv[i].noalias() += qp.S.lazyProduct(z[i]);
   }
 }
 
@@ -226,11 +237,12 @@ struct Newton {
     Arr gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
     Arr beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
     Arr w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
-    Traj gz, gv, dz, dv;
+    thread_local Traj gz, gv, dz, dv, zero_z, nu1, rv1, cz, cv;  // storage kept from call to call
     rows_transpose(qp, w0, gz, gv);
     for (long i = 0; i < qp.nd; ++i) gv[i] += rv[i];
     ric->solve(gz, gv, true, dz, dv);
-    Traj zero_z(qp.N + 1, Vec::Zero(qp.nz)), nu1, rv1, cz, cv;
+    zero_z.resize(qp.N + 1);
+    for (Vec &e : zero_z) e.setZero(qp.nz);
     for (int r = 0; r < REFINE; ++r) {
       Arr Fdx = rows_times(qp, dz, dv);
       costates(qp, dz, dv, W * Fdx + w0, false, nu1, rv1);
@@ -359,7 +371,8 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
   pt.v = v;
   pt.s = where(soft, (Fx - f).max(0.0) + f_scale, 0.0);
   pt.t = where(used, (f + pt.s - Fx).max(f_scale), 1.0);
-  pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale * double(qp.N) * double(qp.N)), 0.0);  // λ0 = scale·N² (see the Python twin)
+  // λ0 = scale·N²: see the Python twin
+  pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale * double(qp.N) * double(qp.N)), 0.0);
   pt.pi = where(soft, Arr::Constant(qp.N, qp.k, scale), 1.0);
   Result best{pt, {}, std::numeric_limits<double>::infinity(), 0, false};
   bool have = false;
