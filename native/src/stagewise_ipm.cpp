@@ -24,7 +24,8 @@ using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu
 using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
 
-constexpr double IPM_TOL = 1e-13, ACCEPT = 1e-6, POLISH_TOL = 1e-9, POLISH_FLOOR = 1e-16, TAU = 0.995;
+constexpr double IPM_TOL = 1e-13, ACCEPT = 1e-6, PROGRESS = 0.5, REFINE_FORCING = 1e-3, POLISH_TOL = 1e-9,
+                 POLISH_FLOOR = 1e-16, TAU = 0.995;
 constexpr int MAX_ITER = 60, REFINE = 2, STALL = 3, POLISH_ROUNDS = 3, POLISH_STEPS = 2;
 
 struct QP {
@@ -41,63 +42,93 @@ struct QP {
 
 using Traj = std::vector<Vec>;
 
+// The Riccati factorization of one Newton system (row weights W) and its back-substitution. One
+// workspace serves every factorization of a solve: the per-stage matrices are sized once, so the
+// iterations allocate nothing here.
 struct Riccati {
   const QP &qp;
   std::vector<Mat> Pn, Hvz, K;
   std::vector<Eigen::LLT<Mat>> llt;
   double h_max = 0.0;
+  Mat P, WFz, WFv, Qi, PA, PB, Hvv, H, T;
+  Traj kk;
+  Vec p, w, tmp;
 
-  Riccati(const QP &qp, const Arr &W) : qp(qp), Pn(qp.N), Hvz(qp.nd), K(qp.nd), llt(qp.nd) {
-    Mat P = qp.Q[qp.N];
+  explicit Riccati(const QP &qp)
+      : qp(qp), Pn(qp.N, Mat(qp.nz, qp.nz)), Hvz(qp.nd, Mat(qp.m, qp.nz)), K(qp.nd, Mat(qp.m, qp.nz)),
+        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), P(qp.nz, qp.nz), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), Qi(qp.nz, qp.nz),
+        PA(qp.nz, qp.nz),
+        PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
+        w(qp.nz), tmp(qp.m) {}
+
+  void factor(const Arr &W) {
+    h_max = 0.0;
+    P = qp.Q[qp.N];
     for (long i = qp.N - 1; i >= 0; --i) {
       const Mat &A = qp.A[i], &Fz = qp.Fz[i];
       Pn[i] = P;
-      Mat WFz = W.row(i).matrix().asDiagonal() * Fz;
-      Mat Qi = qp.Q[i] + Fz.transpose() * WFz;
-      Mat PA = P * A;
+      // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
+      WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
+      Qi = qp.Q[i];
+      Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      PA.noalias() = P.lazyProduct(A);
       if (i < qp.nd) {
         const Mat &B = qp.B[i], &Fv = qp.Fv[i];
-        Mat PB = P * B;
-        Mat Hvv = qp.R + Fv.transpose() * W.row(i).matrix().asDiagonal() * Fv + B.transpose() * PB;
-        Mat H = Fv.transpose() * WFz + PB.transpose() * A;
+        PB.noalias() = P.lazyProduct(B);
+        WFv.noalias() = W.row(i).matrix().asDiagonal() * Fv;
+        Hvv = qp.R;
+        Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
+        Hvv.noalias() += B.transpose().lazyProduct(PB);
+        H.noalias() = Fv.transpose().lazyProduct(WFz);
+        H.noalias() += PB.transpose().lazyProduct(A);
         if (qp.has_S) H += qp.S;
         h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
         llt[i].compute(Hvv);
         if (llt[i].info() != Eigen::Success || !Hvv.allFinite())
           throw std::runtime_error("stage-wise IPM: the input Hessian is not positive definite");
         Hvz[i] = H;
-        K[i] = -llt[i].solve(H);
-        P = Qi + A.transpose() * PA + H.transpose() * K[i];
+        K[i] = llt[i].solve(H);
+        K[i] *= -1.0;
+        P = Qi;
+        P.noalias() += A.transpose().lazyProduct(PA);
+        P.noalias() += H.transpose().lazyProduct(K[i]);
       } else {
-        P = Qi + A.transpose() * PA;
+        P = Qi;
+        P.noalias() += A.transpose().lazyProduct(PA);
       }
-      Mat T = P.transpose();
+      T = P.transpose();
       P = 0.5 * (P + T);
     }
   }
 
-  void solve(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) const {
+  void solve(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) {
     const long N = qp.N, nd = qp.nd;
-    Traj kk(nd);
-    Vec p = gz[N];
+    p = gz[N];
     for (long i = N - 1; i >= 0; --i) {
-      Vec w = p;
-      if (!homogeneous) w.noalias() += Pn[i] * qp.c[i];
+      w = p;
+      if (!homogeneous) w.noalias() += Pn[i].lazyProduct(qp.c[i]);
       if (i < nd) {
-        kk[i] = -llt[i].solve(gv[i] + qp.B[i].transpose() * w);
-        p = gz[i] + qp.A[i].transpose() * w + Hvz[i].transpose() * kk[i];
+        tmp = gv[i];
+        tmp.noalias() += qp.B[i].transpose().lazyProduct(w);
+        kk[i] = llt[i].solve(tmp);
+        kk[i] *= -1.0;
+        p = gz[i];
+        p.noalias() += qp.A[i].transpose().lazyProduct(w);
+        p.noalias() += Hvz[i].transpose().lazyProduct(kk[i]);
       } else {
-        p = gz[i] + qp.A[i].transpose() * w;
+        p = gz[i];
+        p.noalias() += qp.A[i].transpose().lazyProduct(w);
       }
     }
-    z.assign(N + 1, Vec::Zero(qp.nz));
-    v.assign(nd, Vec::Zero(qp.m));
-    if (!homogeneous) z[0] = qp.z0;
+    z.resize(N + 1);
+    v.resize(nd);
+    if (homogeneous) z[0].setZero(qp.nz); else z[0] = qp.z0;
     for (long i = 0; i < N; ++i) {
-      z[i + 1] = qp.A[i] * z[i];
+      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
       if (i < nd) {
-        v[i] = K[i] * z[i] + kk[i];
-        z[i + 1].noalias() += qp.B[i] * v[i];
+        v[i].noalias() = K[i].lazyProduct(z[i]);
+        v[i] += kk[i];
+        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
       }
       if (!homogeneous) z[i + 1] += qp.c[i];
     }
@@ -107,41 +138,49 @@ struct Riccati {
 Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
   Arr out(qp.N, qp.k);
   for (long i = 0; i < qp.N; ++i) {
-    Vec r = qp.Fz[i] * z[i];
-    if (i < qp.nd) r.noalias() += qp.Fv[i] * v[i];
-    out.row(i) = r.transpose().array();
+    auto r = out.row(i).matrix().transpose();
+    r.noalias() = qp.Fz[i].lazyProduct(z[i]);
+    if (i < qp.nd) r.noalias() += qp.Fv[i].lazyProduct(v[i]);
   }
   return out;
 }
 
+// (gz, gv) = Fᵀ y stage by stage; the outputs keep their storage from call to call
 void rows_transpose(const QP &qp, const Arr &y, Traj &gz, Traj &gv) {
-  gz.assign(qp.N + 1, Vec::Zero(qp.nz));
-  gv.assign(qp.nd, Vec::Zero(qp.m));
+  gz.resize(qp.N + 1);
+  gv.resize(qp.nd);
   for (long i = 0; i < qp.N; ++i) {
-    Vec yi = y.row(i).transpose().matrix();
-    gz[i] = qp.Fz[i].transpose() * yi;
-    if (i < qp.nd) gv[i] = qp.Fv[i].transpose() * yi;
+    gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
+    if (i < qp.nd) gv[i].noalias() = qp.Fv[i].transpose().lazyProduct(y.row(i).matrix().transpose());
   }
+  gz[qp.N].setZero(qp.nz);
 }
 
 // ν and the v-gradient (costates in the Python module); linear = false: without q
+// (the buffers are per thread and keep their storage: no allocation once the sizes are seen)
 void costates(const QP &qp, const Traj &z, const Traj &v, const Arr &lam, bool linear, Traj &nu, Traj &rv) {
-  Traj gz, gv;
+  thread_local Traj gz, gv;
   rows_transpose(qp, lam, gz, gv);
   const long N = qp.N, nd = qp.nd;
-  Traj g(N + 1);
-  for (long i = 0; i <= N; ++i) {
-    g[i] = qp.Q[i] * z[i] + gz[i];
-    if (linear) g[i] += qp.q[i];
-    if (qp.has_S && i < nd) g[i].noalias() += qp.S.transpose() * v[i];
+  nu.resize(N + 1);
+  for (long i = N; i >= 0; --i) {  // ν(i) = g(i) + Aᵀ ν(i+1), g the stage gradient; ν(0) unused (0)
+    if (i == 0) {
+      nu[0].setZero(qp.nz);
+      break;
+    }
+    Vec &g = nu[i];
+    g.noalias() = qp.Q[i].lazyProduct(z[i]);
+    g += gz[i];
+    if (linear) g += qp.q[i];
+    if (qp.has_S && i < nd) g.noalias() += qp.S.transpose().lazyProduct(v[i]);
+    if (i < N) g.noalias() += qp.A[i].transpose().lazyProduct(nu[i + 1]);
   }
-  nu.assign(N + 1, Vec::Zero(qp.nz));
-  nu[N] = g[N];
-  for (long i = N - 1; i >= 1; --i) nu[i] = g[i] + qp.A[i].transpose() * nu[i + 1];
-  rv.assign(nd, Vec());
+  rv.resize(nd);
   for (long i = 0; i < nd; ++i) {
-    rv[i] = qp.R * v[i] + gv[i] + qp.B[i].transpose() * nu[i + 1];
-    if (qp.has_S) rv[i].noalias() += qp.S * z[i];
+    rv[i].noalias() = qp.R.lazyProduct(v[i]);
+    rv[i] += gv[i];
+    rv[i].noalias() += qp.B[i].transpose().lazyProduct(nu[i + 1]);
+    if (qp.has_S) rv[i].noalias() += qp.S.lazyProduct(z[i]);
   }
 }
 
@@ -166,13 +205,13 @@ struct Newton {
   double scale, f_scale;
   Point pt;
   Arr f, r_t, r_s, d, sp, a, W;
-  double mu = 0.0, merit = 0.0;
+  double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
-  std::unique_ptr<Riccati> ric;
+  Riccati *ric;  // the solve's workspace, factorized for this system
 
   Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
-         bool factor)
-      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
+         Riccati *factor)
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point), ric(factor) {
     f = where(used, qp.f, 0.0);
     Arr Fx = rows_times(qp, pt.z, pt.v);
     r_t = where(used, Fx - pt.s + pt.t - f, 0.0);
@@ -182,13 +221,14 @@ struct Newton {
     costates(qp, pt.z, pt.v, pt.lam, true, nu, rv);
     const double res = std::max(max_abs(rv), r_s.abs().maxCoeff()) / scale;
     merit = std::max({mu / (scale * f_scale), r_t.abs().maxCoeff() / f_scale, res});
+    refine_above = std::max(1e-15, REFINE_FORCING * merit) * scale;  // an inexact Newton step (see the Python twin)
     if (!factor) return;
     d = where(used, pt.lam / pt.t, 0.0);
     Arr s_safe = where(soft, pt.s, 1.0);
     sp = where(soft, pt.pi / s_safe, 0.0);
     a = where(soft, qp.kappa + d + sp, 1.0);
     W = soft.select(d * (qp.kappa + sp) / a, d);
-    ric = std::make_unique<Riccati>(qp, W);
+    ric->factor(W);
   }
 
   // (dz, dv, dt, dλ, ds, dπ)
@@ -197,16 +237,17 @@ struct Newton {
     Arr gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
     Arr beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
     Arr w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
-    Traj gz, gv, dz, dv;
+    thread_local Traj gz, gv, dz, dv, zero_z, nu1, rv1, cz, cv;  // storage kept from call to call
     rows_transpose(qp, w0, gz, gv);
     for (long i = 0; i < qp.nd; ++i) gv[i] += rv[i];
     ric->solve(gz, gv, true, dz, dv);
-    Traj zero_z(qp.N + 1, Vec::Zero(qp.nz)), nu1, rv1, cz, cv;
+    zero_z.resize(qp.N + 1);
+    for (Vec &e : zero_z) e.setZero(qp.nz);
     for (int r = 0; r < REFINE; ++r) {
       Arr Fdx = rows_times(qp, dz, dv);
       costates(qp, dz, dv, W * Fdx + w0, false, nu1, rv1);
       for (long i = 0; i < qp.nd; ++i) rv1[i] += rv[i];
-      if (!(max_abs(rv1) > 1e-15 * scale)) break;
+      if (!(max_abs(rv1) > refine_above)) break;
       ric->solve(zero_z, rv1, true, cz, cv);
       for (long i = 0; i <= qp.N; ++i) dz[i] += cz[i];
       for (long i = 0; i < qp.nd; ++i) dv[i] += cv[i];
@@ -256,8 +297,8 @@ struct Result {
   bool ok;
 };
 
-bool polish(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
-            double merit, Result &out) {
+bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, const Mask &soft, double scale,
+            double f_scale, double merit, Result &out) {
   Mask active = used && (point.lam * f_scale > point.t * scale);
   Arr f = where(used, qp.f, 0.0);
   Point cur;
@@ -277,7 +318,8 @@ bool polish(const QP &qp, const Point &point, const Mask &used, const Mask &soft
       start.s = where(keep_soft, cur.s.max(tf), 0.0);
       start.pi = where(keep_soft, cur.pi.max(lf), 1.0);
       try {
-        Newton newton(qp, start, active, keep_soft, scale, f_scale, true);
+        Newton newton(qp, start, active, keep_soft, scale, f_scale, &ric);
+        newton.refine_above = 1e-15 * scale;  // the polish is the last word: refined to the rounding floor
         Point step;
         newton.direction(where(active, start.t * start.lam, 0.0), where(keep_soft, start.s * start.pi, 0.0), step);
         cur = newton.moved(step, 1.0);
@@ -302,7 +344,7 @@ bool polish(const QP &qp, const Point &point, const Mask &used, const Mask &soft
   pt.lam = cur.lam.max(0.0);
   pt.s = cur.s.max(0.0);
   pt.pi = where(soft, pt.pi.max(0.0), 1.0);
-  Newton polished(qp, pt, used, soft, scale, f_scale, false);
+  Newton polished(qp, pt, used, soft, scale, f_scale, nullptr);
   if (!(polished.merit <= std::max(merit, IPM_TOL))) return false;
   out.pt = pt;
   out.nu = polished.nu;
@@ -311,6 +353,7 @@ bool polish(const QP &qp, const Point &point, const Mask &used, const Mask &soft
 }
 
 Result solve_scaled(const QP &qp, Traj z, Traj v) {
+  Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
   Arr f = where(used, qp.f, 0.0);
   const double n_ineq = double(used.count() + soft.count());
@@ -328,14 +371,17 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
   pt.v = v;
   pt.s = where(soft, (Fx - f).max(0.0) + f_scale, 0.0);
   pt.t = where(used, (f + pt.s - Fx).max(f_scale), 1.0);
-  pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale), 0.0);
+  // λ0 = scale·N²: see the Python twin
+  pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale * double(qp.N) * double(qp.N)), 0.0);
   pt.pi = where(soft, Arr::Constant(qp.N, qp.k, scale), 1.0);
   Result best{pt, {}, std::numeric_limits<double>::infinity(), 0, false};
   bool have = false;
+  double marked = std::numeric_limits<double>::infinity();  // merit and iteration of the last marked improvement
+  int marked_it = 0;
   for (int it = 0; it <= MAX_ITER; ++it) {
     std::unique_ptr<Newton> newton;
     try {
-      newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, true);
+      newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, &ric);
     } catch (const std::runtime_error &) {
       if (have && best.merit <= ACCEPT) break;
       throw;
@@ -344,8 +390,12 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
       best = Result{pt, newton->nu, newton->merit, it, false};
       have = true;
     }
+    if (newton->merit < PROGRESS * marked) {
+      marked = newton->merit;
+      marked_it = it;
+    }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
-    if (it - best.iterations >= STALL && best.merit <= ACCEPT) break;
+    if (it - marked_it >= STALL && best.merit <= ACCEPT) break;
     Point aff;
     newton->direction(where(used, pt.t * pt.lam, 0.0), where(soft, pt.s * pt.pi, 0.0), aff);
     double alpha = newton->max_step(aff, 1.0);
@@ -359,7 +409,7 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
   }
   if (best.merit <= ACCEPT) {
     Result polished = best;
-    if (polish(qp, best.pt, used, soft, scale, f_scale, best.merit, polished)) best = polished;
+    if (polish(qp, ric, best.pt, used, soft, scale, f_scale, best.merit, polished)) best = polished;
   }
   best.ok = best.merit <= ACCEPT;
   best.pt.s = where(soft, best.pt.s, 0.0);
@@ -410,7 +460,8 @@ void bind_stagewise_ipm(nb::module_ &m) {
         qp.rho = rho;
         qp.kappa = kappa;
         // the unconstrained plan, the scale σ of the curvature in v, then the scaled problem
-        Riccati free(qp, Arr::Zero(qp.N, qp.k));
+        Riccati free(qp);
+        free.factor(Arr::Zero(qp.N, qp.k));
         Traj z, v;
         Traj qz(qp.q.begin(), qp.q.end()), zero_v(qp.nd, Vec::Zero(qp.m));
         free.solve(qz, zero_v, false, z, v);

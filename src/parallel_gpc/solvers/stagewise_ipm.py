@@ -45,11 +45,17 @@ IPM_MAX_ITER = 60
 _TAU = 0.995
 #: iterative-refinement passes per Newton step (one back-substitution each, same factorization).
 _REFINE = 2
+#: a Newton step is refined only while its stationarity residual exceeds this fraction of the
+#: iterate's merit (relative to the scale; at least 1e-15): far from the solution no pass is needed.
+_REFINE_FORCING = 1e-3
 #: a best iterate whose relative KKT residual is at most this is accepted (the rounding floor of
 #: a badly scaled problem sits above IPM_TOL); above it the problem is reported infeasible.
 _ACCEPT = 1e-6
-#: the iterations stop after this many without a better iterate (the rounding floor reached).
+#: the iterations stop after this many without a markedly better iterate (the rounding floor reached).
 _STALL = 3
+#: a better iterate is a marked improvement when its merit is below this fraction of the last marked
+#: one (creeping at the rounding floor, 5e-11 → 4e-11 over 50 iterations, is not progress).
+_PROGRESS = 0.5
 #: how far (relative to the largest bound) a polished plan may sit beyond a row: rounding only.
 _POLISH_TOL = 1e-9
 #: active-set corrections of the polishing step.
@@ -275,6 +281,8 @@ class _Newton:
         self.nu, self.rv = costates(qp, z, v, lam)
         res = max(float(np.max(np.abs(self.rv), initial=0.0)), float(np.max(np.abs(self.r_s)))) / scale
         self.merit = max(self.mu / (scale * f_scale), float(np.max(np.abs(r_t))) / f_scale, res)
+        # an inexact Newton step: its error need only be small against the residual it removes
+        self.refine_above = max(1e-15, _REFINE_FORCING * self.merit) * scale
         if not factor:
             return
         self.d = np.where(used, lam / t, 0.0)
@@ -299,7 +307,7 @@ class _Newton:
             Fdx = _rows_times(qp, dz, dv)
             _, rv1 = costates(qp, dz, dv, W * Fdx + w0, linear=False)
             rv1 += self.rv
-            if not np.max(np.abs(rv1), initial=0.0) > 1e-15 * self.scale:
+            if not np.max(np.abs(rv1), initial=0.0) > self.refine_above:
                 break
             cz, cv = self.ric.solve(np.zeros_like(qp.q), rv1, homogeneous=True)
             dz, dv = dz + cz, dv + cv
@@ -351,6 +359,7 @@ def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float,
                 newton = _Newton(qp, start, active, keep_soft, scale, f_scale)
             except SolverError:
                 break
+            newton.refine_above = 1e-15 * scale  # the polish is the last word: refined to the rounding floor
             step = newton.direction(np.where(active, start[2] * start[3], 0.0),
                                     np.where(keep_soft, start[4] * start[5], 0.0))
             current = newton.moved(step, 1.0)
@@ -383,9 +392,15 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int) -> StageQPSoluti
     f_scale = max(float(np.max(np.abs(f[used]))), 1e-12)
     Fx = _rows_times(qp, z, v)
     s = np.where(soft, np.maximum(Fx - f, 0.0) + f_scale, 0.0)
-    point = (z, v, np.where(used, np.maximum(f + s - Fx, f_scale), 1.0), np.where(used, scale, 0.0), s,
+    # the rows' multipliers start at scale·N²: a row of stage i balances the criterion of the stages
+    # after it, which grows like N² in a controller's problem (measured: the multipliers reach
+    # ~1e4·scale at N = 80; starting at scale, the iterations crawl towards them with steps ~1e-2,
+    # 35–40 iterations at N = 80 against 11–15 from scale·N², and the same ~12 at N = 20)
+    lam0 = scale * float(qp.A.shape[0]) ** 2
+    point = (z, v, np.where(used, np.maximum(f + s - Fx, f_scale), 1.0), np.where(used, lam0, 0.0), s,
              np.where(soft, scale, 1.0))
     best = None  # (merit, iterations, point, ν): the iterations stop at the tolerance or at the rounding floor
+    marked = (np.inf, 0)  # (merit, iteration) of the last marked improvement
     for it in range(max_iter + 1):
         try:
             newton = _Newton(qp, point, used, soft, scale, f_scale, factor=True)
@@ -395,9 +410,11 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int) -> StageQPSoluti
             raise
         if best is None or newton.merit < best[0]:
             best = (newton.merit, it, point, newton.nu)
+        if newton.merit < _PROGRESS * marked[0]:
+            marked = (newton.merit, it)
         if newton.merit <= tol or it == max_iter:
             break
-        if it - best[1] >= _STALL and best[0] <= _ACCEPT:
+        if it - marked[1] >= _STALL and best[0] <= _ACCEPT:
             break  # the rounding floor: keep the best iterate
         t, lam, s, pi = point[2:]
         aff = newton.direction(np.where(used, t * lam, 0.0), np.where(soft, s * pi, 0.0))
