@@ -674,3 +674,27 @@ def test_ctrl_c_during_a_dask_sweep_is_quiet_and_keeps_the_cells(tmp_path):
     assert len(stderr.splitlines()) <= 3, stderr
     kept = len(SweepStore(out).finished())
     assert kept >= 2 and f"{kept} finished cells are saved" in stderr
+
+
+def test_the_resource_tracker_of_a_local_cluster_does_not_report_leaks_after_ctrl_c():
+    """A process that dies holding a semaphore (a sweep's workers after Ctrl-C) makes Python's
+    resource tracker print a 'leaked semaphore' warning; the tracker the sweep starts is quiet
+    (oracle: the same process without it prints the warning)."""
+    import subprocess
+    import sys
+
+    code = ("import os, sys, multiprocessing as mp\n"
+            "if sys.argv[1] == '1':\n"
+            "    from parallel_gpc.sweeps.runner import start_quiet_resource_tracker; start_quiet_resource_tracker()\n"
+            "lock = mp.get_context('spawn').Lock()\n"
+            "os._exit(0)\n")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1] / "src"),
+                                                        os.environ.get("PYTHONPATH", "")])}
+    env.pop("PYTHONWARNINGS", None)
+    stderr = {}
+    for quiet in ("0", "1"):
+        # the tracker outlives the process: wait for it through the pipe it inherited
+        proc = subprocess.run([sys.executable, "-c", code, quiet], capture_output=True, text=True, env=env, timeout=60)
+        stderr[quiet] = proc.stderr
+    assert "leaked semaphore" in stderr["0"]
+    assert "leaked semaphore" not in stderr["1"] and "PYTHONWARNINGS" not in os.environ

@@ -287,6 +287,7 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
         # the workers inherit SIGINT ignored (Ctrl-C reaches this process only) and the config: no
         # statistical profiler sampling the running cell's stack every 10 ms (it feeds a dashboard
         # nobody watches)
+        start_quiet_resource_tracker()
         with _sigint_ignored(), dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
                                    host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
@@ -350,6 +351,29 @@ def _sigint_ignored():
         yield
     finally:
         signal.signal(signal.SIGINT, previous)
+
+
+#: warnings filter of multiprocessing's resource tracker process (its shutdown report)
+TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
+
+
+def start_quiet_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (shared by this process and the cluster's worker
+    processes) without its shutdown report: after Ctrl-C stops a sweep, the worker processes die
+    holding a semaphore of the cluster's queues, and the tracker — which still unlinks it — printed
+    "There appear to be 1 leaked semaphore objects" as a Python warning after our one-line message.
+    The filter reaches that process only (PYTHONWARNINGS is set while it starts, then restored)."""
+    from multiprocessing import resource_tracker
+
+    old = os.environ.get("PYTHONWARNINGS")
+    os.environ["PYTHONWARNINGS"] = TRACKER_QUIET if not old else f"{old},{TRACKER_QUIET}"
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        if old is None:
+            del os.environ["PYTHONWARNINGS"]
+        else:
+            os.environ["PYTHONWARNINGS"] = old
 
 
 @contextlib.contextmanager
