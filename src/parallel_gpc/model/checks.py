@@ -14,7 +14,8 @@ from ..errors import RobotFormatError, UnderactuatedError
 RANK_RCOND = 1e-9
 
 
-def _rank(s: np.ndarray) -> int:
+def numerical_rank(s: np.ndarray) -> int:
+    """Rank from singular values ``s`` (descending): those above ``RANK_RCOND``·s_max."""
     return int(np.count_nonzero(s > RANK_RCOND * s[0])) if s.size and s[0] > 0 else 0
 
 
@@ -47,12 +48,12 @@ def check_parametrization(robot) -> None:
     H = robot.output_jacobian(q)
     nv = robot.model.nv
     _, s, Vt = np.linalg.svd(Phi) if Phi.size else (None, np.zeros(0), np.eye(nv))
-    dof = nv - _rank(s)
+    dof = nv - numerical_rank(s)
     labels = list(robot.description.output_labels)
     head = (f"the output {labels} of {robot.name!r} does not parametrize the mechanism at home: it has "
             f"{dof} DOF (nv − rank Φ_q = {nv} − {nv - dof}) and the output has {robot.n_y} coordinates")
     _, sK, VtK = np.linalg.svd(np.vstack([Phi, H]))
-    if _rank(sK) < nv:
+    if numerical_rank(sK) < nv:
         raise UnderactuatedError(f"{head}; the joints can move along [{describe_direction(robot, VtK[-1])}] "
                                f"without changing the closures or the output (choose an output that "
                                f"moves along this direction, or fix a joint)")
@@ -75,7 +76,7 @@ def check_actuation(robot) -> int:
     T, _ = robot.velocity_map(robot.q_home)
     B = T.T @ robot.drive_selection
     U, s, _ = np.linalg.svd(B)
-    r = _rank(s)
+    r = numerical_rank(s)
     if r < robot.n_y:
         raise UnderactuatedError(
             f"{robot.name!r} is under-actuated: its {robot.n_u} drives {list(robot.description.drive_joints)} "

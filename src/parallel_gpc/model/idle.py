@@ -22,7 +22,7 @@ import dataclasses
 
 import numpy as np
 
-from .checks import RANK_RCOND
+from .checks import numerical_rank
 from .description import RobotDescription
 
 #: relative margin within which two joints' components in the idle space tie.
@@ -30,10 +30,9 @@ _TIE = 1e-6
 
 
 def _null_space(A: np.ndarray) -> np.ndarray:
-    """(nv, d) orthonormal basis of the null space of A (rank cut ``RANK_RCOND``·s_max)."""
+    """(nv, d) orthonormal basis of the null space of A (rank by :func:`~parallel_gpc.model.checks.numerical_rank`)."""
     _, s, Vt = np.linalg.svd(A)
-    rank = int(np.count_nonzero(s > RANK_RCOND * s[0])) if s.size and s[0] > 0 else 0
-    return Vt[rank:].T
+    return Vt[numerical_rank(s):].T
 
 
 def idle_locks(robot, q: np.ndarray) -> list[tuple[str, float]]:
