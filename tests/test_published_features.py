@@ -161,11 +161,18 @@ def test_the_package_path_comes_from_the_environment_then_ros(published, monkeyp
         ParallelRobot.load(path, package_path=tmp_path / "nowhere")
 
 
-def test_a_robot_with_unresolved_meshes_is_not_drawn_from_them(published):
-    from parallel_gpc.viz.scene import visual_model
+def test_a_robot_with_unresolved_meshes_is_drawn_as_a_stick_figure(published):
+    """Issue 20: meshes that do not resolve are never read; the view draws every link as the stick
+    figure and says so in one line (it refused the robot before)."""
+    from parallel_gpc.errors import ParallelGPCWarning
+    from parallel_gpc.viz.scene import StickFigure, visual_model
 
-    with pytest.raises(RobotFormatError, match=r"6 mesh\(es\) \('package://missing/x.stl'.*do not resolve"):
-        visual_model(published[0])
+    robot = published[0]
+    with pytest.warns(ParallelGPCWarning, match=r"stick figure: 6 mesh\(es\) \('package://missing/x.stl'.*do not resolve"):
+        geom = visual_model(robot)
+    assert len(geom.geometryObjects) == 0
+    stick = StickFigure(robot, geom)
+    assert len(stick.joints) >= robot.model.njoints - 1 - robot.n_y and stick.rods
 
 
 # ---------------------------------------------------------------- what stays refused

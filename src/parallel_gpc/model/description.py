@@ -120,7 +120,7 @@ class RobotDescription:
         mesh_files: URI → file of the model file's meshes that resolve (filled when a
             :class:`~parallel_gpc.model.robot.ParallelRobot` reads the model file; no mesh is read).
         unresolved_meshes: URIs of the meshes that do not resolve in the model file's folder or
-            the package path (filled with ``mesh_files``): the view cannot draw them.
+            the package path (filled with ``mesh_files``): the view draws the robot as a stick figure.
     """
 
     name: str

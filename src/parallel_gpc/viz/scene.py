@@ -19,13 +19,14 @@ Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robo
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 
 import coal
 import numpy as np
 import pinocchio as pin
 
-from ..errors import InvalidParameterError, RobotFormatError, ShapeError
+from ..errors import InvalidParameterError, ParallelGPCWarning, RobotFormatError, ShapeError
 from ..model import ParallelRobot, output_joint_ids, output_world_axes, stick_figure
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
@@ -93,26 +94,45 @@ def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
     return columns, fill
 
 
-def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
-    """The robot's visual geometry (from its URDF or MJCF model file) as a ``pinocchio.GeometryModel``.
+#: Coal shapes the viewer draws; other visuals (meshes) leave their link to the stick figure.
+DRAWN_SHAPES = (coal.Cylinder, coal.Sphere, coal.Box)
 
-    Raises:
-        RobotFormatError: the model file names meshes that do not resolve in its folder or the
-            package path (Pinocchio would look for them elsewhere; they are never read).
+
+def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
+    """The robot's drawn visual geometry (from its URDF or MJCF model file) as a
+    ``pinocchio.GeometryModel``: its cylinders, spheres and boxes.
+
+    The links of other visuals (meshes) are drawn as the stick figure instead, and a model file
+    whose meshes do not resolve in its folder or the package path is not read for visuals at all
+    (Pinocchio would look for them elsewhere; they are never read): every link is then drawn as
+    the stick figure. Either case is said in one line (:class:`~parallel_gpc.errors.ParallelGPCWarning`).
     """
     description = robot.description
+    path = str(description.urdf_path)
     if description.unresolved_meshes:
         shown = ", ".join(repr(u) for u in description.unresolved_meshes[:3])
         more = len(description.unresolved_meshes) - 3
-        raise RobotFormatError(
-            f"the view cannot draw {str(description.urdf_path)!r}: {len(description.unresolved_meshes)} mesh(es) "
+        warnings.warn(
+            f"the view draws {path!r} as a stick figure: {len(description.unresolved_meshes)} mesh(es) "
             f"({shown}{f' and {more} more' if more > 0 else ''}) do not resolve in the robot's folder or the package "
-            "path (set PARALLEL_GPC_PACKAGE_PATH or pass package_path=)")
-    path = str(description.urdf_path)
+            "path (--package-path DIR, PARALLEL_GPC_PACKAGE_PATH or package_path=)", ParallelGPCWarning, stacklevel=2)
+        return pin.GeometryModel()
     if description.model_format == "mjcf":
-        return pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
-    dirs = [str(Path(path).resolve().parent), *map(str, description.package_path)]
-    return pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL, None, dirs)
+        geom = pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
+    else:
+        dirs = [str(Path(path).resolve().parent), *map(str, description.package_path)]
+        geom = pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL, None, dirs)
+    skipped = [g for g in geom.geometryObjects if not isinstance(g.geometry, DRAWN_SHAPES)]
+    if not skipped:
+        return geom
+    kinds = sorted({type(g.geometry).__name__ for g in skipped})
+    warnings.warn(f"the view draws {len(skipped)} visual(s) of {path!r} ({', '.join(kinds)}: not cylinders, spheres "
+                  "or boxes) as a stick figure of their links", ParallelGPCWarning, stacklevel=2)
+    drawn = pin.GeometryModel()
+    for g in geom.geometryObjects:
+        if isinstance(g.geometry, DRAWN_SHAPES):
+            drawn.addGeometryObject(g)
+    return drawn
 
 
 def _shape(geometry, scale: float = 1.0) -> tuple[mg.Geometry, np.ndarray]:
