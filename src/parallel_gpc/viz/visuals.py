@@ -121,18 +121,32 @@ def _listed(uris) -> str:
     return shown + (f" and {len(uris) - 3} more" if len(uris) > 3 else "")
 
 
-def _urdf_for_view(robot: ParallelRobot, meshes: bool = True) -> tuple[str, list[str], list[str]]:
-    """The robot's URDF text with each drawable resolved mesh named by its real path, and the
-    ``<visual>`` of every other mesh (of every mesh if not ``meshes``) and every ``<collision>``
-    removed: Pinocchio then reads only the files the view draws.
+def _unreadable(path: Path) -> str | None:
+    """Why a mesh file cannot be drawn (too large, or not a mesh Coal reads), or None."""
+    size = path.stat().st_size
+    if size > MESH_MAX_BYTES:
+        return f"{size} bytes, more than {MESH_MAX_BYTES}"
+    try:
+        coal.MeshLoader().load(str(path), np.ones(3))
+    except (ValueError, RuntimeError) as exc:
+        return _coal_message(exc)
+    return None
 
-    Returns:
-        (text, unresolved, undrawn): the URIs left out because they do not resolve, and those
-        whose format meshcat does not draw (each once, in file order).
-    """
+
+def _coal_message(exc: Exception) -> str:
+    """A Coal loader error in one line (its message, without the source file and line)."""
+    lines = [line.removeprefix("message: ") for line in str(exc).splitlines()
+             if line and not line.startswith(("From file:", "in function:", "at line:", "Hint:"))]
+    return "; ".join(lines) or type(exc).__name__
+
+
+def _urdf_for_view(robot: ParallelRobot, notes: list[str]) -> str:
+    """The robot's URDF text with each drawable mesh named by its real path, and the ``<visual>``
+    of every other mesh and every ``<collision>`` removed, so that Pinocchio reads only the files
+    the view draws; a note appended to ``notes`` for each kind left out."""
     description = robot.description
     root = ET.fromstring(read_text_bounded(description.urdf_path, URDF_MAX_BYTES, "model file"))
-    unresolved, undrawn = [], []
+    unresolved, undrawn, unreadable, why = [], [], [], {}
     for link in root.iter("link"):
         for collision in link.findall("collision"):
             link.remove(collision)
@@ -142,32 +156,27 @@ def _urdf_for_view(robot: ParallelRobot, meshes: bool = True) -> tuple[str, list
                 continue
             uri = mesh.get("filename", "")
             found = description.mesh_files.get(uri)
-            if meshes and found is not None and Path(found).suffix.lower() in MESH_FORMATS:
-                mesh.set("filename", str(found))
-                continue
             if found is None:
                 unresolved.append(uri)
             elif Path(found).suffix.lower() not in MESH_FORMATS:
                 undrawn.append(uri)
+            else:
+                if found not in why:
+                    why[found] = _unreadable(Path(found))
+                if why[found] is None:
+                    mesh.set("filename", str(found))
+                    continue
+                unreadable.append(f"{uri!r}: {why[found]}")
             link.remove(visual)
-    return ET.tostring(root, encoding="unicode"), list(dict.fromkeys(unresolved)), list(dict.fromkeys(undrawn))
-
-
-def _urdf_visuals(robot: ParallelRobot, notes: list[str]) -> pin.GeometryModel:
-    """The URDF's visuals (:func:`_urdf_for_view`), a note appended for each left out; all
-    meshes left out if one cannot be read."""
-    text, unresolved, undrawn = _urdf_for_view(robot)
+    unresolved, undrawn, unreadable = (list(dict.fromkeys(x)) for x in (unresolved, undrawn, unreadable))
     if unresolved:
         notes.append(f"{len(unresolved)} mesh(es) ({_listed(unresolved)}) do not resolve")
     if undrawn:
         notes.append(f"{len(undrawn)} mesh(es) ({_listed(undrawn)}) are not STL, OBJ or Collada files")
-    try:
-        return pin.buildGeomFromUrdfString(robot.model, text, pin.GeometryType.VISUAL)
-    except (ValueError, RuntimeError, OSError) as exc:  # a corrupt or empty mesh file
-        notes.append(f"a mesh file cannot be read ({str(exc).strip().splitlines()[0] if str(exc).strip() else exc!r}); "
-                     "no mesh is drawn")
-        return pin.buildGeomFromUrdfString(robot.model, _urdf_for_view(robot, meshes=False)[0],
-                                           pin.GeometryType.VISUAL)
+    if unreadable:
+        notes.append(f"{len(unreadable)} mesh file(s) cannot be read ({', '.join(unreadable[:3])}"
+                     f"{' and more' if len(unreadable) > 3 else ''})")
+    return ET.tostring(root, encoding="unicode")
 
 
 def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
@@ -176,8 +185,8 @@ def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
     of at most :data:`MESH_MAX_BYTES`.
 
     The links of other visuals (meshes that do not resolve in the robot's folder or the package
-    path or cannot be read, other mesh formats, other shapes) are drawn as the stick figure instead,
-    said in one line (:class:`~parallel_gpc.errors.ParallelGPCWarning`). An MJCF file whose meshes
+    path, cannot be read or are larger, other mesh formats, other shapes) are drawn as the stick
+    figure instead, said in one line (:class:`~parallel_gpc.errors.ParallelGPCWarning`). An MJCF file whose meshes
     do not all resolve is not read for visuals at all (Pinocchio would look for them elsewhere):
     every link is then drawn as the stick figure.
     """
@@ -185,13 +194,17 @@ def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
     path = str(description.urdf_path)
     notes = []
     if description.model_format != "mjcf":
-        geom = _urdf_visuals(robot, notes)
+        geom = pin.buildGeomFromUrdfString(robot.model, _urdf_for_view(robot, notes), pin.GeometryType.VISUAL)
     elif description.unresolved_meshes:
         notes.append(f"{len(description.unresolved_meshes)} mesh(es) ({_listed(description.unresolved_meshes)}) "
                      "do not resolve")
         geom = pin.GeometryModel()
     else:
-        geom = pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
+        try:
+            geom = pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
+        except (ValueError, RuntimeError) as exc:  # a mesh file Coal cannot read
+            notes.append(f"its visuals cannot be read ({_coal_message(exc)})")
+            geom = pin.GeometryModel()
     allowed = {Path(f).resolve() for f in description.mesh_files.values()}
     drawn, skipped = pin.GeometryModel(), []
     for g in geom.geometryObjects:
