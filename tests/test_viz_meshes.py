@@ -16,40 +16,15 @@ import umsgpack
 from parallel_gpc import ParallelRobot, viz
 from parallel_gpc.errors import ParallelGPCWarning
 from parallel_gpc.model import stick_figure
-from parallel_gpc.model.description import urdf_dir
 from parallel_gpc.model.meshes import PACKAGE_PATH_ENV, ROS_PACKAGE_PATH_ENV
-from parallel_gpc.viz._meshcat import mg
+import mechanisms as mech
 
-#: An ASCII STL unit cube's bottom face (two triangles) and apex: enough for a mesh.
-STL = """solid part
-facet normal 0 0 -1
- outer loop
-  vertex 0 0 0
-  vertex 1 1 0
-  vertex 1 0 0
- endloop
-endfacet
-facet normal 0 0 -1
- outer loop
-  vertex 0 0 0
-  vertex 0 1 0
-  vertex 1 1 0
- endloop
-endfacet
-facet normal 0 -1 0
- outer loop
-  vertex 0 0 0
-  vertex 1 0 0
-  vertex 0.5 0.5 1
- endloop
-endfacet
-endsolid part
-"""
-OBJ = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n"
+mg = viz.meshcat.geometry
+
 #: link -> (mesh URI, scale, origin xyz, origin rpy); the 3-RRR's platform and first proximal link
 MESHES = {
-    "platform": ("package://pkg/meshes/plate.stl", (0.3, 0.25, 0.03), (0.01, -0.02, 0.005), (0.1, -0.2, 0.3)),
-    "proximal_1": ("meshes/bar.obj", (0.6, 0.03, 0.02), (0.05, 0.0, 0.0), (0.0, 0.0, 0.4)),
+    "platform": ("package://pkg/meshes/plate.stl", (0.15, 0.12, 0.03), (0.01, -0.02, 0.005), (0.1, -0.2, 0.3)),
+    "proximal_1": ("meshes/bar.obj", (0.6, 0.03, 0.02), (0.0, 0.0, 0.0), (0.0, 0.0, 0.4)),
     "distal_1": ("meshes/bar.ply", (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),  # a format meshcat cannot draw
     "distal_2": ("package://nowhere/x.stl", (1.0, 1.0, 1.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),  # unresolved
 }
@@ -62,31 +37,13 @@ def _no_package_env(monkeypatch):
     monkeypatch.delenv(ROS_PACKAGE_PATH_ENV, raising=False)
 
 
-def _link_visual(urdf: str, link: str, visual: str) -> str:
-    """``urdf`` with the (single) ``<visual>`` of ``link`` replaced by ``visual``."""
-    pattern = re.compile(rf'(<link name="{link}">.*?)<visual>.*?</visual>', re.DOTALL)
-    out, n = pattern.subn(lambda m: m.group(1) + visual, urdf, count=1)
-    assert n == 1, link
-    return out
-
-
 @pytest.fixture
 def meshed(tmp_path):
-    """(robot, package folder): planar_3rrr whose links above are dressed with meshes."""
-    robot_dir, packages = tmp_path / "robot", tmp_path / "packages"
-    (robot_dir / "meshes").mkdir(parents=True)
-    (packages / "pkg" / "meshes").mkdir(parents=True)
-    (packages / "pkg" / "meshes" / "plate.stl").write_text(STL)
-    (robot_dir / "meshes" / "bar.obj").write_text(OBJ)
-    (robot_dir / "meshes" / "bar.ply").write_text("ply\nformat ascii 1.0\nend_header\n")
-    urdf = (urdf_dir() / "planar_3rrr.urdf").read_text()
-    for link, (uri, scale, xyz, rpy) in MESHES.items():
-        urdf = _link_visual(urdf, link, f'<visual><origin xyz="{" ".join(map(str, xyz))}" rpy="{" ".join(map(str, rpy))}"/>'
-                                        f'<geometry><mesh filename="{uri}" scale="{" ".join(map(str, scale))}"/>'
-                                        '</geometry></visual>')
-    (robot_dir / "r.urdf").write_text(urdf)
-    (robot_dir / "r.toml").write_text((urdf_dir() / "planar_3rrr.toml").read_text())
-    return ParallelRobot.load(robot_dir / "r.urdf", package_path=packages), packages
+    """(robot, package folder): planar_3rrr whose links in MESHES are dressed with meshes."""
+    path, packages = mech.meshed_3rrr(tmp_path, MESHES, {
+        "packages/pkg/meshes/plate.stl": mech.prism_stl(), "robot/meshes/bar.obj": mech.BOX_OBJ,
+        "robot/meshes/bar.ply": "ply\nformat ascii 1.0\nend_header\n"})
+    return ParallelRobot.load(path, package_path=packages), packages
 
 
 def commands(page: str) -> list[dict]:
@@ -122,7 +79,8 @@ def test_resolved_meshes_are_drawn_with_their_scale_and_origin(meshed, tmp_path)
     sent = commands(page)
     objects = {c["path"]: c["object"] for c in sent if c["type"] == "set_object"}
     placed = {c["path"]: np.array(c["matrix"]).reshape(4, 4).T for c in sent if c["type"] == "set_transform"}
-    for link, name, fmt, contents in (("platform", "plate.stl", "stl", None), ("proximal_1", "bar.obj", "obj", OBJ)):
+    for link, name, fmt, contents in (("platform", "plate.stl", "stl", None), ("proximal_1", "bar.obj", "obj",
+                                                                                  mech.BOX_OBJ)):
         g = by_file[name]
         path = f"/meshcat/robot/{g.name}"
         obj = objects[path]
