@@ -191,7 +191,8 @@ def test_a_resolved_stl_mesh_renders(browser, tmp_path):
         page.wait_for_selector("canvas", timeout=WAIT_MS)
         page.wait_for_function(f"window.__handled >= {page_path.read_text(encoding='utf-8').count(COMMAND)}",
                                timeout=WAIT_MS)
-        assert page.evaluate(f'viewer.scene_tree.find(["meshcat", "robot", "{plate}", "<object>"]).object.type') == "Mesh"
+        found = page.evaluate(f'viewer.scene_tree.find(["meshcat", "robot", "{plate}", "<object>"]).object.type')
+        assert found == "Mesh"
         seek(page, 0.0)
         green, _ = robot_colours(canvas_pixels(page))
         page.evaluate(f'viewer.handle_command({{type: "set_property", path: "/meshcat/robot/{plate}", '

@@ -1,8 +1,9 @@
 """A robot drawn in meshcat: geometry, closures, base, paths, and one ``Animation`` per trajectory.
 
 The robot is drawn from its model file's visual geometry (cylinders, spheres, boxes and resolved
-meshes: :mod:`~parallel_gpc.viz.visuals`) plus a ground plate, the base points (drive axes) and small spheres at both frames of every loop
-closure, so a closed loop shows as two coinciding spheres. Links without visual geometry are
+meshes: :mod:`~parallel_gpc.viz.visuals`) plus a ground plate, the base points (drive axes) and
+small spheres at both frames of every loop closure, so a closed loop shows as two coinciding
+spheres. Links without visual geometry are
 drawn as a stick figure from the joint frames (:mod:`parallel_gpc.model.skeleton`): a sphere at
 each joint origin, a rod from a joint to each child joint and to the closure and output frames
 on its link, so any robot is recognisable; the output frame (or platform joint) is a red sphere. A trajectory becomes one meshcat
@@ -59,8 +60,8 @@ class Marks:
         post: radius of the posts under the base points; post_length: their longest length (a
             base point higher above the plate gets a stub).
         margin: ground plate margin around the base points. plate: plate thickness.
-        clearance: the plate lies this far below the robot's lowest point (and below z = 0 by
-            at least 3 times as much).
+        clearance: the plate's top lies this far below the robot's lowest point (its drawn
+            geometry and joint spheres), and at least 4 times as far below z = 0.
         lift: height of the drawn paths above the output point's (above a planar robot's plane).
         triad: length of the axes drawn at the robot's origin.
     """
@@ -298,10 +299,11 @@ class RobotScene:
         q = self.robot.q_home if q is None else finite_vector("configuration q", q, self.robot.model.nq)
         for g, (shape, _) in zip(self.geom_model.geometryObjects, self._shapes):
             self.vis[f"{ROBOT}/{g.name}"].set_object(shape, _material(g.meshColor))
+        m = self.marks
         for c in self.robot.description.closures:  # frame a: large translucent, b: small dark
             closures = self.vis[f"{ROBOT}/closures"]
-            closures[f"{c.name}_a"].set_object(mg.Sphere(self.marks.closure_a), _material([1, 1, 1, 0.7], CLOSURE_A_COLOR))
-            closures[f"{c.name}_b"].set_object(mg.Sphere(self.marks.closure_b), _material([1, 1, 1, 1], CLOSURE_B_COLOR))
+            closures[f"{c.name}_a"].set_object(mg.Sphere(m.closure_a), _material([1, 1, 1, 0.7], CLOSURE_A_COLOR))
+            closures[f"{c.name}_b"].set_object(mg.Sphere(m.closure_b), _material([1, 1, 1, 1], CLOSURE_B_COLOR))
         for i, k in self._overlays():
             shape, _ = meshcat_shape(self.geom_model.geometryObjects[k], scale=1.8)
             self.vis[self._overlay_path(i, k)].set_object(shape, _material([1, 1, 1, 0.85], SATURATION_COLOR))
@@ -442,7 +444,7 @@ def set_camera(vis: meshcat.Visualizer, points: np.ndarray, elevation_deg: float
 
     meshcat's orbit camera always looks at the world origin, so the scene under ``vis`` is
     shifted to put that centre there (the stock grid and axes are hidden and a triad of
-    ``0.2 * size`` is drawn at the robot's own origin instead). The camera stands ``1.4 * size``
+    :attr:`Marks.triad` is drawn at the robot's own origin instead). The camera stands ``1.4 * size``
     away, so a robot of characteristic length ``size`` (m; default: the points' largest extent
     along a world axis, 1 m for a single point) fills the view whatever its scale.
     """
@@ -457,7 +459,7 @@ def set_camera(vis: meshcat.Visualizer, points: np.ndarray, elevation_deg: float
     vis.set_transform(_translation(-center))
     vis["/Axes"].set_property("visible", False)
     vis["/Grid"].set_property("visible", False)
-    vis[f"{BASE}/origin"].set_object(mg.triad(0.2 * size))
+    vis[f"{BASE}/origin"].set_object(mg.triad(Marks(size).triad))
     vis["/Cameras/default"].set_transform(np.eye(4))
     # the camera lives in a y-up frame ("rotated"): (x, y, z) there is (x, -z, y) in the world
     across, up = distance * math.cos(el), distance * math.sin(el)
