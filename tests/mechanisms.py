@@ -5,6 +5,7 @@ shared by the model tests (Pinocchio's constraintDynamics, finite differences)."
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -285,6 +286,58 @@ def rps_mjcf(geoms: bool = False) -> str:
 def rps_mjcf_sidecar() -> str:
     return ('name = "rps_mjcf"\n[output]\nframe = "platform"\nkind = "pose"\naxes = ["z", "rx", "ry"]\n'
             '[drives]\njoints = ["p1", "p2", "p3"]\n')
+
+
+# ---------------------------------------------------------------- mesh visuals
+#: OBJ of a unit box from x = 0 to 1 (y, z in ±0.5): a link along x once scaled.
+BOX_OBJ = ("".join(f"v {x} {y} {z}\n" for x in (0, 1) for y in (-0.5, 0.5) for z in (-0.5, 0.5))
+           + "f 1 2 4 3\nf 5 7 8 6\nf 1 5 6 2\nf 3 4 8 7\nf 1 3 7 5\nf 2 6 8 4\n")
+
+
+def prism_stl(sides: int = 6) -> str:
+    """ASCII STL of a closed prism: a regular polygon of radius 1 in the x-y plane, z in ±0.5."""
+    a = np.linspace(0.0, 2 * np.pi, sides, endpoint=False)
+    top = np.column_stack([np.cos(a), np.sin(a), np.full(sides, 0.5)])
+    bottom = top * [1.0, 1.0, -1.0]
+    facets = []
+    for i in range(sides):
+        j = (i + 1) % sides
+        facets += [([0, 0, 0.5], top[i], top[j]), ([0, 0, -0.5], bottom[j], bottom[i]),
+                   (bottom[i], bottom[j], top[j]), (bottom[i], top[j], top[i])]
+    lines = ["solid prism"]
+    for facet in facets:
+        p = np.array(facet, dtype=float)
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        n /= np.linalg.norm(n)
+        lines += [f"facet normal {n[0]:.9g} {n[1]:.9g} {n[2]:.9g}", " outer loop"]
+        lines += [f"  vertex {v[0]:.9g} {v[1]:.9g} {v[2]:.9g}" for v in p] + [" endloop", "endfacet"]
+    return "\n".join(lines + ["endsolid prism"]) + "\n"
+
+
+def meshed_3rrr(folder, visuals: dict, files: dict):
+    """planar_3rrr written to ``folder``/robot with the ``<visual>`` of each link in ``visuals``
+    (link -> (mesh URI, scale, origin xyz, origin rpy)) and the mesh ``files`` (path relative to
+    ``folder`` -> text) written; returns (URDF path, ``folder``/packages)."""
+    import re
+
+    from parallel_gpc.model.description import urdf_dir
+
+    folder = Path(folder)
+    for rel, text in files.items():
+        (folder / rel).parent.mkdir(parents=True, exist_ok=True)
+        (folder / rel).write_text(text)
+    (folder / "robot").mkdir(exist_ok=True)
+    (folder / "packages").mkdir(exist_ok=True)
+    urdf = (urdf_dir() / "planar_3rrr.urdf").read_text()
+    for link, (uri, scale, xyz, rpy) in visuals.items():
+        visual = (f'<visual><origin xyz="{" ".join(map(repr, xyz))}" rpy="{" ".join(map(repr, rpy))}"/>'
+                  f'<geometry><mesh filename="{uri}" scale="{" ".join(map(repr, scale))}"/></geometry>'
+                  '<material name="platform"/></visual>')
+        urdf, n = re.subn(rf'(<link name="{link}">.*?)<visual>.*?</visual>', lambda g: g.group(1) + visual, urdf,
+                          count=1, flags=re.DOTALL)
+        assert n == 1, link
+    path = write(folder / "robot", "r", urdf, (urdf_dir() / "planar_3rrr.toml").read_text())
+    return path, folder / "packages"
 
 
 def write(tmp_path, stem: str, model: str, sidecar: str, model_suffix: str = ".urdf",

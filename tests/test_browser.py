@@ -15,6 +15,7 @@ import pytest
 
 from parallel_gpc import viz
 
+import mechanisms as mech
 from conftest import line_motion
 
 pytestmark = pytest.mark.browser
@@ -171,3 +172,32 @@ def test_live_viewer_renders_over_loopback_and_closes(browser, robot4):
         page.close()
     assert requests and all(u.startswith(f"http://127.0.0.1:{port}/") or u.startswith(f"ws://127.0.0.1:{port}")
                             for u in requests), requests
+
+
+def test_a_resolved_stl_mesh_renders(browser, tmp_path):
+    """planar_3rrr whose platform is an STL prism (green, from a package folder): the exported page
+    draws it; hiding its node removes the green."""
+    from parallel_gpc import ParallelRobot
+
+    visuals = {"platform": ("package://pkg/meshes/plate.stl", (0.16, 0.16, 0.03), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))}
+    path, packages = mech.meshed_3rrr(tmp_path, visuals, {"packages/pkg/meshes/plate.stl": mech.prism_stl()})
+    robot = ParallelRobot.load(path, package_path=packages)
+    (plate,) = [g.name for g in viz.visual_model(robot).geometryObjects if g.meshPath.endswith("plate.stl")]
+    q = robot.q_home
+    page_path = viz.export_html(tmp_path / "mesh.html", robot, np.array([0.0, 0.1]), np.array([q, q]))
+    page = new_page(browser, [])
+    try:
+        page.goto(page_path.resolve().as_uri())
+        page.wait_for_selector("canvas", timeout=WAIT_MS)
+        page.wait_for_function(f"window.__handled >= {page_path.read_text(encoding='utf-8').count(COMMAND)}",
+                               timeout=WAIT_MS)
+        found = page.evaluate(f'viewer.scene_tree.find(["meshcat", "robot", "{plate}", "<object>"]).object.type')
+        assert found == "Mesh"
+        seek(page, 0.0)
+        green, _ = robot_colours(canvas_pixels(page))
+        page.evaluate(f'viewer.handle_command({{type: "set_property", path: "/meshcat/robot/{plate}", '
+                      'property: "visible", value: false})')
+        hidden, _ = robot_colours(canvas_pixels(page))
+        assert green > 500 and hidden < green / 10, (green, hidden)
+    finally:
+        page.close()

@@ -88,8 +88,11 @@ def test_the_locked_joint_is_the_one_along_the_idle_motion(tmp_path):
 def test_idle_spins_refuse_keeps_the_under_actuation_error(tmp_path, build):
     with warnings.catch_warnings():
         warnings.simplefilter("error", ParallelGPCWarning)
-        with pytest.raises(UnderactuatedError, match=r"not determined by the output|can move along"):
+        with pytest.raises(UnderactuatedError, match=r"not determined by the output|can move along") as refused:
             ParallelRobot.load(build(tmp_path, extra='idle_spins = "refuse"\n'))
+    message = str(refused.value)
+    assert 'set idle_spins = "lock" in the sidecar' in message  # the sidecar option that locks it, not by hand
+    assert "FIXED" not in message and "fix a joint" not in message
 
 
 def test_a_bad_idle_spins_value_is_one_clear_error(tmp_path):

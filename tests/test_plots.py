@@ -38,3 +38,36 @@ def test_bench_plot_returns_a_figure(tmp_path):
     assert isinstance(fig, Figure) and len(fig.axes) == 6
     assert [len(ax.lines) for ax in fig.axes[:5]] == [2] * 5
     assert save_figure(fig, tmp_path / "a" / "b.png").stat().st_size > 10_000
+
+
+def test_the_title_of_a_one_column_figure_clears_its_panels():
+    """track_time.png of a single run of a 6-output robot (9 panels, as the hexapod's): the
+    figure's title stays clear of the column's title and of the panels' offset texts (errors of
+    1e-7 mm); it overlapped the column's title under the tight layout."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.text import Text
+
+    from parallel_gpc.plots import plot_time_histories
+    from parallel_gpc.studies import SimulationResult
+
+    K = 60
+    t = np.linspace(0.0, 0.3, K)
+    tiny = 1e-9 * np.outer(t ** 2, [1.0, -2.0, 3.0, 1.0, 2.0, -3.0])  # offset texts (1e-7 …) above the panels
+    res = SimulationResult(t=t, reference=np.zeros((K, 6)), pose=tiny, velocity=tiny, u=np.zeros((K, 6)),
+                           internal_force=np.zeros(K), q=np.zeros((K, 3)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool))
+    title = "Tracking (auto reference): error, velocity, drive effort"
+    fig = plot_time_histories({"absolute": res}, title=title)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    (suptitle,) = [x for x in fig.findobj(Text) if x.get_text() == title]
+    top = suptitle.get_window_extent(renderer)
+    below = [fig.axes[0].title] + [ax.yaxis.get_offset_text() for ax in fig.axes]
+    texts = [x for x in below if x.get_text()]
+    assert texts and len(texts) > 1
+    for text in texts:
+        box = text.get_window_extent(renderer)
+        assert not box.overlaps(top), (text.get_text(), box, top)

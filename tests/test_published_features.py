@@ -6,6 +6,7 @@ written here; the collection itself is not copied into the project."""
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
@@ -330,3 +331,51 @@ def test_inconsistent_welds_are_refused_with_the_globalized_minimum(tmp_path):
     reached = float(re.search(r"no closer than a residual of ([0-9.e+-]+)", message).group(1))
     assert abs(reached - 0.3) <= 1e-3, message
     assert "likely inconsistent" in message and "'close' ['ee', 'tip2']" in message
+
+
+def test_the_globalized_solve_rescues_a_stalled_newton_on_a_robot_that_assembles(tmp_path, monkeypatch):
+    """A 5-bar drawn (q = 0) with both legs stretched flat towards each other: the tips miss by
+    0.9 m along x, and every joint moves them along z only, so Jᵀr = 0 and Newton's least-squares
+    step from the drawing is zero (it stalls). The Levenberg–Marquardt starts perturbed from the
+    drawing close the loop; the robot loads, assembled at its output. With the drawing
+    as the only start it is refused: the perturbed starts are what rescue it."""
+    import re
+
+    from parallel_gpc.errors import AssemblyError, UnreachablePoseError
+    from parallel_gpc.model import assembly
+    from parallel_gpc.model.builder import drawn_configuration
+
+    urdf = mech.fivebar_urdf()
+    for k, turn in ((1, math.pi / 2), (2, -math.pi / 2)):  # leg 1 points to +x, leg 2 to -x at q = 0
+        origin = f'<origin xyz="{mech.FIVEBAR_BASE[k - 1]} 0 0"/>'
+        assert origin in urdf
+        urdf = urdf.replace(origin, origin.replace('"/>', f'" rpy="0 {turn!r} 0"/>'))
+    sidecar = re.sub(r"\[home\.q_guess\]\n(?:\w+ = .*\n)+", "", mech.fivebar_sidecar())
+    assert "q_guess" not in sidecar  # assembled from the drawing
+    path = mech.write(tmp_path, "flat", urdf, sidecar)
+
+    # the oracle of the stall, from Pinocchio alone: at the drawing the residual is orthogonal to the Jacobian
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    q0 = pin.neutral(model)
+    pin.computeJointJacobians(model, data, q0)
+    pin.framesForwardKinematics(model, data, q0)
+    ee, tip = model.getFrameId("ee"), model.getFrameId("tip2")
+    r = data.oMf[ee].translation - data.oMf[tip].translation
+    J = [pin.getFrameJacobian(model, data, f, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)[:3] for f in (ee, tip)]
+    assert abs(r[0] - 2 * (mech.L_PROX + mech.L_DIST - mech.FIVEBAR_BASE[1])) <= 1e-12 and abs(r[2]) <= 1e-12
+    assert np.max(np.abs((J[0] - J[1]).T @ r)) <= 1e-12
+
+    robot = ParallelRobot.load(path)
+    with pytest.raises(UnreachablePoseError, match="stalls"):  # Newton alone from the drawing
+        robot._newton_projection(drawn_configuration(robot.model), 1e-12, 100)
+    data = robot.model.createData()
+    pin.framesForwardKinematics(robot.model, data, robot.q_home)
+    gap = data.oMf[robot.model.getFrameId("ee")].translation - data.oMf[robot.model.getFrameId("tip2")].translation
+    assert np.linalg.norm(gap) <= 1e-9  # assembled
+    np.testing.assert_allclose(data.oMf[robot.model.getFrameId("ee")].translation[[0, 2]], robot.home_pose, atol=1e-9)
+    assert robot.model.nq == 4 and robot.n_y == 2  # loaded whole: nothing locked or dropped
+
+    monkeypatch.setattr(assembly, "GLOBAL_STARTS", 1)
+    with pytest.raises(AssemblyError, match="globalized least-squares solve"):
+        ParallelRobot.load(path)

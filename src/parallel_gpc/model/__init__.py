@@ -9,7 +9,7 @@ from .description import (DEFAULT_ROBOT, SIDECAR_KEYS, Closure, RobotDescription
                           load_description, urdf_dir)
 
 _PUBLIC = {
-    "read_text_bounded": "file_checks", "drive_resolution": "forward", "export_mjcf": "mjcf_export",
+    "read_text_bounded": "file_checks", "read_bounded": "file_checks", "drive_resolution": "forward", "export_mjcf": "mjcf_export",
     "compiled_part": "native", "native_status": "native", "forward_status": "native_update",
     "saturation_limit": "plant", "output_joint_ids": "skeleton", "output_world_axes": "skeleton", "stick_figure": "skeleton",
     "cached_identity": "discretization",

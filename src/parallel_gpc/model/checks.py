@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import RobotFormatError, UnderactuatedError
+from .description import idle_advice
 
 #: relative singular-value cut of the load-time rank tests.
 RANK_RCOND = 1e-9
@@ -55,8 +56,8 @@ def check_parametrization(robot) -> None:
     _, sK, VtK = np.linalg.svd(np.vstack([Phi, H]))
     if numerical_rank(sK) < nv:
         raise UnderactuatedError(f"{head}; the joints can move along [{describe_direction(robot, VtK[-1])}] "
-                               f"without changing the closures or the output (choose an output that "
-                               f"moves along this direction, or fix a joint)")
+                                 "without changing the closures or the output: choose an output that moves along "
+                                 f"this direction; {idle_advice(robot.description)}")
     if robot.n_y != dof:
         N = Vt[nv - dof:].T  # (nv, dof) free motions of the closed mechanism
         U, _, _ = np.linalg.svd(H @ N)

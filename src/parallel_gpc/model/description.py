@@ -210,6 +210,16 @@ def _resolve_robot_path(name_or_path: str | Path, sidecar: str | Path | None = N
     )
 
 
+def idle_advice(description: "RobotDescription") -> str:
+    """What an under-actuation refusal says about idle motions (moving neither the output nor a
+    drive): the sidecar option ``idle_spins`` that locks them, or why it did not."""
+    if description.idle_spins == "refuse":
+        return ('set idle_spins = "lock" in the sidecar (the default) to lock one joint per idle motion '
+                "(one that moves neither the output nor a drive) at load")
+    return ('idle_spins = "lock" found no idle motion to lock (it locks only motions that move neither the output '
+            "nor a drive, through a 1-DOF joint that is neither a drive, an output nor a branch joint)")
+
+
 def load_description(name_or_path: str | Path = DEFAULT_ROBOT, sidecar: str | Path | None = None,
                      package_path=None) -> RobotDescription:
     """Read a robot file: an embedded robot name, or a path to its model file or sidecar.

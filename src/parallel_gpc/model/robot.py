@@ -43,6 +43,7 @@ from .description import (  # noqa: F401  (re-exported for the robot's users)
     Closure,
     RobotDescription,
     embedded_robots,
+    idle_advice,
     load_description,
     urdf_dir,
 )
@@ -145,8 +146,8 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
                 f"{len(closures)} closures give {self.n_constraints} constraint rows, fewer than "
                 f"the {self.n_z} dependent coordinates: at least {self.n_z - self.n_constraints} joint motion(s) are "
                 "not determined by the output (a free-flyer root, an unactuated joint, or an idle rotation such as a "
-                "rod spinning between two ball joints); lock one joint per idle rotation (joint_type FIXED), use a "
-                "universal joint (UJOINT_AB) at one end of such a rod, or add outputs"
+                f"rod spinning between two ball joints); {idle_advice(description)}; or use a universal joint "
+                "(UJOINT_AB) at one end of such a rod, or add outputs"
             )
         self.torque_limit = np.array(description.torque_limit) if description.torque_limit is not None else None
         self._branch_q = np.array([self._joint_index(n, "branch joint")[0] for n in description.branch_joints],

@@ -18,6 +18,9 @@ import pinocchio as pin
 
 from ..validation import finite_vector
 
+#: Characteristic length (m) of a robot whose drawn points all coincide.
+DEFAULT_SIZE = 0.3
+
 
 @dataclass(frozen=True)
 class Skeleton:
@@ -47,6 +50,15 @@ class Skeleton:
     legs: list
     platform: np.ndarray
     base: np.ndarray
+
+    @property
+    def size(self) -> float:
+        """The robot's characteristic length, m: the largest extent along a world axis of its joint
+        origins, closure frames and output point (the 3-D view scales every mark with it);
+        :data:`DEFAULT_SIZE` when they all coincide."""
+        points = np.vstack([self.joints, self.closures.reshape(-1, 3), self.output.reshape(1, 3)])
+        extent = float(np.ptp(points, axis=0).max())
+        return extent if extent > 0 else DEFAULT_SIZE
 
 
 def _chain(model: pin.Model, joint: int) -> list[int]:

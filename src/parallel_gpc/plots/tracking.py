@@ -46,7 +46,7 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
     space = results[names[0]].output_space
     groups = [(idx, unit) for idx, unit in ((space.translational, "m/s"), (space.rotational, "rad/s")) if idx]
     rows = space.n_y + len(groups) + 1
-    fig = Figure(figsize=(5.0 * len(names), 1.7 * rows + 1.0), layout="tight")
+    fig = Figure(figsize=(5.0 * len(names), 1.7 * rows + 1.0), layout="constrained")
     axes = fig.subplots(rows, len(names), sharex=True, squeeze=False)
     for col, name in enumerate(names):
         res = results[name]

@@ -1,6 +1,7 @@
 """meshcat view of a parallel robot: scene and animation, offline HTML, loopback servers, gallery.
 
-Modules, by seam: :mod:`~parallel_gpc.viz.scene` (drawing a robot, paths and one animation per
+Modules, by seam: :mod:`~parallel_gpc.viz.visuals` (the robot file's shapes and meshes),
+:mod:`~parallel_gpc.viz.scene` (drawing a robot, paths and one animation per
 trajectory), :mod:`~parallel_gpc.viz.html_export` (self-contained offline pages),
 :mod:`~parallel_gpc.viz.live` (the meshcat bridge on 127.0.0.1 in a thread),
 :mod:`~parallel_gpc.viz.gallery` (a folder of exported pages on 127.0.0.1) and
@@ -22,7 +23,7 @@ _PUBLIC = {
     "IDLE_TIMEOUT_S": "loopback",
     "GalleryServer": "gallery", "gallery_index": "gallery", "serve_gallery": "gallery",
     "RobotScene": "scene", "animate": "scene", "draw_path": "scene", "draw_robot": "scene",
-    "frame_indices": "scene", "set_camera": "scene", "visual_model": "scene",
+    "frame_indices": "scene", "set_camera": "scene", "visual_model": "visuals", "Marks": "scene",
     "REFERENCE_COLOR": "scene", "PLANNED_COLOR": "scene", "SATURATION_COLOR": "scene",
     "export_html": "html_export", "network_references": "html_export",
     "LiveViewer": "live", "serve_until_interrupt": "live", "zmq_port_of": "live",

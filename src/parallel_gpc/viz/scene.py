@@ -1,14 +1,17 @@
 """A robot drawn in meshcat: geometry, closures, base, paths, and one ``Animation`` per trajectory.
 
-The robot is drawn from its URDF visual geometry (``pinocchio.buildGeomFromUrdf``) plus a
-ground plate, the base points (drive axes) and small spheres at both frames of every loop
-closure, so a closed loop shows as two coinciding spheres. Links without visual geometry are
+The robot is drawn from its model file's visual geometry (cylinders, spheres, boxes and resolved
+meshes: :mod:`~parallel_gpc.viz.visuals`) plus a ground plate, the base points (drive axes) and
+small spheres at both frames of every loop closure, so a closed loop shows as two coinciding
+spheres. Links without visual geometry are
 drawn as a stick figure from the joint frames (:mod:`parallel_gpc.model.skeleton`): a sphere at
 each joint origin, a rod from a joint to each child joint and to the closure and output frames
 on its link, so any robot is recognisable; the output frame (or platform joint) is a red sphere. A trajectory becomes one meshcat
 ``Animation`` (the browser interpolates between key frames); every geometry placement comes from
 ``pin.forwardKinematics`` + ``pin.updateGeometryPlacements`` on the full configuration q, so the
-legs follow q, not only the platform.
+legs follow q, not only the platform. Every added mark (closure spheres, rods, base posts and plate,
+axes, camera distance) is proportional to the robot's characteristic length (:class:`Marks`), so a
+robot of a few centimetres is as recognisable as one of a metre.
 
 Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robot/stick/*``
 (joints ``joint_<name>``, rods ``rod_<k>``), ``robot/output``, ``robot/closures/*``,
@@ -19,18 +22,17 @@ Scene paths (under ``/meshcat``): ``robot/<geometry>`` (links, platform), ``robo
 from __future__ import annotations
 
 import math
-import warnings
-from pathlib import Path
+from dataclasses import dataclass
 
-import coal
 import numpy as np
 import pinocchio as pin
 
-from ..errors import InvalidParameterError, ParallelGPCWarning, RobotFormatError, ShapeError
+from ..errors import InvalidParameterError, ShapeError
 from ..model import ParallelRobot, output_joint_ids, output_world_axes, stick_figure
 from ..results import check_times as _times
 from ..validation import finite_matrix, finite_vector, positive
 from ._meshcat import Animation, meshcat, mg
+from .visuals import Y_TO_Z, lowest_z, meshcat_shape, visual_model
 
 #: Scene roots under ``/meshcat``.
 ROBOT, BASE, PATHS = "robot", "base", "paths"
@@ -41,10 +43,75 @@ REFERENCE_COLOR, PLANNED_COLOR = 0x303030, 0xC000C0
 PLATE_COLOR, BASE_POINT_COLOR = 0xD8D8D8, 0x4D4D4D
 #: Stick figure of links without visuals: joints, rods; the output frame.
 STICK_JOINT_COLOR, STICK_ROD_COLOR, OUTPUT_COLOR = 0x2F5D8A, 0x8A8A8A, 0xD03030
-#: Height (m) of the drawn paths above the plane z = 0 of a planar robot.
+#: Height (m) of a planar path drawn without a robot (:func:`draw_path`) above the plane z = 0.
 PATH_Z = 0.02
-#: three.js cylinders are along y; URDF/Coal cylinders along z: rotate y onto z.
-_Y_TO_Z = np.array([[1.0, 0, 0, 0], [0, 0, -1.0, 0], [0, 1.0, 0, 0], [0, 0, 0, 1.0]])
+
+
+@dataclass(frozen=True)
+class Marks:
+    """Sizes (m) of the marks the view adds to a robot, all proportional to its characteristic
+    length (:attr:`parallel_gpc.model.skeleton.Skeleton.size`), so that a robot of a few
+    centimetres and one of a metre look alike.
+
+    Attributes:
+        size: the robot's characteristic length, m.
+        rod: stick figure rod radius (joint spheres 1.7 times, the output sphere 2.2 times larger).
+        closure_a, closure_b: radii of the spheres on a closure's frames a (translucent) and b.
+        post: radius of the posts under the base points; post_length: their longest length (a
+            base point higher above the plate gets a stub).
+        margin: ground plate margin around the base points. plate: plate thickness.
+        clearance: the plate's top lies this far below the robot's lowest point (its drawn
+            geometry and joint spheres), and at least 4 times as far below z = 0.
+        lift: height of the drawn paths above the output point's (above a planar robot's plane).
+        triad: length of the axes drawn at the robot's origin.
+    """
+
+    size: float
+
+    @property
+    def rod(self) -> float:
+        return 0.012 * self.size
+
+    @property
+    def closure_a(self) -> float:
+        return 0.024 * self.size
+
+    @property
+    def closure_b(self) -> float:
+        return 0.011 * self.size
+
+    @property
+    def post(self) -> float:
+        return 0.03 * self.size
+
+    @property
+    def post_length(self) -> float:
+        return 0.1 * self.size
+
+    @property
+    def margin(self) -> float:
+        return 0.15 * self.size
+
+    @property
+    def plate(self) -> float:
+        return 0.01 * self.size
+
+    @property
+    def clearance(self) -> float:
+        return 0.01 * self.size
+
+    @property
+    def lift(self) -> float:
+        return 0.02 * self.size
+
+    @property
+    def triad(self) -> float:
+        return 0.2 * self.size
+
+
+def marks(robot: ParallelRobot) -> Marks:
+    """The view's mark sizes for ``robot`` (from its stick figure at home)."""
+    return Marks(stick_figure(robot).size)
 
 
 def _configurations(robot: ParallelRobot, qs, n: int) -> np.ndarray:
@@ -86,71 +153,13 @@ def _path_points(name: str, points, xyz_columns=None, fill=None) -> np.ndarray:
 def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
     """How a path in ``robot``'s outputs is drawn in the world: for each world axis the output
     column moving along it (or None), and the (3,) values (m) of the axes no output moves along:
-    the output point's at home, lifted by :data:`PATH_Z` along z (above a planar robot's plane)."""
+    the output point's at home, lifted by :attr:`Marks.lift` along z (above a planar robot's plane)."""
     world = output_world_axes(robot)
     columns = [world.index(k) if k in world else None for k in range(3)]
-    fill = np.array(stick_figure(robot).output, dtype=float)
-    fill[2] += PATH_Z
+    figure = stick_figure(robot)
+    fill = np.array(figure.output, dtype=float)
+    fill[2] += Marks(figure.size).lift
     return columns, fill
-
-
-#: Coal shapes the viewer draws; other visuals (meshes) leave their link to the stick figure.
-DRAWN_SHAPES = (coal.Cylinder, coal.Sphere, coal.Box)
-
-
-def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
-    """The robot's drawn visual geometry (from its URDF or MJCF model file) as a
-    ``pinocchio.GeometryModel``: its cylinders, spheres and boxes.
-
-    The links of other visuals (meshes) are drawn as the stick figure instead, and a model file
-    whose meshes do not resolve in its folder or the package path is not read for visuals at all
-    (Pinocchio would look for them elsewhere; they are never read): every link is then drawn as
-    the stick figure. Either case is said in one line (:class:`~parallel_gpc.errors.ParallelGPCWarning`).
-    """
-    description = robot.description
-    path = str(description.urdf_path)
-    if description.unresolved_meshes:
-        shown = ", ".join(repr(u) for u in description.unresolved_meshes[:3])
-        more = len(description.unresolved_meshes) - 3
-        warnings.warn(
-            f"the view draws {path!r} as a stick figure: {len(description.unresolved_meshes)} mesh(es) "
-            f"({shown}{f' and {more} more' if more > 0 else ''}) do not resolve in the robot's folder or the package "
-            "path (--package-path DIR, PARALLEL_GPC_PACKAGE_PATH or package_path=)", ParallelGPCWarning, stacklevel=2)
-        return pin.GeometryModel()
-    if description.model_format == "mjcf":
-        geom = pin.buildGeomFromMJCF(robot.model, path, pin.GeometryType.VISUAL)
-    else:
-        dirs = [str(Path(path).resolve().parent), *map(str, description.package_path)]
-        geom = pin.buildGeomFromUrdf(robot.model, path, pin.GeometryType.VISUAL, None, dirs)
-    skipped = [g for g in geom.geometryObjects if not isinstance(g.geometry, DRAWN_SHAPES)]
-    if not skipped:
-        return geom
-    kinds = sorted({type(g.geometry).__name__ for g in skipped})
-    warnings.warn(f"the view draws {len(skipped)} visual(s) of {path!r} ({', '.join(kinds)}: not cylinders, spheres "
-                  "or boxes) as a stick figure of their links", ParallelGPCWarning, stacklevel=2)
-    drawn = pin.GeometryModel()
-    for g in geom.geometryObjects:
-        if isinstance(g.geometry, DRAWN_SHAPES):
-            drawn.addGeometryObject(g)
-    return drawn
-
-
-def _shape(geometry, scale: float = 1.0) -> tuple[mg.Geometry, np.ndarray]:
-    """meshcat geometry of a Coal shape and its 4x4 intrinsic transform (local frame fix-up).
-
-    Raises:
-        RobotFormatError: for shapes the viewer does not draw (meshes, capsules, ...).
-    """
-    if isinstance(geometry, coal.Cylinder):
-        return mg.Cylinder(2.0 * geometry.halfLength, geometry.radius * scale), _Y_TO_Z
-    if isinstance(geometry, coal.Sphere):
-        return mg.Sphere(geometry.radius * scale), np.eye(4)
-    if isinstance(geometry, coal.Box):
-        return mg.Box((2.0 * np.asarray(geometry.halfSide) * scale).tolist()), np.eye(4)
-    raise RobotFormatError(
-        f"visual geometry of type {type(geometry).__name__} is not drawn by the viewer; "
-        "use cylinder, sphere or box visuals in the URDF"
-    )
 
 
 def _material(rgba, color: int | None = None) -> mg.MeshLambertMaterial:
@@ -160,19 +169,6 @@ def _material(rgba, color: int | None = None) -> mg.MeshLambertMaterial:
         r, g, b = (int(round(255 * float(np.clip(c, 0, 1)))) for c in rgba[:3])
         color = (r << 16) | (g << 8) | b
     return mg.MeshLambertMaterial(color=color, opacity=float(np.clip(rgba[3], 0, 1)))
-
-
-def _lowest_z(geometry, oMg: pin.SE3) -> float:
-    """Lowest world z (m) of a cylinder, sphere or box placed at ``oMg``."""
-    R, z = oMg.rotation, oMg.translation[2]
-    if isinstance(geometry, coal.Cylinder):
-        az = abs(R[2, 2])
-        return z - az * geometry.halfLength - geometry.radius * math.sqrt(max(0.0, 1 - az * az))
-    if isinstance(geometry, coal.Sphere):
-        return z - geometry.radius
-    if isinstance(geometry, coal.Box):
-        return z - float(np.abs(R[2]) @ np.asarray(geometry.halfSide))
-    return z
 
 
 def _translation(p) -> np.ndarray:
@@ -203,10 +199,10 @@ class StickFigure:
     Attributes:
         joints: model ids of the joints drawn as spheres.
         rods: (parent joint id, child joint id or None, frame id or None) of each rod.
-        radius: rod radius in m (spheres 1.7 times larger), from the robot's size at home.
+        radius: rod radius in m (spheres 1.7 times larger): :attr:`Marks.rod`.
     """
 
-    def __init__(self, robot: ParallelRobot, geom_model: pin.GeometryModel):
+    def __init__(self, robot: ParallelRobot, geom_model: pin.GeometryModel, sizes: Marks | None = None):
         model = robot.model
         dressed = {g.parentJoint for g in geom_model.geometryObjects}
         skip = output_joint_ids(robot)
@@ -221,9 +217,7 @@ class StickFigure:
             joint = model.frames[f].parentJoint
             if joint in bare:
                 self.rods.append((joint, None, f))
-        points = stick_figure(robot).joints
-        span = float(np.ptp(points, axis=0).max()) if len(points) > 1 else 0.3
-        self.radius = float(np.clip(0.012 * span, 0.003, 0.015))
+        self.radius = (sizes or marks(robot)).rod
         self._robot = robot
 
     @property
@@ -270,6 +264,7 @@ class RobotScene:
 
     Attributes:
         geom_model, geom_data: the URDF visual geometry and its workspace.
+        marks: sizes of the added marks (closures, base, stick figure), scaled to the robot.
         paths: meshcat paths (relative to ``vis``) of the moving parts, in draw order.
     """
 
@@ -279,11 +274,12 @@ class RobotScene:
         self.geom_model = visual_model(robot)
         self.geom_data = self.geom_model.createData()
         self.data = robot.model.createData()
-        self._shapes = [_shape(g.geometry) for g in self.geom_model.geometryObjects]
+        self.marks = marks(robot)
+        self._shapes = [meshcat_shape(g) for g in self.geom_model.geometryObjects]
         self._drive_jids = [robot.model.getJointId(n) for n in robot.description.drive_joints]
         self._closure_fids = [(robot.model.getFrameId(c.frames[0]), robot.model.getFrameId(c.frames[1]))
                               for c in robot.description.closures]
-        self.stick = StickFigure(robot, self.geom_model)
+        self.stick = StickFigure(robot, self.geom_model, self.marks)
         self.paths = ([f"{ROBOT}/{g.name}" for g in self.geom_model.geometryObjects]
                       + [f"{ROBOT}/closures/{c.name}_{s}" for c in robot.description.closures for s in "ab"]
                       + [self._overlay_path(i, g) for i, g in self._overlays()] + self.stick.paths)
@@ -303,12 +299,13 @@ class RobotScene:
         q = self.robot.q_home if q is None else finite_vector("configuration q", q, self.robot.model.nq)
         for g, (shape, _) in zip(self.geom_model.geometryObjects, self._shapes):
             self.vis[f"{ROBOT}/{g.name}"].set_object(shape, _material(g.meshColor))
+        m = self.marks
         for c in self.robot.description.closures:  # frame a: large translucent, b: small dark
             closures = self.vis[f"{ROBOT}/closures"]
-            closures[f"{c.name}_a"].set_object(mg.Sphere(0.026), _material([1, 1, 1, 0.7], CLOSURE_A_COLOR))
-            closures[f"{c.name}_b"].set_object(mg.Sphere(0.014), _material([1, 1, 1, 1], CLOSURE_B_COLOR))
+            closures[f"{c.name}_a"].set_object(mg.Sphere(m.closure_a), _material([1, 1, 1, 0.7], CLOSURE_A_COLOR))
+            closures[f"{c.name}_b"].set_object(mg.Sphere(m.closure_b), _material([1, 1, 1, 1], CLOSURE_B_COLOR))
         for i, k in self._overlays():
-            shape, _ = _shape(self.geom_model.geometryObjects[k].geometry, scale=1.8)
+            shape, _ = meshcat_shape(self.geom_model.geometryObjects[k], scale=1.8)
             self.vis[self._overlay_path(i, k)].set_object(shape, _material([1, 1, 1, 0.85], SATURATION_COLOR))
         pin.framesForwardKinematics(self.robot.model, self.data, self.robot.q_home)
         self.stick.draw(self.vis, self.data)
@@ -330,18 +327,21 @@ class RobotScene:
         points = self.base_points()
         pin.forwardKinematics(self.robot.model, self.data, self.robot.q_home)
         pin.updateGeometryPlacements(self.robot.model, self.data, self.geom_model, self.geom_data)
-        floor = min([_lowest_z(g.geometry, M) for g, M in zip(self.geom_model.geometryObjects, self.geom_data.oMg)]
-                    + [-0.03]) - 0.01
-        lo, hi = points[:, :2].min(axis=0) - 0.15, points[:, :2].max(axis=0) + 0.15
-        plate = mg.Box([float(hi[0] - lo[0]), float(hi[1] - lo[1]), 0.01])
+        sizes = self.marks
+        lowest = [lowest_z(g.geometry, M) for g, M in zip(self.geom_model.geometryObjects, self.geom_data.oMg)]
+        figure = stick_figure(self.robot)
+        lowest += [float(figure.joints[:, 2].min()) - 1.7 * sizes.rod] if len(figure.joints) else []
+        floor = min(lowest + [-3 * sizes.clearance]) - sizes.clearance
+        lo, hi = points[:, :2].min(axis=0) - sizes.margin, points[:, :2].max(axis=0) + sizes.margin
+        plate = mg.Box([float(hi[0] - lo[0]), float(hi[1] - lo[1]), sizes.plate])
         self.vis[f"{BASE}/plate"].set_object(plate, _material([1, 1, 1, 1], PLATE_COLOR))
-        self.vis[f"{BASE}/plate"].set_transform(_translation([*(lo + hi) / 2, floor - 0.005]))
-        for i, p in enumerate(points):
-            height = p[2] - floor
-            post = mg.Cylinder(max(height, 0.01), 0.035)
+        self.vis[f"{BASE}/plate"].set_transform(_translation([*(lo + hi) / 2, floor - sizes.plate / 2]))
+        for i, p in enumerate(points):  # a post down to the plate, or a stub under a base point high above it
+            height = float(np.clip(p[2] - floor, sizes.clearance, sizes.post_length))
+            post = mg.Cylinder(height, sizes.post)
             node = self.vis[f"{BASE}/point_{i + 1}"]
             node.set_object(post, _material([1, 1, 1, 1], BASE_POINT_COLOR))
-            node.set_transform(_translation([p[0], p[1], floor + height / 2]) @ _Y_TO_Z)
+            node.set_transform(_translation([p[0], p[1], p[2] - height / 2]) @ Y_TO_Z)
 
     # ------------------------------------------------------------------ placements
     def placements(self, q: np.ndarray) -> list[np.ndarray]:
@@ -412,9 +412,12 @@ def frame_indices(t: np.ndarray, fps: float, max_frames: int = 300) -> np.ndarra
 
 
 def draw_robot(vis: meshcat.Visualizer, robot: ParallelRobot, q: np.ndarray | None = None) -> RobotScene:
-    """Draw ``robot`` (geometry, closures, base) at configuration q (default: home) and aim the camera."""
+    """Draw ``robot`` (geometry, closures, base) at configuration q (default: home) and aim the
+    camera at its stick figure at home (:func:`set_camera`, sized by :attr:`RobotScene.marks`)."""
     scene = RobotScene(vis, robot).draw(q)
-    set_camera(vis, scene.base_points())
+    figure = stick_figure(robot)
+    points = np.vstack([figure.joints, figure.closures.reshape(-1, 3), figure.output.reshape(1, 3)])
+    set_camera(vis, points, size=scene.marks.size)
     return scene
 
 
@@ -433,27 +436,35 @@ def draw_path(vis: meshcat.Visualizer, name: str, points, color: int, xyz_column
     vis[f"{PATHS}/{name}"].set_object(line)
 
 
-def set_camera(vis: meshcat.Visualizer, points: np.ndarray, elevation_deg: float = 55.0) -> None:
-    """Frame ``points`` ((n, 3) m, e.g. the base points): look at their centre from -y, above.
+def set_camera(vis: meshcat.Visualizer, points: np.ndarray, elevation_deg: float = 55.0,
+               size: float | None = None) -> None:
+    """Frame ``points`` ((n, 3) m, e.g. a robot's joint origins): look at the centre of their
+    bounding box from above and from -y, or from -x when the points spread less than half as
+    much along x as along y (a mechanism in a vertical y-z plane is then seen face on).
 
     meshcat's orbit camera always looks at the world origin, so the scene under ``vis`` is
-    shifted to put the centre of ``points`` there (the stock grid and axes are hidden and a triad is drawn
-    at the robot's own origin instead). The distance grows with the spread of the points so a
-    1 m x 1 m workspace fills the view.
+    shifted to put that centre there (the stock grid and axes are hidden and a triad of
+    :attr:`Marks.triad` is drawn at the robot's own origin instead). The camera stands ``1.4 * size``
+    away, so a robot of characteristic length ``size`` (m; default: the points' largest extent
+    along a world axis, 1 m for a single point) fills the view whatever its scale.
     """
     points = np.asarray(points, dtype=float).reshape(-1, 3)
-    center = points.mean(axis=0) if points.size else np.zeros(3)
-    span = float(np.ptp(points[:, :2], axis=0).max()) if len(points) > 1 else 1.0
-    distance = 1.05 * max(span, 0.3) + 0.35
+    center = (points.min(axis=0) + points.max(axis=0)) / 2 if points.size else np.zeros(3)
+    extent = np.ptp(points, axis=0) if len(points) > 1 else np.zeros(3)
+    if size is None:
+        size = float(extent.max()) if extent.max() > 0 else 1.0
+    size = positive("camera size", size, " m")
+    distance = 1.4 * size
     el = math.radians(elevation_deg)
-    vis.set_transform(_translation([-center[0], -center[1], 0.0]))
+    vis.set_transform(_translation(-center))
     vis["/Axes"].set_property("visible", False)
     vis["/Grid"].set_property("visible", False)
-    vis[f"{BASE}/origin"].set_object(mg.triad(0.2))
+    vis[f"{BASE}/origin"].set_object(mg.triad(Marks(size).triad))
     vis["/Cameras/default"].set_transform(np.eye(4))
     # the camera lives in a y-up frame ("rotated"): (x, y, z) there is (x, -z, y) in the world
-    vis["/Cameras/default/rotated/<object>"].set_property(
-        "position", [0.0, distance * math.sin(el), distance * math.cos(el)])
+    across, up = distance * math.cos(el), distance * math.sin(el)
+    position = [-across, up, 0.0] if extent[0] < 0.5 * extent[1] else [0.0, up, across]
+    vis["/Cameras/default/rotated/<object>"].set_property("position", position)
 
 
 def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=None, reference=None,
