@@ -139,3 +139,16 @@ def test_info_lists_the_locked_joints(tmp_path, capsys):
     assert "s2 = " in line
     notes = [x for x in err.splitlines() if "idle motion(s)" in x]
     assert len(notes) == 1 and notes[0].startswith("parallel-gpc: note: robot 'fivebar': 1 idle motion(s)"), err
+
+
+def test_a_command_that_loads_the_robot_twice_says_the_notice_once(tmp_path, capsys):
+    """``track`` loads the robot for the controller and for the plant: the idle-lock notice prints once."""
+    path = coaxial_fivebar(tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", ParallelGPCWarning)
+        code = cli.main(["track", "--robot", str(path), "--forms", "absolute", "--reference", "hold",
+                         "--duration", "0.02", "--out", str(tmp_path / "out")])
+    out, err = capsys.readouterr()
+    assert code == 0, err
+    notes = [x for x in err.splitlines() if "idle motion(s)" in x]
+    assert len(notes) == 1, err

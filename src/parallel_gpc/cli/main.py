@@ -58,14 +58,18 @@ def build_parser(registrars=None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one command; returns its exit code (2: bad input, 3: a closed loop diverged, 130: interrupted).
-    The package's notices (:class:`~parallel_gpc.errors.ParallelGPCWarning`) print as one line on stderr."""
+    The package's notices (:class:`~parallel_gpc.errors.ParallelGPCWarning`) print as one line on stderr,
+    each distinct notice once (a command that loads the robot twice — controller and plant — says it once)."""
     with warnings.catch_warnings():
         shown = warnings.showwarning
+        printed: set[str] = set()
 
         def one_line(message, category, *args, **kwargs):
             if not issubclass(category, ParallelGPCWarning):
                 return shown(message, category, *args, **kwargs)
-            print(f"parallel-gpc: note: {message}", file=sys.stderr)
+            if str(message) not in printed:
+                printed.add(str(message))
+                print(f"parallel-gpc: note: {message}", file=sys.stderr)
 
         warnings.showwarning = one_line
         return _run(argv)
