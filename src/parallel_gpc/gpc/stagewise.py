@@ -33,7 +33,8 @@ from ..errors import SolverError
 from ..limits import SOFT_QUADRATIC, Limits
 from ..model import compiled_part
 from ..solvers import SolveResult, StageQP, StageQPSolution, solve_stage_qp
-from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport
+from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
+from .criterion import input_rows
 from .prediction import Horizons
 
 __all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
@@ -42,14 +43,18 @@ __all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 
 
-def _pair_rows(M: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """(±M rows, bounds): M x ≤ hi and −M x ≤ −lo, ±inf bounds kept (an unused row)."""
-    return np.concatenate([M, -M]), np.concatenate([hi, -lo])
+def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
+    """The two-sided rows lo ≤ Fz z + Fv v + const ≤ hi ((N, k, ·) each, ±inf: unused) as one-sided
+    rows [Fz; −Fz] z + [Fv; −Fv] v ≤ [hi − const; const − lo]: (kind, Fz, Fv, f, soft), (N, 2k, ·)."""
+    return (kind, np.concatenate([Fz, -Fz], axis=1), np.concatenate([Fv, -Fv], axis=1),
+            np.concatenate([hi - const, const - lo], axis=1), soft)
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
                   y_now, y_sim=None, u_sim=None, u_prev=None) -> tuple[StageQP, np.ndarray]:
-    """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring).
+    """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring): the rows of
+    :func:`~parallel_gpc.gpc.criterion.input_rows` and :func:`~parallel_gpc.gpc.constraints.output_rows`
+    (the definitions the condensed layout uses) placed on the stages they act on.
 
     Args:
         form: the controller's form. Ab, Bb, cb, Cz, z0: :func:`~parallel_gpc.gpc.riccati.stage_models`.
@@ -60,7 +65,7 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
         u_sim: (N, m) pre-simulated inputs (nonlinear form). u_prev: (m,) u(k−1) (nonlinear du).
 
     Returns:
-        (the problem, kinds (N, k) object array: the limit kind of every row, None on an unused one).
+        (the problem, kinds (k,) object array: the limit kind of each row column, the same on every stage).
     """
     H = horizons
     N, No, Nu = H.N, H.No, H.Nu
@@ -70,65 +75,65 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     CQ = Cz.T @ Qy
     Q[No + 1:] = 2.0 * CQ @ Cz
     q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
-    eye, zero_z, zero_v = np.eye(m), np.zeros((m, nz)), np.zeros((m, m))
-    mem = np.zeros((m, nz))  # z(i)[n:], the input memory of the incremental forms' state [x; u]
-    if form != "absolute":
-        mem[:, nz - m:] = np.eye(m)
-    blocks = [[] for _ in range(N)]  # per stage: (Fz, Fv, f, soft, kind)
-
-    def add(i, Fz, Fv, f, soft, kind):
-        blocks[i].append((Fz, Fv if i < Nu else np.zeros_like(Fv), f, np.full(len(f), soft), [kind] * len(f)))
-
-    tau, delta = limits.torque, limits.du
-    if tau is not None:
-        for i in range(N if form == "nonlinear" else Nu):
-            if form == "absolute":
-                Fz, Fv, off = zero_z, eye, 0.0
-            else:
-                Fz, Fv = mem, (eye if i < Nu else zero_v)
-                off = u_sim[i] if form == "nonlinear" else 0.0
-            F, f = _pair_rows(np.hstack([Fz, Fv]), -tau - off, tau - off)
-            add(i, F[:, :nz], F[:, nz:], f, False, "torque")
-    if delta is not None:
-        drift = np.zeros((Nu, m))
-        if form == "nonlinear":
-            drift = np.diff(np.vstack([u_prev, u_sim[:Nu]]), axis=0)
-        for i in range(Nu):
-            F, f = _pair_rows(np.hstack([zero_z, eye]), -delta - drift[i], delta - drift[i])
-            add(i, F[:, :nz], F[:, nz:], f, False, "du")
-    y_off = np.zeros((N + 1, p)) if y_sim is None else np.vstack([np.zeros((1, p)), y_sim])
-    y_now = np.asarray(y_now, float)
-
-    def output_rows(i):  # ŷ(i) = Yz z(i−1) + Yv v(i−1) + y0 as a row block of stage i − 1
-        return Cz @ Ab[i - 1], Cz @ Bb[i - 1], Cz @ cb[i - 1] + y_off[i]
-
-    if limits.output_box is not None:
-        box = limits.output_box
-        for i in range(No + 1, N + 1):
-            Yz, Yv, y0 = output_rows(i)
-            F, f = _pair_rows(np.hstack([Yz, Yv]), box[:, 0] - y0, box[:, 1] - y0)
-            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_box"), "output_box")
-    if limits.output_velocity is not None:
-        vmax = limits.output_velocity * Ts
-        for i in range(1 if No == 0 else No + 2, N + 1):  # the first from y(k) when No = 0
-            Yz, Yv, y0 = output_rows(i)
-            if i == 1:
-                prev_z, prev0 = np.zeros((p, nz)), y_now
-            else:
-                prev_z, prev0 = Cz, y_off[i - 1]
-            F, f = _pair_rows(np.hstack([Yz - prev_z, Yv]), -vmax - y0 + prev0, vmax - y0 + prev0)
-            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_velocity"), "output_velocity")
-    k = max((sum(len(b[2]) for b in stage) for stage in blocks), default=0)
-    Fz, Fv = np.zeros((N, k, nz)), np.zeros((N, k, m))
-    f, soft, kinds = np.full((N, k), np.inf), np.zeros((N, k), bool), np.full((N, k), None, dtype=object)
-    for i, stage in enumerate(blocks):
-        j = 0
-        for bz, bv, bf, bs, bk in stage:
-            rows = slice(j, j + len(bf))
-            Fz[i, rows], Fv[i, rows], f[i, rows], soft[i, rows], kinds[i, rows] = bz, bv, bf, bs, bk
-            j += len(bf)
+    decided = (np.arange(N) < Nu)[:, None, None]  # v(i) exists on the stages i < Nu
+    blocks = []
+    nonlinear = form == "nonlinear"
+    rows = input_rows(limits, "absolute" if form == "absolute" else "simulative" if nonlinear else "incremental",
+                      Nu, N if nonlinear else Nu, u_sim, u_prev)
+    if rows.torque is not None:  # u(i) = z(i)[n:] + v(i) [+ u_sim(i)] (absolute: v(i))
+        n_t = len(rows.torque)
+        Fz, Fv, off = np.zeros((N, m, nz)), np.zeros((N, m, m)), np.zeros((N, m))
+        if form != "absolute":
+            Fz[:n_t, :, nz - m:] = np.eye(m)
+        Fv[:min(n_t, Nu)] = np.eye(m)
+        if nonlinear:
+            off[:n_t] = u_sim[:n_t]
+        hi = np.full((N, m), np.inf)
+        hi[:n_t] = rows.torque
+        blocks.append(_pair("torque", Fz, Fv, off, -hi, hi, False))
+    if rows.du_lo is not None:  # a box on v(i), i < Nu
+        Fv = np.zeros((N, m, m))
+        Fv[:Nu] = np.eye(m)
+        lo, hi = np.full((N, m), -np.inf), np.full((N, m), np.inf)
+        lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
+        blocks.append(_pair("du", np.zeros((N, m, nz)), Fv, np.zeros((N, m)), lo, hi, False))
+    out_rows = output_rows(limits, H, Ts, p)
+    if out_rows:
+        # ŷ(i) = C̄ Ā z(i−1) + C̄ B̄ v(i−1) + C̄ c̄(i−1) [+ ŷ_sim(i)], a row of stage i − 1, whose own
+        # ŷ(i−1) = C̄ z(i−1) [+ ŷ_sim(i−1)] (stage 0: the measured y(k))
+        CA, CB = np.einsum("pn,inm->ipm", Cz, Ab), np.einsum("pn,inm->ipm", Cz, Bb) * decided
+        y_next = cb @ Cz.T + (0.0 if y_sim is None else y_sim)
+        P = np.broadcast_to(Cz, (N, p, nz)).copy()
+        P[0] = 0.0
+        y_cur = np.zeros((N, p))
+        y_cur[0] = y_now
+        if y_sim is not None:
+            y_cur[1:] = y_sim[:N - 1]
+        for b in out_rows:
+            st = np.arange(b.first - 1, N)  # the stage of each row block
+            k = b.cur.shape[1]
+            Fz, Fv, const = np.zeros((N, k, nz)), np.zeros((N, k, m)), np.zeros((N, k))
+            lo, hi = np.full((N, k), -np.inf), np.full((N, k), np.inf)
+            Fz[st] = np.einsum("ikp,ipn->ikn", b.cur, CA[st])
+            Fv[st] = np.einsum("ikp,ipn->ikn", b.cur, CB[st])
+            const[st] = np.einsum("ikp,ip->ik", b.cur, y_next[st]) + b.offset
+            if b.prev is not None:
+                Fz[st] += np.einsum("ikp,ipn->ikn", b.prev, P[st])
+                const[st] += np.einsum("ikp,ip->ik", b.prev, y_cur[st])
+            lo[st], hi[st] = b.lo, b.hi
+            blocks.append(_pair(b.kind, Fz, Fv, const, lo, hi, b.soft))
+    if blocks:
+        kinds = np.concatenate([np.full(b[1].shape[1], b[0], dtype=object) for b in blocks])
+        Fz = np.concatenate([b[1] for b in blocks], axis=1)
+        Fv = np.concatenate([b[2] for b in blocks], axis=1)
+        f = np.concatenate([b[3] for b in blocks], axis=1)
+        soft = np.concatenate([np.full(b[1].shape[1], b[4]) for b in blocks])
+    else:
+        kinds, Fz, Fv, f, soft = np.empty(0, dtype=object), np.zeros((N, 0, nz)), np.zeros((N, 0, m)), \
+            np.zeros((N, 0)), np.zeros(0, bool)
     rho = limits.penalty
-    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, soft, rho, 2.0 * SOFT_QUADRATIC * rho)
+    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, np.broadcast_to(soft, f.shape).copy(), rho,
+                 2.0 * SOFT_QUADRATIC * rho)
     return qp, kinds
 
 
@@ -205,7 +210,8 @@ class StagewiseSolver:
         if state.any():
             slack = {str(kd): float(np.max(sol.s[state & (kinds == kd) & qp.soft], initial=0.0))
                      for kd in ("output_box", "output_velocity") if (state & (kinds == kd) & qp.soft).any()}
-            report = ConstraintReport(tuple(sorted({str(kd) for kd in kinds[active & state]})), slack)
+            report = ConstraintReport(tuple(sorted({str(kd) for kd in np.broadcast_to(kinds, used.shape)[active & state]})),
+                                      slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
         if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):
