@@ -32,7 +32,7 @@ import numpy as np
 from ..errors import SolverError
 from ..limits import SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import SolveResult, StageQP, StageQPSolution, solve_stage_qp
+from ..solvers import SolveResult, StageQP, StageQPSolution, StageStart, solve_stage_qp
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -156,17 +156,36 @@ class StagewiseSolver:
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
         self.native = self._compiled is not None
+        self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
 
-    def _solve(self, qp: StageQP) -> StageQPSolution:
+    def _start(self, qp: StageQP) -> StageStart | None:
+        """The last solution shifted by one stage (the warm start of the next step), or None: v(i) ←
+        v(i+1) (absolute: the last held; the increments of the incremental forms: 0 at the end; the
+        nonlinear form's deviation from a new pre-simulation: the unconstrained plan), λ and s likewise."""
+        last = self._last
+        if last is None or last.lam.shape != qp.f.shape or last.v.shape[0] != qp.n_decide:
+            return None
+        v = None
+        if self.form != "nonlinear":
+            v = np.concatenate([last.v[1:], last.v[-1:] if self.form == "absolute" else np.zeros_like(last.v[-1:])])
+
+        def shifted(a):
+            return np.concatenate([a[1:], a[-1:]])
+
+        return StageStart(v, shifted(last.lam), shifted(last.s))
+
+    def _solve(self, qp: StageQP, start: StageStart | None) -> StageQPSolution:
         """The compiled solve, or the Python reference."""
         if self._compiled is None:
-            return solve_stage_qp(qp)
+            return solve_stage_qp(qp, start=start)
         try:
             c = np.ascontiguousarray
             v, z, s, lam, iterations, ok, merit = self._compiled(
                 c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
                 c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.Fv, float), c(qp.f, float), c(qp.soft, bool),
-                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float))
+                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float),
+                *((None, None, None) if start is None else
+                  (None if start.v is None else c(start.v, float), c(start.lam, float), c(start.s, float))))
         except RuntimeError as exc:
             raise SolverError(str(exc)) from None
         status = "optimal" if ok else "infeasible"
@@ -174,13 +193,15 @@ class StagewiseSolver:
                                  "the hard limits cannot all hold (infeasible)")
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
-    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None
+    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
         """(the plan v (Nu·m,) as a SolveResult, what the state limits did or None without them).
 
         Args:
             stage_models: (Ā, B̄, c̄, C̄, z0) of :func:`~parallel_gpc.gpc.riccati.stage_models`.
             r, y_now, y_sim, u_sim, u_prev: as in :func:`stage_problem`.
+            warm: start from the last solution shifted by one stage (a controller's next step),
+                else from the unconstrained plan.
 
         Returns:
             status ``optimal`` (``active_limits`` when a row binds), ``infeasible`` (hard limits
@@ -191,11 +212,15 @@ class StagewiseSolver:
         H, m = self.horizons, self.Wu.shape[0]
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
                                   y_now, y_sim, u_sim, u_prev)
+        start = self._start(qp) if warm else None
+        self._last = None
         try:
-            sol = self._solve(qp)
+            sol = self._solve(qp, start)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None
+        if sol.status == "optimal":
+            self._last = sol
         v = sol.v.reshape(-1)
         e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
         J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
