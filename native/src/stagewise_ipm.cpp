@@ -5,11 +5,15 @@
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "bindings.hpp"
@@ -25,7 +29,7 @@ using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
 
 constexpr double IPM_TOL = 1e-13, ACCEPT = 1e-6, PROGRESS = 0.5, REFINE_FORCING = 1e-3, POLISH_TOL = 1e-9,
-                 POLISH_FLOOR = 1e-16, TAU = 0.995;
+                 POLISH_FLOOR = 1e-16, TAU = 0.995, FLOOR = 1e-9, SHIFT = 1e-14, SHIFT_MAX = 1e-8, WARM = 1e-3;
 constexpr int MAX_ITER = 60, REFINE = 2, STALL = 3, POLISH_ROUNDS = 3, POLISH_STEPS = 2;
 
 struct QP {
@@ -61,7 +65,34 @@ struct Riccati {
         PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
         w(qp.nz), tmp(qp.m) {}
 
-  void factor(const Arr &W) {
+  // stage i's input Hessian (in Hvv) factorized; regularize: see _cholesky in the Python twin
+  void cholesky(long i, const Arr &W, bool regularize) {
+    if (!Hvv.allFinite())
+      throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
+                               " has non-finite entries (NaN or inf in the model, the weights or the limits)");
+    const double top = Hvv.diagonal().cwiseAbs().maxCoeff();
+    llt[i].compute(Hvv);
+    double shift = SHIFT * top;
+    while (llt[i].info() != Eigen::Success) {
+      if (!regularize)
+        throw std::runtime_error("stage-wise IPM: the input Hessian R + BᵀPB at stage " + std::to_string(i) +
+                                 " is not positive definite (the input weight Qu must be nonsingular)");
+      if (shift > SHIFT_MAX * top) {
+        char buf[160];
+        std::snprintf(buf, sizeof buf, "(row weights λ/t up to %.3g, the input Hessian's diagonal up to %.3g)",
+                      W.rows() && W.cols() ? W.maxCoeff() : 0.0, top);
+        throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
+                                 " is singular to working precision " + buf +
+                                 ": an ill-conditioned iterate, not the input weight");
+      }
+      Mat shifted = Hvv;
+      shifted.diagonal().array() += shift;
+      llt[i].compute(shifted);
+      shift *= 10.0;
+    }
+  }
+
+  void factor(const Arr &W, bool regularize = false) {
     h_max = 0.0;
     P = qp.Q[qp.N];
     for (long i = qp.N - 1; i >= 0; --i) {
@@ -83,9 +114,7 @@ struct Riccati {
         H.noalias() += PB.transpose().lazyProduct(A);
         if (qp.has_S) H += qp.S;
         h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
-        llt[i].compute(Hvv);
-        if (llt[i].info() != Eigen::Success || !Hvv.allFinite())
-          throw std::runtime_error("stage-wise IPM: the input Hessian is not positive definite");
+        cholesky(i, W, regularize);
         Hvz[i] = H;
         K[i] = llt[i].solve(H);
         K[i] *= -1.0;
@@ -203,15 +232,15 @@ struct Newton {
   const QP &qp;
   Mask used, soft;
   double scale, f_scale;
-  Point pt;
+  const Point &pt;  // the iterate (outlives this system)
   Arr f, r_t, r_s, d, sp, a, W;
   double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
-  Riccati *ric;  // the solve's workspace, factorized for this system
+  Riccati *ric = nullptr;  // the solve's workspace, once factorized for this system
 
   Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
          Riccati *factor)
-      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point), ric(factor) {
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
     f = where(used, qp.f, 0.0);
     Arr Fx = rows_times(qp, pt.z, pt.v);
     r_t = where(used, Fx - pt.s + pt.t - f, 0.0);
@@ -222,13 +251,18 @@ struct Newton {
     const double res = std::max(max_abs(rv), r_s.abs().maxCoeff()) / scale;
     merit = std::max({mu / (scale * f_scale), r_t.abs().maxCoeff() / f_scale, res});
     refine_above = std::max(1e-15, REFINE_FORCING * merit) * scale;  // an inexact Newton step (see the Python twin)
-    if (!factor) return;
+    if (factor) factorize(factor, false);
+  }
+
+  // the row weights and their Riccati factorization (into the solve's workspace)
+  void factorize(Riccati *workspace, bool regularize) {
+    ric = workspace;
     d = where(used, pt.lam / pt.t, 0.0);
     Arr s_safe = where(soft, pt.s, 1.0);
     sp = where(soft, pt.pi / s_safe, 0.0);
     a = where(soft, qp.kappa + d + sp, 1.0);
     W = soft.select(d * (qp.kappa + sp) / a, d);
-    ric->factor(W);
+    ric->factor(W, regularize);
   }
 
   // (dz, dv, dt, dλ, ds, dπ)
@@ -253,8 +287,8 @@ struct Newton {
       for (long i = 0; i < qp.nd; ++i) dv[i] += cv[i];
     }
     Arr Fdx = rows_times(qp, dz, dv);
-    step.z = dz;
-    step.v = dv;
+    step.z.swap(dz);
+    step.v.swap(dv);
     step.s = where(soft, (beta + d * Fdx) / a, 0.0);
     step.lam = where(used, W * Fdx + w0, 0.0);
     step.t = where(used, -r_t - Fdx + step.s, 0.0);
@@ -352,7 +386,23 @@ bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, co
   return true;
 }
 
-Result solve_scaled(const QP &qp, Traj z, Traj v) {
+// the states of the plan v: the dynamics rows held exactly
+Traj simulate(const QP &qp, const Traj &v) {
+  Traj z(qp.N + 1);
+  z[0] = qp.z0;
+  for (long i = 0; i < qp.N; ++i) {
+    z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+    z[i + 1] += qp.c[i];
+    if (i < qp.nd) z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+  }
+  return z;
+}
+
+struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
+  Arr lam, s;
+};
+
+Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
   Arr f = where(used, qp.f, 0.0);
@@ -374,19 +424,21 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
   // λ0 = scale·N²: see the Python twin
   pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale * double(qp.N) * double(qp.N)), 0.0);
   pt.pi = where(soft, Arr::Constant(qp.N, qp.k, scale), 1.0);
+  if (start) {  // kept off the boundary (see the Python twin)
+    const double th_t = WARM * f_scale, th_l = WARM * scale;
+    pt.s = where(soft, start->s.max(Fx - f).max(0.0) + th_t, 0.0);
+    pt.t = where(used, (f + pt.s - Fx).max(th_t), 1.0);
+    pt.lam = where(used, start->lam.max(th_l), 0.0);
+    pt.pi = where(soft, (qp.rho + qp.kappa * pt.s - pt.lam).max(th_l), 1.0);
+  }
   Result best{pt, {}, std::numeric_limits<double>::infinity(), 0, false};
   bool have = false;
   double marked = std::numeric_limits<double>::infinity();  // merit and iteration of the last marked improvement
   int marked_it = 0;
   for (int it = 0; it <= MAX_ITER; ++it) {
-    std::unique_ptr<Newton> newton;
-    try {
-      newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, &ric);
-    } catch (const std::runtime_error &) {
-      if (have && best.merit <= ACCEPT) break;
-      throw;
-    }
-    if (!have || newton->merit < best.merit) {
+    auto newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, nullptr);
+    const bool improved = !have || newton->merit < best.merit;
+    if (improved) {
       best = Result{pt, newton->nu, newton->merit, it, false};
       have = true;
     }
@@ -395,7 +447,14 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
       marked_it = it;
     }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
-    if (it - marked_it >= STALL && best.merit <= ACCEPT) break;
+    // the rounding floor: keep the best iterate (the stopping iterate is never factorized)
+    if ((it - marked_it >= STALL && best.merit <= ACCEPT) || (!improved && best.merit <= FLOOR)) break;
+    try {
+      newton->factorize(&ric, true);
+    } catch (const std::runtime_error &) {
+      if (best.merit <= ACCEPT) break;  // row weights beyond the factorization's precision
+      throw;
+    }
     Point aff;
     newton->direction(where(used, pt.t * pt.lam, 0.0), where(soft, pt.s * pt.pi, 0.0), aff);
     double alpha = newton->max_step(aff, 1.0);
@@ -427,7 +486,8 @@ void bind_stagewise_ipm(nb::module_ &m) {
   m.def(
       "stagewise_ipm",
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In3 Fv, In2 f, InB soft, double rho,
-         double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S) {
+         double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
+         std::optional<In2> lam0, std::optional<In2> s0) {
         QP qp;
         qp.N = long(A.shape(0));
         qp.nz = long(A.shape(1));
@@ -475,7 +535,21 @@ void bind_stagewise_ipm(nb::module_ &m) {
           if (qp.has_S) qp.S /= sigma;
           qp.rho /= sigma;
           qp.kappa /= sigma;
-          res = solve_scaled(qp, z, v);
+          std::optional<Start> start;
+          if (lam0 && s0) {
+            if (long(lam0->shape(0)) != qp.N || long(lam0->shape(1)) != qp.k || long(s0->shape(0)) != qp.N ||
+                long(s0->shape(1)) != qp.k)
+              throw std::invalid_argument("stagewise_ipm: the warm start's λ and s must be (N, k)");
+            start = Start{Eigen::Map<const RowMat>(lam0->data(), qp.N, qp.k).array() / sigma,
+                          Eigen::Map<const RowMat>(s0->data(), qp.N, qp.k).array()};
+          }
+          if (v0) {
+            if (long(v0->shape(0)) != qp.nd || long(v0->shape(1)) != qp.m)
+              throw std::invalid_argument("stagewise_ipm: the warm start's v must be (n_decide, m)");
+            for (long i = 0; i < qp.nd; ++i) v[i] = Eigen::Map<const Vec>(v0->data() + i * qp.m, qp.m);
+            z = simulate(qp, v);
+          }
+          res = solve_scaled(qp, z, v, start ? &*start : nullptr);
           res.pt.lam *= sigma;
         }
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
@@ -486,7 +560,8 @@ void bind_stagewise_ipm(nb::module_ &m) {
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
-      nb::arg("kappa"), nb::arg("S"),
+      nb::arg("kappa"), nb::arg("S"), nb::arg("v0") = nb::none(), nb::arg("lam0") = nb::none(),
+      nb::arg("s0") = nb::none(),
       "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module)");
 }
 }  // namespace pgpc

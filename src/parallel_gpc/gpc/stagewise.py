@@ -51,7 +51,7 @@ def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
-                  y_now, y_sim=None, u_sim=None, u_prev=None) -> tuple[StageQP, np.ndarray]:
+                  y_now, y_sim=None, u_sim=None, u_prev=None, out_rows=None) -> tuple[StageQP, np.ndarray]:
     """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring): the rows of
     :func:`~parallel_gpc.gpc.criterion.input_rows` and :func:`~parallel_gpc.gpc.constraints.output_rows`
     (the definitions the condensed layout uses) placed on the stages they act on.
@@ -63,6 +63,8 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
             controller's margin. Ts: sample time (s). y_now: (p,) measured output y(k) (m, rad).
         y_sim: (N, p) pre-simulated outputs ŷ_sim(k+1..k+N) (nonlinear form), else None.
         u_sim: (N, m) pre-simulated inputs (nonlinear form). u_prev: (m,) u(k−1) (nonlinear du).
+        out_rows: ``output_rows(limits, horizons, Ts, p)`` when the caller keeps it (they depend on neither
+            the state nor the step), else None.
 
     Returns:
         (the problem, kinds (k,) object array: the limit kind of each row column, the same on every stage).
@@ -97,29 +99,30 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
         lo, hi = np.full((N, m), -np.inf), np.full((N, m), np.inf)
         lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
         blocks.append(_pair("du", np.zeros((N, m, nz)), Fv, np.zeros((N, m)), lo, hi, False))
-    out_rows = output_rows(limits, H, Ts, p)
+    out_rows = output_rows(limits, H, Ts, p) if out_rows is None else out_rows
     if out_rows:
         # ŷ(i) = C̄ Ā z(i−1) + C̄ B̄ v(i−1) + C̄ c̄(i−1) [+ ŷ_sim(i)], a row of stage i − 1, whose own
         # ŷ(i−1) = C̄ z(i−1) [+ ŷ_sim(i−1)] (stage 0: the measured y(k))
-        CA, CB = np.einsum("pn,inm->ipm", Cz, Ab), np.einsum("pn,inm->ipm", Cz, Bb) * decided
+        CA, CB = Cz @ Ab, (Cz @ Bb) * decided
         y_next = cb @ Cz.T + (0.0 if y_sim is None else y_sim)
-        P = np.broadcast_to(Cz, (N, p, nz)).copy()
+        P = np.empty((N, p, nz))
+        P[:] = Cz
         P[0] = 0.0
         y_cur = np.zeros((N, p))
         y_cur[0] = y_now
         if y_sim is not None:
             y_cur[1:] = y_sim[:N - 1]
         for b in out_rows:
-            st = np.arange(b.first - 1, N)  # the stage of each row block
+            st = slice(b.first - 1, N)  # the stages of the row blocks
             k = b.cur.shape[1]
             Fz, Fv, const = np.zeros((N, k, nz)), np.zeros((N, k, m)), np.zeros((N, k))
             lo, hi = np.full((N, k), -np.inf), np.full((N, k), np.inf)
-            Fz[st] = np.einsum("ikp,ipn->ikn", b.cur, CA[st])
-            Fv[st] = np.einsum("ikp,ipn->ikn", b.cur, CB[st])
-            const[st] = np.einsum("ikp,ip->ik", b.cur, y_next[st]) + b.offset
+            Fz[st] = b.cur @ CA[st]
+            Fv[st] = b.cur @ CB[st]
+            const[st] = (b.cur @ y_next[st, :, None])[..., 0] + b.offset
             if b.prev is not None:
-                Fz[st] += np.einsum("ikp,ipn->ikn", b.prev, P[st])
-                const[st] += np.einsum("ikp,ip->ik", b.prev, y_cur[st])
+                Fz[st] += b.prev @ P[st]
+                const[st] += (b.prev @ y_cur[st, :, None])[..., 0]
             lo[st], hi[st] = b.lo, b.hi
             blocks.append(_pair(b.kind, Fz, Fv, const, lo, hi, b.soft))
     if blocks:
@@ -132,8 +135,9 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
         kinds, Fz, Fv, f, soft = np.empty(0, dtype=object), np.zeros((N, 0, nz)), np.zeros((N, 0, m)), \
             np.zeros((N, 0)), np.zeros(0, bool)
     rho = limits.penalty
-    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, np.broadcast_to(soft, f.shape).copy(), rho,
-                 2.0 * SOFT_QUADRATIC * rho)
+    soft_rows = np.empty(f.shape, bool)
+    soft_rows[:] = soft
+    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, soft_rows, rho, 2.0 * SOFT_QUADRATIC * rho)
     return qp, kinds
 
 
@@ -157,6 +161,7 @@ class StagewiseSolver:
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
         self.native = self._compiled is not None
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
+        self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
     def _start(self, qp: StageQP) -> StageStart | None:
         """The last solution shifted by one stage (the warm start of the next step), or None: v(i) ←
@@ -211,7 +216,7 @@ class StagewiseSolver:
         Ab, Bb, cb, Cz, z0 = stage_models
         H, m = self.horizons, self.Wu.shape[0]
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
-                                  y_now, y_sim, u_sim, u_prev)
+                                  y_now, y_sim, u_sim, u_prev, self._output_rows)
         start = self._start(qp) if warm else None
         self._last = None
         try:
