@@ -164,13 +164,19 @@ struct Riccati {
   }
 };
 
-Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
-  Arr out(qp.N, qp.k);
+// F [z; v] per stage into out (N, k), its storage kept
+void rows_times(const QP &qp, const Traj &z, const Traj &v, Arr &out) {
+  out.resize(qp.N, qp.k);
   for (long i = 0; i < qp.N; ++i) {
     auto r = out.row(i).matrix().transpose();
     r.noalias() = qp.Fz[i].lazyProduct(z[i]);
     if (i < qp.nd) r.noalias() += qp.Fv[i].lazyProduct(v[i]);
   }
+}
+
+Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
+  Arr out;
+  rows_times(qp, z, v, out);
   return out;
 }
 
@@ -226,14 +232,20 @@ struct Point {
 
 using Mask = Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic>;
 
-Arr where(const Mask &mask, const Arr &a, double other) { return mask.select(a, Arr::Constant(a.rows(), a.cols(), other)); }
+// mask ? a : other, coefficient-wise (an expression: evaluated where it is assigned, no temporary)
+template <class E>
+auto where(const Mask &mask, const E &a, double other) {
+  return mask.select(a, Arr::Constant(a.rows(), a.cols(), other));
+}
 
+// The Newton system of the iterate pt (a reference: an iteration moves pt and evaluates again,
+// every buffer keeping its storage)
 struct Newton {
   const QP &qp;
-  Mask used, soft;
+  const Mask &used, &soft;
   double scale, f_scale;
   const Point &pt;  // the iterate (outlives this system)
-  Arr f, r_t, r_s, d, sp, a, W;
+  Arr f, Fx, r_t, r_s, d, sp, a, W;
   double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
   Riccati *ric = nullptr;  // the solve's workspace, once factorized for this system
@@ -242,7 +254,13 @@ struct Newton {
          Riccati *factor)
       : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
     f = where(used, qp.f, 0.0);
-    Arr Fx = rows_times(qp, pt.z, pt.v);
+    evaluate();
+    if (factor) factorize(factor, false);
+  }
+
+  // the residuals, μ and the merit of pt
+  void evaluate() {
+    rows_times(qp, pt.z, pt.v, Fx);
     r_t = where(used, Fx - pt.s + pt.t - f, 0.0);
     r_s = where(soft, qp.rho + qp.kappa * pt.s - pt.lam - pt.pi, 0.0);
     const double n_ineq = std::max(1.0, double(used.count() + soft.count()));
@@ -251,15 +269,13 @@ struct Newton {
     const double res = std::max(max_abs(rv), r_s.abs().maxCoeff()) / scale;
     merit = std::max({mu / (scale * f_scale), r_t.abs().maxCoeff() / f_scale, res});
     refine_above = std::max(1e-15, REFINE_FORCING * merit) * scale;  // an inexact Newton step (see the Python twin)
-    if (factor) factorize(factor, false);
   }
 
   // the row weights and their Riccati factorization (into the solve's workspace)
   void factorize(Riccati *workspace, bool regularize) {
     ric = workspace;
     d = where(used, pt.lam / pt.t, 0.0);
-    Arr s_safe = where(soft, pt.s, 1.0);
-    sp = where(soft, pt.pi / s_safe, 0.0);
+    sp = where(soft, pt.pi / where(soft, pt.s, 1.0), 0.0);
     a = where(soft, qp.kappa + d + sp, 1.0);
     W = soft.select(d * (qp.kappa + sp) / a, d);
     ric->factor(W, regularize);
@@ -267,26 +283,28 @@ struct Newton {
 
   // (dz, dv, dt, dλ, ds, dπ)
   void direction(const Arr &r_tl, const Arr &r_sp, Point &step) const {
-    Arr s_safe = where(soft, pt.s, 1.0);
-    Arr gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
-    Arr beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
-    Arr w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
     thread_local Traj gz, gv, dz, dv, zero_z, nu1, rv1, cz, cv;  // storage kept from call to call
+    thread_local Arr s_safe, gam, beta, w0, Fdx, lam1;
+    s_safe = where(soft, pt.s, 1.0);
+    gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
+    beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
+    w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
     rows_transpose(qp, w0, gz, gv);
     for (long i = 0; i < qp.nd; ++i) gv[i] += rv[i];
     ric->solve(gz, gv, true, dz, dv);
     zero_z.resize(qp.N + 1);
     for (Vec &e : zero_z) e.setZero(qp.nz);
     for (int r = 0; r < REFINE; ++r) {
-      Arr Fdx = rows_times(qp, dz, dv);
-      costates(qp, dz, dv, W * Fdx + w0, false, nu1, rv1);
+      rows_times(qp, dz, dv, Fdx);
+      lam1 = W * Fdx + w0;
+      costates(qp, dz, dv, lam1, false, nu1, rv1);
       for (long i = 0; i < qp.nd; ++i) rv1[i] += rv[i];
       if (!(max_abs(rv1) > refine_above)) break;
       ric->solve(zero_z, rv1, true, cz, cv);
       for (long i = 0; i <= qp.N; ++i) dz[i] += cz[i];
       for (long i = 0; i < qp.nd; ++i) dv[i] += cv[i];
     }
-    Arr Fdx = rows_times(qp, dz, dv);
+    rows_times(qp, dz, dv, Fdx);
     step.z.swap(dz);
     step.v.swap(dv);
     step.s = where(soft, (beta + d * Fdx) / a, 0.0);
@@ -309,16 +327,21 @@ struct Newton {
     return alpha;
   }
 
-  Point moved(const Point &st, double alpha) const {
-    Point out;
-    out.z = pt.z;
-    out.v = pt.v;
-    for (long i = 0; i <= qp.N; ++i) out.z[i] += alpha * st.z[i];
-    for (long i = 0; i < qp.nd; ++i) out.v[i] += alpha * st.v[i];
+  // the iterate moved by alpha along st, into out (its storage kept)
+  void moved(const Point &st, double alpha, Point &out) const {
+    out.z.resize(qp.N + 1);
+    out.v.resize(qp.nd);
+    for (long i = 0; i <= qp.N; ++i) out.z[i] = pt.z[i] + alpha * st.z[i];
+    for (long i = 0; i < qp.nd; ++i) out.v[i] = pt.v[i] + alpha * st.v[i];
     out.t = where(used, pt.t + alpha * st.t, 1.0);
     out.lam = where(used, pt.lam + alpha * st.lam, 0.0);
     out.s = where(soft, pt.s + alpha * st.s, 0.0);
     out.pi = where(soft, pt.pi + alpha * st.pi, 1.0);
+  }
+
+  Point moved(const Point &st, double alpha) const {
+    Point out;
+    moved(st, alpha, out);
     return out;
   }
 };
@@ -435,11 +458,17 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   bool have = false;
   double marked = std::numeric_limits<double>::infinity();  // merit and iteration of the last marked improvement
   int marked_it = 0;
+  Newton sys(qp, pt, used, soft, scale, f_scale, nullptr);  // bound to pt: evaluated again as pt moves
+  Newton *newton = &sys;
+  Point next, aff, step;  // storage kept from iteration to iteration
   for (int it = 0; it <= MAX_ITER; ++it) {
-    auto newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, nullptr);
+    if (it) newton->evaluate();
     const bool improved = !have || newton->merit < best.merit;
     if (improved) {
-      best = Result{pt, newton->nu, newton->merit, it, false};
+      best.pt = pt;  // assignments: the best iterate's storage is reused
+      best.nu = newton->nu;
+      best.merit = newton->merit;
+      best.iterations = it;
       have = true;
     }
     if (newton->merit < PROGRESS * marked) {
@@ -455,16 +484,15 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
       if (best.merit <= ACCEPT) break;  // row weights beyond the factorization's precision
       throw;
     }
-    Point aff;
     newton->direction(where(used, pt.t * pt.lam, 0.0), where(soft, pt.s * pt.pi, 0.0), aff);
     double alpha = newton->max_step(aff, 1.0);
     const double mu_aff = (where(used, (pt.t + alpha * aff.t) * (pt.lam + alpha * aff.lam), 0.0).sum() +
                            where(soft, (pt.s + alpha * aff.s) * (pt.pi + alpha * aff.pi), 0.0).sum()) / n_ineq;
     const double sigma = std::pow(mu_aff / newton->mu, 3);
-    Point step;
     newton->direction(where(used, pt.t * pt.lam + aff.t * aff.lam - sigma * newton->mu, 0.0),
                       where(soft, pt.s * pt.pi + aff.s * aff.pi - sigma * newton->mu, 0.0), step);
-    pt = newton->moved(step, newton->max_step(step, TAU));
+    newton->moved(step, newton->max_step(step, TAU), next);
+    std::swap(pt, next);  // the contents: newton stays bound to pt
   }
   if (best.merit <= ACCEPT) {
     Result polished = best;
