@@ -35,6 +35,7 @@ constexpr int MAX_ITER = 60, REFINE = 2, STALL = 3, POLISH_ROUNDS = 3, POLISH_ST
 struct QP {
   long N, nz, m, nd, k;
   std::vector<Mat> A, B, Q, Fz, Fv;
+  std::vector<char> fz_zero;  // per stage: Fz is all zero (input rows): its products are skipped
   std::vector<Vec> c, q;
   Vec z0;
   Mat R, S;
@@ -99,9 +100,12 @@ struct Riccati {
       const Mat &A = qp.A[i], &Fz = qp.Fz[i];
       Pn[i] = P;
       // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
-      WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
+      const bool fz = !qp.fz_zero[i];
       Qi = qp.Q[i];
-      Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      if (fz) {
+        WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
+        Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      }
       PA.noalias() = P.lazyProduct(A);
       if (i < qp.nd) {
         const Mat &B = qp.B[i], &Fv = qp.Fv[i];
@@ -110,8 +114,8 @@ struct Riccati {
         Hvv = qp.R;
         Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
         Hvv.noalias() += B.transpose().lazyProduct(PB);
-        H.noalias() = Fv.transpose().lazyProduct(WFz);
-        H.noalias() += PB.transpose().lazyProduct(A);
+        H.noalias() = PB.transpose().lazyProduct(A);
+        if (fz) H.noalias() += Fv.transpose().lazyProduct(WFz);
         if (qp.has_S) H += qp.S;
         h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
         cholesky(i, W, regularize);
@@ -169,7 +173,7 @@ void rows_times(const QP &qp, const Traj &z, const Traj &v, Arr &out) {
   out.resize(qp.N, qp.k);
   for (long i = 0; i < qp.N; ++i) {
     auto r = out.row(i).matrix().transpose();
-    r.noalias() = qp.Fz[i].lazyProduct(z[i]);
+    if (qp.fz_zero[i]) r.setZero(); else r.noalias() = qp.Fz[i].lazyProduct(z[i]);
     if (i < qp.nd) r.noalias() += qp.Fv[i].lazyProduct(v[i]);
   }
 }
@@ -185,7 +189,8 @@ void rows_transpose(const QP &qp, const Arr &y, Traj &gz, Traj &gv) {
   gz.resize(qp.N + 1);
   gv.resize(qp.nd);
   for (long i = 0; i < qp.N; ++i) {
-    gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
+    if (qp.fz_zero[i]) gz[i].setZero(qp.nz);
+    else gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
     if (i < qp.nd) gv[i].noalias() = qp.Fv[i].transpose().lazyProduct(y.row(i).matrix().transpose());
   }
   gz[qp.N].setZero(qp.nz);
@@ -529,6 +534,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
           qp.A.push_back(block(A, i));
           qp.B.push_back(block(B, i));
           qp.Fz.push_back(block(Fz, i));
+          qp.fz_zero.push_back(qp.Fz.back().isZero(0.0));
           qp.Fv.push_back(block(Fv, i));
           qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
         }

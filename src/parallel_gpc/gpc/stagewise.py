@@ -6,17 +6,20 @@ z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinea
 limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on, solved by the interior point
 of :mod:`parallel_gpc.solvers.stagewise_ipm` (work linear in N):
 
-* torque |u| ≤ τ: absolute, a box on v(i) = u(i), i < Nu; incremental forms,
-  u(i) = z(i)[n:] + v(i) (the input memory plus the increment), i < Nu; nonlinear,
-  u(i) = u_sim(i) + z(i)[n:] + v(i), every pre-simulated step i < N (v = 0 after Nu);
-* du |Δu| ≤ δ: a box on v(i) (nonlinear: shifted by the drift u_sim(i) − u_sim(i−1), u_sim(−1) =
-  u(k−1)), as in :meth:`~parallel_gpc.gpc.criterion.Criterion.problem`;
-* output_box y_lo ≤ ŷ(i) ≤ y_hi (i = No+1..N) and output_velocity |ŷ(i) − ŷ(i−1)| ≤ v·Ts (the
-  first difference from the measured y(k) when No = 0), as in
-  :func:`~parallel_gpc.gpc.constraints.stage_constraints`: ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)]
-  is a row of stage i − 1; soft kinds get a slack s ≥ 0 costing ρ s + SOFT_QUADRATIC·ρ s² (the
-  condensed path's penalty; one slack per side instead of one per pair: the same optimum, the two
-  sides never both bind).
+The rows are the ones the condensed layout uses, defined once per kind
+(:func:`~parallel_gpc.gpc.criterion.input_rows`, :func:`~parallel_gpc.gpc.constraints.output_rows`);
+this module only places them on the stages:
+
+* torque, on u(i): absolute, v(i) = u(i); incremental forms, u(i) = z(i)[n:] + v(i) (the input
+  memory plus the increment); nonlinear, u(i) = u_sim(i) + z(i)[n:] + v(i) (v = 0 after Nu);
+* du, the box on v(i), i < Nu;
+* the output kinds, ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)] and ŷ(i−1) = C̄ z(i−1)
+  [+ ŷ_sim(i−1)] (the measured y(k) on stage 0): a row of stage i − 1; soft kinds get a slack
+  s ≥ 0 costing ρ s + SOFT_QUADRATIC·ρ s² (the condensed path's penalty; one slack per side
+  instead of one per pair: the same optimum, the two sides never both bind).
+
+From the controller's second step on, the solve starts from the previous solution shifted by one
+stage (:class:`~parallel_gpc.solvers.StageStart`).
 
 Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
 (drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
@@ -30,7 +33,7 @@ import time
 import numpy as np
 
 from ..errors import SolverError
-from ..limits import SOFT_QUADRATIC, Limits
+from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
 from ..solvers import SolveResult, StageQP, StageQPSolution, StageStart, solve_stage_qp
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
@@ -235,11 +238,11 @@ class StagewiseSolver:
         f = np.where(used, qp.f, 0.0)
         gap = np.where(used, f + sol.s - F_x, np.inf)
         active = used & (gap <= ACTIVE_TOL * (1.0 + np.abs(f)))
-        state = used & np.isin(kinds, ("output_box", "output_velocity"))
+        state = used & np.isin(kinds, OUTPUT_KINDS)
         report = None
         if state.any():
             slack = {str(kd): float(np.max(sol.s[state & (kinds == kd) & qp.soft], initial=0.0))
-                     for kd in ("output_box", "output_velocity") if (state & (kinds == kd) & qp.soft).any()}
+                     for kd in OUTPUT_KINDS if (state & (kinds == kd) & qp.soft).any()}
             report = ConstraintReport(tuple(sorted({str(kd) for kd in np.broadcast_to(kinds, used.shape)[active & state]})),
                                       slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
