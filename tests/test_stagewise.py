@@ -188,6 +188,37 @@ def test_closed_loop_torque_limited_matches_the_condensed_default():
     assert np.abs(runs[0][same] - runs[1][same]).max() <= 1e-7 * 3.0
 
 
+@pytest.mark.parametrize("form", FORMS)
+def test_warm_started_steps_reach_the_condensed_optimum(form):
+    """A closed loop of limited riccati steps, each warm-started from the previous solution shifted
+    by one stage: every step's plan is optimal for the condensed problem of the same controller
+    state (DAQP's objective, a KKT residual at the rounding floor)."""
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    H, weights, limits = Horizons(10), Weights(1.0, 1e-4), Limits(torque=3.0)
+    ric = GPCController.build(model, TS, H, weights, form=form, solver="riccati", limits=limits)
+    chk = GPCController.build(model, TS, H, weights, form=form, limits=limits)
+    X = np.concatenate([robot.home_pose, np.zeros(robot.n_y)])
+    w = np.tile(robot.home_pose + np.array([0.01, 0.0, 0.0]), (10, 1))
+    warm = active = 0
+    for k in range(5):
+        chk.restore(ric.state)  # the same state: the same problem
+        chk._update_disturbance(X)
+        full, x_daqp = _condensed(chk, X, w)
+        warm += ric._riccati.constrained._last is not None
+        info = ric.step(X, w)
+        assert info.result.solver == "riccati" and info.result.ok, info.result.message
+        active += info.result.active_limits
+        v = ric._v_prev
+        scale = max(_objective(full, np.zeros_like(v)), 1e-300)
+        if x_daqp is not None:
+            assert abs(_objective(full, v) - _objective(full, x_daqp)) <= 1e-9 * scale
+        assert _kkt_residual(full, v) <= 1e-8
+        X = X + np.concatenate([X[3:] * TS, np.zeros(3)])
+    assert warm == 4  # every step after the first started warm
+    assert active >= 3  # the torque limit binds
+
+
 def _random_stage_qp(seed, Fz_zero=False):
     rng = np.random.default_rng(seed)
     N, nz, m, k, nd = 8, 4, 2, 3, 6

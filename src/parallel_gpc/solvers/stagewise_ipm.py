@@ -19,7 +19,12 @@ Accuracy: the Newton steps are solved in delta form (their rounding scales with 
 with the iterate: W ~ 1/μ would otherwise amplify it into the multipliers), the objective is
 scaled to unit curvature in v first, and the converged iterate is polished by Newton steps on
 its active rows alone (the inactive rows' barrier no longer bends the plan along the flat
-directions of a redundant robot's criterion).
+directions of a redundant robot's criterion). The iterations stop at the tolerance or at the
+rounding floor (the first iterate that does not improve on the best one below :data:`_FLOOR`,
+or :data:`_STALL` iterations without marked progress), never factorizing the stopping iterate;
+a Newton system that loses positive definiteness to rounding is shifted and refined
+(:func:`_cholesky`). A :class:`StageStart` (a controller's previous solution, shifted) starts
+the iterations near the solution.
 
 Newton system (rows t = f + S s − F x ≥ 0 with multipliers λ, slacks s ≥ 0 with π):
     dλ = W F dx + w0,  W = d (hard) or d (κ + π / s) / a = d (1 − d / a) (soft),  d = λ / t,  a = κ + d + π / s,
