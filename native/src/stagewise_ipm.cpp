@@ -1,7 +1,8 @@
 // The stage-wise interior point of solvers/stagewise_ipm.py (solve_stage_qp), compiled: Mehrotra's
 // predictor-corrector with one Riccati factorization per iteration, Newton steps in delta form with
 // iterative refinement, the objective scaled to unit curvature in v, and the active-set polish. The
-// Python module is the reference; this file follows it function by function (same names).
+// Python module is the reference; this file follows it function by function (same names), with one
+// difference of form: the main loop keeps one Newton system bound to the iterate and its buffers.
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
@@ -596,6 +597,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
       nb::arg("kappa"), nb::arg("S"), nb::arg("v0") = nb::none(), nb::arg("lam0") = nb::none(),
       nb::arg("s0") = nb::none(),
-      "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module)");
+      "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module); "
+      "v0 (n_decide, m) or None, lam0 and s0 (N, k): its StageStart (a warm start), or all None");
 }
 }  // namespace pgpc
