@@ -36,7 +36,8 @@ from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
 from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
-__all__ = ["DriveKinematics", "ConstraintRows", "OutputRows", "output_rows", "ConstraintReport", "stage_constraints", "terminal_rows", "constrain",
+__all__ = ["DriveKinematics", "ConstraintRows", "OutputRows", "output_rows", "ConstraintReport", "stage_constraints",
+           "terminal_rows", "constrain",
            "report", "split", "hard_violation", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
@@ -287,8 +288,9 @@ def _kinematic_rows(limits: Limits, H, Ts: float, y_now, f_rows, y_lin, drives) 
     out = []
     first, _ = _steps(H, False)
 
-    def tiled(bounds):
-        return np.broadcast_to(bounds[:, 0], (n_rows, len(bounds))), np.broadcast_to(bounds[:, 1], (n_rows, len(bounds)))
+    def tiled(bounds):  # (k, 2) → (n_rows, k) lower and upper
+        shape = (n_rows, len(bounds))
+        return np.broadcast_to(bounds[:, 0], shape), np.broadcast_to(bounds[:, 1], shape)
 
     if limits.drive_position is not None:  # q_a(ŷ) ≈ q̄ + J (ŷ − ȳ)
         jac = jall[:, :n_u]

@@ -243,8 +243,8 @@ class StagewiseSolver:
         if state.any():
             slack = {str(kd): float(np.max(sol.s[state & (kinds == kd) & qp.soft], initial=0.0))
                      for kd in OUTPUT_KINDS if (state & (kinds == kd) & qp.soft).any()}
-            report = ConstraintReport(tuple(sorted({str(kd) for kd in np.broadcast_to(kinds, used.shape)[active & state]})),
-                                      slack)
+            binding = np.broadcast_to(kinds, used.shape)[active & state]
+            report = ConstraintReport(tuple(sorted({str(kd) for kd in binding})), slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
         if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):
