@@ -154,7 +154,7 @@ def test_a_failed_riccati_solve_is_replaced_by_qr_visibly(monkeypatch):
     X, w = np.array([0.1, 0.0, -0.2, 0.05]), np.zeros((10, 4))
     failed = replace(ctl._riccati.solver.solve(A, B, None, X, None, w), v=np.full(20, np.nan), status="failed",
                      message="R + BᵀPB is not positive definite")
-    monkeypatch.setattr(ctl._riccati, "solve", lambda *args: failed)
+    monkeypatch.setattr(ctl._riccati, "solve", lambda *args, **kwargs: failed)
     info, expected = ctl.step(X, w), qr.step(X, w)
     assert info.result.solver == "qr" and "riccati failed (R + BᵀPB is not positive definite)" in info.result.message
     np.testing.assert_allclose(info.u, expected.u, rtol=1e-12)

@@ -12,12 +12,12 @@ import qpsolvers
 from scipy.optimize import nnls
 
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
-from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
 from parallel_gpc.limits import Limits
-from parallel_gpc.solvers import QRSolver, StageQP, make_solver, solve_stage_qp
+from parallel_gpc.solvers import QRSolver, StageQP, StageStart, make_solver, solve_stage_qp
 from parallel_gpc.solvers.problem import UNBOUNDED
 
 TS = 0.002
@@ -188,6 +188,37 @@ def test_closed_loop_torque_limited_matches_the_condensed_default():
     assert np.abs(runs[0][same] - runs[1][same]).max() <= 1e-7 * 3.0
 
 
+@pytest.mark.parametrize("form", FORMS)
+def test_warm_started_steps_reach_the_condensed_optimum(form):
+    """A closed loop of limited riccati steps, each warm-started from the previous solution shifted
+    by one stage: every step's plan is optimal for the condensed problem of the same controller
+    state (DAQP's objective, a KKT residual at the rounding floor)."""
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    H, weights, limits = Horizons(10), Weights(1.0, 1e-4), Limits(torque=3.0)
+    ric = GPCController.build(model, TS, H, weights, form=form, solver="riccati", limits=limits)
+    chk = GPCController.build(model, TS, H, weights, form=form, limits=limits)
+    X = np.concatenate([robot.home_pose, np.zeros(robot.n_y)])
+    w = np.tile(robot.home_pose + np.array([0.01, 0.0, 0.0]), (10, 1))
+    warm = active = 0
+    for k in range(5):
+        chk.restore(ric.state)  # the same state: the same problem
+        chk._update_disturbance(X)
+        full, x_daqp = _condensed(chk, X, w)
+        warm += ric._riccati.constrained._last is not None
+        info = ric.step(X, w)
+        assert info.result.solver == "riccati" and info.result.ok, info.result.message
+        active += info.result.active_limits
+        v = ric._v_prev
+        scale = max(_objective(full, np.zeros_like(v)), 1e-300)
+        if x_daqp is not None:
+            assert abs(_objective(full, v) - _objective(full, x_daqp)) <= 1e-9 * scale
+        assert _kkt_residual(full, v) <= 1e-8
+        X = X + np.concatenate([X[3:] * TS, np.zeros(3)])
+    assert warm == 4  # every step after the first started warm
+    assert active >= 3  # the torque limit binds
+
+
 def _random_stage_qp(seed, Fz_zero=False):
     rng = np.random.default_rng(seed)
     N, nz, m, k, nd = 8, 4, 2, 3, 6
@@ -262,6 +293,42 @@ def test_random_stage_problem_equals_a_dense_qp(seed):
     assert np.abs(sol.z[1:] - z).max() <= 1e-8 * max(1.0, np.abs(z).max())
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_any_warm_start_reaches_the_dense_qp(seed):
+    """A warm start is only a guess: a random plan, multipliers and slacks (some far off, some 0)
+    lead to the dense QP's solution as the cold start does."""
+    qp = _random_stage_qp(seed, Fz_zero=True)
+    rng = np.random.default_rng(seed + 10)
+    v, z = _dense(qp)
+    for guess in (StageStart(rng.standard_normal(v.shape), 10.0 * rng.random(qp.f.shape), np.zeros(qp.f.shape)),
+                  StageStart(None, np.zeros(qp.f.shape), rng.random(qp.f.shape))):
+        sol = solve_stage_qp(qp, start=guess)
+        assert sol.status == "optimal"
+        assert np.abs(sol.v - v).max() <= 1e-8 * max(1.0, np.abs(v).max())
+        assert np.abs(sol.z[1:] - z).max() <= 1e-8 * max(1.0, np.abs(z).max())
+
+
+def test_a_singular_input_weight_is_named_and_a_late_ill_conditioned_system_is_regularized():
+    """R + BᵀPB not ≻ 0 on the unconstrained system: the message names the input weight. On an
+    iterate (row weights λ/t ~ 1/μ), a Hessian positive semi-definite to working precision is
+    shifted, not reported as a singular input weight."""
+    qp = _random_stage_qp(0, Fz_zero=True)
+    qp.R = np.diag([1.0, 0.0])
+    qp.B[:, :, 1] = 0.0
+    with pytest.raises(SolverError, match=r"R \+ BᵀPB .* not positive definite .*Qu must be nonsingular"):
+        solve_stage_qp(qp)
+    from parallel_gpc.solvers.stagewise_ipm import _cholesky
+    a = np.array([1.0, 1e-9])
+    H = np.outer(a, a) * 1e12 + np.diag([0.0, -1e-6])  # PSD up to rounding: 1e12 next to a 1e-6 defect
+    W = np.full((1, 2), 1e12)
+    with pytest.raises(SolverError, match="input weight Qu"):
+        _cholesky(H, 3, W, regularize=False)
+    c, lower = _cholesky(H, 3, W, regularize=True)
+    assert np.all(np.isfinite(c))
+    with pytest.raises(SolverError, match="singular to working precision .* not the input weight"):
+        _cholesky(np.diag([1.0, -1.0]), 3, W, regularize=True)
+
+
 def test_random_mixed_rows_reach_the_dense_qp_closely():
     """Dense random rows in z and v (harder than any controller's): agreement to 1e-6."""
     qp = _random_stage_qp(0)
@@ -317,3 +384,33 @@ def test_compiled_equals_the_python_reference(robot, form, case):
     tol = 1e-5 if (robot.name, form, case) in FLAT else 1e-9
     assert np.abs(compiled.v - python.v).max() <= tol * np.abs(python.v).max()
     assert compiled.active_limits is python.active_limits
+
+
+def _compiled_solve(qp: StageQP, start: StageStart | None = None):
+    c = np.ascontiguousarray
+    extra = () if start is None else (None if start.v is None else c(start.v, float), c(start.lam), c(start.s))
+    return native_module().stagewise_ipm(c(qp.A), c(qp.B), c(qp.c), c(qp.z0), c(qp.Q), c(qp.q), c(qp.R), qp.n_decide,
+                                         c(qp.Fz), c(qp.Fv), c(qp.f), c(qp.soft), qp.rho, qp.kappa, np.zeros(0),
+                                         *extra)
+
+
+@pytest.mark.skipif(not HAS_COMPILED, reason="the compiled core has no stagewise_ipm")
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_warm_start_reaches_the_dense_qp(seed):
+    qp = _random_stage_qp(seed, Fz_zero=True)
+    rng = np.random.default_rng(seed + 10)
+    v, _ = _dense(qp)
+    for guess in (None, StageStart(rng.standard_normal(v.shape), 10.0 * rng.random(qp.f.shape), np.zeros(qp.f.shape)),
+                  StageStart(None, np.zeros(qp.f.shape), rng.random(qp.f.shape))):
+        v_c, _, _, _, _, ok, _ = _compiled_solve(qp, guess)
+        assert ok
+        assert np.abs(v_c - v).max() <= 1e-8 * max(1.0, np.abs(v).max())
+
+
+@pytest.mark.skipif(not HAS_COMPILED, reason="the compiled core has no stagewise_ipm")
+def test_compiled_singular_input_weight_is_named():
+    qp = _random_stage_qp(0, Fz_zero=True)
+    qp.R = np.diag([1.0, 0.0])
+    qp.B[:, :, 1] = 0.0
+    with pytest.raises(RuntimeError, match=r"R \+ BᵀPB .* not positive definite .*Qu must be nonsingular"):
+        _compiled_solve(qp)

@@ -1,15 +1,20 @@
 // The stage-wise interior point of solvers/stagewise_ipm.py (solve_stage_qp), compiled: Mehrotra's
 // predictor-corrector with one Riccati factorization per iteration, Newton steps in delta form with
 // iterative refinement, the objective scaled to unit curvature in v, and the active-set polish. The
-// Python module is the reference; this file follows it function by function (same names).
+// Python module is the reference; this file follows it function by function (same names), with one
+// difference of form: the main loop keeps one Newton system bound to the iterate and its buffers.
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <memory>
+#include <optional>
 #include <stdexcept>
+#include <string>
 #include <vector>
 
 #include "bindings.hpp"
@@ -25,12 +30,13 @@ using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
 
 constexpr double IPM_TOL = 1e-13, ACCEPT = 1e-6, PROGRESS = 0.5, REFINE_FORCING = 1e-3, POLISH_TOL = 1e-9,
-                 POLISH_FLOOR = 1e-16, TAU = 0.995;
+                 POLISH_FLOOR = 1e-16, TAU = 0.995, FLOOR = 1e-9, SHIFT = 1e-14, SHIFT_MAX = 1e-8, WARM = 1e-3;
 constexpr int MAX_ITER = 60, REFINE = 2, STALL = 3, POLISH_ROUNDS = 3, POLISH_STEPS = 2;
 
 struct QP {
   long N, nz, m, nd, k;
   std::vector<Mat> A, B, Q, Fz, Fv;
+  std::vector<char> fz_zero;  // per stage: Fz is all zero (input rows): its products are skipped
   std::vector<Vec> c, q;
   Vec z0;
   Mat R, S;
@@ -61,16 +67,46 @@ struct Riccati {
         PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
         w(qp.nz), tmp(qp.m) {}
 
-  void factor(const Arr &W) {
+  // stage i's input Hessian (in Hvv) factorized; regularize: see _cholesky in the Python twin
+  void cholesky(long i, const Arr &W, bool regularize) {
+    if (!Hvv.allFinite())
+      throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
+                               " has non-finite entries (NaN or inf in the model, the weights or the limits)");
+    const double top = Hvv.diagonal().cwiseAbs().maxCoeff();
+    llt[i].compute(Hvv);
+    double shift = SHIFT * top;
+    while (llt[i].info() != Eigen::Success) {
+      if (!regularize)
+        throw std::runtime_error("stage-wise IPM: the input Hessian R + BᵀPB at stage " + std::to_string(i) +
+                                 " is not positive definite (the input weight Qu must be nonsingular)");
+      if (shift > SHIFT_MAX * top) {
+        char buf[160];
+        std::snprintf(buf, sizeof buf, "(row weights λ/t up to %.3g, the input Hessian's diagonal up to %.3g)",
+                      W.rows() && W.cols() ? W.maxCoeff() : 0.0, top);
+        throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
+                                 " is singular to working precision " + buf +
+                                 ": an ill-conditioned iterate, not the input weight");
+      }
+      Mat shifted = Hvv;
+      shifted.diagonal().array() += shift;
+      llt[i].compute(shifted);
+      shift *= 10.0;
+    }
+  }
+
+  void factor(const Arr &W, bool regularize = false) {
     h_max = 0.0;
     P = qp.Q[qp.N];
     for (long i = qp.N - 1; i >= 0; --i) {
       const Mat &A = qp.A[i], &Fz = qp.Fz[i];
       Pn[i] = P;
       // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
-      WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
+      const bool fz = !qp.fz_zero[i];
       Qi = qp.Q[i];
-      Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      if (fz) {
+        WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
+        Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+      }
       PA.noalias() = P.lazyProduct(A);
       if (i < qp.nd) {
         const Mat &B = qp.B[i], &Fv = qp.Fv[i];
@@ -79,13 +115,11 @@ struct Riccati {
         Hvv = qp.R;
         Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
         Hvv.noalias() += B.transpose().lazyProduct(PB);
-        H.noalias() = Fv.transpose().lazyProduct(WFz);
-        H.noalias() += PB.transpose().lazyProduct(A);
+        H.noalias() = PB.transpose().lazyProduct(A);
+        if (fz) H.noalias() += Fv.transpose().lazyProduct(WFz);
         if (qp.has_S) H += qp.S;
         h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
-        llt[i].compute(Hvv);
-        if (llt[i].info() != Eigen::Success || !Hvv.allFinite())
-          throw std::runtime_error("stage-wise IPM: the input Hessian is not positive definite");
+        cholesky(i, W, regularize);
         Hvz[i] = H;
         K[i] = llt[i].solve(H);
         K[i] *= -1.0;
@@ -135,13 +169,19 @@ struct Riccati {
   }
 };
 
-Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
-  Arr out(qp.N, qp.k);
+// F [z; v] per stage into out (N, k), its storage kept
+void rows_times(const QP &qp, const Traj &z, const Traj &v, Arr &out) {
+  out.resize(qp.N, qp.k);
   for (long i = 0; i < qp.N; ++i) {
     auto r = out.row(i).matrix().transpose();
-    r.noalias() = qp.Fz[i].lazyProduct(z[i]);
+    if (qp.fz_zero[i]) r.setZero(); else r.noalias() = qp.Fz[i].lazyProduct(z[i]);
     if (i < qp.nd) r.noalias() += qp.Fv[i].lazyProduct(v[i]);
   }
+}
+
+Arr rows_times(const QP &qp, const Traj &z, const Traj &v) {
+  Arr out;
+  rows_times(qp, z, v, out);
   return out;
 }
 
@@ -150,7 +190,8 @@ void rows_transpose(const QP &qp, const Arr &y, Traj &gz, Traj &gv) {
   gz.resize(qp.N + 1);
   gv.resize(qp.nd);
   for (long i = 0; i < qp.N; ++i) {
-    gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
+    if (qp.fz_zero[i]) gz[i].setZero(qp.nz);
+    else gz[i].noalias() = qp.Fz[i].transpose().lazyProduct(y.row(i).matrix().transpose());
     if (i < qp.nd) gv[i].noalias() = qp.Fv[i].transpose().lazyProduct(y.row(i).matrix().transpose());
   }
   gz[qp.N].setZero(qp.nz);
@@ -197,23 +238,35 @@ struct Point {
 
 using Mask = Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic>;
 
-Arr where(const Mask &mask, const Arr &a, double other) { return mask.select(a, Arr::Constant(a.rows(), a.cols(), other)); }
+// mask ? a : other, coefficient-wise (an expression: evaluated where it is assigned, no temporary)
+template <class E>
+auto where(const Mask &mask, const E &a, double other) {
+  return mask.select(a, Arr::Constant(a.rows(), a.cols(), other));
+}
 
+// The Newton system of the iterate pt (a reference: an iteration moves pt and evaluates again,
+// every buffer keeping its storage)
 struct Newton {
   const QP &qp;
-  Mask used, soft;
+  const Mask &used, &soft;
   double scale, f_scale;
-  Point pt;
-  Arr f, r_t, r_s, d, sp, a, W;
+  const Point &pt;  // the iterate (outlives this system)
+  Arr f, Fx, r_t, r_s, d, sp, a, W;
   double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
-  Riccati *ric;  // the solve's workspace, factorized for this system
+  Riccati *ric = nullptr;  // the solve's workspace, once factorized for this system
 
   Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
          Riccati *factor)
-      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point), ric(factor) {
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
     f = where(used, qp.f, 0.0);
-    Arr Fx = rows_times(qp, pt.z, pt.v);
+    evaluate();
+    if (factor) factorize(factor, false);
+  }
+
+  // the residuals, μ and the merit of pt
+  void evaluate() {
+    rows_times(qp, pt.z, pt.v, Fx);
     r_t = where(used, Fx - pt.s + pt.t - f, 0.0);
     r_s = where(soft, qp.rho + qp.kappa * pt.s - pt.lam - pt.pi, 0.0);
     const double n_ineq = std::max(1.0, double(used.count() + soft.count()));
@@ -222,39 +275,44 @@ struct Newton {
     const double res = std::max(max_abs(rv), r_s.abs().maxCoeff()) / scale;
     merit = std::max({mu / (scale * f_scale), r_t.abs().maxCoeff() / f_scale, res});
     refine_above = std::max(1e-15, REFINE_FORCING * merit) * scale;  // an inexact Newton step (see the Python twin)
-    if (!factor) return;
+  }
+
+  // the row weights and their Riccati factorization (into the solve's workspace)
+  void factorize(Riccati *workspace, bool regularize) {
+    ric = workspace;
     d = where(used, pt.lam / pt.t, 0.0);
-    Arr s_safe = where(soft, pt.s, 1.0);
-    sp = where(soft, pt.pi / s_safe, 0.0);
+    sp = where(soft, pt.pi / where(soft, pt.s, 1.0), 0.0);
     a = where(soft, qp.kappa + d + sp, 1.0);
     W = soft.select(d * (qp.kappa + sp) / a, d);
-    ric->factor(W);
+    ric->factor(W, regularize);
   }
 
   // (dz, dv, dt, dλ, ds, dπ)
   void direction(const Arr &r_tl, const Arr &r_sp, Point &step) const {
-    Arr s_safe = where(soft, pt.s, 1.0);
-    Arr gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
-    Arr beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
-    Arr w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
     thread_local Traj gz, gv, dz, dv, zero_z, nu1, rv1, cz, cv;  // storage kept from call to call
+    thread_local Arr s_safe, gam, beta, w0, Fdx, lam1;
+    s_safe = where(soft, pt.s, 1.0);
+    gam = where(used, (-r_tl + pt.lam * r_t) / pt.t, 0.0);
+    beta = where(soft, -r_s + gam - r_sp / s_safe, 0.0);
+    w0 = soft.select((gam * (qp.kappa + sp) + d * (r_s + r_sp / s_safe)) / a, gam);
     rows_transpose(qp, w0, gz, gv);
     for (long i = 0; i < qp.nd; ++i) gv[i] += rv[i];
     ric->solve(gz, gv, true, dz, dv);
     zero_z.resize(qp.N + 1);
     for (Vec &e : zero_z) e.setZero(qp.nz);
     for (int r = 0; r < REFINE; ++r) {
-      Arr Fdx = rows_times(qp, dz, dv);
-      costates(qp, dz, dv, W * Fdx + w0, false, nu1, rv1);
+      rows_times(qp, dz, dv, Fdx);
+      lam1 = W * Fdx + w0;
+      costates(qp, dz, dv, lam1, false, nu1, rv1);
       for (long i = 0; i < qp.nd; ++i) rv1[i] += rv[i];
       if (!(max_abs(rv1) > refine_above)) break;
       ric->solve(zero_z, rv1, true, cz, cv);
       for (long i = 0; i <= qp.N; ++i) dz[i] += cz[i];
       for (long i = 0; i < qp.nd; ++i) dv[i] += cv[i];
     }
-    Arr Fdx = rows_times(qp, dz, dv);
-    step.z = dz;
-    step.v = dv;
+    rows_times(qp, dz, dv, Fdx);
+    step.z.swap(dz);
+    step.v.swap(dv);
     step.s = where(soft, (beta + d * Fdx) / a, 0.0);
     step.lam = where(used, W * Fdx + w0, 0.0);
     step.t = where(used, -r_t - Fdx + step.s, 0.0);
@@ -275,16 +333,21 @@ struct Newton {
     return alpha;
   }
 
-  Point moved(const Point &st, double alpha) const {
-    Point out;
-    out.z = pt.z;
-    out.v = pt.v;
-    for (long i = 0; i <= qp.N; ++i) out.z[i] += alpha * st.z[i];
-    for (long i = 0; i < qp.nd; ++i) out.v[i] += alpha * st.v[i];
+  // the iterate moved by alpha along st, into out (its storage kept)
+  void moved(const Point &st, double alpha, Point &out) const {
+    out.z.resize(qp.N + 1);
+    out.v.resize(qp.nd);
+    for (long i = 0; i <= qp.N; ++i) out.z[i] = pt.z[i] + alpha * st.z[i];
+    for (long i = 0; i < qp.nd; ++i) out.v[i] = pt.v[i] + alpha * st.v[i];
     out.t = where(used, pt.t + alpha * st.t, 1.0);
     out.lam = where(used, pt.lam + alpha * st.lam, 0.0);
     out.s = where(soft, pt.s + alpha * st.s, 0.0);
     out.pi = where(soft, pt.pi + alpha * st.pi, 1.0);
+  }
+
+  Point moved(const Point &st, double alpha) const {
+    Point out;
+    moved(st, alpha, out);
     return out;
   }
 };
@@ -352,7 +415,23 @@ bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, co
   return true;
 }
 
-Result solve_scaled(const QP &qp, Traj z, Traj v) {
+// the states of the plan v: the dynamics rows held exactly
+Traj simulate(const QP &qp, const Traj &v) {
+  Traj z(qp.N + 1);
+  z[0] = qp.z0;
+  for (long i = 0; i < qp.N; ++i) {
+    z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+    z[i + 1] += qp.c[i];
+    if (i < qp.nd) z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+  }
+  return z;
+}
+
+struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
+  Arr lam, s;
+};
+
+Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
   Arr f = where(used, qp.f, 0.0);
@@ -374,20 +453,28 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
   // λ0 = scale·N²: see the Python twin
   pt.lam = where(used, Arr::Constant(qp.N, qp.k, scale * double(qp.N) * double(qp.N)), 0.0);
   pt.pi = where(soft, Arr::Constant(qp.N, qp.k, scale), 1.0);
+  if (start) {  // kept off the boundary (see the Python twin)
+    const double th_t = WARM * f_scale, th_l = WARM * scale;
+    pt.s = where(soft, start->s.max(Fx - f).max(0.0) + th_t, 0.0);
+    pt.t = where(used, (f + pt.s - Fx).max(th_t), 1.0);
+    pt.lam = where(used, start->lam.max(th_l), 0.0);
+    pt.pi = where(soft, (qp.rho + qp.kappa * pt.s - pt.lam).max(th_l), 1.0);
+  }
   Result best{pt, {}, std::numeric_limits<double>::infinity(), 0, false};
   bool have = false;
   double marked = std::numeric_limits<double>::infinity();  // merit and iteration of the last marked improvement
   int marked_it = 0;
+  Newton sys(qp, pt, used, soft, scale, f_scale, nullptr);  // bound to pt: evaluated again as pt moves
+  Newton *newton = &sys;
+  Point next, aff, step;  // storage kept from iteration to iteration
   for (int it = 0; it <= MAX_ITER; ++it) {
-    std::unique_ptr<Newton> newton;
-    try {
-      newton = std::make_unique<Newton>(qp, pt, used, soft, scale, f_scale, &ric);
-    } catch (const std::runtime_error &) {
-      if (have && best.merit <= ACCEPT) break;
-      throw;
-    }
-    if (!have || newton->merit < best.merit) {
-      best = Result{pt, newton->nu, newton->merit, it, false};
+    if (it) newton->evaluate();
+    const bool improved = !have || newton->merit < best.merit;
+    if (improved) {
+      best.pt = pt;  // assignments: the best iterate's storage is reused
+      best.nu = newton->nu;
+      best.merit = newton->merit;
+      best.iterations = it;
       have = true;
     }
     if (newton->merit < PROGRESS * marked) {
@@ -395,17 +482,23 @@ Result solve_scaled(const QP &qp, Traj z, Traj v) {
       marked_it = it;
     }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
-    if (it - marked_it >= STALL && best.merit <= ACCEPT) break;
-    Point aff;
+    // the rounding floor: keep the best iterate (the stopping iterate is never factorized)
+    if ((it - marked_it >= STALL && best.merit <= ACCEPT) || (!improved && best.merit <= FLOOR)) break;
+    try {
+      newton->factorize(&ric, true);
+    } catch (const std::runtime_error &) {
+      if (best.merit <= ACCEPT) break;  // row weights beyond the factorization's precision
+      throw;
+    }
     newton->direction(where(used, pt.t * pt.lam, 0.0), where(soft, pt.s * pt.pi, 0.0), aff);
     double alpha = newton->max_step(aff, 1.0);
     const double mu_aff = (where(used, (pt.t + alpha * aff.t) * (pt.lam + alpha * aff.lam), 0.0).sum() +
                            where(soft, (pt.s + alpha * aff.s) * (pt.pi + alpha * aff.pi), 0.0).sum()) / n_ineq;
     const double sigma = std::pow(mu_aff / newton->mu, 3);
-    Point step;
     newton->direction(where(used, pt.t * pt.lam + aff.t * aff.lam - sigma * newton->mu, 0.0),
                       where(soft, pt.s * pt.pi + aff.s * aff.pi - sigma * newton->mu, 0.0), step);
-    pt = newton->moved(step, newton->max_step(step, TAU));
+    newton->moved(step, newton->max_step(step, TAU), next);
+    std::swap(pt, next);  // the contents: newton stays bound to pt
   }
   if (best.merit <= ACCEPT) {
     Result polished = best;
@@ -427,7 +520,8 @@ void bind_stagewise_ipm(nb::module_ &m) {
   m.def(
       "stagewise_ipm",
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In3 Fv, In2 f, InB soft, double rho,
-         double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S) {
+         double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
+         std::optional<In2> lam0, std::optional<In2> s0) {
         QP qp;
         qp.N = long(A.shape(0));
         qp.nz = long(A.shape(1));
@@ -441,6 +535,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
           qp.A.push_back(block(A, i));
           qp.B.push_back(block(B, i));
           qp.Fz.push_back(block(Fz, i));
+          qp.fz_zero.push_back(qp.Fz.back().isZero(0.0));
           qp.Fv.push_back(block(Fv, i));
           qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
         }
@@ -475,7 +570,21 @@ void bind_stagewise_ipm(nb::module_ &m) {
           if (qp.has_S) qp.S /= sigma;
           qp.rho /= sigma;
           qp.kappa /= sigma;
-          res = solve_scaled(qp, z, v);
+          std::optional<Start> start;
+          if (lam0 && s0) {
+            if (long(lam0->shape(0)) != qp.N || long(lam0->shape(1)) != qp.k || long(s0->shape(0)) != qp.N ||
+                long(s0->shape(1)) != qp.k)
+              throw std::invalid_argument("stagewise_ipm: the warm start's λ and s must be (N, k)");
+            start = Start{Eigen::Map<const RowMat>(lam0->data(), qp.N, qp.k).array() / sigma,
+                          Eigen::Map<const RowMat>(s0->data(), qp.N, qp.k).array()};
+          }
+          if (v0) {
+            if (long(v0->shape(0)) != qp.nd || long(v0->shape(1)) != qp.m)
+              throw std::invalid_argument("stagewise_ipm: the warm start's v must be (n_decide, m)");
+            for (long i = 0; i < qp.nd; ++i) v[i] = Eigen::Map<const Vec>(v0->data() + i * qp.m, qp.m);
+            z = simulate(qp, v);
+          }
+          res = solve_scaled(qp, z, v, start ? &*start : nullptr);
           res.pt.lam *= sigma;
         }
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
@@ -486,7 +595,9 @@ void bind_stagewise_ipm(nb::module_ &m) {
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
-      nb::arg("kappa"), nb::arg("S"),
-      "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module)");
+      nb::arg("kappa"), nb::arg("S"), nb::arg("v0") = nb::none(), nb::arg("lam0") = nb::none(),
+      nb::arg("s0") = nb::none(),
+      "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module); "
+      "v0 (n_decide, m) or None, lam0 and s0 (N, k): its StageStart (a warm start), or all None");
 }
 }  // namespace pgpc

@@ -36,7 +36,8 @@ from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
 from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
-__all__ = ["DriveKinematics", "ConstraintRows", "ConstraintReport", "stage_constraints", "terminal_rows", "constrain",
+__all__ = ["DriveKinematics", "ConstraintRows", "OutputRows", "output_rows", "ConstraintReport", "stage_constraints",
+           "terminal_rows", "constrain",
            "report", "split", "hard_violation", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
@@ -155,15 +156,65 @@ class ConstraintReport:
         return max(self.slack.values(), default=0.0)
 
 
-def _pairs(bounds: np.ndarray, n_steps: int):
-    """The (k, 2) bounds as lower and upper vectors tiled over n_steps, (n_steps·k,) each."""
-    lo, hi = np.tile(bounds[:, 0], n_steps), np.tile(bounds[:, 1], n_steps)
-    return lo, hi
+@dataclass(frozen=True)
+class OutputRows:
+    """One state kind's rows over the predicted steps, written on the outputs (the one definition
+    both layouts use: :func:`stage_constraints` condenses it, :func:`~parallel_gpc.gpc.stagewise.stage_problem`
+    places it on the stages):
+
+        lo(j) ≤ cur(j) ŷ(k+i) + prev(j) ŷ(k+i−1) + offset(j) ≤ hi(j),   i = first + j,
+
+    ŷ(k) being the measured y(k) (a first difference from it when No = 0).
+
+    Attributes:
+        kind: a name of :data:`~parallel_gpc.limits.STATE_KINDS`. first: the predicted step of row block 0.
+        cur: (n_i, k, p) and prev: (n_i, k, p) or None (no ŷ(k+i−1) term) coefficients; offset: (n_i, k)
+            (units of the limit); lo, hi: (n_i, k) bounds (±inf: that side is unused). soft: relaxed by slacks.
+    """
+
+    kind: str
+    first: int
+    cur: np.ndarray
+    prev: np.ndarray | None
+    offset: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    soft: bool
+
+
+def _steps(H, differenced: bool) -> tuple[int, int]:
+    """(first predicted step, number of steps) of a kind on ŷ(k+i) (i = No+1..N) or, ``differenced``,
+    on ŷ(k+i) − ŷ(k+i−1) (from i = No+2, or i = 1 from the measured y(k) when No = 0)."""
+    first = H.No + 1 if not differenced or H.No == 0 else H.No + 2
+    return first, H.N - first + 1
+
+
+def output_rows(limits: Limits, H, Ts: float, p: int) -> list[OutputRows]:
+    """The rows of the kinds written on the outputs alone (``output_box``, ``output_velocity``):
+    y_lo ≤ ŷ(k+i) ≤ y_hi, i = No+1..N, and −v·Ts ≤ ŷ(k+i) − ŷ(k+i−1) ≤ v·Ts (see the module docstring).
+
+    Args:
+        limits: sized to the outputs. H: the horizons. Ts: sample time (s). p: number of outputs.
+    """
+    out, eye = [], np.eye(p)
+    if limits.output_box is not None:
+        first, n = _steps(H, False)
+        box = limits.output_box
+        out.append(OutputRows("output_box", first, np.broadcast_to(eye, (n, p, p)), None, np.zeros((n, p)),
+                              np.broadcast_to(box[:, 0], (n, p)), np.broadcast_to(box[:, 1], (n, p)),
+                              limits.is_soft("output_box")))
+    if limits.output_velocity is not None:
+        first, n = _steps(H, True)
+        vmax = np.broadcast_to(limits.output_velocity * Ts, (n, p))
+        out.append(OutputRows("output_velocity", first, np.broadcast_to(eye, (n, p, p)),
+                              np.broadcast_to(-eye, (n, p, p)), np.zeros((n, p)), -vmax, vmax,
+                              limits.is_soft("output_velocity")))
+    return out
 
 
 def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.ndarray,
                       y_lin: np.ndarray | None = None, drives: DriveKinematics | None = None) -> ConstraintRows | None:
-    """The rows of every state limit of ``limits`` for one step.
+    """The rows of every state limit of ``limits`` for one step (the condensed layout of :class:`OutputRows`).
 
     Args:
         pred: the prediction ŷ = f + G v (outputs k+No+1..k+N, p each).
@@ -181,77 +232,90 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
     if not limits.has_state_limits:
         return None
     H = pred.horizons
+    y_now = np.asarray(y_now, dtype=float)
     p = len(y_now)
     n_rows, n = H.n_rows, pred.G.shape[1]
-    Gy, fy = pred.G.reshape(n_rows, p, n), pred.f.reshape(n_rows, p)
-    # differences ŷ(k+i) − ŷ(k+i−1) of the predicted rows, the first from y(k) when No = 0
-    if H.No == 0:
-        dG = np.concatenate([Gy[:1], np.diff(Gy, axis=0)])
-        df = np.concatenate([fy[:1] - y_now, np.diff(fy, axis=0)])
-    else:
-        dG, df = np.diff(Gy, axis=0), np.diff(fy, axis=0)
-    jac = None
+    # ŷ(k+No+j) = fe[j] + Ge[j] v, j = 0..n_rows; j = 0 is y(k) itself (used only when No = 0)
+    Ge = np.concatenate([np.zeros((1, p, n)), pred.G.reshape(n_rows, p, n)])
+    fe = np.concatenate([y_now[None], pred.f.reshape(n_rows, p)])
+    blocks = output_rows(limits, H, Ts, p)
     if any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
-        if drives is None:
-            raise InvalidParameterError("drive_position, drive_rate and joint_position limits need the robot's "
-                                        "kinematics (a controller of a robot's reduced model); this model has none")
-        joints = tuple(limits.joint_position or ())
-        if joints and drives.joints != joints:
-            raise InvalidParameterError(f"the kinematics give the joints {list(drives.joints)}; the joint_position "
-                                        f"limits name {list(joints)}")
-        ybar = (pred.f if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(n_rows, p)
-        qj = [drives(y) for y in ybar]
-        qall = np.array([a for a, _ in qj])
-        jall = np.array([J for _, J in qj])  # (n_rows, n_u + n_j, p)
-        n_u = qall.shape[1] - len(drives.joints)
-        qbar, jac = qall[:, :n_u], jall[:, :n_u]
-    blocks = []  # (kind, M (rows, n), value at v = 0 (rows,), lower (rows,), upper (rows,))
-    if limits.output_box is not None:
-        box = limits.output_box
-        blocks.append(("output_box", Gy.reshape(-1, n), fy.reshape(-1), *_pairs(box, n_rows)))
-    if limits.output_velocity is not None:
-        vmax = limits.output_velocity * Ts
-        k = len(dG)
-        blocks.append(("output_velocity", dG.reshape(-1, n), df.reshape(-1), np.tile(-vmax, k), np.tile(vmax, k)))
-    if limits.drive_position is not None:
-        # q_a(ŷ) ≈ q̄ + J (f + G v − ȳ)
-        M = np.einsum("imp,ipn->imn", jac, Gy).reshape(-1, n)
-        value = (qbar + np.einsum("imp,ip->im", jac, fy - ybar)).reshape(-1)
-        blocks.append(("drive_position", M, value, *_pairs(limits.drive_position, n_rows)))
+        blocks += _kinematic_rows(limits, H, Ts, y_now, fe[1:], y_lin, drives)
+    order = {kind: j for j, kind in enumerate(("output_box", "output_velocity", "drive_position", "joint_position",
+                                               "drive_rate"))}
+    blocks.sort(key=lambda b: order[b.kind])
+    G_rows, h_rows, kinds, slack_of = [], [], [], []
+    n_slack = 0
+    for b in blocks:
+        j = np.arange(b.first, b.first + len(b.cur)) - H.No  # indices into Ge, fe
+        M = np.einsum("ikp,ipn->ikn", b.cur, Ge[j]).reshape(-1, n)
+        value = np.einsum("ikp,ip->ik", b.cur, fe[j]) + b.offset
+        if b.prev is not None:
+            M += np.einsum("ikp,ipn->ikn", b.prev, Ge[j - 1]).reshape(-1, n)
+            value = value + np.einsum("ikp,ip->ik", b.prev, fe[j - 1])
+        value, lo, hi = value.reshape(-1), np.reshape(b.lo, -1), np.reshape(b.hi, -1)
+        has_hi, has_lo = np.isfinite(hi), np.isfinite(lo)
+        used = has_hi | has_lo
+        index = np.full(len(M), -1)
+        if b.soft:
+            index[used] = n_slack + np.arange(int(used.sum()))
+            n_slack += int(used.sum())
+        for mask, sign, bound in ((has_hi, 1.0, hi), (has_lo, -1.0, lo)):
+            G_rows.append(sign * M[mask])
+            h_rows.append(sign * (bound[mask] - value[mask]))
+            kinds += [b.kind] * int(mask.sum())
+            slack_of.append(index[mask])
+    return ConstraintRows(np.vstack(G_rows), np.concatenate(h_rows), np.array(kinds, dtype=object),
+                          np.concatenate(slack_of).astype(int), n_slack)
+
+
+def _kinematic_rows(limits: Limits, H, Ts: float, y_now, f_rows, y_lin, drives) -> list[OutputRows]:
+    """The :class:`OutputRows` of drive_position, joint_position and drive_rate, linearized at the
+    poses y_lin ((n_rows·p,), default the free response f_rows (n_rows, p)) through ``drives``."""
+    if drives is None:
+        raise InvalidParameterError("drive_position, drive_rate and joint_position limits need the robot's "
+                                    "kinematics (a controller of a robot's reduced model); this model has none")
+    joints = tuple(limits.joint_position or ())
+    if joints and drives.joints != joints:
+        raise InvalidParameterError(f"the kinematics give the joints {list(drives.joints)}; the joint_position "
+                                    f"limits name {list(joints)}")
+    n_rows, p = f_rows.shape
+    ybar = (f_rows if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(n_rows, p)
+    qj = [drives(y) for y in ybar]
+    qall = np.array([a for a, _ in qj])
+    jall = np.array([J for _, J in qj])  # (n_rows, n_u + n_j, p)
+    n_u = qall.shape[1] - len(drives.joints)
+    out = []
+    first, _ = _steps(H, False)
+
+    def tiled(bounds):  # (k, 2) → (n_rows, k) lower and upper
+        shape = (n_rows, len(bounds))
+        return np.broadcast_to(bounds[:, 0], shape), np.broadcast_to(bounds[:, 1], shape)
+
+    if limits.drive_position is not None:  # q_a(ŷ) ≈ q̄ + J (ŷ − ȳ)
+        jac = jall[:, :n_u]
+        offset = qall[:, :n_u] - np.einsum("imp,ip->im", jac, ybar)
+        out.append(OutputRows("drive_position", first, jac, None, offset, *tiled(limits.drive_position),
+                              limits.is_soft("drive_position")))
     if limits.joint_position is not None:
         sel = [drives.joints.index(name) for name in joints]
         Jj = jall[:, n_u:][:, sel]
-        M = np.einsum("imp,ipn->imn", Jj, Gy).reshape(-1, n)
-        value = (qall[:, n_u:][:, sel] + np.einsum("imp,ip->im", Jj, fy - ybar)).reshape(-1)
+        offset = qall[:, n_u:][:, sel] - np.einsum("imp,ip->im", Jj, ybar)
         ranges = np.array([limits.joint_position[name] for name in joints])
-        blocks.append(("joint_position", M, value, *_pairs(ranges, n_rows)))
-    if limits.drive_rate is not None:
+        out.append(OutputRows("joint_position", first, Jj, None, offset, *tiled(ranges),
+                              limits.is_soft("joint_position")))
+    if limits.drive_rate is not None:  # J̄ (ŷ(k+i) − ŷ(k+i−1)), J̄ the trapezoid of the two poses' Jacobians
+        jac = jall[:, :n_u]
         if H.No == 0:  # the first difference is from y(k): its Jacobian too
             J_now = drives(np.asarray(y_now, dtype=float))[1][:n_u]
             J = 0.5 * (jac + np.concatenate([J_now[None], jac[:-1]]))
         else:
             J = 0.5 * (jac[1:] + jac[:-1])
-        rmax = limits.drive_rate * Ts
-        M = np.einsum("imp,ipn->imn", J, dG).reshape(-1, n)
-        value = np.einsum("imp,ip->im", J, df).reshape(-1)
-        blocks.append(("drive_rate", M, value, np.tile(-rmax, len(J)), np.tile(rmax, len(J))))
-    G_rows, h_rows, kinds, slack_of = [], [], [], []
-    n_slack = 0
-    for kind, M, value, lo, hi in blocks:
-        soft = limits.is_soft(kind)
-        has_hi, has_lo = np.isfinite(hi), np.isfinite(lo)
-        used = has_hi | has_lo
-        index = np.full(len(M), -1)
-        if soft:
-            index[used] = n_slack + np.arange(int(used.sum()))
-            n_slack += int(used.sum())
-        for side, mask, sign, bound in (("hi", has_hi, 1.0, hi), ("lo", has_lo, -1.0, lo)):
-            G_rows.append(sign * M[mask])
-            h_rows.append(sign * (bound[mask] - value[mask]))
-            kinds += [kind] * int(mask.sum())
-            slack_of.append(index[mask])
-    return ConstraintRows(np.vstack(G_rows), np.concatenate(h_rows), np.array(kinds, dtype=object),
-                          np.concatenate(slack_of).astype(int), n_slack)
+        first_d, n_d = _steps(H, True)
+        rmax = np.broadcast_to(limits.drive_rate * Ts, (n_d, n_u))
+        out.append(OutputRows("drive_rate", first_d, J, -J, np.zeros((n_d, n_u)), -rmax, rmax,
+                              limits.is_soft("drive_rate")))
+    return out
 
 
 def terminal_rows(pred: Prediction, w: np.ndarray, terminal: str | None) -> tuple[np.ndarray, np.ndarray] | None:

@@ -320,7 +320,7 @@ class GPCController:
             check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
-        result = None if stages is None else self._riccati.solve(*stages)
+        result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
         if result is not None and result.ok:
             pred, t2 = self._riccati.input_map(self, stages), t1
             constraint_report = self._riccati.report

@@ -168,12 +168,9 @@ class Criterion:
             pred: the prediction ŷ = f + G v (with these horizons).
             w: reference outputs over the penalized rows, (n_rows, p) or (n_rows·p,) (m, rad).
             limits: input :class:`~parallel_gpc.limits.Limits` sized to the m drives
-                (:meth:`~parallel_gpc.limits.Limits.for_drives`), or None. The torque limit
-                bounds u(k..k+Nu−1) (nonlinear form: every pre-simulated input u(k..k+N−1)); the
-                increment limit bounds u(k+i) − u(k+i−1), i < Nu (delayed form: u(k+1+i) − u(k+i)).
-            u_prev: (m,) u(k−1) (N·m); needed by the nonlinear form's increment limit, whose
-                pre-simulated inputs u_sim move by themselves: its box on v is shifted by
-                u_sim(i) − u_sim(i−1), u_sim(−1) = u(k−1).
+                (:meth:`~parallel_gpc.limits.Limits.for_drives`), or None: the rows of
+                :func:`input_rows` (torque on u = u_base + u_map v, the increment box on v).
+            u_prev: (m,) u(k−1) (N·m); needed by the nonlinear form's increment limit.
 
         Raises:
             ShapeError: w has the wrong shape, or limits not sized to m drives.
@@ -211,26 +208,68 @@ class Criterion:
         tau, delta = limits.torque, limits.du
         if (tau is not None and tau.shape != (m,)) or (delta is not None and delta.shape != (m,)):
             raise ShapeError(f"limits {limits!r} are not sized to the {m} drives; pass limits.for_drives({m})")
-        if tau is not None:
-            tau = np.tile(tau, len(pred.u_base) // m)
+        rows = input_rows(limits, pred.kind, H.Nu, len(pred.u_base) // m,
+                          pred.u_base[:n].reshape(-1, m) if pred.kind == "simulative" else None, u_prev)
+        if rows.torque is not None:
+            tau = rows.torque.reshape(-1)
             if pred.kind == "absolute":
                 prob.lb, prob.ub = -tau, tau
             else:
                 prob.L, prob.lo, prob.hi = pred.u_map, -tau - pred.u_base, tau - pred.u_base
-        if delta is not None:
-            if pred.kind == "absolute":
-                raise InvalidParameterError("the du limit applies to the incremental forms (v = Δu); the absolute "
-                                            "form has v = u")
-            d = np.tile(delta, H.Nu)
-            if pred.kind == "simulative":  # u(k+i) − u(k+i−1) = u_sim(i) − u_sim(i−1) + Δu(i)
-                if u_prev is None:
-                    raise InvalidParameterError("the nonlinear form's du limit is measured from u(k−1): pass u_prev")
-                drift = np.diff(np.concatenate([np.asarray(u_prev, dtype=float), pred.u_base[:n]]).reshape(-1, m),
-                                axis=0).reshape(-1)
-                prob.lb, prob.ub = -d - drift, d - drift
-            else:  # the increments add to u(k−1) (delayed: u(k)) itself: a box on v
-                prob.lb, prob.ub = -d, d
+        if rows.du_lo is not None:
+            prob.lb, prob.ub = rows.du_lo.reshape(-1), rows.du_hi.reshape(-1)
         return prob
+
+
+@dataclass(frozen=True)
+class InputRows:
+    """The input kinds' rows of one step, the one definition the condensed layout
+    (:meth:`Criterion.problem`) and the stage-wise layout (:func:`~parallel_gpc.gpc.stagewise.stage_problem`) use.
+
+    Attributes:
+        torque: (n_torque, m) τ of −τ ≤ u(k+i) ≤ τ, i < n_torque (N·m), or None.
+        du_lo, du_hi: (Nu, m) box on the decision v(i) = Δu(k+i) that keeps
+            −δ ≤ u(k+i) − u(k+i−1) ≤ δ (the nonlinear form's shifted by its drift), or None.
+    """
+
+    torque: np.ndarray | None
+    du_lo: np.ndarray | None
+    du_hi: np.ndarray | None
+
+
+def input_rows(limits: Limits, kind: str, Nu: int, n_torque: int, u_sim: np.ndarray | None = None,
+               u_prev: np.ndarray | None = None) -> InputRows:
+    """The :class:`InputRows` of ``limits`` (sized to the m drives).
+
+    The torque limit bounds u(k..k+Nu−1) (nonlinear form: every pre-simulated input, n_torque = N);
+    the increment limit bounds u(k+i) − u(k+i−1), i < Nu (delayed form: u(k+1+i) − u(k+i)): a box
+    on v, which for the nonlinear form (whose pre-simulated inputs u_sim move by themselves) is
+    shifted by u_sim(i) − u_sim(i−1), u_sim(−1) = u(k−1).
+
+    Args:
+        limits: sized to the drives. kind: the prediction's kind (``"absolute"``, ``"incremental"``
+            or ``"simulative"``). Nu: control horizon. n_torque: the torque-limited steps.
+        u_sim: (≥ Nu, m) pre-simulated inputs (simulative). u_prev: (m,) u(k−1) (N·m; simulative du).
+
+    Raises:
+        InvalidParameterError: an increment limit on the absolute form, or the nonlinear form's
+            increment limit without u_prev.
+    """
+    tau, delta = limits.torque, limits.du
+    torque = None if tau is None else np.broadcast_to(tau, (n_torque, len(tau)))
+    if delta is None:
+        return InputRows(torque, None, None)
+    if kind == "absolute":
+        raise InvalidParameterError("the du limit applies to the incremental forms (v = Δu); the absolute "
+                                    "form has v = u")
+    d = np.broadcast_to(delta, (Nu, len(delta)))
+    if kind != "simulative":  # the increments add to u(k−1) (delayed: u(k)) itself: a box on v
+        return InputRows(torque, -d, d)
+    if u_prev is None:
+        raise InvalidParameterError("the nonlinear form's du limit is measured from u(k−1): pass u_prev")
+    # u(k+i) − u(k+i−1) = u_sim(i) − u_sim(i−1) + Δu(i)
+    drift = np.diff(np.vstack([np.asarray(u_prev, dtype=float), np.asarray(u_sim, dtype=float)[:Nu]]), axis=0)
+    return InputRows(torque, -d - drift, d - drift)
 
 
 def build_problem(pred: Prediction, w: np.ndarray, weights: Weights, n_outputs: int, n_inputs: int,

@@ -190,13 +190,14 @@ class RiccatiPath:
             self._extra = {"y_now": ctl.model.C @ X}
         return Ad, Bd, cd, X, base, w
 
-    def solve(self, A, B, c, x0, u0, r) -> SolveResult:
+    def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise interior point
-        (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set)."""
+        (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
+        from its last solution when ``warm`` (the controller's next step)."""
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
         models = stage_models(self.form, A, B, c, self.solver.C, x0, u0, self.horizons)
-        result, self.report = self.constrained.solve(models, r, **self._extra)
+        result, self.report = self.constrained.solve(models, r, warm=warm, **self._extra)
         return result
 
     def input_map(self, ctl, stages: tuple) -> Prediction:

@@ -6,17 +6,20 @@ z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinea
 limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on, solved by the interior point
 of :mod:`parallel_gpc.solvers.stagewise_ipm` (work linear in N):
 
-* torque |u| ≤ τ: absolute, a box on v(i) = u(i), i < Nu; incremental forms,
-  u(i) = z(i)[n:] + v(i) (the input memory plus the increment), i < Nu; nonlinear,
-  u(i) = u_sim(i) + z(i)[n:] + v(i), every pre-simulated step i < N (v = 0 after Nu);
-* du |Δu| ≤ δ: a box on v(i) (nonlinear: shifted by the drift u_sim(i) − u_sim(i−1), u_sim(−1) =
-  u(k−1)), as in :meth:`~parallel_gpc.gpc.criterion.Criterion.problem`;
-* output_box y_lo ≤ ŷ(i) ≤ y_hi (i = No+1..N) and output_velocity |ŷ(i) − ŷ(i−1)| ≤ v·Ts (the
-  first difference from the measured y(k) when No = 0), as in
-  :func:`~parallel_gpc.gpc.constraints.stage_constraints`: ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)]
-  is a row of stage i − 1; soft kinds get a slack s ≥ 0 costing ρ s + SOFT_QUADRATIC·ρ s² (the
-  condensed path's penalty; one slack per side instead of one per pair: the same optimum, the two
-  sides never both bind).
+The rows are the ones the condensed layout uses, defined once per kind
+(:func:`~parallel_gpc.gpc.criterion.input_rows`, :func:`~parallel_gpc.gpc.constraints.output_rows`);
+this module only places them on the stages:
+
+* torque, on u(i): absolute, v(i) = u(i); incremental forms, u(i) = z(i)[n:] + v(i) (the input
+  memory plus the increment); nonlinear, u(i) = u_sim(i) + z(i)[n:] + v(i) (v = 0 after Nu);
+* du, the box on v(i), i < Nu;
+* the output kinds, ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)] and ŷ(i−1) = C̄ z(i−1)
+  [+ ŷ_sim(i−1)] (the measured y(k) on stage 0): a row of stage i − 1; soft kinds get a slack
+  s ≥ 0 costing ρ s + SOFT_QUADRATIC·ρ s² (the condensed path's penalty; one slack per side
+  instead of one per pair: the same optimum, the two sides never both bind).
+
+From the controller's second step on, the solve starts from the previous solution shifted by one
+stage (:class:`~parallel_gpc.solvers.StageStart`).
 
 Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
 (drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
@@ -30,10 +33,11 @@ import time
 import numpy as np
 
 from ..errors import SolverError
-from ..limits import SOFT_QUADRATIC, Limits
+from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import SolveResult, StageQP, StageQPSolution, solve_stage_qp
-from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport
+from ..solvers import SolveResult, StageQP, StageQPSolution, StageStart, solve_stage_qp
+from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
+from .criterion import input_rows
 from .prediction import Horizons
 
 __all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
@@ -42,14 +46,18 @@ __all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 
 
-def _pair_rows(M: np.ndarray, lo: np.ndarray, hi: np.ndarray):
-    """(±M rows, bounds): M x ≤ hi and −M x ≤ −lo, ±inf bounds kept (an unused row)."""
-    return np.concatenate([M, -M]), np.concatenate([hi, -lo])
+def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
+    """The two-sided rows lo ≤ Fz z + Fv v + const ≤ hi ((N, k, ·) each, ±inf: unused) as one-sided
+    rows [Fz; −Fz] z + [Fv; −Fv] v ≤ [hi − const; const − lo]: (kind, Fz, Fv, f, soft), (N, 2k, ·)."""
+    return (kind, np.concatenate([Fz, -Fz], axis=1), np.concatenate([Fv, -Fv], axis=1),
+            np.concatenate([hi - const, const - lo], axis=1), soft)
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
-                  y_now, y_sim=None, u_sim=None, u_prev=None) -> tuple[StageQP, np.ndarray]:
-    """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring).
+                  y_now, y_sim=None, u_sim=None, u_prev=None, out_rows=None) -> tuple[StageQP, np.ndarray]:
+    """The :class:`~parallel_gpc.solvers.StageQP` of one step (see the module docstring): the rows of
+    :func:`~parallel_gpc.gpc.criterion.input_rows` and :func:`~parallel_gpc.gpc.constraints.output_rows`
+    (the definitions the condensed layout uses) placed on the stages they act on.
 
     Args:
         form: the controller's form. Ab, Bb, cb, Cz, z0: :func:`~parallel_gpc.gpc.riccati.stage_models`.
@@ -58,9 +66,11 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
             controller's margin. Ts: sample time (s). y_now: (p,) measured output y(k) (m, rad).
         y_sim: (N, p) pre-simulated outputs ŷ_sim(k+1..k+N) (nonlinear form), else None.
         u_sim: (N, m) pre-simulated inputs (nonlinear form). u_prev: (m,) u(k−1) (nonlinear du).
+        out_rows: ``output_rows(limits, horizons, Ts, p)`` when the caller keeps it (they depend on neither
+            the state nor the step), else None.
 
     Returns:
-        (the problem, kinds (N, k) object array: the limit kind of every row, None on an unused one).
+        (the problem, kinds (k,) object array: the limit kind of each row column, the same on every stage).
     """
     H = horizons
     N, No, Nu = H.N, H.No, H.Nu
@@ -70,65 +80,67 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     CQ = Cz.T @ Qy
     Q[No + 1:] = 2.0 * CQ @ Cz
     q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
-    eye, zero_z, zero_v = np.eye(m), np.zeros((m, nz)), np.zeros((m, m))
-    mem = np.zeros((m, nz))  # z(i)[n:], the input memory of the incremental forms' state [x; u]
-    if form != "absolute":
-        mem[:, nz - m:] = np.eye(m)
-    blocks = [[] for _ in range(N)]  # per stage: (Fz, Fv, f, soft, kind)
-
-    def add(i, Fz, Fv, f, soft, kind):
-        blocks[i].append((Fz, Fv if i < Nu else np.zeros_like(Fv), f, np.full(len(f), soft), [kind] * len(f)))
-
-    tau, delta = limits.torque, limits.du
-    if tau is not None:
-        for i in range(N if form == "nonlinear" else Nu):
-            if form == "absolute":
-                Fz, Fv, off = zero_z, eye, 0.0
-            else:
-                Fz, Fv = mem, (eye if i < Nu else zero_v)
-                off = u_sim[i] if form == "nonlinear" else 0.0
-            F, f = _pair_rows(np.hstack([Fz, Fv]), -tau - off, tau - off)
-            add(i, F[:, :nz], F[:, nz:], f, False, "torque")
-    if delta is not None:
-        drift = np.zeros((Nu, m))
-        if form == "nonlinear":
-            drift = np.diff(np.vstack([u_prev, u_sim[:Nu]]), axis=0)
-        for i in range(Nu):
-            F, f = _pair_rows(np.hstack([zero_z, eye]), -delta - drift[i], delta - drift[i])
-            add(i, F[:, :nz], F[:, nz:], f, False, "du")
-    y_off = np.zeros((N + 1, p)) if y_sim is None else np.vstack([np.zeros((1, p)), y_sim])
-    y_now = np.asarray(y_now, float)
-
-    def output_rows(i):  # ŷ(i) = Yz z(i−1) + Yv v(i−1) + y0 as a row block of stage i − 1
-        return Cz @ Ab[i - 1], Cz @ Bb[i - 1], Cz @ cb[i - 1] + y_off[i]
-
-    if limits.output_box is not None:
-        box = limits.output_box
-        for i in range(No + 1, N + 1):
-            Yz, Yv, y0 = output_rows(i)
-            F, f = _pair_rows(np.hstack([Yz, Yv]), box[:, 0] - y0, box[:, 1] - y0)
-            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_box"), "output_box")
-    if limits.output_velocity is not None:
-        vmax = limits.output_velocity * Ts
-        for i in range(1 if No == 0 else No + 2, N + 1):  # the first from y(k) when No = 0
-            Yz, Yv, y0 = output_rows(i)
-            if i == 1:
-                prev_z, prev0 = np.zeros((p, nz)), y_now
-            else:
-                prev_z, prev0 = Cz, y_off[i - 1]
-            F, f = _pair_rows(np.hstack([Yz - prev_z, Yv]), -vmax - y0 + prev0, vmax - y0 + prev0)
-            add(i - 1, F[:, :nz], F[:, nz:], f, limits.is_soft("output_velocity"), "output_velocity")
-    k = max((sum(len(b[2]) for b in stage) for stage in blocks), default=0)
-    Fz, Fv = np.zeros((N, k, nz)), np.zeros((N, k, m))
-    f, soft, kinds = np.full((N, k), np.inf), np.zeros((N, k), bool), np.full((N, k), None, dtype=object)
-    for i, stage in enumerate(blocks):
-        j = 0
-        for bz, bv, bf, bs, bk in stage:
-            rows = slice(j, j + len(bf))
-            Fz[i, rows], Fv[i, rows], f[i, rows], soft[i, rows], kinds[i, rows] = bz, bv, bf, bs, bk
-            j += len(bf)
+    decided = (np.arange(N) < Nu)[:, None, None]  # v(i) exists on the stages i < Nu
+    blocks = []
+    nonlinear = form == "nonlinear"
+    rows = input_rows(limits, "absolute" if form == "absolute" else "simulative" if nonlinear else "incremental",
+                      Nu, N if nonlinear else Nu, u_sim, u_prev)
+    if rows.torque is not None:  # u(i) = z(i)[n:] + v(i) [+ u_sim(i)] (absolute: v(i))
+        n_t = len(rows.torque)
+        Fz, Fv, off = np.zeros((N, m, nz)), np.zeros((N, m, m)), np.zeros((N, m))
+        if form != "absolute":
+            Fz[:n_t, :, nz - m:] = np.eye(m)
+        Fv[:min(n_t, Nu)] = np.eye(m)
+        if nonlinear:
+            off[:n_t] = u_sim[:n_t]
+        hi = np.full((N, m), np.inf)
+        hi[:n_t] = rows.torque
+        blocks.append(_pair("torque", Fz, Fv, off, -hi, hi, False))
+    if rows.du_lo is not None:  # a box on v(i), i < Nu
+        Fv = np.zeros((N, m, m))
+        Fv[:Nu] = np.eye(m)
+        lo, hi = np.full((N, m), -np.inf), np.full((N, m), np.inf)
+        lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
+        blocks.append(_pair("du", np.zeros((N, m, nz)), Fv, np.zeros((N, m)), lo, hi, False))
+    out_rows = output_rows(limits, H, Ts, p) if out_rows is None else out_rows
+    if out_rows:
+        # ŷ(i) = C̄ Ā z(i−1) + C̄ B̄ v(i−1) + C̄ c̄(i−1) [+ ŷ_sim(i)], a row of stage i − 1, whose own
+        # ŷ(i−1) = C̄ z(i−1) [+ ŷ_sim(i−1)] (stage 0: the measured y(k))
+        CA, CB = Cz @ Ab, (Cz @ Bb) * decided
+        y_next = cb @ Cz.T + (0.0 if y_sim is None else y_sim)
+        P = np.empty((N, p, nz))
+        P[:] = Cz
+        P[0] = 0.0
+        y_cur = np.zeros((N, p))
+        y_cur[0] = y_now
+        if y_sim is not None:
+            y_cur[1:] = y_sim[:N - 1]
+        for b in out_rows:
+            st = slice(b.first - 1, N)  # the stages of the row blocks
+            k = b.cur.shape[1]
+            Fz, Fv, const = np.zeros((N, k, nz)), np.zeros((N, k, m)), np.zeros((N, k))
+            lo, hi = np.full((N, k), -np.inf), np.full((N, k), np.inf)
+            Fz[st] = b.cur @ CA[st]
+            Fv[st] = b.cur @ CB[st]
+            const[st] = (b.cur @ y_next[st, :, None])[..., 0] + b.offset
+            if b.prev is not None:
+                Fz[st] += b.prev @ P[st]
+                const[st] += (b.prev @ y_cur[st, :, None])[..., 0]
+            lo[st], hi[st] = b.lo, b.hi
+            blocks.append(_pair(b.kind, Fz, Fv, const, lo, hi, b.soft))
+    if blocks:
+        kinds = np.concatenate([np.full(b[1].shape[1], b[0], dtype=object) for b in blocks])
+        Fz = np.concatenate([b[1] for b in blocks], axis=1)
+        Fv = np.concatenate([b[2] for b in blocks], axis=1)
+        f = np.concatenate([b[3] for b in blocks], axis=1)
+        soft = np.concatenate([np.full(b[1].shape[1], b[4]) for b in blocks])
+    else:
+        kinds, Fz, Fv, f, soft = np.empty(0, dtype=object), np.zeros((N, 0, nz)), np.zeros((N, 0, m)), \
+            np.zeros((N, 0)), np.zeros(0, bool)
     rho = limits.penalty
-    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, soft, rho, 2.0 * SOFT_QUADRATIC * rho)
+    soft_rows = np.empty(f.shape, bool)
+    soft_rows[:] = soft
+    qp = StageQP(Ab, Bb, cb, z0, Q, q, 2.0 * Wu.T @ Wu, Nu, Fz, Fv, f, soft_rows, rho, 2.0 * SOFT_QUADRATIC * rho)
     return qp, kinds
 
 
@@ -151,17 +163,37 @@ class StagewiseSolver:
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
         self.native = self._compiled is not None
+        self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
+        self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
-    def _solve(self, qp: StageQP) -> StageQPSolution:
+    def _start(self, qp: StageQP) -> StageStart | None:
+        """The last solution shifted by one stage (the warm start of the next step), or None: v(i) ←
+        v(i+1) (absolute: the last held; the increments of the incremental forms: 0 at the end; the
+        nonlinear form's deviation from a new pre-simulation: the unconstrained plan), λ and s likewise."""
+        last = self._last
+        if last is None or last.lam.shape != qp.f.shape or last.v.shape[0] != qp.n_decide:
+            return None
+        v = None
+        if self.form != "nonlinear":
+            v = np.concatenate([last.v[1:], last.v[-1:] if self.form == "absolute" else np.zeros_like(last.v[-1:])])
+
+        def shifted(a):
+            return np.concatenate([a[1:], a[-1:]])
+
+        return StageStart(v, shifted(last.lam), shifted(last.s))
+
+    def _solve(self, qp: StageQP, start: StageStart | None) -> StageQPSolution:
         """The compiled solve, or the Python reference."""
         if self._compiled is None:
-            return solve_stage_qp(qp)
+            return solve_stage_qp(qp, start=start)
         try:
             c = np.ascontiguousarray
             v, z, s, lam, iterations, ok, merit = self._compiled(
                 c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
                 c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.Fv, float), c(qp.f, float), c(qp.soft, bool),
-                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float))
+                qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float),
+                *((None, None, None) if start is None else
+                  (None if start.v is None else c(start.v, float), c(start.lam, float), c(start.s, float))))
         except RuntimeError as exc:
             raise SolverError(str(exc)) from None
         status = "optimal" if ok else "infeasible"
@@ -169,13 +201,15 @@ class StagewiseSolver:
                                  "the hard limits cannot all hold (infeasible)")
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
-    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None
+    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
         """(the plan v (Nu·m,) as a SolveResult, what the state limits did or None without them).
 
         Args:
             stage_models: (Ā, B̄, c̄, C̄, z0) of :func:`~parallel_gpc.gpc.riccati.stage_models`.
             r, y_now, y_sim, u_sim, u_prev: as in :func:`stage_problem`.
+            warm: start from the last solution shifted by one stage (a controller's next step),
+                else from the unconstrained plan.
 
         Returns:
             status ``optimal`` (``active_limits`` when a row binds), ``infeasible`` (hard limits
@@ -185,12 +219,16 @@ class StagewiseSolver:
         Ab, Bb, cb, Cz, z0 = stage_models
         H, m = self.horizons, self.Wu.shape[0]
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
-                                  y_now, y_sim, u_sim, u_prev)
+                                  y_now, y_sim, u_sim, u_prev, self._output_rows)
+        start = self._start(qp) if warm else None
+        self._last = None
         try:
-            sol = self._solve(qp)
+            sol = self._solve(qp, start)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None
+        if sol.status == "optimal":
+            self._last = sol
         v = sol.v.reshape(-1)
         e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
         J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
@@ -200,12 +238,13 @@ class StagewiseSolver:
         f = np.where(used, qp.f, 0.0)
         gap = np.where(used, f + sol.s - F_x, np.inf)
         active = used & (gap <= ACTIVE_TOL * (1.0 + np.abs(f)))
-        state = used & np.isin(kinds, ("output_box", "output_velocity"))
+        state = used & np.isin(kinds, OUTPUT_KINDS)
         report = None
         if state.any():
             slack = {str(kd): float(np.max(sol.s[state & (kinds == kd) & qp.soft], initial=0.0))
-                     for kd in ("output_box", "output_velocity") if (state & (kinds == kd) & qp.soft).any()}
-            report = ConstraintReport(tuple(sorted({str(kd) for kd in kinds[active & state]})), slack)
+                     for kd in OUTPUT_KINDS if (state & (kinds == kd) & qp.soft).any()}
+            binding = np.broadcast_to(kinds, used.shape)[active & state]
+            report = ConstraintReport(tuple(sorted({str(kd) for kd in binding})), slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
         if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):

@@ -45,7 +45,7 @@ from .problem import (
     with_inequalities,
 )
 from .riccati import lq_tracking
-from .stagewise_ipm import StageQP, StageQPSolution, solve_stage_qp
+from .stagewise_ipm import StageQP, StageQPSolution, StageStart, solve_stage_qp
 from .kkt import KKT_TOL, KKTResiduals, KKTTolerance, kkt_residuals, verified
 from .bvls import BVLSSolver
 from .normal import NormalEquationsSolver
@@ -53,7 +53,7 @@ from .qr import QRSolver, qr_least_squares
 from .qr_first import QRFirst
 
 __all__ = [
-    "from_cumulative", "with_inequalities", "with_equalities", "lq_tracking", "StageQP", "StageQPSolution",
+    "from_cumulative", "with_inequalities", "with_equalities", "lq_tracking", "StageQP", "StageQPSolution", "StageStart",
     "solve_stage_qp",
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
     "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",

@@ -19,7 +19,12 @@ Accuracy: the Newton steps are solved in delta form (their rounding scales with 
 with the iterate: W ~ 1/μ would otherwise amplify it into the multipliers), the objective is
 scaled to unit curvature in v first, and the converged iterate is polished by Newton steps on
 its active rows alone (the inactive rows' barrier no longer bends the plan along the flat
-directions of a redundant robot's criterion).
+directions of a redundant robot's criterion). The iterations stop at the tolerance or at the
+rounding floor (the first iterate that does not improve on the best one below :data:`_FLOOR`,
+or :data:`_STALL` iterations without marked progress), never factorizing the stopping iterate;
+a Newton system that loses positive definiteness to rounding is shifted and refined
+(:func:`_cholesky`). A :class:`StageStart` (a controller's previous solution, shifted) starts
+the iterations near the solution.
 
 Newton system (rows t = f + S s − F x ≥ 0 with multipliers λ, slacks s ≥ 0 with π):
     dλ = W F dx + w0,  W = d (hard) or d (κ + π / s) / a = d (1 − d / a) (soft),  d = λ / t,  a = κ + d + π / s,
@@ -35,7 +40,7 @@ import scipy.linalg as sla
 
 from ..errors import SolverError
 
-__all__ = ["StageQP", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER"]
+__all__ = ["StageQP", "StageStart", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER"]
 
 #: stopping tolerance, relative to the problem's scale (largest gradient/penalty entry, ≥ 1).
 IPM_TOL = 1e-13
@@ -64,6 +69,15 @@ _POLISH_ROUNDS = 3
 _POLISH_FLOOR = 1e-16
 #: Newton steps per polishing round.
 _POLISH_STEPS = 2
+#: below this relative KKT residual an iterate that does not improve on the best one is the
+#: rounding floor: the iterations stop there, and the best iterate is not polished (nothing to gain).
+_FLOOR = 1e-9
+#: first diagonal shift (relative to the largest diagonal entry) of a Newton system that is not
+#: positive definite to working precision, and the largest before giving up.
+_SHIFT, _SHIFT_MAX = 1e-14, 1e-8
+#: a warm start's slacks t, s (relative to the bounds) and multipliers λ, π (relative to the
+#: gradient) are kept at least this far from 0 (the iterations stay centered).
+_WARM = 1e-3
 
 
 @dataclass
@@ -98,6 +112,20 @@ class StageQP:
 
 
 @dataclass
+class StageStart:
+    """A warm start of :func:`solve_stage_qp` (a guess: any one leads to the same solution).
+
+    Attributes:
+        v: (n_decide, m) plan, or None (the unconstrained plan). lam: (N, k) row multipliers and
+            s: (N, k) soft rows' slacks (the problem's units).
+    """
+
+    v: np.ndarray | None
+    lam: np.ndarray
+    s: np.ndarray
+
+
+@dataclass
 class StageQPSolution:
     """The solution of a :class:`StageQP`.
 
@@ -120,10 +148,42 @@ class StageQPSolution:
     message: str = ""
 
 
+def _cholesky(Hvv: np.ndarray, i: int, W: np.ndarray, regularize: bool):
+    """The Cholesky factor of stage i's input Hessian Hvv = R + Fvᵀ W Fv + BᵀPB.
+
+    ``regularize`` (an interior-point iterate): a matrix that is not positive definite to working
+    precision (the row weights W = λ/t grow like 1/μ as rows become active, and BᵀPB loses the
+    digits of R next to them) is shifted by :data:`_SHIFT` · its largest diagonal entry, growing
+    tenfold up to :data:`_SHIFT_MAX`, and factorized again: the step's iterative refinement
+    against the unshifted system removes the shift.
+
+    Raises:
+        SolverError: non-finite entries; or a matrix that stays singular (the message says which:
+            the unconstrained problem's R + BᵀPB not ≻ 0, or an ill-conditioned Newton system).
+    """
+    if not np.all(np.isfinite(Hvv)):
+        raise SolverError(f"stage-wise IPM: the Newton system at stage {i} has non-finite entries (NaN or inf in "
+                          "the model, the weights or the limits)")
+    shift, top = 0.0, float(np.max(np.abs(np.diag(Hvv))))
+    while True:
+        try:
+            return sla.cho_factor(Hvv + shift * np.eye(len(Hvv)) if shift else Hvv, check_finite=False)
+        except np.linalg.LinAlgError:
+            if not regularize:
+                raise SolverError(f"stage-wise IPM: the input Hessian R + BᵀPB at stage {i} is not positive "
+                                  "definite (the input weight Qu must be nonsingular)") from None
+            shift = _SHIFT * top if shift == 0.0 else 10.0 * shift
+            if shift > _SHIFT_MAX * top:
+                raise SolverError(f"stage-wise IPM: the Newton system at stage {i} is singular to working "
+                                  f"precision (row weights λ/t up to {float(np.max(W, initial=0.0)):.3g}, the "
+                                  f"input Hessian's diagonal up to {top:.3g}): an ill-conditioned iterate, "
+                                  "not the input weight") from None
+
+
 class _Riccati:
     """The Riccati factorization of one Newton system (row weights W) and its back-substitution."""
 
-    def __init__(self, qp: StageQP, W: np.ndarray):
+    def __init__(self, qp: StageQP, W: np.ndarray, regularize: bool = False):
         N, nd = qp.A.shape[0], qp.n_decide
         self.qp = qp
         self.Pn = [None] * N     # P_{i+1}
@@ -146,11 +206,7 @@ class _Riccati:
                 if qp.S is not None:
                     Hvz = Hvz + qp.S
                 self.h_max = max(self.h_max, float(np.max(np.diag(Hvv))))
-                try:
-                    self.fac[i] = sla.cho_factor(Hvv, check_finite=True)
-                except (np.linalg.LinAlgError, ValueError) as exc:
-                    raise SolverError(f"stage-wise IPM: the input Hessian at stage {i} is not positive definite "
-                                      f"({exc})") from None
+                self.fac[i] = _cholesky(Hvv, i, W, regularize)
                 self.Hvz[i], self.K[i] = Hvz, -sla.cho_solve(self.fac[i], Hvz, check_finite=False)
                 P = Qi + A.T @ PA + Hvz.T @ self.K[i]
             else:
@@ -227,7 +283,8 @@ def costates(qp: StageQP, z, v, lam, linear: bool = True) -> tuple[np.ndarray, n
     return nu, rv
 
 
-def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_ITER) -> StageQPSolution:
+def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_ITER,
+                   start: StageStart | None = None) -> StageQPSolution:
     """Solve a :class:`StageQP` by Mehrotra's predictor-corrector, one Riccati factorization per iteration.
 
     The objective is first divided by the largest diagonal entry σ of the unconstrained input
@@ -238,6 +295,8 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
 
     Args:
         qp: the problem. tol: stopping tolerance relative to the scale. max_iter: iteration cap.
+        start: a guess of the solution (the previous step's, shifted), or None: the iterations
+            start from the unconstrained plan.
 
     Returns:
         The solution (status ``"infeasible"`` when the iterations stop short: its message names the
@@ -258,7 +317,10 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
         return StageQPSolution(v, z, np.zeros(used.shape), np.zeros(used.shape), nu, 0, "optimal", res)
     scaled = StageQP(qp.A, qp.B, qp.c, qp.z0, qp.Q / sigma, qp.q / sigma, qp.R / sigma, nd, qp.Fz, qp.Fv, qp.f,
                      qp.soft, qp.rho / sigma, qp.kappa / sigma, None if qp.S is None else qp.S / sigma)
-    sol = _solve_scaled(scaled, z, v, tol, max_iter)
+    if start is not None and start.v is not None:
+        v = np.asarray(start.v, float).reshape(v.shape)
+        z = simulate(qp, v)
+    sol = _solve_scaled(scaled, z, v, tol, max_iter, None if start is None else (start.lam / sigma, start.s))
     sol.lam *= sigma
     sol.nu *= sigma
     return sol
@@ -283,13 +345,19 @@ class _Newton:
         self.merit = max(self.mu / (scale * f_scale), float(np.max(np.abs(r_t))) / f_scale, res)
         # an inexact Newton step: its error need only be small against the residual it removes
         self.refine_above = max(1e-15, _REFINE_FORCING * self.merit) * scale
-        if not factor:
-            return
+        if factor:
+            self.factor()
+
+    def factor(self, regularize: bool = False) -> None:
+        """Factorize the Newton system (its row weights W and their Riccati recursion); ``regularize``:
+        as in :class:`_Riccati` (the direction's refinement removes the shift)."""
+        qp, used, soft = self.qp, self.used, self.soft
+        _, _, t, lam, s, pi = self.point
         self.d = np.where(used, lam / t, 0.0)
         self.sp = np.where(soft, pi / np.where(soft, s, 1.0), 0.0)
         self.a = np.where(soft, qp.kappa + self.d + self.sp, 1.0)
         self.W = np.where(soft, self.d * (qp.kappa + self.sp) / self.a, self.d)  # d (1 − d / a), no cancellation
-        self.ric = _Riccati(qp, self.W)
+        self.ric = _Riccati(qp, self.W, regularize)
 
     def direction(self, r_tl, r_sp):
         """(dz, dv, dt, dλ, ds, dπ) for the complementarity targets t λ − r_tl and s π − r_sp."""
@@ -381,8 +449,19 @@ def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float,
     return (polished.merit, point, polished.nu) if polished.merit <= max(merit, IPM_TOL) else None
 
 
-def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int) -> StageQPSolution:
-    """The interior-point iterations on a scaled problem from the unconstrained plan (z, v)."""
+def simulate(qp: StageQP, v: np.ndarray) -> np.ndarray:
+    """The states z (N + 1, nz) of the plan v (n_decide, m): the dynamics rows held exactly."""
+    N, nd = qp.A.shape[0], qp.n_decide
+    z = np.empty((N + 1, qp.A.shape[1]))
+    z[0] = qp.z0
+    for i in range(N):
+        z[i + 1] = qp.A[i] @ z[i] + qp.c[i] + (qp.B[i] @ v[i] if i < nd else 0.0)
+    return z
+
+
+def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None) -> StageQPSolution:
+    """The interior-point iterations on a scaled problem from the plan (z, v) (the unconstrained one,
+    or a warm start whose row multipliers and slacks are ``start`` = (λ, s), scaled)."""
     used = np.isfinite(qp.f)
     soft = qp.soft & used
     f = np.where(used, qp.f, 0.0)
@@ -399,23 +478,32 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int) -> StageQPSoluti
     lam0 = scale * float(qp.A.shape[0]) ** 2
     point = (z, v, np.where(used, np.maximum(f + s - Fx, f_scale), 1.0), np.where(used, lam0, 0.0), s,
              np.where(soft, scale, 1.0))
+    if start is not None:
+        lam_w, s_w = start
+        th_t, th_l = _WARM * f_scale, _WARM * scale
+        s = np.where(soft, np.maximum(np.maximum(s_w, Fx - f), 0.0) + th_t, 0.0)
+        lam = np.where(used, np.maximum(lam_w, th_l), 0.0)
+        pi = np.where(soft, np.maximum(qp.rho + qp.kappa * s - lam, th_l), 1.0)
+        point = (z, v, np.where(used, np.maximum(f + s - Fx, th_t), 1.0), lam, s, pi)
     best = None  # (merit, iterations, point, ν): the iterations stop at the tolerance or at the rounding floor
     marked = (np.inf, 0)  # (merit, iteration) of the last marked improvement
     for it in range(max_iter + 1):
-        try:
-            newton = _Newton(qp, point, used, soft, scale, f_scale, factor=True)
-        except SolverError:
-            if best is not None and best[0] <= _ACCEPT:  # row weights beyond the factorization's precision
-                break
-            raise
-        if best is None or newton.merit < best[0]:
+        newton = _Newton(qp, point, used, soft, scale, f_scale, factor=False)
+        improved = best is None or newton.merit < best[0]
+        if improved:
             best = (newton.merit, it, point, newton.nu)
         if newton.merit < _PROGRESS * marked[0]:
             marked = (newton.merit, it)
         if newton.merit <= tol or it == max_iter:
             break
-        if it - marked[1] >= _STALL and best[0] <= _ACCEPT:
-            break  # the rounding floor: keep the best iterate
+        if (it - marked[1] >= _STALL and best[0] <= _ACCEPT) or (not improved and best[0] <= _FLOOR):
+            break  # the rounding floor: keep the best iterate (the stopping iterate is never factorized)
+        try:
+            newton.factor(regularize=True)
+        except SolverError:
+            if best[0] <= _ACCEPT:  # row weights beyond the factorization's precision
+                break
+            raise
         t, lam, s, pi = point[2:]
         aff = newton.direction(np.where(used, t * lam, 0.0), np.where(soft, s * pi, 0.0))
         dt, dl, ds, dp = aff[2:]
