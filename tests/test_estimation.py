@@ -15,6 +15,7 @@ from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobo
 from parallel_gpc.errors import InvalidParameterError, SensorError, ShapeError
 from parallel_gpc.estimation import Measurement, Sensors, SensedPlant, StateEstimator
 from parallel_gpc.gpc.references import path_for
+from parallel_gpc.model.native import native_module, native_status
 from parallel_gpc.studies.loop import run_loop
 
 TS = 0.002
@@ -208,15 +209,19 @@ def test_encoder_loop_rejects_the_demos_load_at_ts_10_ms():
     assert steady_state_error(res) < 5 * count_at_platform
 
 
+@pytest.mark.parametrize("native", [False, True])
 @pytest.mark.parametrize("rates", [False, True])
-def test_one_update_is_the_textbook_kalman_correction(robot4, rates):
+def test_one_update_is_the_textbook_kalman_correction(robot4, rates, native):
     """Oracle: the correction written out with the full matrices, H = [I 0 0] (and [0 I 0] for ẏ
     from the drive rates), R the measured pose's (and rate's) covariance (Jᵀ Σ⁻¹ J)⁻¹, K = P Hᵀ
     (H P Hᵀ + R)⁻¹ by an explicit inverse, P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ; after some samples
-    of motion so that P is full, not the initial diagonal."""
+    of motion so that P is full, not the initial diagonal. The NumPy correction (a Python model)
+    and the compiled one (native/src/kalman.cpp, with the compiled model update)."""
+    if native and not hasattr(native_module(), "kalman_correct"):
+        pytest.skip(f"no compiled Kalman correction: {native_status()}")
     sensors = Sensors("encoders", rates=rates, noise_counts=0.5)
     X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
-    est = StateEstimator(ReducedModel(robot4), TS, sensors, X0)
+    est = StateEstimator(ReducedModel(robot4, native=native), TS, sensors, X0)
     res = sensors.resolution(robot4)
     y = robot4.home_pose
     for k in range(5):

@@ -12,7 +12,9 @@ with process noise w: white acceleration of standard deviation ``accel_std`` ove
 [y, ẏ] and a random walk of σ_d per sample on d. The measurement is the pose
 from forward kinematics of the encoder readings, y_m = y + v, with covariance
 (Jᵀ Σ⁻¹ J)⁻¹ (J the drive Jacobian, Σ the readings' quantization and noise variance);
-drive rates, when measured, add ẏ_m = ẏ + v' through the same Jacobian.
+drive rates, when measured, add ẏ_m = ẏ + v' through the same Jacobian. The correction runs in
+the compiled core (``_native.kalman_correct``) when the model does; :meth:`StateEstimator.update`
+holds its NumPy reference.
 
 The disturbance model is set by its bandwidth ω_d (rad/s), not by σ_d: with readings much finer
 than the acceleration noise over a sample (encoders: Δ ≪ accel_std Ts²), the disturbance
@@ -35,6 +37,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError, SensorError
 from ..model.linalg import spd_solve
+from ..model.native import native_module
 from ..validation import finite_vector, positive
 from .sensors import Measurement, Sensors
 
@@ -74,9 +77,14 @@ class StateEstimator:
         n = self.n_y = model.n_y
         X0 = finite_vector("X0", X0, 2 * n)
         self.resolution = sensors.resolution(self.robot)
-        self._reading_weight = 1.0 / sensors.reading_std(self.robot)[:, None]  # (n_u, 1): Σ^(-1/2)
+        self._reading_weight = 1.0 / sensors.reading_std(self.robot)  # (n_u,): Σ^(-1/2) of the readings
         self._rates = sensors.measures_rates(self.robot)
-        self._rate_weight = 1.0 / np.full((self.robot.n_u, 1), max(sensors.rate_noise, 1e-12))
+        self._rate_std = np.full(self.robot.n_u, max(sensors.rate_noise, 1e-12))
+        self._rate_weight = 1.0 / self._rate_std
+        # the correction in the compiled core (native/src/kalman.cpp) when the model uses it; update's
+        # NumPy lines are its reference (and run where it refuses a matrix that is not positive definite)
+        compiled = native_module() if getattr(model, "native", False) else None
+        self._compiled_correct = getattr(compiled, "kalman_correct", None)
         accel_std = positive("accel_std", accel_std)
         bandwidth = positive("disturbance_bandwidth", disturbance_bandwidth, " rad/s")
         Ts = self.Ts
@@ -149,14 +157,22 @@ class StateEstimator:
         n = self.n_y
         sol = self.robot.forward_solution(measurement.drives, self.q, self.resolution)
         self.q = sol.q
-        Jw = sol.jacobian * self._reading_weight
-        info = Jw.T @ Jw  # Jᵀ Σ⁻¹ J: the information of the measured pose, R = info⁻¹
         innovation = sol.pose - self.z[:n]
-        if self._rates and measurement.rates is not None:  # and of ẏ (the rate noise through J)
-            ydot = self.robot.forward_velocity(sol, measurement.rates, 1.0 / self._rate_weight[:, 0])
-            Jr = sol.jacobian * self._rate_weight
-            info = np.block([[info, np.zeros((n, n))], [np.zeros((n, n)), Jr.T @ Jr]])
+        rates = self._rates and measurement.rates is not None
+        if rates:  # ẏ from the drive rates through the same Jacobian
+            ydot = self.robot.forward_velocity(sol, measurement.rates, self._rate_std)
             innovation = np.concatenate([innovation, ydot - self.z[n:2 * n]])
+        if self._compiled_correct is not None:
+            z, P = np.empty_like(self.z), np.empty_like(self.P)
+            if self._compiled_correct(sol.jacobian, self._reading_weight, self._rate_weight, innovation, self.z,
+                                      self.P, z, P):
+                self.z, self.P = z, P
+                return self.state
+        Jw = sol.jacobian * self._reading_weight[:, None]
+        info = Jw.T @ Jw  # Jᵀ Σ⁻¹ J: the information of the measured pose, R = info⁻¹
+        if rates:  # and of ẏ (the rate noise through J)
+            Jr = sol.jacobian * self._rate_weight[:, None]
+            info = np.block([[info, np.zeros((n, n))], [np.zeros((n, n)), Jr.T @ Jr]])
         m = len(innovation)  # measured: y (H = [I 0 0]), and ẏ (H = [0 I 0]) when the drive rates are
         P = self.P
         R = spd_solve(info, self._eyes[m])
