@@ -174,7 +174,7 @@ def test_bad_input_gives_the_python_paths_error(robot4, monkeypatch):
     far[0] = robot4.drive_range[1][0] + 1.0
     bad_q[3] = np.inf
     cases = [(nan,), (far,), (readings, bad_q), (readings, None, -1e-6), (readings, None, [1e-6, np.nan, 1e-6, 1e-6]),
-             (readings[:3],)]
+             (readings[:3],), (readings[:, None],)]
     calls = []
     real = solve_forward.__globals__["_gauss_newton"]
     monkeypatch.setitem(solve_forward.__globals__, "_gauss_newton", lambda *a: calls.append(1) or real(*a))

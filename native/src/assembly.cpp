@@ -22,52 +22,24 @@ Mat columns(const Mat &a, const std::vector<long> &idx) {
   return out;
 }
 
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-
-// A⁻¹ by Gauss-Jordan elimination with partial pivoting, A (n × n, row-major) overwritten; false
-// at an exactly zero pivot. For the small matrices here (n ≈ 8-30) several times cheaper than
-// PartialPivLU(...).inverse() on dynamic matrices (its blocked triangular solves and allocations),
-// with the same pivoting.
-bool gauss_jordan_inverse(RowMat &A, RowMat &inv) {
-  const Index n = A.rows();
-  inv.setIdentity(n, n);
-  for (Index k = 0; k < n; ++k) {
-    Index p = k;
-    A.col(k).tail(n - k).cwiseAbs().maxCoeff(&p);
-    p += k;
-    if (A(p, k) == 0.0) return false;
-    if (p != k) {
-      A.row(k).swap(A.row(p));
-      inv.row(k).swap(inv.row(p));
-    }
-    const double d = 1.0 / A(k, k);
-    A.row(k).tail(n - k) *= d;
-    inv.row(k) *= d;
-    for (Index i = 0; i < n; ++i) {
-      const double f = A(i, k);
-      if (i == k || f == 0.0) continue;
-      A.row(i).tail(n - k) -= f * A.row(k).tail(n - k);
-      inv.row(i) -= f * inv.row(k);
-    }
-  }
-  return true;
-}
-
 // K⁺ of a K with full column rank by a fast factorization, and a lower bound of s_min/s_max
-// (0 when not computed). K⁺ is unique then, so it equals the SVD's K⁺ to rounding: a Gauss-Jordan
-// inverse when K is square once its identically-zero rows are dropped (planar point closures, the
-// usual case), Householder QR (K⁺ = R⁻¹ Qᵀ) otherwise. Bound: s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F).
+// (0 when not computed). K⁺ is unique then, so it equals the SVD's K⁺ to rounding: an LU inverse
+// when K is square once its identically-zero rows are dropped (planar point closures, the usual
+// case), Householder QR (K⁺ = R⁻¹ Qᵀ) otherwise. Bound: s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F). The
+// square case works in workspaces kept per thread (no allocation once sized; the same arithmetic).
 double fast_pinv(const Mat &K, Mat &P) {
   const Index n = K.cols();
-  thread_local std::vector<Index> rows;  // workspaces: no allocation once sized
-  thread_local RowMat Ks, inv;
+  thread_local std::vector<Index> rows;
+  thread_local Mat Ks, inv;
+  thread_local Eigen::PartialPivLU<Mat> lu;
   rows.clear();
   for (Index i = 0; i < K.rows(); ++i)
     if (!(K.row(i).array() == 0.0).all()) rows.push_back(i);
   if (static_cast<Index>(rows.size()) == n) {
     Ks.resize(n, n);
     for (Index i = 0; i < n; ++i) Ks.row(i) = K.row(rows[i]);
-    if (!gauss_jordan_inverse(Ks, inv)) return 0.0;
+    lu.compute(Ks);
+    inv = lu.inverse();
     P.setZero(n, K.rows());
     for (Index i = 0; i < n; ++i) P.col(rows[i]) = inv.col(i);
   } else if (K.rows() >= n) {

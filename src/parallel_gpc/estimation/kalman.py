@@ -180,7 +180,7 @@ class StateEstimator:
         # symmetric: K = P Hᵀ S⁻¹ = (S⁻¹ H P)ᵀ
         K = spd_solve(P[:m, :m] + R, P[:m]).T
         self.z = self.z + K @ innovation
-        # Joseph form (stays symmetric positive), (I − K H) P (I − K H)ᵀ + K R Kᵀ, as B − (B Hᵀ − K R) Kᵀ
+        # Joseph form (stays symmetric positive) (I − K H) P (I − K H)ᵀ + K R Kᵀ as B − (B Hᵀ − K R) Kᵀ
         # with B = (I − K H) P: three small products instead of four products of 3 n_y × 3 n_y
         B = P - K @ P[:m]
         self.P = B - (B[:, :m] - K @ R) @ K.T

@@ -79,6 +79,11 @@ class CompiledForward:
     Args:
         update: the model update (:func:`~parallel_gpc.model.native_update.compiled_forward`).
         n_y, nq, n_u: outputs, configuration size and drives of its robot.
+
+    Attributes:
+        size: length of the buffer [pose (n_y), q (nq), J (n_u × n_y, row by row), residual (n_u)].
+        q, jacobian, residual: slices of the buffer (the pose is its first n_y entries).
+        shape: (n_u, n_y), the drive Jacobian's shape.
     """
 
     __slots__ = ("update", "size", "q", "jacobian", "residual", "n_y", "shape")
