@@ -9,8 +9,8 @@ per operation (a shared, loaded machine inflates all alike):
 * forward kinematics: ``robot.forward_solution`` (the public call: readings checks, the
   Gauss-Newton loop, the residual test, the result object) with ``PARALLEL_GPC_NATIVE=0`` (the
   Python reference) and with the compiled core, the same readings, each warm-started at its own
-  previous solution; and the bare compiled call (``_native.ModelUpdate.solve_forward``, its own
-  instance, no Python around it);
+  previous solution; and the bare compiled call (``_native.ModelUpdate.solve_forward_into``
+  into a new buffer, its own instance, no Python around it);
 * Kalman update: ``StateEstimator.update`` (forward kinematics + the filter's correction), with
   ``PARALLEL_GPC_NATIVE=0`` and with the compiled core (two estimators on a second instance of
   the robot, each following its own estimate; the untimed ``predict`` between updates holds u = 0).
@@ -82,7 +82,9 @@ def measure(spec: str, duration: float, sensors: Sensors, clock, block: int) -> 
         iterations.append(sol.iterations)
 
     def fk_bare(r):
-        state["fk bare"] = compiled.solve_forward(r, res, state["fk bare"], 50, 50.0)[1][robot.n_y:robot.n_y + robot.model.nq]
+        out = np.empty(compiled.size)
+        compiled.update.solve_forward_into(r, res, state["fk bare"], 50, 50.0, out)
+        state["fk bare"] = out[compiled.q]
 
     def kalman(native):
         def update(r):
@@ -134,7 +136,7 @@ def main() -> int:
     for what, key in (("forward kinematics", "fk"), ("Kalman update", "kalman")):
         py, cc = med[f"{key} python"], med[f"{key} compiled"]
         print(f"{what:<20} {py:9.1f} {cc:9.1f} {py / cc:6.1f}x")
-    print(f"bare compiled forward kinematics (ModelUpdate.solve_forward): {med['fk bare']:.1f} µs, "
+    print(f"bare compiled forward kinematics (ModelUpdate.solve_forward_into): {med['fk bare']:.1f} µs, "
           f"{out['iterations']:.2f} Gauss-Newton iterations per call on average")
     print(f"last configurations of the two loops differ by {out['gap']:.1e} (rad or m); "
           f"Ts = {1e6 * TS:.0f} µs")

@@ -15,6 +15,7 @@ from parallel_gpc import ConstrainedPlant, GPCController, Horizons, ParallelRobo
 from parallel_gpc.errors import InvalidParameterError, SensorError, ShapeError
 from parallel_gpc.estimation import Measurement, Sensors, SensedPlant, StateEstimator
 from parallel_gpc.gpc.references import path_for
+from parallel_gpc.model.native import native_module, native_status
 from parallel_gpc.studies.loop import run_loop
 
 TS = 0.002
@@ -206,3 +207,44 @@ def test_encoder_loop_rejects_the_demos_load_at_ts_10_ms():
     res = run_tracking(settings, ["incremental"], progress=False)["incremental"]
     count_at_platform = 2 * np.pi / 2**20 * 0.3
     assert steady_state_error(res) < 5 * count_at_platform
+
+
+@pytest.mark.parametrize("native", [False, True])
+@pytest.mark.parametrize("rates", [False, True])
+def test_one_update_is_the_textbook_kalman_correction(robot4, rates, native):
+    """Oracle: the correction written out with the full matrices, H = [I 0 0] (and [0 I 0] for ẏ
+    from the drive rates), R the measured pose's (and rate's) covariance (Jᵀ Σ⁻¹ J)⁻¹, K = P Hᵀ
+    (H P Hᵀ + R)⁻¹ by an explicit inverse, P⁺ = (I − K H) P (I − K H)ᵀ + K R Kᵀ; after some samples
+    of motion so that P is full, not the initial diagonal. The NumPy correction (a Python model)
+    and the compiled one (native/src/kalman.cpp, with the compiled model update)."""
+    if native and not hasattr(native_module(), "kalman_correct"):
+        pytest.skip(f"no compiled Kalman correction: {native_status()}")
+    sensors = Sensors("encoders", rates=rates, noise_counts=0.5)
+    X0 = np.concatenate([robot4.home_pose, np.zeros(3)])
+    est = StateEstimator(ReducedModel(robot4, native=native), TS, sensors, X0)
+    res = sensors.resolution(robot4)
+    y = robot4.home_pose
+    for k in range(5):
+        y = y + np.array([2e-4, -1e-4, 3e-4])
+        drives = np.round(robot4.inverse_kinematics(y) / res) * res
+        measurement = Measurement(drives=drives, rates=np.full(4, 0.01 * k) if rates else None)
+        est.predict(np.array([0.1, -0.2, 0.05, 0.3]))
+        z, P = est.z.copy(), est.P.copy()
+        est.update(measurement)
+    sol = robot4.forward_solution(drives, est.q, res)
+    Jw = sol.jacobian / sensors.reading_std(robot4)[:, None]
+    R, measured = np.linalg.inv(Jw.T @ Jw), sol.pose
+    H = np.hstack([np.eye(3), np.zeros((3, 6))])
+    if rates:
+        std = np.full(4, sensors.rate_noise)
+        Jr = sol.jacobian / std[:, None]
+        R = np.block([[R, np.zeros((3, 3))], [np.zeros((3, 3)), np.linalg.inv(Jr.T @ Jr)]])
+        ydot = np.linalg.lstsq(Jr, measurement.rates / std, rcond=None)[0]
+        measured = np.concatenate([measured, ydot])
+        H = np.vstack([H, np.hstack([np.zeros((3, 3)), np.eye(3), np.zeros((3, 3))])])
+    K = P @ H.T @ np.linalg.inv(H @ P @ H.T + R)
+    IKH = np.eye(9) - K @ H
+    np.testing.assert_allclose(est.z, z + K @ (measured - H @ z), rtol=0, atol=1e-12)
+    P_new = IKH @ P @ IKH.T + K @ R @ K.T
+    np.testing.assert_allclose(est.P, P_new, rtol=1e-9, atol=1e-9 * np.abs(P_new).max())
+    assert np.all(np.linalg.eigvalsh(0.5 * (est.P + est.P.T)) > 0)

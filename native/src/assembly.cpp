@@ -25,16 +25,21 @@ Mat columns(const Mat &a, const std::vector<long> &idx) {
 // K⁺ of a K with full column rank by a fast factorization, and a lower bound of s_min/s_max
 // (0 when not computed). K⁺ is unique then, so it equals the SVD's K⁺ to rounding: an LU inverse
 // when K is square once its identically-zero rows are dropped (planar point closures, the usual
-// case), Householder QR (K⁺ = R⁻¹ Qᵀ) otherwise. Bound: s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F).
+// case), Householder QR (K⁺ = R⁻¹ Qᵀ) otherwise. Bound: s_min/s_max ≥ 1/(‖K⁺‖_F ‖K‖_F). The
+// square case works in workspaces kept per thread (no allocation once sized; the same arithmetic).
 double fast_pinv(const Mat &K, Mat &P) {
   const Index n = K.cols();
-  std::vector<Index> rows;
+  thread_local std::vector<Index> rows;
+  thread_local Mat Ks, inv;
+  thread_local Eigen::PartialPivLU<Mat> lu;
+  rows.clear();
   for (Index i = 0; i < K.rows(); ++i)
     if (!(K.row(i).array() == 0.0).all()) rows.push_back(i);
   if (static_cast<Index>(rows.size()) == n) {
-    Mat Ks(n, n);
+    Ks.resize(n, n);
     for (Index i = 0; i < n; ++i) Ks.row(i) = K.row(rows[i]);
-    const Mat inv = Eigen::PartialPivLU<Mat>(Ks).inverse();
+    lu.compute(Ks);
+    inv = lu.inverse();
     P.setZero(n, K.rows());
     for (Index i = 0; i < n; ++i) P.col(rows[i]) = inv.col(i);
   } else if (K.rows() >= n) {

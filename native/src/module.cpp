@@ -10,4 +10,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
   pgpc::bind_stagewise_ipm(m);
+  pgpc::bind_kalman(m);
 }

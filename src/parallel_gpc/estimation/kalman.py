@@ -12,7 +12,9 @@ with process noise w: white acceleration of standard deviation ``accel_std`` ove
 [y, ẏ] and a random walk of σ_d per sample on d. The measurement is the pose
 from forward kinematics of the encoder readings, y_m = y + v, with covariance
 (Jᵀ Σ⁻¹ J)⁻¹ (J the drive Jacobian, Σ the readings' quantization and noise variance);
-drive rates, when measured, add ẏ_m = ẏ + v' through the same Jacobian.
+drive rates, when measured, add ẏ_m = ẏ + v' through the same Jacobian. The correction runs in
+the compiled core (``_native.kalman_correct``) when the model does; :meth:`StateEstimator.update`
+holds its NumPy reference.
 
 The disturbance model is set by its bandwidth ω_d (rad/s), not by σ_d: with readings much finer
 than the acceleration noise over a sample (encoders: Δ ≪ accel_std Ts²), the disturbance
@@ -34,6 +36,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import InvalidParameterError, SensorError
+from ..model.linalg import spd_solve
+from ..model.native import native_module
 from ..validation import finite_vector, positive
 from .sensors import Measurement, Sensors
 
@@ -73,8 +77,14 @@ class StateEstimator:
         n = self.n_y = model.n_y
         X0 = finite_vector("X0", X0, 2 * n)
         self.resolution = sensors.resolution(self.robot)
-        self._reading_std = sensors.reading_std(self.robot)
+        self._reading_weight = 1.0 / sensors.reading_std(self.robot)  # (n_u,): Σ^(-1/2) of the readings
         self._rates = sensors.measures_rates(self.robot)
+        self._rate_std = np.full(self.robot.n_u, max(sensors.rate_noise, 1e-12))
+        self._rate_weight = 1.0 / self._rate_std
+        # the correction in the compiled core (native/src/kalman.cpp) when the model uses it; update's
+        # NumPy lines are its reference (and run where it refuses a matrix that is not positive definite)
+        compiled = native_module() if getattr(model, "native", False) else None
+        self._compiled_correct = getattr(compiled, "kalman_correct", None)
         accel_std = positive("accel_std", accel_std)
         bandwidth = positive("disturbance_bandwidth", disturbance_bandwidth, " rad/s")
         Ts = self.Ts
@@ -85,7 +95,9 @@ class StateEstimator:
         Q[:2 * n, :2 * n] = np.kron(np.outer(G, G), eye)
         Q[2 * n:, 2 * n:] = self.disturbance_std**2 * eye
         self.Q = Q
-        self._eye = np.eye(3 * n)
+        self._eyes = {m: np.eye(m) for m in (n, 2 * n)}  # the measured blocks: y, or y and ẏ
+        self._F = np.eye(3 * n)  # the transition [[A_d, E], [0, I]], A_d filled in at each prediction
+        self._F[n:2 * n, 2 * n:] = eye
         self.z = np.concatenate([X0, np.zeros(n)])
         self.P = np.diag(np.repeat(np.asarray(initial_std, dtype=float) ** 2, n))
         self.q = self.robot.assemble(X0[:n])
@@ -102,17 +114,13 @@ class StateEstimator:
         return np.concatenate([np.zeros(self.n_y), self.z[2 * self.n_y:]])
 
     def _transition(self, u: np.ndarray):
-        """(z⁻, F) of one sample from the current estimate with input u."""
+        """(z⁻, A_d) of one sample from the current estimate with input u."""
         n = self.n_y
         X = self.z[:2 * n]
         Ad, Bd, cd = self.model.discrete(X, self.Ts)
         x_next = Ad @ X + Bd @ u + cd
         x_next[n:] += self.z[2 * n:]
-        F = np.zeros((3 * n, 3 * n))
-        F[:2 * n, :2 * n] = Ad
-        F[n:2 * n, 2 * n:] = np.eye(n)
-        F[2 * n:, 2 * n:] = np.eye(n)
-        return np.concatenate([x_next, self.z[2 * n:]]), F
+        return np.concatenate([x_next, self.z[2 * n:]]), Ad
 
     def predict(self, u) -> np.ndarray:
         """Advance the estimate over one sample with u held (N·m, N): z(k+1|k), P(k+1|k).
@@ -121,7 +129,9 @@ class StateEstimator:
             (2 n_y,) the predicted [y, ẏ].
         """
         u = finite_vector("drive torques u", u, self.model.n_u)
-        self.z, F = self._transition(u)
+        self.z, Ad = self._transition(u)
+        F = self._F
+        F[:2 * self.n_y, :2 * self.n_y] = Ad
         self.P = F @ self.P @ F.T + self.Q
         return self.state
 
@@ -147,22 +157,31 @@ class StateEstimator:
         n = self.n_y
         sol = self.robot.forward_solution(measurement.drives, self.q, self.resolution)
         self.q = sol.q
-        Jw = sol.jacobian / self._reading_std[:, None]
-        R = np.linalg.inv(Jw.T @ Jw)
         innovation = sol.pose - self.z[:n]
-        m = n  # measured: y (H = [I 0 0]), and ẏ (H = [0 I 0]) when the drive rates are
-        if self._rates and measurement.rates is not None:
-            std = np.full(self.robot.n_u, max(self.sensors.rate_noise, 1e-12))
-            ydot = self.robot.forward_velocity(sol, measurement.rates, std)
-            Jr = sol.jacobian / std[:, None]
-            R = np.block([[R, np.zeros((n, n))], [np.zeros((n, n)), np.linalg.inv(Jr.T @ Jr)]])
+        rates = self._rates and measurement.rates is not None
+        if rates:  # ẏ from the drive rates through the same Jacobian
+            ydot = self.robot.forward_velocity(sol, measurement.rates, self._rate_std)
             innovation = np.concatenate([innovation, ydot - self.z[n:2 * n]])
-            m = 2 * n
-        # H selects the first m components: P Hᵀ = P[:, :m], H P Hᵀ = P[:m, :m], K H = [K 0]
-        PHt = self.P[:, :m]
-        K = np.linalg.solve(self.P[:m, :m] + R, PHt.T).T
+        if self._compiled_correct is not None:
+            z, P = np.empty_like(self.z), np.empty_like(self.P)
+            if self._compiled_correct(sol.jacobian, self._reading_weight, self._rate_weight, innovation, self.z,
+                                      self.P, z, P):
+                self.z, self.P = z, P
+                return self.state
+        Jw = sol.jacobian * self._reading_weight[:, None]
+        info = Jw.T @ Jw  # Jᵀ Σ⁻¹ J: the information of the measured pose, R = info⁻¹
+        if rates:  # and of ẏ (the rate noise through J)
+            Jr = sol.jacobian * self._rate_weight[:, None]
+            info = np.block([[info, np.zeros((n, n))], [np.zeros((n, n)), Jr.T @ Jr]])
+        m = len(innovation)  # measured: y (H = [I 0 0]), and ẏ (H = [0 I 0]) when the drive rates are
+        P = self.P
+        R = spd_solve(info, self._eyes[m])
+        # H selects the first m components: P Hᵀ = P[:, :m], H P Hᵀ = P[:m, :m], K H = [K 0]; S and P
+        # symmetric: K = P Hᵀ S⁻¹ = (S⁻¹ H P)ᵀ
+        K = spd_solve(P[:m, :m] + R, P[:m]).T
         self.z = self.z + K @ innovation
-        IKH = self._eye.copy()
-        IKH[:, :m] -= K
-        self.P = IKH @ self.P @ IKH.T + K @ R @ K.T  # Joseph form: stays symmetric positive
+        # Joseph form (stays symmetric positive) (I − K H) P (I − K H)ᵀ + K R Kᵀ as B − (B Hᵀ − K R) Kᵀ
+        # with B = (I − K H) P: three small products instead of four products of 3 n_y × 3 n_y
+        B = P - K @ P[:m]
+        self.P = B - (B[:, :m] - K @ R) @ K.T
         return self.state

@@ -379,9 +379,10 @@ class AssemblyMixin:
             pose_guess = None
         compiled = None
         if native_enabled():  # the compiled loop unless PARALLEL_GPC_NATIVE=0 (per call) or not built
-            if self._forward_compiled is None:  # built once: False when the compiled core lacks it
-                self._forward_compiled = (use_native(None) and compiled_forward(self)) or False
-            compiled = self._forward_compiled or None
+            compiled = self._forward_compiled
+            if compiled is None:  # built once: False when the compiled core lacks it
+                compiled = self._forward_compiled = (use_native(None) and compiled_forward(self)) or False
+            compiled = compiled or None
         return solve_forward(self, drives, resolution_array(self, resolution), q_guess, pose_guess,
                              max_residual=float(max_residual), compiled=compiled)
 

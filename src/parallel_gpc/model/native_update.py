@@ -17,7 +17,7 @@ import numpy as np
 
 from ..errors import NonFiniteError, SingularPoseError
 from .discretization import DEGREE_NORMS
-from .forward import assemble_validated
+from .forward import CompiledForward, assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
@@ -110,17 +110,18 @@ def compiled_model_update(robot):
 
 
 def compiled_forward(robot):
-    """A ``_native.ModelUpdate`` of ``robot`` for the compiled path of
-    :func:`~parallel_gpc.model.forward.solve_forward` (the compiled core must be available, see
-    :func:`use_native`): its own instance with the drives' q indices and ranges set, so forward
-    kinematics never disturbs the warm starts of a model or plant. None when the compiled core
-    predates this forward kinematics (a build older than its sources: the Python loop runs)."""
-    if not hasattr(native_module().ModelUpdate, "solve_forward"):
+    """The compiled path of :func:`~parallel_gpc.model.forward.solve_forward` on ``robot`` (a
+    :class:`~parallel_gpc.model.forward.CompiledForward`; the compiled core must be available,
+    see :func:`use_native`): its own ``_native.ModelUpdate`` with the drives' q indices and ranges
+    set, so forward kinematics never disturbs the warm starts of a model or plant. None when the
+    compiled core predates this forward kinematics (a build older than its sources, without
+    ``solve_forward_into``: the Python loop runs)."""
+    if not hasattr(native_module().ModelUpdate, "solve_forward_into"):
         return None
     update = compiled_model_update(robot)
     lower, upper = robot.drive_range
     update.set_drives([int(i) for i in robot.drive_q_indices], lower, upper)
-    return update
+    return CompiledForward(update, robot.n_y, robot.model.nq, robot.n_u)
 
 
 def forward_status() -> str:
@@ -129,6 +130,6 @@ def forward_status() -> str:
     module = native_module()
     if module is None:
         return f"Python loop ({native_status()})"
-    if not hasattr(getattr(module, "ModelUpdate", None), "solve_forward"):
-        return "Python loop (the compiled core predates forward kinematics: rebuild it)"
+    if not hasattr(getattr(module, "ModelUpdate", None), "solve_forward_into"):
+        return "Python loop (the compiled core predates this forward kinematics: rebuild it)"
     return "compiled"
