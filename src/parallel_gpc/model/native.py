@@ -41,21 +41,10 @@ def _load():
     return _native, f"compiled core in use (Pinocchio {pin.__version__})"
 
 
-#: os.environ's encoded mapping and the switch's key in it: ``os.environ.get`` of an unset variable
-#: raises and catches a KeyError inside (~1-2 µs), and forward kinematics asks every sample;
-#: os.environ keeps this mapping current (its item assignment, deletion and pytest's monkeypatch
-#: go through it). None where the platform's os.environ has no such mapping (then ``get``).
-_ENVIRON_DATA = getattr(os.environ, "_data", None)
-_SWITCH_KEY = os.environ.encodekey(ENV_SWITCH) if _ENVIRON_DATA is not None else None
-
-
 def native_enabled() -> bool:
-    """False when ``PARALLEL_GPC_NATIVE=0`` asks for the pure-Python reference path (read at each
-    call, cheaply: the hot paths ask per call)."""
-    if _ENVIRON_DATA is None:
-        return os.environ.get(ENV_SWITCH, "1").strip() != "0"
-    value = _ENVIRON_DATA.get(_SWITCH_KEY)
-    return value is None or os.environ.decodevalue(value).strip() != "0"
+    """False when ``PARALLEL_GPC_NATIVE=0`` asks for the pure-Python reference path (read at each call:
+    the switch may change while a program runs)."""
+    return os.environ.get(ENV_SWITCH, "1").strip() != "0"
 
 
 def native_module():
