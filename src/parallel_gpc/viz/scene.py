@@ -68,45 +68,15 @@ class Marks:
 
     size: float
 
-    @property
-    def rod(self) -> float:
-        return 0.012 * self.size
+    #: Each mark's size as a fraction of :attr:`size`.
+    FRACTIONS = {"rod": 0.012, "closure_a": 0.024, "closure_b": 0.011, "post": 0.03, "post_length": 0.1,
+                 "margin": 0.15, "plate": 0.01, "clearance": 0.01, "lift": 0.02, "triad": 0.2}
 
-    @property
-    def closure_a(self) -> float:
-        return 0.024 * self.size
-
-    @property
-    def closure_b(self) -> float:
-        return 0.011 * self.size
-
-    @property
-    def post(self) -> float:
-        return 0.03 * self.size
-
-    @property
-    def post_length(self) -> float:
-        return 0.1 * self.size
-
-    @property
-    def margin(self) -> float:
-        return 0.15 * self.size
-
-    @property
-    def plate(self) -> float:
-        return 0.01 * self.size
-
-    @property
-    def clearance(self) -> float:
-        return 0.01 * self.size
-
-    @property
-    def lift(self) -> float:
-        return 0.02 * self.size
-
-    @property
-    def triad(self) -> float:
-        return 0.2 * self.size
+    def __getattr__(self, name: str) -> float:
+        fraction = type(self).FRACTIONS.get(name)
+        if fraction is None:
+            raise AttributeError(f"{type(self).__name__} has no attribute {name!r}")
+        return fraction * self.size
 
 
 def marks(robot: ParallelRobot) -> Marks:
