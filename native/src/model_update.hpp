@@ -89,6 +89,11 @@ class ModelUpdate {
   ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
   // ReducedModel._factor_rows: Z = M_r⁻¹ [−C_r | B_r | −g_r] at X; base: explicit warm start or null
   const Mat &factor_rows(const Vec &X, const Warm *base);
+  // factor_rows at X and the exact ẏ-derivatives of its first block −M_r⁻¹ C_r (linear in ẏ): rates
+  // (n_y, n_y·n_y), block j = ∂Z[:, :n_y]/∂ẏ_j (ReducedModel._factor_derivatives); the warm start is X's
+  const Mat &factor_rates(const Vec &X, Mat &rates);
+  // the warm start of the last evaluation (a base for factor_rows at nearby poses)
+  const Warm &last_warm() const { return *warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
   void discrete(const Vec &X, double Ts, double *out);
   // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
@@ -119,12 +124,16 @@ class ModelUpdate {
   void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
   void fallback(const Vec &y);             // the validated Python path (raises the package errors)
   void zoh(const Mat &Z, double Ts);       // exp of the augmented ZOH matrix, top rows into E_
+  // ReducedModel._bias_rows at q_, T_, pinv_ and v = T ẏ: K (nv × n_y) = M_z W − ½ ∂h/∂v T with
+  // Tᵀ K = −C_r(ẏ); sets W_ (the Newton predictor's curvature, unaveraged) and M_ (full)
+  void bias_rows(const Vec &v, Mat &K);
+  Mat solve_reduced(const Mat &A, const Mat &B);  // A⁻¹ B, A = M_r (LLT, else the Python solve)
 
   nb::object handler_;
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
   Vec q_, zero_v_;
-  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
+  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, Mz_, K_;
   Mat aug_, E_;
   TopRowsExpm expm_;
 };
