@@ -34,7 +34,8 @@ violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``
 else a sufficient decrease of that violation; a convex combination of two plans within the input
 limits is within them. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
-problem's), the iteration limit, a failed line search or solve (the last accepted plan is
+problem's; the accepted plan v is kept, and v⁺, within the tolerance of it, is not rolled out —
+a line search on a step that small only measures rounding), the iteration limit, a failed line search or solve (the last accepted plan is
 kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
 converged), or the time budget (the next iteration would end past it).
 """
@@ -225,6 +226,12 @@ class NMPCIterations:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
+            if report["iterations"] > 1:
+                report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / (
+                    1.0 + float(np.max(np.abs(v), initial=0.0)))
+                if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
+                    report.update(stop="converged", converged=True)
+                    break
             decrease = max(self._model_merit(lin, lin_rows, w, v) - self._model_merit(lin, lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
@@ -242,17 +249,11 @@ class NMPCIterations:
                     accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
                     break
                 alpha *= 0.5
-            scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
-            report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / scale if report["iterations"] > 1 \
-                else float("nan")
             if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
                 flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
             v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
-            if report["iterations"] > 1 and report["residual"] <= self.tolerance:
-                report.update(stop="converged", converged=True)
-                break
             if report["iterations"] >= self.iterations:
                 break
             now = time.perf_counter()
