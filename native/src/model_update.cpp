@@ -54,17 +54,17 @@ void ModelUpdate::bias_rows(const Vec &v, Mat &K) {
     kin.universal_bias_derivative(q_, v, T_, DT_);
   else
     DT_.noalias() = data.dtau_dv * T_;
-  Mz_.resize(nv, n_z);
-  for (Index i = 0; i < n_z; ++i) Mz_.col(i) = M_.col(cfg.z_idx[i]);
+  Mat Mz(nv, n_z);
+  for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
   if (cfg.bias_symmetric) {
-    K.noalias() = Mz_ * W_;
+    K.noalias() = Mz * W_;
   } else {
     W2_.resize(kin.rows, n_y);
     for (Index i = 0; i < n_y; ++i) {
       kin.jacobian_rate(q_, T_.col(i), col_);
       W2_.col(i) = col_ * v;
     }
-    K.noalias() = Mz_ * (0.5 * (W_ + pinv_ * W2_));
+    K.noalias() = Mz * (0.5 * (W_ + pinv_ * W2_));
   }
   K -= 0.5 * DT_;
 }
@@ -78,27 +78,28 @@ Mat ModelUpdate::solve_reduced(const Mat &A, const Mat &B) {
 const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
   const Vec y = X.head(n_y), yd = X.tail(n_y);
   kinematics(y, base);
-  bias_rows(T_ * yd, K_);
+  Mat K;
+  bias_rows(T_ * yd, K);
   warm_->W = W_;
   warm_->yd = yd;
   warm_->has_w = true;
   pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
   // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
   rhs_.leftCols(n_y).noalias() = M_ * T_;
-  rhs_.middleCols(n_y, n_y) = K_;
+  rhs_.middleCols(n_y, n_y) = K;
   rhs_.col(rhs_.cols() - 1) = -kin.data.g;
   red_.noalias() = T_.transpose() * rhs_;
   Z_ = solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y));
   return Z_;
 }
 
-const Mat &ModelUpdate::factor_rates(const Vec &X, Mat &rates) {
-  factor_rows(X, nullptr);
+const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates) {
+  factor_rows(X, base);
   // K is linear in ẏ: K(e_j) = ∂K/∂ẏ_j at the same q (no assembly); one solve with M_r for all j
-  Mat rhs(nv, n_y * n_y);
+  Mat rhs(nv, n_y * n_y), K;
   for (Index j = 0; j < n_y; ++j) {
-    bias_rows(T_.col(j), K_);
-    rhs.middleCols(j * n_y, n_y) = K_;
+    bias_rows(T_.col(j), K);
+    rhs.middleCols(j * n_y, n_y) = K;
   }
   rates = solve_reduced(red_.leftCols(n_y), T_.transpose() * rhs);
   return Z_;

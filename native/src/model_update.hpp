@@ -91,9 +91,12 @@ class ModelUpdate {
   const Mat &factor_rows(const Vec &X, const Warm *base);
   // factor_rows at X and the exact ẏ-derivatives of its first block −M_r⁻¹ C_r (linear in ẏ): rates
   // (n_y, n_y·n_y), block j = ∂Z[:, :n_y]/∂ẏ_j (ReducedModel._factor_derivatives); the warm start is X's
-  const Mat &factor_rates(const Vec &X, Mat &rates);
+  // base: an explicit warm start (a pre-simulation's at X: its assembly is reused) or null
+  const Mat &factor_rates(const Vec &X, const Warm *base, Mat &rates);
   // the warm start of the last evaluation (a base for factor_rows at nearby poses)
   const Warm &last_warm() const { return *warm_; }
+  // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
+  const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
   void discrete(const Vec &X, double Ts, double *out);
   // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
@@ -133,7 +136,7 @@ class ModelUpdate {
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
   Vec q_, zero_v_;
-  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, Mz_, K_;
+  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
   Mat aug_, E_;
   TopRowsExpm expm_;
 };

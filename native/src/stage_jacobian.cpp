@@ -2,8 +2,8 @@
 // pre-simulation, eq. (10)) along a trajectory, in one call: the compiled twin of
 // ReducedModel.stage_jacobians (model/dynamics.py), which is the reference. ∂Φ/∂X_k = E[:, k] +
 // (∂E/∂X_k)·[X; u; 1], the second term the Fréchet derivative of the exponential along Ts·∂Z/∂X_k
-// applied to one vector (TopRowsExpmDerivative); ∂Z/∂ẏ exact (Z is linear in ẏ), ∂Z/∂y central
-// differences of the factor rows Z. The nonlinear MPC iterations (gpc/nmpc.py) linearize with it.
+// applied to one vector (TopRowsExpmDerivative); ∂Z/∂ẏ exact (Z is linear in ẏ), ∂Z/∂y forward
+// differences of the factor rows Z along the closures' tangent. The nonlinear MPC iterations (gpc/nmpc.py) linearize with it.
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -20,7 +20,7 @@ using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowM
 using Input2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 /// (K·n_x, n_x): rows i·n_x … (i+1)·n_x − 1 hold ∂Φ/∂X at (X(i), u(i)), i = 0..K−1; the y-columns of
-/// ∂Z by central differences with step h_j = step·max(1, |y_j(i)|) (the Python reference's rule).
+/// ∂Z by forward differences with step h_j = step·max(1, |y_j(i)|) (the Python reference's rule).
 RowMat stage_jacobians(ModelUpdate &self, Input2 X, Input2 u, double Ts, double step) {
   const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y, na = self.n_aug;
   if (u.shape(1) != size_t(m) || X.shape(1) != size_t(n) || X.shape(0) < size_t(K))
@@ -30,24 +30,23 @@ RowMat stage_jacobians(ModelUpdate &self, Input2 X, Input2 u, double Ts, double 
   TopRowsExpmDerivative expm;
   expm.set_table(self.cfg.degree_norms);
   RowMat J(K * n, n);
-  Mat M_top = Mat::Zero(n, na), rates, Zp, E, dE;
+  Mat M_top = Mat::Zero(n, na), rates, E, dE;
   M_top.block(0, ny, ny, ny).diagonal().setConstant(Ts);
   std::vector<Mat> D(n, Mat::Zero(n, na));  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
   Vec xi(na), xs(n);
   xi[na - 1] = 1.0;
+  const std::vector<Warm> &sim = self.simulation_warm();  // usually at these very states
   for (long i = 0; i < K; ++i) {
     const Eigen::Map<const Vec> x(X.data() + i * n, n);
-    M_top.bottomRightCorner(ny, na - ny) = self.factor_rates(x, rates) * Ts;
+    const Warm *base = i < static_cast<long>(sim.size()) && sim[i].y == x.head(ny) ? &sim[i] : nullptr;
+    const Mat Z = self.factor_rates(x, base, rates);
+    M_top.bottomRightCorner(ny, na - ny) = Z * Ts;
     for (long j = 0; j < ny; ++j) D[ny + j].block(ny, ny, ny, ny) = rates.middleCols(j * ny, ny) * Ts;
     const Warm nominal = self.last_warm();
-    for (long j = 0; j < ny; ++j) {
-      const double h = step * std::max(1.0, std::abs(x[j]));
+    for (long j = 0; j < ny; ++j) {  // forward differences along the closures' tangent (no Newton step)
       xs = x;
-      xs[j] = x[j] + h;
-      const double xp = xs[j];
-      Zp = self.factor_rows(xs, &nominal);
-      xs[j] = x[j] - h;
-      D[j].bottomRightCorner(ny, na - ny) = (Zp - self.factor_rows(xs, &nominal)) * (Ts / (xp - xs[j]));
+      xs[j] = x[j] + step * std::max(1.0, std::abs(x[j]));
+      D[j].bottomRightCorner(ny, na - ny) = (self.factor_rows(xs, &nominal) - Z) * (Ts / (xs[j] - x[j]));
     }
     xi.head(n) = x;
     xi.segment(n, m) = Eigen::Map<const Vec>(u.data() + i * m, m);
@@ -62,7 +61,7 @@ void bind_stage_jacobian(nb::module_ &m) {
   m.def("stage_jacobians", &stage_jacobians, nb::arg("update"), nb::arg("X_seq"), nb::arg("u_seq"), nb::arg("Ts"),
         nb::arg("step"),
         "(K·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), i < K: the Fréchet "
-        "derivative of the exponential, ẏ-derivatives of the factor rows exact, y-derivatives by central "
+        "derivative of the exponential, ẏ-derivatives of the factor rows exact, y-derivatives by forward "
         "differences with step·max(1, |y_j|)");
 }
 }  // namespace pgpc

@@ -32,11 +32,16 @@ from .robot import ParallelRobot
 from ..validation import finite_vector, positive
 
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
-__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP"]
+__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP",
+           "FACTOR_STEP"]
 
-#: relative step of the central differences in :meth:`ReducedModel.stage_jacobians` (of Z along y) and
-#: :meth:`ReducedModel.stage_jacobians_differences` (of the whole stage map).
+#: relative step of the central differences of the whole stage map
+#: (:meth:`ReducedModel.stage_jacobians_differences`, the oracle of the Jacobian).
 JACOBIAN_STEP = 1e-5
+#: relative step of the forward differences of the factor rows along y (:meth:`ReducedModel.stage_jacobians`):
+#: truncation ≈ rounding (≤ 3e-9 relative in the Jacobian on planar_4rrr, delta_3rus, hexapod_6ups),
+#: and the first-order closure predictor is exact to O(h²) ≈ 1e-16: no Newton step.
+FACTOR_STEP = 1e-8
 
 
 @dataclass
@@ -140,10 +145,15 @@ class ReducedModel:
         the last evaluation) moved along the constraint manifold to second order:
         z ≈ z₀ + T_z δy + ½ d²z, the curvature term from Φ̇_q of the last factorization when δy
         is along its velocity. The start only changes the number of Newton steps, not the
-        converged q.
+        converged q. A base at y itself gives its own (q, T, Φ_z⁺) (the same numbers).
         """
         r = self.robot
         near = base is not None
+        if near and np.array_equal(y, base[1]):  # the base's own pose: its assembly
+            q, T, pinv_z = base[0], base[2], base[3]
+            self._q_last = q
+            self._warm = (q, y.copy(), T, pinv_z, None, None)
+            return q, T, pinv_z
         if base is None:
             base = self._warm
         if base is None:
@@ -260,15 +270,20 @@ class ReducedModel:
         red = T.T @ rhs
         return spd_solve(red[:, :ny], red[:, ny:])
 
-    def _factor_derivatives(self, X: np.ndarray, step: float):
+    def _factor_derivatives(self, X: np.ndarray, step: float, base=None):
         """Z = :meth:`_factor_rows` at X and its derivatives ∂Z/∂X_k (the reference of the compiled
         ``stage_jacobians``).
 
         ∂Z/∂ẏ_j is exact: Z's first block −M_r⁻¹ C_r(y, ẏ) is linear in ẏ, so its derivative is the
         same block at ẏ = e_j (K of :meth:`_bias_rows` at e_j, one more solve with M_r), at the
-        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a central difference of Z with
-        step h_j = ``step``·max(1, |y_j|), each side assembled from the first-order predictor
-        q ± T e_j h_j (one Newton step).
+        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a forward difference of Z with
+        step h_j = ``step``·max(1, |y_j|) along the closures' tangent: the first-order predictor
+        q + T e_j h_j is assembled to O(h²) ≈ 1e-16, so no Newton step moves it off the tangent
+        through X's own q (a residual of that q cancels in the difference).
+
+        Args:
+            X: (n_x,) state. step: relative step. base: the warm start of a pre-simulation at X
+                (its assembly is reused), or None.
 
         Returns:
             (Z (n_y, n_y + n_u + 1), dZ (n_x, n_y, n_y + n_u + 1)).
@@ -277,7 +292,7 @@ class ReducedModel:
         ny, nu = self.n_y, self.n_u
         nc = ny + nu + 1
         y, yd = X[:ny], X[ny:]
-        q, T, pinv_z = self._kinematics(y)
+        q, T, pinv_z = self._kinematics(y, base)
         W, M, K = self._bias_rows(q, T, pinv_z, yd)
         nominal = (q, y.copy(), T, pinv_z, W, yd.copy())
         rhs = np.empty((M.shape[0], ny + nc + ny * ny))
@@ -293,12 +308,9 @@ class ReducedModel:
         dZ = np.zeros((2 * ny, ny, nc))
         dZ[ny:, :, :ny] = sol[:, nc:].reshape(ny, ny, ny).transpose(1, 0, 2)
         for j in range(ny):
-            h = step * max(1.0, abs(y[j]))
-            xp, xm = X.copy(), X.copy()
-            xp[j] += h
-            xm[j] -= h
-            Zp = self._factor_rows(xp, nominal)
-            dZ[j] = (Zp - self._factor_rows(xm, nominal)) / (xp[j] - xm[j])
+            xp = X.copy()
+            xp[j] += step * max(1.0, abs(y[j]))
+            dZ[j] = (self._factor_rows(xp, nominal) - Z) / (xp[j] - X[j])
         return Z, dZ
 
     def factorize(self, X: np.ndarray):
@@ -336,7 +348,7 @@ class ReducedModel:
             return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
-    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
+    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = FACTOR_STEP):
         """∂Φ/∂X of the stage map Φ(X, u) = E(X)·[X; u; 1] = A_d(X) X + B_d(X) u + c_d(X)
         (:meth:`discrete`, the pre-simulation's map (10)) at each stage of a trajectory.
 
@@ -344,15 +356,17 @@ class ReducedModel:
         (Z = M_r⁻¹ [−C_r | B_r | −g_r]); the second term is the Fréchet derivative of the
         exponential along Ts·∂Z/∂X_k applied to one vector
         (:func:`~parallel_gpc.model.discretization.expm_derivative_action`). ∂Z/∂ẏ is exact (Z is
-        linear in ẏ), ∂Z/∂y a central difference of Z with step h = ``step``·max(1, |y|)
-        (:meth:`_factor_derivatives`): 2·n_y model updates per stage instead of the 2·n_x
-        exponentials of differences of Φ (:meth:`stage_jacobians_differences`, the test oracle;
-        they agree to ~1e-10 relative). The compiled core runs all stages in one call
-        (``_native.stage_jacobians``); this method's loop is its reference.
+        linear in ẏ), ∂Z/∂y a forward difference of Z along the closures' tangent with step
+        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): n_y model updates without a Newton
+        step per stage (the states' own assemblies come from the last pre-simulation when it
+        visited them) instead of the 2·n_x updates and exponentials of differences of Φ
+        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~3e-9 relative). The
+        compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
+        is its reference.
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
-            Ts: sample time (s); step: relative difference step of the y-derivatives.
+            Ts: sample time (s); step: relative forward-difference step of the y-derivatives of Z.
 
         Returns:
             (K, n_x, n_x) Jacobians.
@@ -367,9 +381,11 @@ class ReducedModel:
         M_top = np.zeros((n, n + self.n_u + 1))
         M_top[:ny, ny:n] = np.eye(ny) * Ts
         D_top = np.zeros((n, n, n + self.n_u + 1))
+        sim = self._sim_warm  # the last pre-simulation's assemblies: usually at these very states
         for i in range(K):
             x = X_seq[i]
-            Z, dZ = self._factor_derivatives(x, step)
+            base = sim[i] if i < len(sim) and np.array_equal(sim[i][1], x[:ny]) else None
+            Z, dZ = self._factor_derivatives(x, step, base)
             M_top[ny:, ny:] = Z * Ts
             D_top[:, ny:, ny:] = dZ * Ts
             E, dE = expm_derivative_action(M_top, D_top, np.concatenate([x, u_seq[i], [1.0]]))
