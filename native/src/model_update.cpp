@@ -75,14 +75,9 @@ Mat ModelUpdate::solve_reduced(const Mat &A, const Mat &B) {
   return nb::cast<Mat>(handler_.attr("spd_solve")(A, B));  // not numerically SPD: the Python solve (LU, or LinAlgError)
 }
 
-const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
-  const Vec y = X.head(n_y), yd = X.tail(n_y);
-  kinematics(y, base);
+const Mat &ModelUpdate::factor_here(const Vec &yd) {
   Mat K;
   bias_rows(T_ * yd, K);
-  warm_->W = W_;
-  warm_->yd = yd;
-  warm_->has_w = true;
   pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
   // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
   rhs_.leftCols(n_y).noalias() = M_ * T_;
@@ -91,6 +86,26 @@ const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
   red_.noalias() = T_.transpose() * rhs_;
   Z_ = solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y));
   return Z_;
+}
+
+const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
+  const Vec y = X.head(n_y), yd = X.tail(n_y);
+  kinematics(y, base);
+  factor_here(yd);
+  warm_->W = W_;
+  warm_->yd = yd;
+  warm_->has_w = true;
+  return Z_;
+}
+
+const Mat &ModelUpdate::factor_rows_at(const Vec &q, const Vec &yd) {
+  kin.eval(q);
+  if (!map_from(kin.jac_, false) && !map_from(kin.jac_, true)) {
+    handler_.attr("singular")(q);
+    throw std::runtime_error("compiled velocity map singular where the Python one is not");
+  }
+  q_ = q;
+  return factor_here(yd);
 }
 
 const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates) {

@@ -93,8 +93,9 @@ class ModelUpdate {
   // (n_y, n_y·n_y), block j = ∂Z[:, :n_y]/∂ẏ_j (ReducedModel._factor_derivatives); the warm start is X's
   // base: an explicit warm start (a pre-simulation's at X: its assembly is reused) or null
   const Mat &factor_rates(const Vec &X, const Warm *base, Mat &rates);
-  // the warm start of the last evaluation (a base for factor_rows at nearby poses)
-  const Warm &last_warm() const { return *warm_; }
+  // factor_rows at a configuration q that need not be assembled (T, K⁺ from the assembly Jacobian
+  // at q) and platform velocity ẏ: ReducedModel._factor_at; the warm start is not changed
+  const Mat &factor_rows_at(const Vec &q, const Vec &yd);
   // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
   const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
@@ -131,6 +132,7 @@ class ModelUpdate {
   // Tᵀ K = −C_r(ẏ); sets W_ (the Newton predictor's curvature, unaveraged) and M_ (full)
   void bias_rows(const Vec &v, Mat &K);
   Mat solve_reduced(const Mat &A, const Mat &B);  // A⁻¹ B, A = M_r (LLT, else the Python solve)
+  const Mat &factor_here(const Vec &yd);          // Z_ at q_, T_, pinv_ and ẏ (sets W_)
 
   nb::object handler_;
   std::optional<Warm> warm_;

@@ -32,16 +32,12 @@ from .robot import ParallelRobot
 from ..validation import finite_vector, positive
 
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
-__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP",
-           "FACTOR_STEP"]
+__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP"]
 
-#: relative step of the central differences of the whole stage map
-#: (:meth:`ReducedModel.stage_jacobians_differences`, the oracle of the Jacobian).
+#: relative step of the central differences in :meth:`ReducedModel.stage_jacobians` (of the factor rows
+#: along the closures' tangent) and :meth:`ReducedModel.stage_jacobians_differences` (of the whole
+#: stage map, the oracle): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11 relative.
 JACOBIAN_STEP = 1e-5
-#: relative step of the forward differences of the factor rows along y (:meth:`ReducedModel.stage_jacobians`):
-#: truncation ≈ rounding (≤ 3e-9 relative in the Jacobian on planar_4rrr, delta_3rus, hexapod_6ups),
-#: and the first-order closure predictor is exact to O(h²) ≈ 1e-16: no Newton step.
-FACTOR_STEP = 1e-8
 
 
 @dataclass
@@ -258,17 +254,24 @@ class ReducedModel:
         factorization (3) at X (see :meth:`factorize`)."""
         if self.native and base is None:
             return self._native.factor_rows(X)
-        model, data = self.robot.model, self.robot.data
         ny = self.n_y
         q, T, pinv_z = self._kinematics(X[:ny], base)
-        W, M, K = self._bias_rows(q, T, pinv_z, X[ny:])
+        Z, W = self._factor_at(q, T, pinv_z, X[ny:])
         self._warm = (q, self._warm[1], T, pinv_z, W, X[ny:].copy())
+        return Z
+
+    def _factor_at(self, q: np.ndarray, T: np.ndarray, pinv_z: np.ndarray, ydot: np.ndarray):
+        """(Z, W) of :meth:`_factor_rows` at a configuration q with its (T, Φ_z⁺) and ẏ (W: see
+        :meth:`_bias_rows`); q need not be assembled (the Jacobian's differences along the tangent)."""
+        model, data = self.robot.model, self.robot.data
+        ny = self.n_y
+        W, M, K = self._bias_rows(q, T, pinv_z, ydot)
         rhs = self._rhs  # [M T | K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
         np.matmul(M, T, out=rhs[:, :ny])
         rhs[:, ny:2 * ny] = K
         rhs[:, -1] = -pin.computeGeneralizedGravity(model, data, q)  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
         red = T.T @ rhs
-        return spd_solve(red[:, :ny], red[:, ny:])
+        return spd_solve(red[:, :ny], red[:, ny:]), W
 
     def _factor_derivatives(self, X: np.ndarray, step: float, base=None):
         """Z = :meth:`_factor_rows` at X and its derivatives ∂Z/∂X_k (the reference of the compiled
@@ -276,10 +279,12 @@ class ReducedModel:
 
         ∂Z/∂ẏ_j is exact: Z's first block −M_r⁻¹ C_r(y, ẏ) is linear in ẏ, so its derivative is the
         same block at ẏ = e_j (K of :meth:`_bias_rows` at e_j, one more solve with M_r), at the
-        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a forward difference of Z with
-        step h_j = ``step``·max(1, |y_j|) along the closures' tangent: the first-order predictor
-        q + T e_j h_j is assembled to O(h²) ≈ 1e-16, so no Newton step moves it off the tangent
-        through X's own q (a residual of that q cancels in the difference).
+        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a central difference of Z along
+        the closures' tangent: Z at q ± T e_j h_j (h_j = ``step``·max(1, |y_j|)), not assembled.
+        Z(q) is smooth off the closures too (T and Φ_z⁺ from the assembly Jacobian at q), the line
+        q + T e_j h has the assembled curve's first derivative, and both ends are off it by the
+        same ½ z'' h², which cancels in the difference: O(h²) like the central difference on the
+        curve, without a Newton step.
 
         Args:
             X: (n_x,) state. step: relative step. base: the warm start of a pre-simulation at X
@@ -289,12 +294,13 @@ class ReducedModel:
             (Z (n_y, n_y + n_u + 1), dZ (n_x, n_y, n_y + n_u + 1)).
         """
         model, data = self.robot.model, self.robot.data
+        r = self.robot
         ny, nu = self.n_y, self.n_u
         nc = ny + nu + 1
         y, yd = X[:ny], X[ny:]
         q, T, pinv_z = self._kinematics(y, base)
         W, M, K = self._bias_rows(q, T, pinv_z, yd)
-        nominal = (q, y.copy(), T, pinv_z, W, yd.copy())
+        self._warm = (q, self._warm[1], T, pinv_z, W, yd.copy())
         rhs = np.empty((M.shape[0], ny + nc + ny * ny))
         rhs[:, :ny] = M @ T
         rhs[:, ny:2 * ny] = K
@@ -308,9 +314,12 @@ class ReducedModel:
         dZ = np.zeros((2 * ny, ny, nc))
         dZ[ny:, :, :ny] = sol[:, nc:].reshape(ny, ny, ny).transpose(1, 0, 2)
         for j in range(ny):
-            xp = X.copy()
-            xp[j] += step * max(1.0, abs(y[j]))
-            dZ[j] = (self._factor_rows(xp, nominal) - Z) / (xp[j] - X[j])
+            h = step * max(1.0, abs(y[j]))
+            ends = []
+            for dq in (T[:, j] * h, T[:, j] * -h):
+                qs = r.integrate(q, dq)
+                ends.append(self._factor_at(qs, *r.velocity_map_nocopy(qs), yd)[0])
+            dZ[j] = (ends[0] - ends[1]) / (2.0 * h)
         return Z, dZ
 
     def factorize(self, X: np.ndarray):
@@ -348,7 +357,7 @@ class ReducedModel:
             return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
-    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = FACTOR_STEP):
+    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
         """∂Φ/∂X of the stage map Φ(X, u) = E(X)·[X; u; 1] = A_d(X) X + B_d(X) u + c_d(X)
         (:meth:`discrete`, the pre-simulation's map (10)) at each stage of a trajectory.
 
@@ -356,17 +365,17 @@ class ReducedModel:
         (Z = M_r⁻¹ [−C_r | B_r | −g_r]); the second term is the Fréchet derivative of the
         exponential along Ts·∂Z/∂X_k applied to one vector
         (:func:`~parallel_gpc.model.discretization.expm_derivative_action`). ∂Z/∂ẏ is exact (Z is
-        linear in ẏ), ∂Z/∂y a forward difference of Z along the closures' tangent with step
-        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): n_y model updates without a Newton
-        step per stage (the states' own assemblies come from the last pre-simulation when it
-        visited them) instead of the 2·n_x updates and exponentials of differences of Φ
-        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~3e-9 relative). The
+        linear in ẏ), ∂Z/∂y a central difference of Z along the closures' tangent with step
+        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): 2·n_y model updates without
+        assembly per stage (the states' own assemblies come from the last pre-simulation when it
+        visited them) instead of the 2·n_x assembled updates and exponentials of differences of Φ
+        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~1e-10 relative). The
         compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
         is its reference.
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
-            Ts: sample time (s); step: relative forward-difference step of the y-derivatives of Z.
+            Ts: sample time (s); step: relative central-difference step of the y-derivatives of Z.
 
         Returns:
             (K, n_x, n_x) Jacobians.
