@@ -3,7 +3,8 @@
 // ReducedModel.stage_jacobians (model/dynamics.py), which is the reference. ∂Φ/∂X_k = E[:, k] +
 // (∂E/∂X_k)·[X; u; 1], the second term the Fréchet derivative of the exponential along Ts·∂Z/∂X_k
 // applied to one vector (TopRowsExpmDerivative); ∂Z/∂ẏ exact (Z is linear in ẏ), ∂Z/∂y central
-// differences of the factor rows Z along the closures' tangent. The nonlinear MPC iterations (gpc/nmpc.py) linearize with it.
+// differences of the factor rows Z along the closures' tangent. The nonlinear MPC iterations
+// (gpc/nmpc.py) linearize with it.
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>

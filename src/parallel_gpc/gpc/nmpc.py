@@ -26,9 +26,9 @@ linearizes Φ along the trajectory of the current plan with its true Jacobians �
 factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, differences of
 Z in y, 2·n_y model updates per stage in one compiled call; the frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
-optimum) — rebuilds the state limits' rows along that
-trajectory (exact at the current plan: the drive limits linearized at its poses) and solves the
-same least-squares/QP problem for the total v, every limit of the problem included. A
+optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
+drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
+v, every limit of the problem included. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
@@ -36,9 +36,10 @@ else a sufficient decrease of that violation; a convex combination of two plans 
 limits is within them. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
 problem's; the accepted plan v is kept, and v⁺, within the tolerance of it, is not rolled out —
-a line search on a step that small only measures rounding), the iteration limit, a failed line search or solve (the last accepted plan is
-kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
-converged), or the time budget (the next iteration would end past it).
+a line search on a step that small only measures rounding), the iteration limit, a failed line
+search or solve (the last accepted plan is kept; a failed line search whose model decrease is
+below rounding, 1e-12·J, counts as converged), or the time budget (the next iteration would end
+past it).
 """
 
 from __future__ import annotations

@@ -224,13 +224,14 @@ class ReducedModel:
 
     # -------------------------------------------------------------- eq. (3)
     def _bias_rows(self, q: np.ndarray, T: np.ndarray, pinv_z: np.ndarray, ydot: np.ndarray):
-        """The ẏ-dependent part of the factorization (3) at an assembled q, linear in ẏ.
+        """The ẏ-dependent part of the factorization (3) at q (assembled, or on the closures' tangent
+        for the Jacobian's differences) with its T and Φ_z⁺, linear in ẏ.
 
         Returns:
             (W (n_z, n_y), M (nv, nv), K (nv, n_y)): W = Φ_z⁺ Φ̇_q(T ẏ) T (the Newton predictor's
             curvature), the full mass matrix (a view of Pinocchio's data: use before the next
-            RNEA call), and K = M_z W − ½ ∂h/∂v T (W averaged with its transpose-like twin when
-            the closure bias is not symmetric) with Tᵀ K = −C_r(y, ẏ).
+            RNEA call), and K = M_z W − ½ ∂h/∂v T with Tᵀ K = −C_r(y, ẏ) (W averaged with
+            Φ_z⁺ [Φ̇_q(T e_i) v]_i when the closure bias is not symmetric).
         """
         r = self.robot
         model, data = r.model, r.data
@@ -269,7 +270,8 @@ class ReducedModel:
         rhs = self._rhs  # [M T | K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
         np.matmul(M, T, out=rhs[:, :ny])
         rhs[:, ny:2 * ny] = K
-        rhs[:, -1] = -pin.computeGeneralizedGravity(model, data, q)  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
+        # (not np.negative(x, out=x): on a strided view it is wrong in numpy 2.4.6)
+        rhs[:, -1] = -pin.computeGeneralizedGravity(model, data, q)
         red = T.T @ rhs
         return spd_solve(red[:, :ny], red[:, ny:]), W
 
