@@ -79,7 +79,9 @@ def test_iterations_decrease_the_true_cost_to_a_stationary_point(robot4):
     assert costs[0] > costs[-1]  # the paper's single step is not the optimum here
     assert np.abs(plans[0] - plans[-1]).max() > 1e-4 * np.abs(plans[-1]).max()
     assert np.abs(plans[2] - plans[-1]).max() < np.abs(plans[0] - plans[-1]).max() / 10
-    assert info.residual <= 1e-8 and info.result.cost == pytest.approx(costs[-1], rel=1e-9)
+    # converged by the step rule, or by a line search whose model decrease is below rounding
+    # (1e-12 J: a step of ~1e-7 relative); the gradient below is the oracle of stationarity
+    assert info.residual <= 1e-6 and info.result.cost == pytest.approx(costs[-1], rel=1e-9)
     # stationary: the gradient of the true cost (central differences of the rollout) vanishes
     v = info.result.v
     g = np.empty_like(v)
@@ -109,21 +111,49 @@ def test_state_jacobians_match_a_finer_difference(robot4):
         assert np.abs(J[i] - Ad[i]).max() > 1e-6  # the frozen A_d is not the Jacobian
 
 
-@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def _moving(name):
+    """(model, trajectory (6, n_x), inputs (5, n_u)) of a fast move: planar_4rrr and delta_3rus from
+    _case, the hexapod (prismatic legs) from its home at 0.3 m/s, 0.5 rad/s."""
+    if name == "hexapod_6ups":
+        robot = ParallelRobot.load(name)
+        model = ReducedModel(robot)
+        X = np.concatenate([robot.home_pose, [0.3, -0.2, 0.1, 0.5, -0.3, 0.2]])
+        u = np.tile(np.linspace(-20.0, 20.0, model.n_u), (5, 1))
+    else:
+        model, X, plan, _ = _case(name)
+        u = plan[:5]
+    return model, model.simulate_factorized(X, u, TS)[3], u
+
+
+@pytest.mark.parametrize("native", [None, False])
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus", "hexapod_6ups"])
+def test_stage_jacobians_equal_central_differences_of_the_stage_map(name, native):
+    """The Fréchet-derivative Jacobian (exact ẏ part, y part by differences of the factor rows) against
+    central differences of the whole stage map Φ = A_d X + B_d u + c_d (2·n_x discrete() per stage),
+    compiled and Python model updates, revolute (planar, Delta) and prismatic (hexapod) legs."""
+    model, traj, u = _moving(name)
+    model = ReducedModel(model.robot, native=native)
+    J = model.stage_jacobians(traj, u, TS)
+    J_ref = model.stage_jacobians_differences(traj, u, TS)
+    assert J.shape == J_ref.shape == (5, model.n_x, model.n_x)
+    assert np.abs(J - J_ref).max() <= 1e-7 * np.abs(J_ref).max()
+    A_d = model.simulate_factorized(traj[0], u, TS)[0]
+    assert np.abs(J_ref - A_d).max() > 1e-3 * np.abs(J_ref - np.eye(model.n_x)).max()  # not the frozen A_d
+
+
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus", "hexapod_6ups"])
 def test_compiled_stage_jacobians_equal_the_python_reference(name):
-    """The compiled central differences (one native call) against the Python loop of
+    """The compiled Jacobian (one native call) against the Python loop of
     ReducedModel.stage_jacobians on the Python model update, along a moving trajectory."""
     from parallel_gpc.model.native import native_module
     if not hasattr(native_module(), "stage_jacobians"):
         pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
-    model, X, plan, _ = _case(name)
+    model, traj, u = _moving(name)
     reference = ReducedModel(model.robot, native=False)
-    u = plan[:5]
-    traj = reference.simulate_factorized(X, u, TS)[3]
     J = model.stage_jacobians(traj, u, TS)
     J_ref = reference.stage_jacobians(traj, u, TS)
     assert J.shape == J_ref.shape == (5, model.n_x, model.n_x)
-    assert np.abs(J - J_ref).max() <= 1e-7 * max(1.0, np.abs(J_ref).max())  # differences of two rounding paths
+    assert np.abs(J - J_ref).max() <= 1e-8 * np.abs(J_ref).max()  # differences of two rounding paths
 
 
 @pytest.mark.parametrize("name,limits", [

@@ -164,6 +164,14 @@ bool ModelUpdate::project(const Vec &q, const Vec &v, const Mat *pinv_hint, Vec 
 }
 
 void ModelUpdate::kinematics(const Vec &y, const Warm *base) {
+  if (base != nullptr && base->y == y) {  // the base's own pose: its assembly (the same numbers)
+    q_ = base->q;
+    T_ = base->T;
+    pinv_ = base->pinv;
+    q_last = q_;
+    warm_ = Warm{q_, y, T_, pinv_, false, Mat(), Vec()};
+    return;
+  }
   bool near = base != nullptr;
   const Warm *b = base != nullptr ? base : (warm_ ? &*warm_ : nullptr);
   bool ok;

@@ -41,24 +41,10 @@ void ModelUpdate::reset() {
   sim_warm_.clear();
 }
 
-const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
-  const Vec y = X.head(n_y), yd = X.tail(n_y);
-  kinematics(y, base);
-  const Vec v = T_ * yd;
+void ModelUpdate::bias_rows(const Vec &v, Mat &K) {
   kin.jacobian_rate(q_, v, dPhi_);
   // ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ), γ bilinear in v: ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i)
   W_.noalias() = pinv_ * (dPhi_ * T_);
-  warm_->W = W_;
-  warm_->yd = yd;
-  warm_->has_w = true;
-  if (!cfg.bias_symmetric) {
-    W2_.resize(kin.rows, n_y);
-    for (Index i = 0; i < n_y; ++i) {
-      kin.jacobian_rate(q_, T_.col(i), col_);
-      W2_.col(i) = col_ * v;
-    }
-    W_ = 0.5 * (W_ + pinv_ * W2_);
-  }
   auto &model = kin.model;
   auto &data = kin.data;
   pinocchio::computeRNEADerivatives(model, data, q_, v, zero_v_);  // data.dtau_dv = ∂h/∂v, data.M
@@ -68,22 +54,69 @@ const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
     kin.universal_bias_derivative(q_, v, T_, DT_);
   else
     DT_.noalias() = data.dtau_dv * T_;
-  pinocchio::computeGeneralizedGravity(model, data, q_);
-  // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
-  rhs_.leftCols(n_y).noalias() = M_ * T_;
   Mat Mz(nv, n_z);
   for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
-  rhs_.middleCols(n_y, n_y).noalias() = Mz * W_;
-  rhs_.middleCols(n_y, n_y) -= 0.5 * DT_;
-  rhs_.col(rhs_.cols() - 1) = -data.g;
-  red_.noalias() = T_.transpose() * rhs_;
-  Eigen::LLT<Mat> llt(red_.leftCols(n_y));
-  if (llt.info() == Eigen::Success) {
-    Z_ = llt.solve(red_.rightCols(red_.cols() - n_y));
-  } else {  // not numerically SPD: the Python solve (LU, or LinAlgError)
-    const Mat A = red_.leftCols(n_y), B = red_.rightCols(red_.cols() - n_y);
-    Z_ = nb::cast<Mat>(handler_.attr("spd_solve")(A, B));
+  if (cfg.bias_symmetric) {
+    K.noalias() = Mz * W_;
+  } else {
+    W2_.resize(kin.rows, n_y);
+    for (Index i = 0; i < n_y; ++i) {
+      kin.jacobian_rate(q_, T_.col(i), col_);
+      W2_.col(i) = col_ * v;
+    }
+    K.noalias() = Mz * (0.5 * (W_ + pinv_ * W2_));
   }
+  K -= 0.5 * DT_;
+}
+
+Mat ModelUpdate::solve_reduced(const Mat &A, const Mat &B) {
+  Eigen::LLT<Mat> llt(A);
+  if (llt.info() == Eigen::Success) return llt.solve(B);
+  return nb::cast<Mat>(handler_.attr("spd_solve")(A, B));  // not numerically SPD: the Python solve (LU, or LinAlgError)
+}
+
+const Mat &ModelUpdate::factor_here(const Vec &yd) {
+  Mat K;
+  bias_rows(T_ * yd, K);
+  pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
+  // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
+  rhs_.leftCols(n_y).noalias() = M_ * T_;
+  rhs_.middleCols(n_y, n_y) = K;
+  rhs_.col(rhs_.cols() - 1) = -kin.data.g;
+  red_.noalias() = T_.transpose() * rhs_;
+  Z_ = solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y));
+  return Z_;
+}
+
+const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
+  const Vec y = X.head(n_y), yd = X.tail(n_y);
+  kinematics(y, base);
+  factor_here(yd);
+  warm_->W = W_;
+  warm_->yd = yd;
+  warm_->has_w = true;
+  return Z_;
+}
+
+const Mat &ModelUpdate::factor_rows_at(const Vec &q, const Vec &yd) {
+  kin.eval(q);
+  if (!map_from(kin.jac_, false) && !map_from(kin.jac_, true)) {
+    handler_.attr("singular")(q);
+    throw std::runtime_error("compiled velocity map singular where the Python one is not");
+  }
+  q_ = q;
+  return factor_here(yd);
+}
+
+const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates) {
+  factor_rows(X, base);
+  // K is linear in ẏ: K(e_j) = ∂K/∂ẏ_j at the same q (no assembly); one solve with M_r for all j
+  Mat rhs(nv, n_y * n_y), K;
+  for (Index j = 0; j < n_y; ++j) {
+    bias_rows(T_.col(j), K);
+    rhs.middleCols(j * n_y, n_y) = K;
+  }
+  rates = solve_reduced(red_.leftCols(n_y), T_.transpose() * rhs);
   return Z_;
 }
 

@@ -89,6 +89,15 @@ class ModelUpdate {
   ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
   // ReducedModel._factor_rows: Z = M_r⁻¹ [−C_r | B_r | −g_r] at X; base: explicit warm start or null
   const Mat &factor_rows(const Vec &X, const Warm *base);
+  // factor_rows at X and the exact ẏ-derivatives of its first block −M_r⁻¹ C_r (linear in ẏ): rates
+  // (n_y, n_y·n_y), block j = ∂Z[:, :n_y]/∂ẏ_j (ReducedModel._factor_derivatives); the warm start is X's
+  // base: an explicit warm start (a pre-simulation's at X: its assembly is reused) or null
+  const Mat &factor_rates(const Vec &X, const Warm *base, Mat &rates);
+  // factor_rows at a configuration q that need not be assembled (T, K⁺ from the assembly Jacobian
+  // at q) and platform velocity ẏ: ReducedModel._factor_at; the warm start is not changed
+  const Mat &factor_rows_at(const Vec &q, const Vec &yd);
+  // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
+  const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
   void discrete(const Vec &X, double Ts, double *out);
   // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
@@ -119,6 +128,11 @@ class ModelUpdate {
   void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
   void fallback(const Vec &y);             // the validated Python path (raises the package errors)
   void zoh(const Mat &Z, double Ts);       // exp of the augmented ZOH matrix, top rows into E_
+  // ReducedModel._bias_rows at q_, T_, pinv_ and v = T ẏ: K (nv × n_y) = M_z W − ½ ∂h/∂v T with
+  // Tᵀ K = −C_r(ẏ); sets W_ (the Newton predictor's curvature, unaveraged) and M_ (full)
+  void bias_rows(const Vec &v, Mat &K);
+  Mat solve_reduced(const Mat &A, const Mat &B);  // A⁻¹ B, A = M_r (LLT, else the Python solve)
+  const Mat &factor_here(const Vec &yd);          // Z_ at q_, T_, pinv_ and ẏ (sets W_)
 
   nb::object handler_;
   std::optional<Warm> warm_;

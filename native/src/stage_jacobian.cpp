@@ -1,7 +1,10 @@
-// Jacobian ∂Φ/∂X of the stage map X(i+1) = Φ(X(i), u(i)) = A_d(X) X + B_d(X) u + c_d(X) (the ZOH
-// map of the pre-simulation, eq. (10)) along a trajectory, in one call: the compiled twin of the
-// central differences of ReducedModel.stage_jacobians (model/dynamics.py), which is the reference.
-// The nonlinear MPC iterations (gpc/nmpc.py) linearize along each plan with it.
+// Jacobian ∂Φ/∂X of the stage map X(i+1) = Φ(X(i), u(i)) = E(X)·[X; u; 1] (the ZOH map of the
+// pre-simulation, eq. (10)) along a trajectory, in one call: the compiled twin of
+// ReducedModel.stage_jacobians (model/dynamics.py), which is the reference. ∂Φ/∂X_k = E[:, k] +
+// (∂E/∂X_k)·[X; u; 1], the second term the Fréchet derivative of the exponential along Ts·∂Z/∂X_k
+// applied to one vector (TopRowsExpmDerivative); ∂Z/∂ẏ exact (Z is linear in ẏ), ∂Z/∂y central
+// differences of the factor rows Z along the closures' tangent. The nonlinear MPC iterations
+// (gpc/nmpc.py) linearize with it.
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -17,32 +20,43 @@ namespace {
 using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
 using Input2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
-/// (K·n_x, n_x): rows i·n_x … (i+1)·n_x − 1 hold ∂Φ/∂X at (X(i), u(i)), i = 0..K−1; column k the
-/// central difference with step h_k = step·max(1, |X_k(i)|) (the Python reference's rule).
+/// (K·n_x, n_x): rows i·n_x … (i+1)·n_x − 1 hold ∂Φ/∂X at (X(i), u(i)), i = 0..K−1; the y-columns of
+/// ∂Z by central differences along the tangent with step h_j = step·max(1, |y_j(i)|) (the Python rule).
 RowMat stage_jacobians(ModelUpdate &self, Input2 X, Input2 u, double Ts, double step) {
-  const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u;
+  const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y, na = self.n_aug;
   if (u.shape(1) != size_t(m) || X.shape(1) != size_t(n) || X.shape(0) < size_t(K))
     throw std::invalid_argument("stage_jacobians: X_seq must be (>= K, n_x) and u_seq (K, n_u)");
   if (!(Ts > 0.0) || !(step > 0.0))
     throw std::invalid_argument("stage_jacobians: Ts and step must be > 0");
-  RowMat J(K * n, n), E(n, self.n_aug);
-  Vec xi(self.n_aug), fp(n);
-  xi[self.n_aug - 1] = 1.0;
+  TopRowsExpmDerivative expm;
+  expm.set_table(self.cfg.degree_norms);
+  RowMat J(K * n, n);
+  Mat M_top = Mat::Zero(n, na), rates, E, dE;
+  M_top.block(0, ny, ny, ny).diagonal().setConstant(Ts);
+  std::vector<Mat> D(n, Mat::Zero(n, na));  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
+  Vec xi(na);
+  xi[na - 1] = 1.0;
+  const std::vector<Warm> &sim = self.simulation_warm();  // usually at these very states
   for (long i = 0; i < K; ++i) {
     const Eigen::Map<const Vec> x(X.data() + i * n, n);
-    xi.segment(n, m) = Eigen::Map<const Vec>(u.data() + i * m, m);
-    for (long k = 0; k < n; ++k) {
-      const double h = step * std::max(1.0, std::abs(x[k]));
-      xi.head(n) = x;
-      xi[k] = x[k] + h;
-      const double xp = xi[k];
-      self.discrete(xi.head(n), Ts, E.data());  // (n, n_aug) row-major: [A_d | B_d | c_d]
-      fp.noalias() = E * xi;
-      xi[k] = x[k] - h;
-      const double xm = xi[k];
-      self.discrete(xi.head(n), Ts, E.data());
-      J.block(i * n, k, n, 1) = (fp - E * xi) / (xp - xm);
+    const Warm *base = i < static_cast<long>(sim.size()) && sim[i].y == x.head(ny) ? &sim[i] : nullptr;
+    const Mat Z = self.factor_rates(x, base, rates);
+    M_top.bottomRightCorner(ny, na - ny) = Z * Ts;
+    for (long j = 0; j < ny; ++j) D[ny + j].block(ny, ny, ny, ny) = rates.middleCols(j * ny, ny) * Ts;
+    // central differences along the closures' tangent q ± T e_j h (not assembled: both ends are
+    // off the closures by the same ½ z'' h², which cancels; ReducedModel._factor_derivatives)
+    const Vec q = self.q_last, yd = x.tail(ny);  // X's assembly (factor_rates) and its velocity map
+    const Mat T = self.velocity_map();
+    for (long j = 0; j < ny; ++j) {
+      const double h = step * std::max(1.0, std::abs(x[j]));
+      const Mat Zp = self.factor_rows_at(self.kin.integrate(q, T.col(j) * h), yd);
+      D[j].bottomRightCorner(ny, na - ny) = (Zp - self.factor_rows_at(self.kin.integrate(q, T.col(j) * -h), yd)) *
+                                            (Ts / (2.0 * h));
     }
+    xi.head(n) = x;
+    xi.segment(n, m) = Eigen::Map<const Vec>(u.data() + i * m, m);
+    if (!expm.run(M_top, D, xi, E, dE)) self.handler().attr("nonfinite")();
+    J.block(i * n, 0, n, n) = E.leftCols(n) + dE;
   }
   return J;
 }
@@ -51,7 +65,8 @@ RowMat stage_jacobians(ModelUpdate &self, Input2 X, Input2 u, double Ts, double 
 void bind_stage_jacobian(nb::module_ &m) {
   m.def("stage_jacobians", &stage_jacobians, nb::arg("update"), nb::arg("X_seq"), nb::arg("u_seq"), nb::arg("Ts"),
         nb::arg("step"),
-        "(K·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), i < K, by central "
-        "differences with step·max(1, |X_k|)");
+        "(K·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), i < K: the Fréchet "
+        "derivative of the exponential, ẏ-derivatives of the factor rows exact, y-derivatives by central "
+        "differences along the closures' tangent with step·max(1, |y_j|)");
 }
 }  // namespace pgpc

@@ -24,4 +24,24 @@ class TopRowsExpm {
   std::vector<double> norms_, inv_fact_;
   Mat M_, P_, Pn_, E2_;
 };
+
+// The derivatives of e^M ξ along directions D_k, M and each D_k with only their top m rows nonzero
+// (discretization.expm_derivative_action, the reference): the Fréchet derivative of the exponential
+// applied to one vector, by Horner sums of the Taylor polynomial of e^(M/2^s) and of its squarings.
+class TopRowsExpmDerivative {
+ public:
+  void set_table(std::vector<double> degree_norms);
+  // E (m, n) = top rows of e^M, dE (m, n_dir): column k = d/dt e^(M + t D_k) ξ at t = 0 (top rows);
+  // M_top (m, n), D[k] (m, n); false if M has NaN/inf
+  bool run(const Mat &M_top, const std::vector<Mat> &D, const Vec &xi, Mat &E, Mat &dE);
+
+ private:
+  void action(const Vec &u, Mat &out);  // dF u for every direction (m, n_dir), F = e^(A), A = M/2^s
+  std::vector<double> norms_, inv_fact_;
+  std::vector<Mat> D_;
+  std::vector<Mat> R_;
+  Mat A_, P_, Pn_, F_, E2_, Y_, S_;
+  Vec u_, w_, wn_;
+  Index K_ = 0;
+};
 }  // namespace pgpc

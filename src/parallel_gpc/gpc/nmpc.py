@@ -22,21 +22,24 @@ J is one fixed function of v for the whole step, and ``iterations=1`` is the pap
 
 **The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
-(Φ is affine in u) and ∂Φ/∂X by central differences of Φ
-(:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, 2·n_x evaluations per stage in one
-compiled call; the frozen A_d misses ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it
-stops at a fixed point that is not the optimum) — rebuilds the state limits' rows along that
-trajectory (exact at the current plan: the drive limits linearized at its poses) and solves the
-same least-squares/QP problem for the total v, every limit of the problem included. A
+(Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
+factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, differences of
+Z in y, 2·n_y model updates per stage in one compiled call; the frozen A_d misses
+∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
+optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
+drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
+v, every limit of the problem included. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
 else a sufficient decrease of that violation; a convex combination of two plans within the input
 limits is within them. Stopping: the step ‖v⁺ − v‖∞ ≤ tolerance·(1 + ‖v‖∞) (at a KKT point
 of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions at step 0 are the
-problem's), the iteration limit, a failed line search or solve (the last accepted plan is
-kept; a failed line search whose model decrease is below rounding, 1e-12·J, counts as
-converged), or the time budget (the next iteration would end past it).
+problem's; the accepted plan v is kept, and v⁺, within the tolerance of it, is not rolled out —
+a line search on a step that small only measures rounding), the iteration limit, a failed line
+search or solve (the last accepted plan is kept; a failed line search whose model decrease is
+below rounding, 1e-12·J, counts as converged), or the time budget (the next iteration would end
+past it).
 """
 
 from __future__ import annotations
@@ -225,6 +228,12 @@ class NMPCIterations:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
+            if report["iterations"] > 1:
+                report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / (
+                    1.0 + float(np.max(np.abs(v), initial=0.0)))
+                if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
+                    report.update(stop="converged", converged=True)
+                    break
             decrease = max(self._model_merit(lin, lin_rows, w, v) - self._model_merit(lin, lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
@@ -242,17 +251,11 @@ class NMPCIterations:
                     accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
                     break
                 alpha *= 0.5
-            scale = 1.0 + float(np.max(np.abs(v), initial=0.0))
-            report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / scale if report["iterations"] > 1 \
-                else float("nan")
             if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
                 flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
             v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
-            if report["iterations"] > 1 and report["residual"] <= self.tolerance:
-                report.update(stop="converged", converged=True)
-                break
             if report["iterations"] >= self.iterations:
                 break
             now = time.perf_counter()

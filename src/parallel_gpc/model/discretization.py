@@ -17,7 +17,7 @@ import numpy as np
 from ..errors import NonFiniteError
 from ..validation import positive
 
-__all__ = ["expm", "discretize_zoh", "rk4_step"]
+__all__ = ["expm", "expm_derivative_action", "discretize_zoh", "rk4_step"]
 
 
 # ------------------------------------------------------------------ matrix exponential
@@ -113,6 +113,71 @@ def _degree_table() -> list[float]:
 
 #: ``DEGREE_NORMS[K - 1]`` = largest norm handled by the degree-K Taylor polynomial.
 DEGREE_NORMS = _degree_table()
+
+
+def expm_derivative_action(M_top: np.ndarray, D_top: np.ndarray, xi: np.ndarray):
+    """Top rows of e^M and the derivatives of e^M ξ along directions D_k (the Fréchet derivative
+    of the exponential applied to one vector).
+
+    M has only its top m rows nonzero (the ZOH matrix [[A, B, c], [0, 0, 0]]·Ts), and so has each
+    direction. With the scaling of :func:`expm` (M/2^s, F = e^(M/2^s), so e^M ξ = F^(2^s) ξ) the
+    derivative is Σ_r F^(2^s−1−r) dF F^r ξ (Horner over r), and dF u, the derivative of the Taylor
+    polynomial, is Σ_(i+l<K) (M/2^s)^i D_k (M/2^s)^l u / (i+l+1)! summed by Horner over i from the
+    vectors M^l u: a few matrix–vector products, no exponential of the 2n × 2n block matrix
+    [[M, D], [0, M]] (whose upper-right block it equals). Two Taylor degrees above the
+    exponential's keep the truncation below the unit roundoff (the derivative's terms decay one
+    factorial slower).
+
+    Args:
+        M_top: (m, n) top rows of M. D_top: (n_dir, m, n) top rows of the directions. xi: (n,).
+
+    Returns:
+        (E_top (m, n) top rows of e^M, dE (m, n_dir) with dE[:, k] = d/dt e^(M + t D_k) ξ at t = 0).
+    """
+    m, n = M_top.shape
+    norm = math.sqrt(float(np.einsum("ij,ij->", M_top, M_top)))
+    if not math.isfinite(norm):
+        raise NonFiniteError("matrix exponential of a matrix with NaN or inf entries")
+    s = 0
+    if norm > _EXPM_THETA:
+        s = int(math.ceil(math.log2(norm / _EXPM_THETA)))
+    scale = 2.0 ** -s
+    A, D = M_top * scale, D_top * scale
+    K = bisect.bisect_left(DEGREE_NORMS, norm * scale) + 1
+    inv_fact = _inverse_factorials(K + 3)
+    F = np.zeros((m, n))
+    F[:, :m] = np.eye(m)
+    P = A
+    F += P
+    for k in range(2, K + 1):
+        P = P[:, :m] @ A
+        F += inv_fact[k] * P
+    A_top = A[:, :m]
+    Kd = K + 2
+
+    def action(u):  # dF u for every direction, (m, n_dir)
+        R = [D @ u]  # R[l][k] = D_k M^l u
+        w = A @ u
+        for _ in range(1, Kd):
+            R.append(D[:, :, :m] @ w)
+            w = A_top @ w
+        Y = inv_fact[Kd] * R[0].T
+        for i in range(Kd - 2, -1, -1):
+            S = sum(inv_fact[i + l + 1] * R[l] for l in range(Kd - i))
+            Y = S.T + A_top @ Y
+        return Y
+
+    u = np.array(xi, dtype=float)
+    dE = action(u)
+    for _ in range(2 ** s - 1):
+        u[:m] = F @ u
+        dE = F[:, :m] @ dE + action(u)
+    E = F
+    for _ in range(s):  # [[E₁, E₂], [0, I]]² = [[E₁ E₁, E₁ E₂ + E₂], [0, I]]
+        E2 = E[:, :m] @ E
+        E2[:, m:] += E[:, m:]
+        E = E2
+    return E, dE
 
 
 def zoh_split(E: np.ndarray, n: int, m: int):

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pinocchio as pin
 
-from .discretization import discretize_zoh, expm, rk4_step, zoh_split
+from .discretization import discretize_zoh, expm, expm_derivative_action, rk4_step, zoh_split
 from .linalg import spd_solve
 from .native import native_module
 from .native_update import compiled_model_update, model_update_status, use_native
@@ -34,7 +34,9 @@ from ..validation import finite_vector, positive
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
 __all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP"]
 
-#: relative step of the central differences of the stage map (:meth:`ReducedModel.stage_jacobians`).
+#: relative step of the central differences in :meth:`ReducedModel.stage_jacobians` (of the factor rows
+#: along the closures' tangent) and :meth:`ReducedModel.stage_jacobians_differences` (of the whole
+#: stage map, the oracle): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11 relative.
 JACOBIAN_STEP = 1e-5
 
 
@@ -139,10 +141,15 @@ class ReducedModel:
         the last evaluation) moved along the constraint manifold to second order:
         z ≈ z₀ + T_z δy + ½ d²z, the curvature term from Φ̇_q of the last factorization when δy
         is along its velocity. The start only changes the number of Newton steps, not the
-        converged q.
+        converged q. A base at y itself gives its own (q, T, Φ_z⁺) (the same numbers).
         """
         r = self.robot
         near = base is not None
+        if near and np.array_equal(y, base[1]):  # the base's own pose: its assembly
+            q, T, pinv_z = base[0], base[2], base[3]
+            self._q_last = q
+            self._warm = (q, y.copy(), T, pinv_z, None, None)
+            return q, T, pinv_z
         if base is None:
             base = self._warm
         if base is None:
@@ -216,35 +223,106 @@ class ReducedModel:
         return np.concatenate([X[self.n_y:], self.acceleration(X, u)])
 
     # -------------------------------------------------------------- eq. (3)
-    def _factor_rows(self, X: np.ndarray, base=None) -> np.ndarray:
-        """(n_y, n_y + n_u + 1) Z = M_r⁻¹ [−C_r | B_r | −g_r]: the ẏ-rows [A₂₂ | B₂ | c₂] of the
-        factorization (3) at X (see :meth:`factorize`)."""
-        if self.native and base is None:
-            return self._native.factor_rows(X)
+    def _bias_rows(self, q: np.ndarray, T: np.ndarray, pinv_z: np.ndarray, ydot: np.ndarray):
+        """The ẏ-dependent part of the factorization (3) at q (assembled, or on the closures' tangent
+        for the Jacobian's differences) with its T and Φ_z⁺, linear in ẏ.
+
+        Returns:
+            (W (n_z, n_y), M (nv, nv), K (nv, n_y)): W = Φ_z⁺ Φ̇_q(T ẏ) T (the Newton predictor's
+            curvature), the full mass matrix (a view of Pinocchio's data: use before the next
+            RNEA call), and K = M_z W − ½ ∂h/∂v T with Tᵀ K = −C_r(y, ẏ) (W averaged with
+            Φ_z⁺ [Φ̇_q(T e_i) v]_i when the closure bias is not symmetric).
+        """
         r = self.robot
         model, data = r.model, r.data
-        ny = self.n_y
-        q, T, pinv_z = self._kinematics(X[:ny], base)
-        v = T @ X[ny:]
+        v = T @ ydot
         dPhi = r.constraint_jacobian_derivative(q, v)
         # ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ) with γ(v) = Φ̇_q(v) v bilinear in v:
         # ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i); both terms are equal for point
         # closures (Φ_q is the gradient of a position: symmetric second derivatives).
         W = pinv_z @ (dPhi @ T)
-        self._warm = (q, self._warm[1], T, pinv_z, W, X[ny:].copy())
+        Wb = W
         if not r.bias_symmetric:
-            W2 = np.column_stack([r.constraint_jacobian_derivative(q, T[:, i]) @ v for i in range(ny)])
-            W = 0.5 * (W + pinv_z @ W2)
+            W2 = np.column_stack([r.constraint_jacobian_derivative(q, T[:, i]) @ v for i in range(self.n_y)])
+            Wb = 0.5 * (W + pinv_z @ W2)
         _, D, M = pin.computeRNEADerivatives(model, data, q, v, self._zero_v)  # D = ∂h/∂v, M full
-        g = pin.computeGeneralizedGravity(model, data, q)
-        rhs = self._rhs  # [M T | −K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
-        # −C_r = −½ Tᵀ ∂(h + M ℓ)/∂v T = Tᵀ (M_z W − ½ D T);  −g_r = −Tᵀ g
-        np.matmul(M, T, out=rhs[:, :ny])
+        # −C_r = −½ Tᵀ ∂(h + M ℓ)/∂v T = Tᵀ (M_z W − ½ D T)
         DT = r.universal_joints.bias_derivative(model, q, v, T) if r.universal_joints else D @ T
-        rhs[:, ny:2 * ny] = M[:, r.dependent_v] @ W - 0.5 * DT
-        rhs[:, -1] = -g  # (np.negative(x, out=x) on a strided view is wrong in numpy 2.4.6)
+        return W, M, M[:, r.dependent_v] @ Wb - 0.5 * DT
+
+    def _factor_rows(self, X: np.ndarray, base=None) -> np.ndarray:
+        """(n_y, n_y + n_u + 1) Z = M_r⁻¹ [−C_r | B_r | −g_r]: the ẏ-rows [A₂₂ | B₂ | c₂] of the
+        factorization (3) at X (see :meth:`factorize`)."""
+        if self.native and base is None:
+            return self._native.factor_rows(X)
+        ny = self.n_y
+        q, T, pinv_z = self._kinematics(X[:ny], base)
+        Z, W = self._factor_at(q, T, pinv_z, X[ny:])
+        self._warm = (q, self._warm[1], T, pinv_z, W, X[ny:].copy())
+        return Z
+
+    def _factor_at(self, q: np.ndarray, T: np.ndarray, pinv_z: np.ndarray, ydot: np.ndarray):
+        """(Z, W) of :meth:`_factor_rows` at a configuration q with its (T, Φ_z⁺) and ẏ (W: see
+        :meth:`_bias_rows`); q need not be assembled (the Jacobian's differences along the tangent)."""
+        model, data = self.robot.model, self.robot.data
+        ny = self.n_y
+        W, M, K = self._bias_rows(q, T, pinv_z, ydot)
+        rhs = self._rhs  # [M T | K | Sᵀ | −g]: one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
+        np.matmul(M, T, out=rhs[:, :ny])
+        rhs[:, ny:2 * ny] = K
+        # (not np.negative(x, out=x): on a strided view it is wrong in numpy 2.4.6)
+        rhs[:, -1] = -pin.computeGeneralizedGravity(model, data, q)
         red = T.T @ rhs
-        return spd_solve(red[:, :ny], red[:, ny:])
+        return spd_solve(red[:, :ny], red[:, ny:]), W
+
+    def _factor_derivatives(self, X: np.ndarray, step: float, base=None):
+        """Z = :meth:`_factor_rows` at X and its derivatives ∂Z/∂X_k (the reference of the compiled
+        ``stage_jacobians``).
+
+        ∂Z/∂ẏ_j is exact: Z's first block −M_r⁻¹ C_r(y, ẏ) is linear in ẏ, so its derivative is the
+        same block at ẏ = e_j (K of :meth:`_bias_rows` at e_j, one more solve with M_r), at the
+        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a central difference of Z along
+        the closures' tangent: Z at q ± T e_j h_j (h_j = ``step``·max(1, |y_j|)), not assembled.
+        Z(q) is smooth off the closures too (T and Φ_z⁺ from the assembly Jacobian at q), the line
+        q + T e_j h has the assembled curve's first derivative, and both ends are off it by the
+        same ½ z'' h², which cancels in the difference: O(h²) like the central difference on the
+        curve, without a Newton step.
+
+        Args:
+            X: (n_x,) state. step: relative step. base: the warm start of a pre-simulation at X
+                (its assembly is reused), or None.
+
+        Returns:
+            (Z (n_y, n_y + n_u + 1), dZ (n_x, n_y, n_y + n_u + 1)).
+        """
+        model, data = self.robot.model, self.robot.data
+        r = self.robot
+        ny, nu = self.n_y, self.n_u
+        nc = ny + nu + 1
+        y, yd = X[:ny], X[ny:]
+        q, T, pinv_z = self._kinematics(y, base)
+        W, M, K = self._bias_rows(q, T, pinv_z, yd)
+        self._warm = (q, self._warm[1], T, pinv_z, W, yd.copy())
+        rhs = np.empty((M.shape[0], ny + nc + ny * ny))
+        rhs[:, :ny] = M @ T
+        rhs[:, ny:2 * ny] = K
+        rhs[:, 2 * ny:ny + nc - 1] = self._S
+        for j in range(ny):  # K is linear in ẏ: K(e_j) = ∂K/∂ẏ_j
+            rhs[:, ny + nc + j * ny:ny + nc + (j + 1) * ny] = self._bias_rows(q, T, pinv_z, np.eye(ny)[j])[2]
+        rhs[:, ny + nc - 1] = -pin.computeGeneralizedGravity(model, data, q)
+        red = T.T @ rhs
+        sol = spd_solve(red[:, :ny], red[:, ny:])
+        Z = sol[:, :nc]
+        dZ = np.zeros((2 * ny, ny, nc))
+        dZ[ny:, :, :ny] = sol[:, nc:].reshape(ny, ny, ny).transpose(1, 0, 2)
+        for j in range(ny):
+            h = step * max(1.0, abs(y[j]))
+            ends = []
+            for dq in (T[:, j] * h, T[:, j] * -h):
+                qs = r.integrate(q, dq)
+                ends.append(self._factor_at(qs, *r.velocity_map_nocopy(qs), yd)[0])
+            dZ[j] = (ends[0] - ends[1]) / (2.0 * h)
+        return Z, dZ
 
     def factorize(self, X: np.ndarray):
         """State-dependent factorization ``Ẋ = A(X) X + B(X) u + c(X)``, eq. (3).
@@ -282,26 +360,56 @@ class ReducedModel:
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
     def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
-        """∂Φ/∂X of the stage map Φ(X, u) = A_d(X) X + B_d(X) u + c_d(X) (:meth:`discrete`, the
-        pre-simulation's map (10)) at each stage of a trajectory.
+        """∂Φ/∂X of the stage map Φ(X, u) = E(X)·[X; u; 1] = A_d(X) X + B_d(X) u + c_d(X)
+        (:meth:`discrete`, the pre-simulation's map (10)) at each stage of a trajectory.
 
-        Central differences of Φ, step h_k = ``step``·max(1, |X_k|): truncation O(h²) ≈ 1e-10,
-        rounding ≈ 1e-11 relative. The compiled core runs all K·2·n_x evaluations in one call
-        (``_native.stage_jacobians``); this method's loop is its reference.
+        ∂Φ/∂X_k = E[:, k] + (∂E/∂X_k)·[X; u; 1], E the top rows of exp(Ts·[[0, I, 0], [0, Z(X)]])
+        (Z = M_r⁻¹ [−C_r | B_r | −g_r]); the second term is the Fréchet derivative of the
+        exponential along Ts·∂Z/∂X_k applied to one vector
+        (:func:`~parallel_gpc.model.discretization.expm_derivative_action`). ∂Z/∂ẏ is exact (Z is
+        linear in ẏ), ∂Z/∂y a central difference of Z along the closures' tangent with step
+        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): 2·n_y model updates without
+        assembly per stage (the states' own assemblies come from the last pre-simulation when it
+        visited them) instead of the 2·n_x assembled updates and exponentials of differences of Φ
+        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~1e-10 relative). The
+        compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
+        is its reference.
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
-            Ts: sample time (s); step: relative difference step.
+            Ts: sample time (s); step: relative central-difference step of the y-derivatives of Z.
 
         Returns:
             (K, n_x, n_x) Jacobians.
         """
         X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
-        K, n = len(u_seq), self.n_x
+        K, n, ny = len(u_seq), self.n_x, self.n_y
         compiled = native_module() if self.native else None
         if compiled is not None and hasattr(compiled, "stage_jacobians"):
             return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
                                             Ts, step).reshape(K, n, n)
+        J = np.empty((K, n, n))
+        M_top = np.zeros((n, n + self.n_u + 1))
+        M_top[:ny, ny:n] = np.eye(ny) * Ts
+        D_top = np.zeros((n, n, n + self.n_u + 1))
+        sim = self._sim_warm  # the last pre-simulation's assemblies: usually at these very states
+        for i in range(K):
+            x = X_seq[i]
+            base = sim[i] if i < len(sim) and np.array_equal(sim[i][1], x[:ny]) else None
+            Z, dZ = self._factor_derivatives(x, step, base)
+            M_top[ny:, ny:] = Z * Ts
+            D_top[:, ny:, ny:] = dZ * Ts
+            E, dE = expm_derivative_action(M_top, D_top, np.concatenate([x, u_seq[i], [1.0]]))
+            J[i] = E[:, :n] + dE
+        return J
+
+    def stage_jacobians_differences(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float,
+                                    step: float = JACOBIAN_STEP) -> np.ndarray:
+        """(K, n_x, n_x) ∂Φ/∂X by central differences of the whole stage map Φ (2·n_x :meth:`discrete`
+        per stage, step h_k = ``step``·max(1, |X_k|): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11
+        relative): the oracle of :meth:`stage_jacobians` (same arguments)."""
+        X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
+        K, n = len(u_seq), self.n_x
         J = np.empty((K, n, n))
         for i in range(K):
             x, u = X_seq[i], u_seq[i]
