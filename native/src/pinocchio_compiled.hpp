@@ -13,7 +13,10 @@
 // them undefined, `U`). Call them with exactly the argument types of the library's instantiations
 // (Model, Data, VectorXd, Data::Matrix6x, the RigidConstraint{Model,Data}Vector of
 // pinocchio/constraints.hpp): another type would need an instantiation the library lacks and the
-// module would fail to import with an undefined symbol. Build time: docs/performance.md#building-the-core.
+// module would fail to import with an undefined symbol. In a unity unit where another file includes
+// the real header, the body is visible again and compiled (harmless, only slower). The declarations
+// lack Pinocchio's `inline`: the standard wants it on every declaration, GCC and Clang (Itanium ABI:
+// the same mangled name) do not care. Build time: docs/performance.md#building-the-core.
 #pragma once
 
 #include <vector>
