@@ -6,7 +6,11 @@
 #include <string>
 
 #include "model_update.hpp"
+#include "pinocchio/algorithm/frames.hpp"
+#include "pinocchio/algorithm/jacobian.hpp"
+#include "pinocchio/algorithm/joint-configuration.hpp"
 #include "pinocchio/algorithm/kinematics.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/spatial.hpp"
 
 namespace pgpc {

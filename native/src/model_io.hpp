@@ -5,7 +5,7 @@
 
 #include <string>
 
-#include "pinocchio/multibody/model.hpp"
+#include "pinocchio/multibody.hpp"  // Model (multibody/model.hpp is a deprecated alias of it in 4.x)
 
 namespace pgpc {
 // The model serialized as text by pinocchio::Model::saveToString (same Pinocchio version).

@@ -13,6 +13,8 @@
 
 #include "bindings.hpp"
 #include "model_io.hpp"
+#include "pinocchio/algorithm/rnea-derivatives.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
 
 namespace pgpc {
 

@@ -13,11 +13,8 @@
 #include <nanobind/nanobind.h>
 
 #include "zoh.hpp"
-#include "pinocchio/algorithm/frames.hpp"
-#include "pinocchio/algorithm/jacobian.hpp"
-#include "pinocchio/algorithm/joint-configuration.hpp"
-#include "pinocchio/algorithm/rnea-derivatives.hpp"
-#include "pinocchio/algorithm/rnea.hpp"
+// the types only: the algorithms are included by the files that call them (build time, CMakeLists.txt)
+#include "pinocchio/multibody.hpp"  // Model, Data (multibody/model.hpp is a deprecated alias of it in 4.x)
 
 namespace pgpc {
 namespace nb = nanobind;
@@ -55,6 +52,8 @@ struct Warm {
 class Kinematics {
  public:
   Kinematics(pinocchio::Model model, const RobotConfig &cfg);
+  Kinematics(const Kinematics &) = delete;  // never copied: no copy of Model/Data compiled
+  Kinematics &operator=(const Kinematics &) = delete;
   // Ψ(q) + [0; y] and ∂Ψ/∂v (ClosureMixin._eval); fills res_, jac_
   void eval(const Vec &q);
   // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv)
@@ -87,6 +86,10 @@ class ModelUpdate {
 
  public:
   ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
+  // not copyable nor movable: nanobind then compiles no copy/move of the instance (and of Pinocchio's
+  // Model and Data inside it), which the Python side never makes (build time, CMakeLists.txt)
+  ModelUpdate(const ModelUpdate &) = delete;
+  ModelUpdate &operator=(const ModelUpdate &) = delete;
   // ReducedModel._factor_rows: Z = M_r⁻¹ [−C_r | B_r | −g_r] at X; base: explicit warm start or null
   const Mat &factor_rows(const Vec &X, const Warm *base);
   // factor_rows at X and the exact ẏ-derivatives of its first block −M_r⁻¹ C_r (linear in ẏ): rates

@@ -20,12 +20,10 @@
 #include <nanobind/stl/tuple.h>
 #include <nanobind/stl/vector.h>
 
-#include <pinocchio/algorithm/constrained-dynamics.hpp>
-#include <pinocchio/algorithm/frames.hpp>
 #include <pinocchio/algorithm/joint-configuration.hpp>
-#include <pinocchio/multibody/data.hpp>
-#include <pinocchio/multibody/model.hpp>
 #include <pinocchio/spatial.hpp>
+
+#include "pinocchio_compiled.hpp"  // constraintDynamics & co. from libpinocchio_default, not compiled here
 
 namespace pgpc {
 namespace {
@@ -72,8 +70,7 @@ class Plant {
         const std::vector<Eigen::Matrix4d> &placements_a, const std::vector<int> &joints_b,
         const std::vector<Eigen::Matrix4d> &placements_b, double kp, double kd, double accuracy, double mu,
         int max_iter)
-      : model_(load_model(model_text)), prox_(accuracy, mu, max_iter) {
-    data_ = pin::Data(model_);
+      : model_(load_model(model_text)), data_(model_), prox_(accuracy, mu, max_iter) {
     flat_ = model_.nq == model_.nv;
     const std::size_t n = dims.size();
     if (joints_a.size() != n || placements_a.size() != n || joints_b.size() != n || placements_b.size() != n) {
@@ -100,6 +97,11 @@ class Plant {
     for (const auto &cm : cms_) cds_.push_back(pin::RigidConstraintData(cm));
     pin::initConstraintDynamics(model_, data_, cms_, cds_);
   }
+
+  // not copyable nor movable: nanobind then compiles no copy/move of the instance (nor of Pinocchio's
+  // Model, Data and constraint vectors inside it), which the Python side never makes (build time)
+  Plant(const Plant &) = delete;
+  Plant &operator=(const Plant &) = delete;
 
   void set_task_output(int frame, const std::vector<int> &rows, const Eigen::Matrix3d &R_ref) {
     if (frame < 0 || frame >= int(model_.nframes)) {
