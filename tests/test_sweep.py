@@ -698,3 +698,26 @@ def test_the_resource_tracker_of_a_local_cluster_does_not_report_leaks_after_ctr
         stderr[quiet] = proc.stderr
     assert "leaked semaphore" in stderr["0"]
     assert "leaked semaphore" not in stderr["1"] and "PYTHONWARNINGS" not in os.environ
+
+
+def test_the_cli_counts_only_the_saved_cells_after_ctrl_c(tmp_path, monkeypatch, capsys):
+    """A cell that Ctrl-C stopped mid-run has a partial record: shown, but neither finished nor saved
+    (the message counted it: '3 finished cells are saved' with 2 in the store)."""
+    import parallel_gpc.sweeps as sweeps
+    from parallel_gpc import cli
+
+    def interrupted_at_second(cell):
+        record = run_cell(cell)
+        if cell.index == 1:  # Ctrl-C inside simulate: a partial record
+            record["status"] = "interrupted"
+        return record
+
+    plain = sweeps.run_sweep
+    monkeypatch.setattr(sweeps, "run_sweep", lambda cells, **kw: plain(cells, **kw, func=interrupted_at_second))
+    spec = tmp_path / "s.toml"
+    spec.write_text('[base]\nrobot = "planar_3rrr"\nreference = "hold"\nduration = 0.05\nTs = 0.005\nQu = 1e-4\n'
+                    '[grid]\nN = [3, 4, 5]\n')
+    assert cli.main(["sweep", str(spec), "--workers", "0", "--out", str(tmp_path / "out"), "--no-progress"]) == 130
+    out, err = capsys.readouterr()
+    assert len(SweepStore(tmp_path / "out").finished()) == 1
+    assert "1 finished cells are saved" in err and "1 of 3 cells finished" in out, (out, err)
