@@ -52,9 +52,7 @@ def cmd_sweep(args) -> int:
               "cells ran again)", file=sys.stderr)
     frame = result.frame()
     ok = int((frame["status"] == "ok").sum()) if len(frame) else 0
-    # a cell that Ctrl-C stopped mid-run has an "interrupted" record: shown, neither finished nor saved
-    finished = sum(r["status"] != "interrupted" for r in result.records)
-    print(f"{finished} of {result.total} cells finished ({result.ran} run now, {result.skipped} reused): "
+    print(f"{result.finished} of {result.total} cells finished ({result.ran} run now, {result.skipped} reused): "
           f"{ok} ok, {result.diverged} diverged, {result.failed} failed")
     for status in ("diverged", "failed"):
         errors = [r["error"] for r in result.records if r["status"] == status]
@@ -68,7 +66,7 @@ def cmd_sweep(args) -> int:
     print("wrote " + ", ".join(str(p) for p in paths))
     if not result.interrupted:
         return 0
-    print(f"parallel-gpc: interrupted; {finished} finished cells are saved, rerun to resume", file=sys.stderr)
+    print(f"parallel-gpc: interrupted; {result.finished} finished cells are saved, rerun to resume", file=sys.stderr)
     return EXIT_INTERRUPTED
 
 

@@ -72,7 +72,8 @@ class SweepResult:
     """Outcome of :func:`run_sweep`.
 
     Attributes:
-        records: records of the finished cells, in cell order (reused ones included).
+        records: records of the finished cells, in cell order (reused ones included), and the
+            partial record (status ``"interrupted"``, not saved) of a cell Ctrl-C stopped mid-run.
         ran: cells run by this call. skipped: cells found finished in the store.
         failed: cells whose record has status ``"failed"``.
         diverged: cells whose closed loop diverged (status ``"diverged"``: metrics of the part run).
@@ -89,6 +90,11 @@ class SweepResult:
     skipped_lines: int = 0
     interrupted: bool = False
     total: int = 0
+
+    @property
+    def finished(self) -> int:
+        """Cells finished (and saved in the store, if any): the records but an interrupted one."""
+        return sum(r["status"] != "interrupted" for r in self.records)
 
     def frame(self):
         """The records as a pandas DataFrame (see :func:`~parallel_gpc.sweeps.store.records_frame`)."""
