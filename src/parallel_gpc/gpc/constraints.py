@@ -238,12 +238,11 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
     # ŷ(k+No+j) = fe[j] + Ge[j] v, j = 0..n_rows; j = 0 is y(k) itself (used only when No = 0)
     Ge = np.concatenate([np.zeros((1, p, n)), pred.G.reshape(n_rows, p, n)])
     fe = np.concatenate([y_now[None], pred.f.reshape(n_rows, p)])
+    # rows in the order the two producers write them: output_box, output_velocity, drive_position,
+    # joint_position, drive_rate
     blocks = output_rows(limits, H, Ts, p)
     if any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
         blocks += _kinematic_rows(limits, H, Ts, y_now, fe[1:], y_lin, drives)
-    order = {kind: j for j, kind in enumerate(("output_box", "output_velocity", "drive_position", "joint_position",
-                                               "drive_rate"))}
-    blocks.sort(key=lambda b: order[b.kind])
     G_rows, h_rows, kinds, slack_of = [], [], [], []
     n_slack = 0
     for b in blocks:
