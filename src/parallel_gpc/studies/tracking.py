@@ -202,6 +202,7 @@ class TrackingSettings:
         equals ``s``."""
         H, W = self.horizons, self.weights
         lim = self.limits
+        values = lim.to_dict()
         out = {"N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu, "Qf": W.Qf}
         for key, kind in LIMIT_KEYS.items():
             if kind == "soft":
@@ -209,7 +210,7 @@ class TrackingSettings:
             elif kind == "penalty":
                 out[key] = lim.penalty
             else:
-                out[key] = lim.to_dict().get(kind)
+                out[key] = values.get(kind)
         out.update({f.name: getattr(self, f.name) for f in fields(self)
                     if f.name not in ("horizons", "weights", "limits", "extra")})
         return out
