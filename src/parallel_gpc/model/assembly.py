@@ -14,10 +14,12 @@ import pinocchio as pin
 
 from ..errors import AssemblyError, RobotFormatError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector
+from .checks import numerical_rank
 from .forward import rates_to_velocity, resolution_array, solve_forward
 from .linalg import svd_thin
 from .native import native_enabled
 from .native_update import compiled_forward, use_native
+from .sidecar import CLOSURE_ROWS
 
 #: K smallest/largest singular value below which the legs count as singular.
 SINGULAR_RCOND = 1e-8
@@ -134,14 +136,9 @@ class AssemblyMixin:
             if best is None or err < best[0]:
                 best = (err, at(sol.x))
         err, q = best
-        res, parts, row = self.closure_log_error(q).residual, [], 0
-        for _, _, c in self.closure_frames:
-            n = 6 if c.kind == "weld" else 3
-            parts.append((float(np.linalg.norm(res[row:row + 3])), float(np.linalg.norm(res[row + 3:row + n])), c))
-            row += n
-        worst = "; ".join(f"{c.name!r} {list(c.frames)} by {p:.3g} m" + (f" and {r:.3g} rad" if c.kind == "weld" else "")
-                          for p, r, c in sorted(parts, key=lambda t: -max(t[0], t[1]))[:4] if max(p, r) > 1e-9)
-        rank = int(np.linalg.matrix_rank(self.closure_log_error(q).jacobian, tol=None))
+        at_best = self.closure_log_error(q)
+        worst = "; ".join(self._closure_misses(at_best.residual)[:4])
+        rank = numerical_rank(np.linalg.svd(at_best.jacobian, compute_uv=False))
         raise UnreachablePoseError(
             f"the closures of {self.name!r} cannot be assembled: {newton_error}, and a globalized least-squares solve (Levenberg–Marquardt over all "
             f"{model.nv} joint coordinates from the drawing and {GLOBAL_STARTS - 1} perturbed starts) gets no "
@@ -150,6 +147,23 @@ class AssemblyMixin:
             "they are likely inconsistent (a 6-D weld where the mechanism only lets the frames meet as points, "
             "or frames drawn with a relative rotation the joints cannot absorb); check the closure kinds and "
             "frames, or give home.q_guess near an assembled configuration")
+
+    def _closure_misses(self, residual: np.ndarray) -> list[str]:
+        """The closures that miss by more than 1e-9, worst first: ``'name' [frame a, frame b] by 0.1 m``
+        (``and 0.2 rad`` for a weld).
+
+        Args:
+            residual: (m,) closure rows, in the order of ``closure_frames``: 3 positions (m) per
+                closure, then 3 rotations (rad) for a weld.
+        """
+        parts, row = [], 0
+        for _, _, c in self.closure_frames:
+            n = CLOSURE_ROWS[c.kind]
+            parts.append((float(np.linalg.norm(residual[row:row + 3])),
+                          float(np.linalg.norm(residual[row + 3:row + n])), c))
+            row += n
+        return [f"{c.name!r} {list(c.frames)} by {p:.3g} m" + (f" and {r:.3g} rad" if c.kind == "weld" else "")
+                for p, r, c in sorted(parts, key=lambda t: -max(t[0], t[1])) if max(p, r) > 1e-9]
 
     def _newton_projection(self, q_start: np.ndarray, tol: float, max_iter: int) -> np.ndarray:
         """:meth:`_project_closures`' Newton iteration alone."""

@@ -92,6 +92,17 @@ def _mjcf_closures(model: pin.Model, constraints) -> tuple[Closure, ...]:
     return tuple(closures)
 
 
+def joint_unit(model: pin.Model, joint: str | int) -> str:
+    """Unit of a 1-DOF joint's position: ``"m"`` for a prismatic joint, ``"rad"`` for a revolute one.
+
+    Args:
+        model: the Pinocchio model.
+        joint: the joint's name or id in ``model``.
+    """
+    jid = model.getJointId(joint) if isinstance(joint, str) else joint
+    return "m" if model.joints[jid].shortname().startswith("JointModelP") else "rad"
+
+
 def _joint_axis(model: pin.Model, jid: int) -> np.ndarray:
     """(3,) unit axis (joint frame) of a 1-DOF joint, from its motion subspace at q = 0."""
     jm = model.joints[jid]
@@ -112,7 +123,7 @@ def _replacement(model: pin.Model, jid: int, kind: str, where: str):
         return pin.JointModelSpherical()
     if (kind in ("REVOLUTE", "UJOINT") or kind in UJOINT_AXES) and not is_revolute:
         raise RobotFormatError(f"{where}: joint {model.names[jid]!r} is a {short} in the file, not a revolute joint")
-    if kind == "PRISMATIC" and not (jm.nv == 1 and "JointModelP" in short):
+    if kind == "PRISMATIC" and not (jm.nv == 1 and joint_unit(model, jid) == "m"):
         raise RobotFormatError(f"{where}: joint {model.names[jid]!r} is a {short} in the file, not a prismatic joint")
     if kind in UJOINT_AXES:  # Gepetto's UJOINT_AB: axes A then B of the joint frame
         first, second = ("XYZ".index(c) for c in kind[-2:])

@@ -22,6 +22,7 @@ import dataclasses
 
 import numpy as np
 
+from .builder import joint_unit
 from .checks import numerical_rank
 from .description import RobotDescription
 
@@ -47,25 +48,22 @@ def idle_locks(robot, q: np.ndarray) -> list[tuple[str, float]]:
         [(joint name, q value in rad or m)] in the order chosen; empty when no motion is idle
         or no idle motion moves a lockable joint.
     """
-    model = robot.model
     A = np.vstack([robot.closure_log_error(q).jacobian, robot.output_jacobian(q), robot.drive_selection.T])
-    taken = set(robot.description.drive_joints) | set(robot.description.output_joints) | \
-        set(robot.description.branch_joints)
-    lockable = [(j, model.joints[j]) for j in range(1, model.njoints)
-                if model.joints[j].nq == 1 and model.joints[j].nv == 1 and model.names[j] not in taken]
+    kept = set(robot.description.output_joints) | set(robot.description.branch_joints)
+    lockable = [(name, iq, iv) for name, (iq, iv) in robot.passive_joints.items() if name not in kept]
     locks: list[tuple[str, float]] = []
     for _ in range(len(lockable)):
         N = _null_space(A)
         if N.shape[1] == 0:
             break
-        weight = np.array([np.linalg.norm(N[jm.idx_v]) for _, jm in lockable])
+        weight = np.array([np.linalg.norm(N[iv]) for _, _, iv in lockable])
         if not lockable or weight.max() < 1e-6:
             break  # idle, but only through joints that cannot be locked (a multi-DOF joint, the root)
         k = int(np.flatnonzero(weight >= weight.max() * (1 - _TIE))[-1])
-        jid, jm = lockable.pop(k)
-        locks.append((str(model.names[jid]), float(q[jm.idx_q])))
-        row = np.zeros((1, model.nv))
-        row[0, jm.idx_v] = 1.0
+        name, iq, iv = lockable.pop(k)
+        locks.append((name, float(q[iq])))
+        row = np.zeros((1, robot.model.nv))
+        row[0, iv] = 1.0
         A = np.vstack([A, row])
     return locks
 
@@ -83,10 +81,7 @@ def with_locks(description: RobotDescription, locks: list[tuple[str, float]]) ->
 
 def describe_locks(robot, locks: list[tuple[str, float]]) -> str:
     """The notice of locked idle motions: which joints, at which values, and how to refuse instead."""
-    model = robot.model
-    unit = {name: "m" if "JointModelP" in model.joints[model.getJointId(name)].shortname() else "rad"
-            for name, _ in locks}
-    joints = ", ".join(f"{name!r} at {value:.6g} {unit[name]}" for name, value in locks)
+    joints = ", ".join(f"{name!r} at {value:.6g} {joint_unit(robot.model, name)}" for name, value in locks)
     return (f"robot {robot.name!r}: {len(locks)} idle motion(s) (allowed by the closures, moving neither the "
             f"output nor a drive, e.g. a rod spinning between two ball joints) locked: {joints}; "
             "set idle_spins = \"refuse\" in the sidecar to refuse such a robot instead")

@@ -31,7 +31,7 @@ from ..errors import (AssemblyError, ParallelGPCError, ParallelGPCWarning, Robot
 from ..limits import Limits
 from ..validation import finite_vector, positive
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
-from .builder import build_model, drawn_configuration
+from .builder import build_model, drawn_configuration, joint_unit
 from .checks import check_actuation, check_parametrization
 from .closures import ClosureKinematics, ClosureMixin  # noqa: F401  (re-exported)
 from .console import quiet_build
@@ -169,8 +169,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             self._y_q = fast_index(np.array([i[0] for i in idx], dtype=int))
             self.z_idx = np.array([i for i in range(nv) if i not in set(self.y_idx.tolist())], dtype=int)
             self.task_output = None
-            kinds = [self.model.joints[self.model.getJointId(n)].shortname() for n in description.output_joints]
-            self._is_angle = np.array(["JointModelP" not in k for k in kinds])
+            self._is_angle = np.array([joint_unit(self.model, n) == "rad" for n in description.output_joints])
         else:
             if self.output_frame_id is None:  # pragma: no cover - the description guarantees a frame
                 raise RobotFormatError("a task-space output needs an output frame")
@@ -267,16 +266,10 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             res, jac = self._eval(q)
             err = self._error(res, pose)
             q = self._step(q, np.linalg.lstsq(jac[:len(err), self.z_idx], err, rcond=1e-10)[0])
-        res = self.closure_residual(q)
-        parts, row = [], 0
-        for _, _, c in self.closure_frames:
-            rows = _CLOSURE_ROWS[c.kind]
-            parts.append((float(np.linalg.norm(res[row:row + rows])), c))
-            row += rows
-        bad = [f"{c.name!r} {list(c.frames)} misses by {r:.3g} m" for r, c in sorted(parts, key=lambda t: -t[0])
-               if r > 1e-9]
+        bad = self._closure_misses(self.closure_residual(q))
         where = "" if pose is None else f" at the home pose {np.round(pose, 6).tolist()}"
-        return (f"the closures of {self.name!r} cannot be assembled{where}: {'; '.join(bad) or str(exc)} "
+        return (f"the closures of {self.name!r} cannot be assembled{where}: "
+                f"{'missing ' + '; '.join(bad) if bad else str(exc)} "
                 f"(check the closure frames, home.pose and home.q_guess in the sidecar)")
 
     @classmethod
@@ -378,9 +371,8 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def drive_unit(self) -> str:
         """Unit of the drive efforts u: ``"N·m"`` (revolute drives), ``"N"`` (prismatic drives) or
         ``"N·m | N"`` when the robot has both kinds."""
-        kinds = {"Prismatic" in (short := self.model.joints[self.model.getJointId(n)].shortname())
-                 or short.startswith("JointModelP") for n in self.description.drive_joints}
-        return {frozenset({False}): "N·m", frozenset({True}): "N"}.get(frozenset(kinds), "N·m | N")
+        units = set(self.drive_position_units)
+        return {frozenset({"rad"}): "N·m", frozenset({"m"}): "N"}.get(frozenset(units), "N·m | N")
 
     @property
     def output_space(self) -> OutputSpace:
@@ -402,13 +394,12 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     @property
     def drive_angular(self) -> np.ndarray:
         """(n_u,) bool: True for a revolute drive (position in rad), False for a prismatic one (m)."""
-        return np.array(["JointModelP" not in self.model.joints[self.model.getJointId(n)].shortname()
-                         for n in self.description.drive_joints])
+        return np.array([unit == "rad" for unit in self.drive_position_units])
 
     @property
     def drive_position_units(self) -> tuple[str, ...]:
         """Unit of each drive position: ``"rad"`` or ``"m"``."""
-        return tuple("rad" if a else "m" for a in self.drive_angular)
+        return tuple(joint_unit(self.model, n) for n in self.description.drive_joints)
 
     @property
     def passive_joints(self) -> dict[str, tuple[int, int]]:
