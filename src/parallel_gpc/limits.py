@@ -46,25 +46,56 @@ import numpy as np
 
 from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 
-__all__ = ["Limits", "KINDS", "INPUT_KINDS", "STATE_KINDS", "SOFT_DEFAULT", "DEFAULT_PENALTY", "SOFT_QUADRATIC",
-           "as_limits", "symmetric_limit", "bound_pairs", "joint_ranges"]
+__all__ = ["Limits", "Kind", "KIND_TABLE", "KINDS", "INPUT_KINDS", "STATE_KINDS", "KINEMATIC_KINDS", "SOFT_DEFAULT",
+           "DEFAULT_PENALTY", "SOFT_QUADRATIC", "as_limits", "symmetric_limit", "bound_pairs", "joint_ranges"]
 
-#: the limit kinds a :class:`Limits` holds, by field name, with their meaning and unit.
-KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)",
-         "du": "drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)",
-         "drive_position": "drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)",
-         "drive_rate": "drive rate limit |q̇_a| ≤ r (m/s or rad/s)",
-         "output_box": "workspace box y_lo ≤ y ≤ y_hi (m, rad)",
-         "output_velocity": "output velocity limit |ẏ| ≤ v (m/s, rad/s)",
-         "joint_position": "passive joint ranges q_lo ≤ q_j ≤ q_hi by joint name (m or rad)"}
+
+@dataclass(frozen=True)
+class Kind:
+    """What one limit kind is: the one place that says so (the special cases read it).
+
+    Attributes:
+        meaning: the limit and its unit, for messages and help.
+        on: ``"input"`` (the drive efforts u: hard, checked on every applied input) or ``"state"``
+            (the predicted motion: stage-wise, linearized along the prediction, soft or hard).
+        form: ``"symmetric"`` (±value, () or (n,)), ``"bounds"`` ((lower, upper) pairs, (1, 2) or
+            (n, 2)) or ``"named"`` (``{joint_name: (lo, hi)}``).
+        per: what one entry is for: ``"drive"`` (sized n_u), ``"output"`` (n_y) or ``"joint"`` (by name).
+        kinematic: computed through the robot's kinematics (drive or joint positions and their
+            Jacobians), not from the outputs or inputs alone.
+    """
+
+    meaning: str
+    on: str
+    form: str
+    per: str
+    kinematic: bool = False
+
+
+#: every limit kind a :class:`Limits` holds, by field name, in field order.
+KIND_TABLE = {
+    "torque": Kind("drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)", "input", "symmetric", "drive"),
+    "du": Kind("drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)", "input", "symmetric", "drive"),
+    "drive_position": Kind("drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)", "state", "bounds", "drive",
+                           kinematic=True),
+    "drive_rate": Kind("drive rate limit |q̇_a| ≤ r (m/s or rad/s)", "state", "symmetric", "drive", kinematic=True),
+    "output_box": Kind("workspace box y_lo ≤ y ≤ y_hi (m, rad)", "state", "bounds", "output"),
+    "output_velocity": Kind("output velocity limit |ẏ| ≤ v (m/s, rad/s)", "state", "symmetric", "output"),
+    "joint_position": Kind("passive joint ranges q_lo ≤ q_j ≤ q_hi by joint name (m or rad)", "state", "named", "joint",
+                           kinematic=True),
+}
+#: the limit kinds, by field name, with their meaning and unit.
+KINDS = {kind: k.meaning for kind, k in KIND_TABLE.items()}
 #: kinds on the inputs (hard: the QP enforces them exactly, every applied input is checked).
-INPUT_KINDS = ("torque", "du")
+INPUT_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.on == "input")
 #: kinds on the predicted motion (stage-wise, linearized along the prediction).
-STATE_KINDS = ("drive_position", "drive_rate", "output_box", "output_velocity", "joint_position")
-#: kinds given as (lower, upper) pairs; the others are symmetric ±value.
-BOUND_KINDS = ("drive_position", "output_box")
-#: kinds sized by the outputs (n_y); the others by the drives (n_u).
-OUTPUT_KINDS = ("output_box", "output_velocity")
+STATE_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.on == "state")
+#: kinds given as (lower, upper) pairs; the others are symmetric ±value or named ranges.
+BOUND_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.form == "bounds")
+#: kinds sized by the outputs (n_y).
+OUTPUT_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.per == "output")
+#: the state kinds computed through the robot's kinematics (positions and Jacobians of drives and joints).
+KINEMATIC_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.kinematic)
 #: the kinds that are soft when ``soft`` is not given.
 SOFT_DEFAULT = frozenset(STATE_KINDS)
 #: default exact-penalty weight ρ of a soft kind: criterion units per unit of violation (m, rad, m/s, …).
@@ -185,12 +216,24 @@ def joint_ranges(value) -> MappingProxyType | None:
 
 
 def _check_value(kind: str, value, size: int | None = None):
-    """A kind's value validated (and sized when ``size`` is given; joint ranges are by name)."""
-    if kind == "joint_position":
+    """A kind's value validated (and sized when ``size`` is given; named ranges are by name)."""
+    form = KIND_TABLE[kind].form
+    if form == "named":
         return joint_ranges(value)
-    if kind in BOUND_KINDS:
+    if form == "bounds":
         return bound_pairs(kind, value, size)
-    return symmetric_limit(kind, value, size, "output" if kind in OUTPUT_KINDS else "drive")
+    return symmetric_limit(kind, value, size, KIND_TABLE[kind].per)
+
+
+def _entries(kind: str, value) -> int | None:
+    """The count of per-entry values a kind's validated value fixes (one per drive or output), None
+    for one value for all (or named ranges, which are not sized)."""
+    form = KIND_TABLE[kind].form
+    if form == "bounds":
+        return value.shape[0] if value.shape[0] > 1 else None
+    if form == "symmetric":
+        return value.shape[0] if value.ndim == 1 else None
+    return None
 
 
 @dataclass(frozen=True, eq=False, repr=False)
@@ -235,17 +278,16 @@ class Limits:
     penalty: float = DEFAULT_PENALTY
 
     def __post_init__(self):
-        sizes = {"drives": set(), "outputs": set()}
+        sizes = {"drive": set(), "output": set()}
         for kind in KINDS:
             arr = _check_value(kind, getattr(self, kind))
             object.__setattr__(self, kind, arr)
-            per_entry = arr is not None and kind != "joint_position" and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)
-            if per_entry:
-                sizes["outputs" if kind in OUTPUT_KINDS else "drives"].add(arr.shape[0])
+            if arr is not None and _entries(kind, arr) is not None:
+                sizes[KIND_TABLE[kind].per].add(_entries(kind, arr))
         for what, found in sizes.items():
             if len(found) > 1:
-                raise ShapeError(f"per-{what[:-1]} limits of different lengths: {self!r}; give one value per "
-                                 f"{what[:-1]} for each (or one for all)")
+                raise ShapeError(f"per-{what} limits of different lengths: {self!r}; give one value per "
+                                 f"{what} for each (or one for all)")
         soft = self.soft
         if isinstance(soft, str) or not hasattr(soft, "__iter__"):
             raise InvalidParameterError(f"soft = {soft!r} must be a collection of kind names out of {list(STATE_KINDS)}")
@@ -286,6 +328,11 @@ class Limits:
         return any(getattr(self, kind) is not None for kind in STATE_KINDS)
 
     @property
+    def has_kinematic_limits(self) -> bool:
+        """True when a limit of a kind computed through the robot's kinematics (:data:`KINEMATIC_KINDS`) is set."""
+        return any(getattr(self, kind) is not None for kind in KINEMATIC_KINDS)
+
+    @property
     def needs_qp(self) -> bool:
         """True when the problem has limits a QP back end must enforce (input or state kinds)."""
         return self.has_input_limits or self.has_state_limits
@@ -298,8 +345,8 @@ class Limits:
     @property
     def n_drives(self) -> int | None:
         """The drive count the per-drive values fix, or None (one value for all, or no limit)."""
-        return next((arr.shape[0] for kind, arr in self.values().items() if kind not in OUTPUT_KINDS + ("joint_position",)
-                     and (arr.shape[0] > 1 if kind in BOUND_KINDS else arr.ndim == 1)), None)
+        return next((_entries(kind, arr) for kind, arr in self.values().items()
+                     if KIND_TABLE[kind].per == "drive" and _entries(kind, arr) is not None), None)
 
     def _options(self) -> dict:
         return {"soft": self.soft, "penalty": self.penalty}
@@ -312,8 +359,9 @@ class Limits:
         Raises:
             ShapeError: per-drive (per-output) values that are not n_u (n_y) long.
         """
-        sizes = {kind: (n_y if kind in OUTPUT_KINDS else n_u) for kind in self.values()}
-        sized = {kind: arr if sizes[kind] is None or kind == "joint_position" else _check_value(kind, arr, sizes[kind])
+        count = {"drive": n_u, "output": n_y, "joint": None}  # named ranges are not sized
+        sizes = {kind: count[KIND_TABLE[kind].per] for kind in self.values()}
+        sized = {kind: arr if sizes[kind] is None else _check_value(kind, arr, sizes[kind])
                  for kind, arr in self.values().items()}
         if all(sized[k] is self.values()[k] or sized[k].shape == self.values()[k].shape for k in sized):
             return self
@@ -363,10 +411,11 @@ class Limits:
         or ``"none"``."""
         parts = []
         for kind, arr in self.values().items():
-            if kind == "joint_position":
+            form = KIND_TABLE[kind].form
+            if form == "named":
                 text = "; ".join(f"{name} [{lo:g}, {hi:g}]" for name, (lo, hi) in arr.items()) if len(arr) <= 4 \
                     else f"{len(arr)} joints"
-            elif kind in BOUND_KINDS:
+            elif form == "bounds":
                 rows = np.unique(arr, axis=0)
                 shown = rows if len(rows) <= 2 else arr
                 text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in shown) if len(shown) <= 6 else f"{len(arr)} ranges"
@@ -382,12 +431,12 @@ class Limits:
             return NotImplemented
         return self._options() == other._options() and all(
             (a is None and b is None) or (a is not None and b is not None and (
-                dict(a) == dict(b) if k == "joint_position" else a.shape == b.shape and bool(np.array_equal(a, b))))
+                dict(a) == dict(b) if KIND_TABLE[k].form == "named" else a.shape == b.shape and bool(np.array_equal(a, b))))
             for k, a, b in ((k, getattr(self, k), getattr(other, k)) for k in KINDS))
 
     def __hash__(self) -> int:
         return hash((tuple(sorted(self.soft)), self.penalty) + tuple(
-            (k, None if v is None else tuple(v.items()) if k == "joint_position" else (v.shape, v.tobytes()))
+            (k, None if v is None else tuple(v.items()) if KIND_TABLE[k].form == "named" else (v.shape, v.tobytes()))
             for k, v in ((k, getattr(self, k)) for k in KINDS)))
 
     def __repr__(self) -> str:
