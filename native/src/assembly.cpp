@@ -9,6 +9,7 @@
 #include <nanobind/eigen/dense.h>
 #include <stdexcept>
 
+#include "eigen_types.hpp"
 #include "model_update.hpp"
 
 namespace pgpc {
@@ -168,31 +169,29 @@ void ModelUpdate::kinematics(const Vec &y, const Warm *base) {
     q_ = base->q;
     T_ = base->T;
     pinv_ = base->pinv;
-    q_last = q_;
-    warm_ = Warm{q_, y, T_, pinv_, false, Mat(), Vec()};
-    return;
-  }
-  bool near = base != nullptr;
-  const Warm *b = base != nullptr ? base : (warm_ ? &*warm_ : nullptr);
-  bool ok;
-  if (b == nullptr) {
-    ok = assemble_warm(y, q_last, nullptr, near);
   } else {
-    const Vec dy = y - b->y;
-    Vec step = b->T * dy;
-    if (near) {  // an explicitly given base is ~0.1 mm away: first order is enough
-      near = dy.dot(dy) < 1e-8;
-    } else if (b->has_w) {  // z'' along δy ≈ −Φ_z⁺ Φ̇_q(T δy) T δy with T δy ≈ α T ẏ
-      const double ss = b->yd.dot(b->yd);
-      if (ss > 0.0) {
-        const double a = 0.5 * dy.dot(b->yd) / ss;
-        const Vec curv = a * (b->W * dy);
-        for (Index i = 0; i < n_z; ++i) step[cfg.z_idx[i]] -= curv[i];
+    bool near = base != nullptr;
+    const Warm *b = base != nullptr ? base : (warm_ ? &*warm_ : nullptr);
+    bool ok;
+    if (b == nullptr) {
+      ok = assemble_warm(y, q_last, nullptr, near);
+    } else {
+      const Vec dy = y - b->y;
+      Vec step = b->T * dy;
+      if (near) {  // an explicitly given base is ~0.1 mm away: first order is enough
+        near = dy.dot(dy) < 1e-8;
+      } else if (b->has_w) {  // z'' along δy ≈ −Φ_z⁺ Φ̇_q(T δy) T δy with T δy ≈ α T ẏ
+        const double ss = b->yd.dot(b->yd);
+        if (ss > 0.0) {
+          const double a = 0.5 * dy.dot(b->yd) / ss;
+          const Vec curv = a * (b->W * dy);
+          for (Index i = 0; i < n_z; ++i) step[cfg.z_idx[i]] -= curv[i];
+        }
       }
+      ok = assemble_warm(y, kin.integrate(b->q, step), &b->pinv, near);
     }
-    ok = assemble_warm(y, kin.integrate(b->q, step), &b->pinv, near);
+    if (!ok) fallback(y);
   }
-  if (!ok) fallback(y);
   q_last = q_;
   warm_ = Warm{q_, y, T_, pinv_, false, Mat(), Vec()};
 }

@@ -22,11 +22,11 @@
 #include <algorithm>
 #include <cmath>
 #include <nanobind/eigen/dense.h>
-#include <nanobind/ndarray.h>
 #include <nanobind/stl/pair.h>
 #include <nanobind/stl/vector.h>
 #include <stdexcept>
 
+#include "eigen_types.hpp"
 #include "model_update.hpp"
 
 namespace pgpc {
@@ -89,7 +89,7 @@ struct ForwardSolver {
     out += m.n_y;
     Eigen::Map<Vec>(out, q_.size()) = q_;
     out += q_.size();
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>(out, m.n_u, m.n_y) = J_;
+    Eigen::Map<RowMat>(out, m.n_u, m.n_y) = J_;
     out += m.n_u * m.n_y;
     Eigen::Map<Vec>(out, m.n_u) = e_;
   }
@@ -123,14 +123,15 @@ struct ForwardSolver {
   }
 
   // the assembled configuration m.q_ (its T, K⁺) as the current iterate, swapped in (no copy: the
-  // model update's q_, T_, pinv_ are scratch); returns the cost Σ (e_i/σ_i)²
-  double take() {
+  // model update's q_, T_, pinv_ are scratch); its residual and drive Jacobian are the caller's
+  void take() {
     q_.swap(m.q_);
     T_.swap(m.T_);
     P_.swap(m.pinv_);
-    drive_state(q_, T_, e_, J_);
-    return e_.cwiseProduct(inv_sigma_).squaredNorm();
   }
+
+  // Σ (e_i/σ_i)² of a residual e
+  double cost_of(const Vec &e) const { return e.cwiseProduct(inv_sigma_).squaredNorm(); }
 
   // e = q_drive − readings, J = T[drives]
   void drive_state(const Vec &q, const Mat &T, Vec &e, Mat &J) const {
@@ -178,26 +179,23 @@ struct ForwardSolver {
     it = 0;
     if (!inputs_ok()) return REFERENCE;
     inv_sigma_ = sigma_.cwiseInverse();
-    const bool warm = has_last && q_guess_ == last_q;
-    if (warm) {  // warm at the last solution: its pose, T and K⁺ are known
-      pose_ = last_pose;
-      q_ = last_q;
-      T_ = last_T;
-      P_ = last_pinv;
-      drive_state(q_, T_, e_, J_);
-    } else {
-      // the start pose: the output of q_guess (robot.platform_pose)
-      pose_.resize(m.n_y);
+    // warm at the last solution (pose_, q_, T_, P_ are still its): its pose, T and K⁺ are known
+    const bool warm = has_last && q_guess_ == q_;
+    if (!warm) {
+      // the start pose: the output of q_guess (robot.platform_pose), in trial_ until it assembles
+      trial_.resize(m.n_y);
       if (m.kin.task) {
         m.kin.eval(q_guess_);
-        pose_ = m.kin.res_.tail(m.n_y);
+        trial_ = m.kin.res_.tail(m.n_y);
       } else {
-        for (Index i = 0; i < m.n_y; ++i) pose_[i] = q_guess_[m.cfg.y_q[i]];
+        for (Index i = 0; i < m.n_y; ++i) trial_[i] = q_guess_[m.cfg.y_q[i]];
       }
-      if (!assembled(pose_, q_guess_, nullptr, q_guess_, false)) return REFERENCE;  // unusual: Python takes it
+      if (!assembled(trial_, q_guess_, nullptr, q_guess_, false)) return REFERENCE;  // unusual: Python takes it
+      pose_.swap(trial_);
       take();
     }
-    double cost = e_.cwiseProduct(inv_sigma_).squaredNorm();
+    drive_state(q_, T_, e_, J_);
+    double cost = cost_of(e_);
     for (it = 1; it <= max_iter; ++it) {
       gauss_newton_step();
       predicted_.noalias() = J_ * step_;
@@ -205,10 +203,10 @@ struct ForwardSolver {
       double lam = std::min(1.0, MAX_DRIVE_STEP / std::max(predicted_.cwiseAbs().maxCoeff(), 1e-300));
       bool found = false;
       double cost_new = 0.0;
+      Tstep_.noalias() = T_ * step_;  // first-order prediction of q(trial): q ⊕ T (λ step)
       for (int h = 0; h < HALVINGS; ++h) {
         trial_ = pose_ + lam * step_;
-        dq_.noalias() = T_ * step_;  // first-order prediction of q(trial): q ⊕ T (λ step)
-        dq_ *= lam;
+        dq_ = lam * Tstep_;
         const bool first = warm && it == 1 && h == 0 && m.kin.flat;  // the step between two samples
         if (m.kin.flat) {
           start_ = q_ + dq_;
@@ -223,7 +221,7 @@ struct ForwardSolver {
             has_curvature = true;
           }
           drive_state(m.q_, m.T_, e_new_, J_new_);
-          cost_new = e_new_.cwiseProduct(inv_sigma_).squaredNorm();
+          cost_new = cost_of(e_new_);
           if (cost_new <= cost * (1 + 1e-12) + 1e-18) {
             found = true;
             break;
@@ -233,16 +231,15 @@ struct ForwardSolver {
       }
       if (!found) break;  // no step lowers the cost: a (local) minimum of the residual
       const double improvement = cost - cost_new;
-      pose_.swap(trial_);
-      cost = take();
+      pose_.swap(trial_);  // the accepted trial, its residual and drive Jacobian as the iterate
+      take();
+      e_.swap(e_new_);
+      J_.swap(J_new_);
+      cost = cost_new;
       if (improvement <= 1e-14 * std::max(cost, 1.0) && lam < 1.0) break;
     }
     it = std::min(it, max_iter);
     has_last = true;
-    last_q = q_;
-    last_pose = pose_;
-    last_T = T_;
-    last_pinv = P_;
     const double worst = e_.cwiseProduct(inv_sigma_).cwiseAbs().maxCoeff();
     return worst <= max_residual ? SOLVED : INCONSISTENT;
   }
@@ -250,9 +247,7 @@ struct ForwardSolver {
   ModelUpdate &m;
   std::vector<long> drive_q;
   Vec lo, hi;
-  bool has_last = false;  // the last solution, the start of a call warm-started at last_q
-  Vec last_q, last_pose;
-  Mat last_T, last_pinv;
+  bool has_last = false;  // pose_, q_, T_, P_ hold the last solution, the start of a call warm-started at q_
   bool has_curvature = false;  // the second-order part of the last warm call's first step (flat q)
   Vec curvature_, curvature_dy_;
 
@@ -261,12 +256,9 @@ struct ForwardSolver {
   Vec pose_, q_, e_;                            // the current iterate: pose, q, residual
   Mat T_, P_, J_;                               // its T, K⁺ and drive Jacobian
   Mat Jw_, J_new_;                              // workspaces
-  Vec ew_, step_, predicted_, trial_, dq_, start_, e_new_;
+  Vec ew_, step_, predicted_, Tstep_, trial_, dq_, start_, e_new_;
   Eigen::HouseholderQR<Mat> qr_;
 };
-
-// a float64 array of any shape, converted by nanobind when its dtype or layout differ
-using Floats = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
 
 void bind_forward(nb::class_<ModelUpdate> &cls) {
   cls.def(
@@ -280,7 +272,7 @@ void bind_forward(nb::class_<ModelUpdate> &cls) {
       .def(
           "solve_forward_into",
           [](ModelUpdate &self, Floats readings, Floats resolution, Floats q_guess, long max_iter,
-             double max_residual, nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu> out) {
+             double max_residual, Out1 out) {
             if (!self.forward_) throw std::invalid_argument("solve_forward_into: call set_drives first");
             ForwardSolver &fk = *self.forward_;
             if (static_cast<Index>(out.shape(0)) != fk.answer_size())

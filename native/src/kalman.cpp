@@ -7,42 +7,35 @@
 // A Cholesky factorization that fails (not positive definite) returns false: the Python path
 // redoes the correction (its LU fallback, its error).
 #include <Eigen/Cholesky>
-#include <nanobind/ndarray.h>
 #include <stdexcept>
 
 #include "bindings.hpp"
+#include "eigen_types.hpp"
 
 namespace pgpc {
 namespace {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using Vector = Eigen::VectorXd;
-using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using Out2 = nb::ndarray<double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using Out1 = nb::ndarray<double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-
 // workspaces, sized on first use (one estimator per thread at a time)
 struct Workspace {
   RowMat Jw, info, R, S, K, PHt, B;
-  Vector z;
+  Vec z;
 };
 
 bool correct(Workspace &w, const In2 &J_, const In1 &w_pos, const In1 &w_rate, const In1 &innovation, const In1 &z_,
              const In2 &P_, Out1 &z_out, Out2 &P_out) {
-  const Eigen::Index n_u = J_.shape(0), n = J_.shape(1), m = innovation.shape(0), nx = z_.shape(0);
-  if (static_cast<Eigen::Index>(w_pos.shape(0)) != n_u || static_cast<Eigen::Index>(w_rate.shape(0)) != n_u ||
-      (m != n && m != 2 * n) || m > nx || static_cast<Eigen::Index>(P_.shape(0)) != nx ||
-      static_cast<Eigen::Index>(P_.shape(1)) != nx || static_cast<Eigen::Index>(z_out.shape(0)) != nx ||
-      static_cast<Eigen::Index>(P_out.shape(0)) != nx || static_cast<Eigen::Index>(P_out.shape(1)) != nx)
+  const Index n_u = J_.shape(0), n = J_.shape(1), m = innovation.shape(0), nx = z_.shape(0);
+  if (static_cast<Index>(w_pos.shape(0)) != n_u || static_cast<Index>(w_rate.shape(0)) != n_u ||
+      (m != n && m != 2 * n) || m > nx || static_cast<Index>(P_.shape(0)) != nx ||
+      static_cast<Index>(P_.shape(1)) != nx || static_cast<Index>(z_out.shape(0)) != nx ||
+      static_cast<Index>(P_out.shape(0)) != nx || static_cast<Index>(P_out.shape(1)) != nx)
     throw std::invalid_argument("kalman_correct: J (n_u, n), weights (n_u), innovation (n or 2n), z (nx), "
                                 "P (nx, nx) and the outputs of the same sizes expected");
   const Eigen::Map<const RowMat> J(J_.data(), n_u, n), P(P_.data(), nx, nx);
-  const Eigen::Map<const Vector> nu(innovation.data(), m), z(z_.data(), nx);
+  const Eigen::Map<const Vec> nu(innovation.data(), m), z(z_.data(), nx);
   w.info.setZero(m, m);
-  w.Jw = Eigen::Map<const Vector>(w_pos.data(), n_u).asDiagonal() * J;
+  w.Jw = Eigen::Map<const Vec>(w_pos.data(), n_u).asDiagonal() * J;
   w.info.topLeftCorner(n, n).noalias() = w.Jw.transpose() * w.Jw;
   if (m == 2 * n) {
-    w.Jw = Eigen::Map<const Vector>(w_rate.data(), n_u).asDiagonal() * J;
+    w.Jw = Eigen::Map<const Vec>(w_rate.data(), n_u).asDiagonal() * J;
     w.info.bottomRightCorner(n, n).noalias() = w.Jw.transpose() * w.Jw;
   }
   Eigen::LLT<RowMat> llt(w.info);
@@ -61,7 +54,7 @@ bool correct(Workspace &w, const In2 &J_, const In1 &w_pos, const In1 &w_rate, c
   Eigen::Map<RowMat> P_new(P_out.data(), nx, nx);
   P_new = w.B;
   P_new.noalias() -= w.S * w.K.transpose();
-  Eigen::Map<Vector>(z_out.data(), nx) = w.z;
+  Eigen::Map<Vec>(z_out.data(), nx) = w.z;
   return P_new.allFinite() && w.z.allFinite();
 }
 }  // namespace

@@ -5,6 +5,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "eigen_types.hpp"
 #include "model_update.hpp"
 #include "pinocchio/algorithm/frames.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
@@ -54,7 +55,7 @@ Kinematics::Kinematics(pinocchio::Model model_, const RobotConfig &cfg_)
   res_.resize(rows);
   jac_.resize(rows, model.nv);
   const size_t nc = cfg.closure_frames.size();
-  Ja_.assign(nc, Eigen::Matrix<double, 6, Eigen::Dynamic>::Zero(6, model.nv));
+  Ja_.assign(nc, Mat6x::Zero(6, model.nv));
   Jb_ = Ja_;
   Jt_.setZero(6, model.nv);
   dJt_.setZero(6, model.nv);
@@ -117,7 +118,7 @@ void Kinematics::eval(const Vec &q) {
   Eigen::Matrix3d Jl;
   Eigen::Vector3d theta = Eigen::Vector3d::Zero();
   const Eigen::Matrix3d R_rel = cfg.R_ref.transpose() * oMf.rotation();
-  Eigen::Matrix<double, 3, Eigen::Dynamic> Hang;
+  Mat3x Hang;
   if (task_rotation) {
     theta = pinocchio::log3(R_rel);
     pinocchio::Jlog3(R_rel, Jl);
@@ -136,7 +137,7 @@ void Kinematics::eval(const Vec &q) {
     }
 }
 
-void Kinematics::frame_rate(long frame, const Vec &v, Eigen::Matrix<double, 6, Eigen::Dynamic> &dJ) {
+void Kinematics::frame_rate(long frame, const Vec &v, Mat6x &dJ) {
   dJ.setZero();
   pinocchio::getFrameJacobianTimeVariation(model, data, frame, LWA, dJ);
   const auto &cols = uni_cols_[frame];
@@ -174,12 +175,12 @@ void Kinematics::jacobian_rate(const Vec &q, const Vec &v, Mat &out) {
   const auto &frame = model.frames[cfg.task_frame];
   const Eigen::Matrix3d R = (data.oMi[frame.parentJoint] * frame.placement).rotation();
   const Eigen::Matrix3d R_rel = cfg.R_ref.transpose() * R;
-  const Eigen::Matrix<double, 3, Eigen::Dynamic> Jang = R.transpose() * Jt_.bottomRows<3>();
+  const Mat3x Jang = R.transpose() * Jt_.bottomRows<3>();
   const Eigen::Vector3d w = Jang * v;
-  const Eigen::Matrix<double, 3, Eigen::Dynamic> dJang = R.transpose() * dJt_.bottomRows<3>() - skew(w) * Jang;
+  const Mat3x dJang = R.transpose() * dJt_.bottomRows<3>() - skew(w) * Jang;
   Eigen::Matrix3d Jl;
   pinocchio::Jlog3(R_rel, Jl);
-  const Eigen::Matrix<double, 3, Eigen::Dynamic> dH = hlog3(R_rel, w) * Jang + Jl * dJang;
+  const Mat3x dH = hlog3(R_rel, w) * Jang + Jl * dJang;
   for (long r : cfg.task_rows)
     if (r >= 3) out.row(row++) = dH.row(r - 3);
 }

@@ -6,6 +6,7 @@
 // nq ≠ nv, q + h v otherwise), the same order of operations. The projection onto the closures after
 // the sample stays in Python (it is the robot's assembly, compiled elsewhere).
 #include "bindings.hpp"
+#include "eigen_types.hpp"
 #include "model_io.hpp"
 
 #include <cmath>
@@ -29,12 +30,11 @@ namespace pgpc {
 namespace {
 
 namespace pin = pinocchio;
-using Eigen::VectorXd;
 // The argument types of Pinocchio's precompiled constraintDynamics (libpinocchio_default): with them
 // the call links to the library instead of instantiating the algorithm here (build time, CMakeLists.txt)
 using ConstraintModels = pin::RigidConstraintModelVector;
 using ConstraintDatas = pin::RigidConstraintDataVector;
-using CRef = nb::DRef<const VectorXd>;
+using CRef = nb::DRef<const Vec>;
 
 /// A force f on a task-space output y = rows of [p; log3(R_refᵀ R)] of one frame acts as Hᵀ f
 /// (H = ∂y/∂v, the rows of the frame Jacobian in LOCAL_WORLD_ALIGNED, the angular rows mapped by
@@ -46,19 +46,19 @@ struct TaskForce {
   pin::Data::Matrix6x J;
 
   /// tau += Hᵀ f at q (updates the placements in data).
-  void add(const pin::Model &model, pin::Data &data, const VectorXd &q, const CRef &f, VectorXd &tau) {
+  void add(const pin::Model &model, pin::Data &data, const Vec &q, const CRef &f, Vec &tau) {
     J.setZero(6, model.nv);
     pin::computeFrameJacobian(model, data, q, frame, pin::LOCAL_WORLD_ALIGNED, J);
     const Eigen::Matrix3d &R = data.oMf[frame].rotation();
     Eigen::Matrix3d Jlog;
     pin::Jlog3(Eigen::Matrix3d(R_ref.transpose() * R), Jlog);
-    const Eigen::Matrix<double, 3, Eigen::Dynamic> H_ang = Jlog * (R.transpose() * J.bottomRows<3>());
+    const Mat3x H_ang = Jlog * (R.transpose() * J.bottomRows<3>());
     for (std::size_t i = 0; i < rows.size(); ++i) {
       const int r = rows[i];
       if (r < 3) {
-        tau.noalias() += J.row(r).transpose() * f[Eigen::Index(i)];
+        tau.noalias() += J.row(r).transpose() * f[Index(i)];
       } else {
-        tau.noalias() += H_ang.row(r - 3).transpose() * f[Eigen::Index(i)];
+        tau.noalias() += H_ang.row(r - 3).transpose() * f[Index(i)];
       }
     }
   }
@@ -118,19 +118,19 @@ class Plant {
   }
 
   /// q̈ (nv,) of the constrained dynamics for the generalized force tau (+ Hᵀ f_task).
-  VectorXd accelerations(CRef q, CRef v, CRef tau, CRef f_task) {
+  Vec accelerations(CRef q, CRef v, CRef tau, CRef f_task) {
     check_sizes(q, v, tau, f_task);
-    return acc(VectorXd(q), VectorXd(v), tau, f_task);
+    return acc(Vec(q), Vec(v), tau, f_task);
   }
 
   /// One sample of length Ts: `substeps` RK4 steps with tau (and f_task) held; returns (q, v).
-  std::pair<VectorXd, VectorXd> integrate(CRef q0, CRef v0, CRef tau, CRef f_task, double Ts, int substeps) {
+  std::pair<Vec, Vec> integrate(CRef q0, CRef v0, CRef tau, CRef f_task, double Ts, int substeps) {
     check_sizes(q0, v0, tau, f_task);
     if (!(Ts > 0.0) || substeps < 1) {
       throw nb::value_error(("Plant.integrate: Ts = " + std::to_string(Ts) + " s and substeps = " +
                              std::to_string(substeps) + "; valid: Ts > 0 and substeps >= 1").c_str());
     }
-    VectorXd q = q0, v = v0;
+    Vec q = q0, v = v0;
     const double h = Ts / substeps;
     {
       nb::gil_scoped_release release;  // pure C++ from here on: other Python threads may run
@@ -140,9 +140,9 @@ class Plant {
   }
 
   /// Closure forces of the last dynamics call: the linear part of each contact force, stacked (3 k,).
-  VectorXd contact_forces() const {
-    VectorXd out(3 * Eigen::Index(cds_.size()));
-    for (std::size_t k = 0; k < cds_.size(); ++k) out.segment<3>(3 * Eigen::Index(k)) = cds_[k].contact_force.linear();
+  Vec contact_forces() const {
+    Vec out(3 * Index(cds_.size()));
+    for (std::size_t k = 0; k < cds_.size(); ++k) out.segment<3>(3 * Index(k)) = cds_[k].contact_force.linear();
     return out;
   }
 
@@ -161,19 +161,19 @@ class Plant {
                              ", nv = " + std::to_string(model_.nv) + ", nv")
                                 .c_str());
     }
-    if (f_task.size() != 0 && (!has_task_ || f_task.size() != Eigen::Index(task_.rows.size()))) {
+    if (f_task.size() != 0 && (!has_task_ || f_task.size() != Index(task_.rows.size()))) {
       throw nb::value_error("Plant: f_task must be empty, or have one entry per task-space output row (set_task_output)");
     }
   }
 
-  // q, v, tau_ as VectorXd: Pinocchio's precompiled instantiation (see ConstraintModels)
-  const VectorXd &acc(const VectorXd &q, const VectorXd &v, const CRef &tau, const CRef &f_task) {
+  // q, v, tau_ as Vec (Eigen::VectorXd): Pinocchio's precompiled instantiation (see ConstraintModels)
+  const Vec &acc(const Vec &q, const Vec &v, const CRef &tau, const CRef &f_task) {
     tau_ = tau;
     if (f_task.size() != 0) task_.add(model_, data_, q, f_task, tau_);
     return pin::constraintDynamics(model_, data_, q, v, tau_, cms_, cds_, prox_);
   }
 
-  void step_q(const VectorXd &q, const VectorXd &dv, VectorXd &out) const {
+  void step_q(const Vec &q, const Vec &dv, Vec &out) const {
     if (flat_) {
       out = q + dv;
     } else {
@@ -183,7 +183,7 @@ class Plant {
   }
 
   /// One classical RK4 step of (q̇, v̇) = (v, q̈) on the configuration manifold, in place.
-  void rk4(VectorXd &q, VectorXd &v, const CRef &tau, const CRef &f_task, double h) {
+  void rk4(Vec &q, Vec &v, const CRef &tau, const CRef &f_task, double h) {
     a1_ = acc(q, v, tau, f_task);
     v2_ = v + 0.5 * h * a1_;
     dv_ = 0.5 * h * v;
@@ -211,7 +211,7 @@ class Plant {
   bool flat_ = true;
   bool has_task_ = false;
   TaskForce task_;
-  VectorXd a1_, a2_, a3_, a4_, v2_, v3_, v4_, qi_, dv_, tau_;  // work vectors (no allocation per sample)
+  Vec a1_, a2_, a3_, a4_, v2_, v3_, v4_, qi_, dv_, tau_;  // work vectors (no allocation per sample)
 };
 
 }  // namespace

@@ -1,0 +1,28 @@
+// The Eigen matrix and nanobind array types the native sources share (one declaration each).
+#pragma once
+
+#include <Eigen/Core>
+#include <nanobind/ndarray.h>
+
+namespace pgpc {
+namespace nb = nanobind;
+
+using Mat = Eigen::MatrixXd;  // column-major, Eigen's default
+using Vec = Eigen::VectorXd;
+using Index = Eigen::Index;
+using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // a NumPy C-order matrix
+using Mat3x = Eigen::Matrix<double, 3, Eigen::Dynamic>;  // three rows of a frame Jacobian (linear or angular)
+using Mat6x = Eigen::Matrix<double, 6, Eigen::Dynamic>;  // a frame Jacobian, (6, nv)
+
+// C-contiguous float64 NumPy arrays on the CPU: read-only inputs of D dimensions, writable outputs
+template <int D>
+using In = nb::ndarray<const double, nb::ndim<D>, nb::c_contig, nb::device::cpu>;
+template <int D>
+using Out = nb::ndarray<double, nb::ndim<D>, nb::c_contig, nb::device::cpu>;
+using In1 = In<1>;
+using In2 = In<2>;
+using Out1 = Out<1>;
+using Out2 = Out<2>;
+// a read-only float64 array of any shape (nanobind converts another dtype or layout)
+using Floats = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+}  // namespace pgpc
