@@ -120,13 +120,14 @@ def _path_points(name: str, points, xyz_columns=None, fill=None) -> np.ndarray:
     return np.column_stack([arr[:, 0], arr[:, 1], np.full(arr.shape[0], PATH_Z)])
 
 
-def path_placement(robot: ParallelRobot) -> tuple[list[int | None], np.ndarray]:
+def path_placement(robot: ParallelRobot, figure=None) -> tuple[list[int | None], np.ndarray]:
     """How a path in ``robot``'s outputs is drawn in the world: for each world axis the output
     column moving along it (or None), and the (3,) values (m) of the axes no output moves along:
-    the output point's at home, lifted by :attr:`Marks.lift` along z (above a planar robot's plane)."""
+    the output point's at home, lifted by :attr:`Marks.lift` along z (above a planar robot's plane).
+    ``figure``: the robot's stick figure at home when the caller has it (else computed here)."""
     world = output_world_axes(robot)
     columns = [world.index(k) if k in world else None for k in range(3)]
-    figure = stick_figure(robot)
+    figure = stick_figure(robot) if figure is None else figure
     fill = np.array(figure.output, dtype=float)
     fill[2] += Marks(figure.size).lift
     return columns, fill
@@ -234,6 +235,7 @@ class RobotScene:
 
     Attributes:
         geom_model, geom_data: the URDF visual geometry and its workspace.
+        figure: the robot's stick figure at home (:func:`~parallel_gpc.model.stick_figure`).
         marks: sizes of the added marks (closures, base, stick figure), scaled to the robot.
         paths: meshcat paths (relative to ``vis``) of the moving parts, in draw order.
     """
@@ -244,8 +246,10 @@ class RobotScene:
         self.geom_model = visual_model(robot)
         self.geom_data = self.geom_model.createData()
         self.data = robot.model.createData()
-        self.marks = marks(robot)
-        self._shapes = [meshcat_shape(g) for g in self.geom_model.geometryObjects]
+        self.figure = stick_figure(robot)
+        self.marks = Marks(self.figure.size)
+        self._meshes = {}  # mesh file contents by path, read once for the links and their overlays
+        self._shapes = [meshcat_shape(g, meshes=self._meshes) for g in self.geom_model.geometryObjects]
         self._drive_jids = [robot.model.getJointId(n) for n in robot.description.drive_joints]
         self._closure_fids = [(robot.model.getFrameId(c.frames[0]), robot.model.getFrameId(c.frames[1]))
                               for c in robot.description.closures]
@@ -275,7 +279,7 @@ class RobotScene:
             closures[f"{c.name}_a"].set_object(mg.Sphere(m.closure_a), _material([1, 1, 1, 0.7], CLOSURE_A_COLOR))
             closures[f"{c.name}_b"].set_object(mg.Sphere(m.closure_b), _material([1, 1, 1, 1], CLOSURE_B_COLOR))
         for i, k in self._overlays():
-            shape, _ = meshcat_shape(self.geom_model.geometryObjects[k], scale=1.8)
+            shape, _ = meshcat_shape(self.geom_model.geometryObjects[k], scale=1.8, meshes=self._meshes)
             self.vis[self._overlay_path(i, k)].set_object(shape, _material([1, 1, 1, 0.85], SATURATION_COLOR))
         pin.framesForwardKinematics(self.robot.model, self.data, self.robot.q_home)
         self.stick.draw(self.vis, self.data)
@@ -299,8 +303,8 @@ class RobotScene:
         pin.updateGeometryPlacements(self.robot.model, self.data, self.geom_model, self.geom_data)
         sizes = self.marks
         lowest = [lowest_z(g.geometry, M) for g, M in zip(self.geom_model.geometryObjects, self.geom_data.oMg)]
-        figure = stick_figure(self.robot)
-        lowest += [float(figure.joints[:, 2].min()) - 1.7 * sizes.rod] if len(figure.joints) else []
+        joints = self.figure.joints
+        lowest += [float(joints[:, 2].min()) - 1.7 * sizes.rod] if len(joints) else []
         floor = min(lowest + [-3 * sizes.clearance]) - sizes.clearance
         lo, hi = points[:, :2].min(axis=0) - sizes.margin, points[:, :2].max(axis=0) + sizes.margin
         plate = mg.Box([float(hi[0] - lo[0]), float(hi[1] - lo[1]), sizes.plate])
@@ -385,7 +389,7 @@ def draw_robot(vis: meshcat.Visualizer, robot: ParallelRobot, q: np.ndarray | No
     """Draw ``robot`` (geometry, closures, base) at configuration q (default: home) and aim the
     camera at its stick figure at home (:func:`set_camera`, sized by :attr:`RobotScene.marks`)."""
     scene = RobotScene(vis, robot).draw(q)
-    figure = stick_figure(robot)
+    figure = scene.figure
     points = np.vstack([figure.joints, figure.closures.reshape(-1, 3), figure.output.reshape(1, 3)])
     set_camera(vis, points, size=scene.marks.size)
     return scene
@@ -462,7 +466,7 @@ def animate(vis: meshcat.Visualizer, robot: ParallelRobot, t, qs, *, saturated=N
     scene = draw_robot(vis, robot, qs[0])
     if flags is not None:
         scene.show_saturation(flags[0])
-    cols, fill = path_placement(robot)  # the output columns along world x, y, z
+    cols, fill = path_placement(robot, scene.figure)  # the output columns along world x, y, z
     for name, points, color in (("reference", reference, REFERENCE_COLOR), ("planned", planned, PLANNED_COLOR)):
         if points is not None:
             if np.asarray(points).ndim == 2 and np.asarray(points).shape[1] != robot.n_y:

@@ -65,13 +65,15 @@ def _mesh_contents(path: Path):
     return data.decode("utf-8", errors="replace")
 
 
-def meshcat_shape(g: pin.GeometryObject, scale: float = 1.0) -> tuple[mg.Geometry, np.ndarray]:
+def meshcat_shape(g: pin.GeometryObject, scale: float = 1.0, meshes: dict | None = None) -> tuple[mg.Geometry, np.ndarray]:
     """meshcat geometry of a drawn visual and its 4x4 intrinsic transform (local frame fix-up).
 
     Args:
         g: a visual of :func:`visual_model` (a cylinder, sphere, box or resolved mesh).
         scale: growth factor (the saturation overlay): radii and sides times ``scale``, a mesh
             about its bounding box's centre.
+        meshes: the caller's ``{path: contents}`` of the mesh files read so far: a file is read
+            once per such dict (None: read here).
 
     Raises:
         RobotFormatError: for shapes the viewer does not draw (capsules, cones, ...).
@@ -93,7 +95,10 @@ def meshcat_shape(g: pin.GeometryObject, scale: float = 1.0) -> tuple[mg.Geometr
             grow[:3, 3] = centre * (1.0 - scale)
             matrix = grow @ matrix
         path = Path(g.meshPath)
-        return MeshFile(_mesh_contents(path), MESH_FORMATS[path.suffix.lower()], matrix), np.eye(4)
+        meshes = {} if meshes is None else meshes
+        if path not in meshes:
+            meshes[path] = _mesh_contents(path)
+        return MeshFile(meshes[path], MESH_FORMATS[path.suffix.lower()], matrix), np.eye(4)
     raise RobotFormatError(
         f"visual geometry of type {type(geometry).__name__} is not drawn by the viewer; "
         "use cylinder, sphere, box or STL/OBJ/Collada mesh visuals in the URDF"
@@ -121,11 +126,13 @@ def _listed(uris) -> str:
     return shown + (f" and {len(uris) - 3} more" if len(uris) > 3 else "")
 
 
-def _unreadable(path: Path) -> str | None:
-    """Why a mesh file cannot be drawn (too large, or not a mesh Coal reads), or None."""
+def _unreadable(path: Path, read: bool) -> str | None:
+    """Why a mesh file cannot be drawn (too large, or, when ``read``, not a mesh Coal reads), or None."""
     size = path.stat().st_size
     if size > MESH_MAX_BYTES:
         return f"{size} bytes, more than {MESH_MAX_BYTES}"
+    if not read:
+        return None
     try:
         coal.MeshLoader().load(str(path), np.ones(3))
     except (ValueError, RuntimeError) as exc:
@@ -140,10 +147,11 @@ def _coal_message(exc: Exception) -> str:
     return "; ".join(lines) or type(exc).__name__
 
 
-def _urdf_for_view(robot: ParallelRobot, notes: list[str]) -> str:
+def _urdf_for_view(robot: ParallelRobot, notes: list[str], read: bool) -> str:
     """The robot's URDF text with each drawable mesh named by its real path, and the ``<visual>``
     of every other mesh and every ``<collision>`` removed, so that Pinocchio reads only the files
-    the view draws; a note appended to ``notes`` for each kind left out."""
+    the view draws; a note appended to ``notes`` for each kind left out. ``read``: each mesh
+    file is also loaded here by Coal and left out if it cannot be (else only its size is checked)."""
     description = robot.description
     root = ET.fromstring(read_text_bounded(description.urdf_path, URDF_MAX_BYTES, "model file"))
     unresolved, undrawn, unreadable, why = [], [], [], {}
@@ -162,7 +170,7 @@ def _urdf_for_view(robot: ParallelRobot, notes: list[str]) -> str:
                 undrawn.append(uri)
             else:
                 if found not in why:
-                    why[found] = _unreadable(Path(found))
+                    why[found] = _unreadable(Path(found), read)
                 if why[found] is None:
                     mesh.set("filename", str(found))
                     continue
@@ -177,6 +185,23 @@ def _urdf_for_view(robot: ParallelRobot, notes: list[str]) -> str:
         notes.append(f"{len(unreadable)} mesh file(s) cannot be read ({', '.join(unreadable[:3])}"
                      f"{' and more' if len(unreadable) > 3 else ''})")
     return ET.tostring(root, encoding="unicode")
+
+
+def _urdf_visuals(robot: ParallelRobot, notes: list[str]) -> pin.GeometryModel:
+    """The visuals Pinocchio reads from the URDF text of :func:`_urdf_for_view`: each mesh file is
+    read once, by Pinocchio; only when one of them fails is each file loaded alone by Coal first
+    (then the readable ones are read again), so that one unreadable mesh leaves only its own link
+    to the stick figure."""
+    found: list[str] = []
+    try:
+        return pin.buildGeomFromUrdfString(robot.model, _urdf_for_view(robot, found, read=False),
+                                           pin.GeometryType.VISUAL)
+    except (ValueError, RuntimeError):
+        found.clear()
+        return pin.buildGeomFromUrdfString(robot.model, _urdf_for_view(robot, found, read=True),
+                                           pin.GeometryType.VISUAL)
+    finally:
+        notes += found
 
 
 def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
@@ -194,7 +219,7 @@ def visual_model(robot: ParallelRobot) -> pin.GeometryModel:
     path = str(description.urdf_path)
     notes = []
     if description.model_format != "mjcf":
-        geom = pin.buildGeomFromUrdfString(robot.model, _urdf_for_view(robot, notes), pin.GeometryType.VISUAL)
+        geom = _urdf_visuals(robot, notes)
     elif description.unresolved_meshes:
         notes.append(f"{len(description.unresolved_meshes)} mesh(es) ({_listed(description.unresolved_meshes)}) "
                      "do not resolve")
