@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .defaults import DEFAULT_ROBOT
-from .vocabulary import add_package_path_argument
+from .vocabulary import PACKAGE_PATH
 
 
 def _reach(robot, pose) -> str:
@@ -95,8 +95,7 @@ def cmd_info(args) -> int:
 
 def register_info(sub) -> None:
     """Add the ``info`` sub-command."""
-    p = sub.add_parser("info", help="describe a robot: DOF, drives, redundancy, conditioning, reach of A/B")
+    p = sub.add_parser("info", parents=[PACKAGE_PATH], help="describe a robot: DOF, drives, redundancy, conditioning, reach of A/B")
     p.add_argument("robot", nargs="?", default=DEFAULT_ROBOT,
                    help=f"embedded robot name or path to a URDF/sidecar (default {DEFAULT_ROBOT})")
-    add_package_path_argument(p)
     p.set_defaults(func=cmd_info)

@@ -10,10 +10,9 @@ import math
 from typing import TYPE_CHECKING
 
 from ..errors import InvalidParameterError
-from .defaults import DEFAULT_ROBOT
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
-from .vocabulary import add_limit_arguments, add_package_path_argument
+from .vocabulary import ROBOT, add_limit_arguments
 
 if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
     import numpy as np
@@ -104,14 +103,12 @@ def cmd_plan(args) -> int:
 def register_plan(sub) -> None:
     """Add the ``plan`` sub-command."""
     p = sub.add_parser(
-        "plan", help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
+        "plan", parents=[ROBOT], help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
         description="Plan a point-to-point move with the end-point criterion (20): N = Nmax, No = N − k, "
                     "Qu over the whole horizon, re-solved every step on the nonlinear plant. Mode (a) keeps "
                     "N = Nmax (no stopping information: B is approached asymptotically); mode (b) shrinks "
                     "N := Nmax, …, Nmin (21) and stops at B at Nmax·Ts; 'once' applies the first solve open "
                     "loop (valid for linear systems only).")
-    p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
-    add_package_path_argument(p)
     p.add_argument("--A", nargs="+", type=float, default=None, metavar="Y",
                    help="start pose, one value per output: m, angles in deg (default: the sidecar's [home] A; "
                         "planar robots: 0.2 0.2 -20)")

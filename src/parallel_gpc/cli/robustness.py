@@ -9,8 +9,8 @@ from __future__ import annotations
 
 import sys
 
-from .defaults import DEFAULT_ROBOT, EXIT_INTERRUPTED, PAPER_FORMS
-from .vocabulary import add_forms_argument, add_package_path_argument, add_reference_argument, selected_forms
+from .defaults import EXIT_INTERRUPTED, PAPER_FORMS
+from .vocabulary import ROBOT, add_forms_argument, add_reference_argument, selected_forms
 
 #: ``--quick``: fewer cases (nominal, ±30 % mass, one noise level, one force), same runs.
 QUICK = dict(mass_scales=(0.7, 1.3), noise_levels=(1e-4,), disturbances=(20.0,))
@@ -63,14 +63,12 @@ def cmd_robustness(args) -> int:
 def register_robustness(sub) -> None:
     """Add the ``robustness`` sub-command."""
     p = sub.add_parser(
-        "robustness", help="tracking error of each GPC form under mass mismatch, noise and a constant force",
+        "robustness", parents=[ROBOT], help="tracking error of each GPC form under mass mismatch, noise and a constant force",
         description="For each prediction form, run the closed loop on the full constrained plant with the "
                     "plant's masses/inertias scaled (-30 … +30 %), with measurement noise, and with a "
                     "constant force on the platform, along the robot's path (the S-curve on planar robots, the "
                     "helix on spatial ones); print a table and write CSV, JSON and a plot.",
     )
-    p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
-    add_package_path_argument(p)
     add_forms_argument(p, PAPER_FORMS)
     p.add_argument("--duration", type=float, default=None, help="length of each run in s (default 2.5; the path takes 80 %% of it, then a hold)")
     p.add_argument("--Ts", type=float, default=0.005, help="sample time in s (default 0.005)")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from ..errors import InvalidParameterError
 from .defaults import EXIT_INTERRUPTED
-from .vocabulary import add_package_path_argument
+from .vocabulary import PACKAGE_PATH
 HELP = "grid / Monte-Carlo sweep of closed-loop runs on Dask (resumable, Parquet + CSV)"
 DESCRIPTION = ("Expand a TOML spec ([sweep], [base], [grid], [random], [plots]) into cells, run them as independent "
                "tasks on a local or remote Dask cluster, and write a tidy table. A rerun skips the cells already "
@@ -78,7 +78,7 @@ def _kind(error: str) -> str:
 
 def register_sweep(sub) -> None:
     """Add the ``sweep`` sub-command."""
-    p = sub.add_parser("sweep", help=HELP, description=DESCRIPTION)
+    p = sub.add_parser("sweep", parents=[PACKAGE_PATH], help=HELP, description=DESCRIPTION)
     p.add_argument("spec", help="sweep spec (TOML), e.g. examples/sweep_tuning.toml")
     p.add_argument("--out", default=None, help="output folder (default out/sweep/<spec name>)")
     p.add_argument("--workers", type=int, default=None,
@@ -89,5 +89,4 @@ def register_sweep(sub) -> None:
     p.add_argument("--dry-run", type=int, nargs="?", const=10, default=None, metavar="K",
                    help="only expand the spec: print the cell count and the first K cells (default 10)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    add_package_path_argument(p)
     p.set_defaults(func=cmd_sweep)

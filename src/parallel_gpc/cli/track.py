@@ -13,18 +13,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-from .defaults import DEFAULT_ROBOT, EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
+from .defaults import EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
-from .vocabulary import (add_forms_argument, add_limit_arguments, add_package_path_argument, add_reference_argument,
-                         selected_forms)
+from .vocabulary import ROBOT, add_forms_argument, add_limit_arguments, add_reference_argument, selected_forms
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
-    """Options shared by ``track`` and ``demo``; defaults from ``d`` (default :data:`defaults.TRACKING`)."""
+    """Options shared by ``track`` and ``demo`` (beside the :data:`~.vocabulary.ROBOT` parent's); defaults
+    from ``d`` (default :data:`defaults.TRACKING`)."""
     d = TRACKING if d is None else d
-    p.add_argument("--robot", default=DEFAULT_ROBOT, help=f"robot name or path (default {DEFAULT_ROBOT})")
-    add_package_path_argument(p)
     p.add_argument("--Ts", type=float, default=d["Ts"], help=f"sample time in s (default {d['Ts']})")
     p.add_argument("--N", type=int, default=d["N"], help=f"prediction horizon (default {d['N']})")
     p.add_argument("--No", type=int, default=d["No"], help=f"insensitivity horizon (default {d['No']})")
@@ -151,7 +149,7 @@ EXIT_CODES = (f"exit codes: 0 done; 2 bad input (one-line error, nothing run); {
 
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", help="track a reference (a built-in path in the robot's outputs, a hold or a CSV "
+    p = sub.add_parser("track", parents=[ROBOT], help="track a reference (a built-in path in the robot's outputs, a hold or a CSV "
                                      "file) with each GPC form on the full constrained plant", epilog=EXIT_CODES)
     add_forms_argument(p, None, "--form")  # --form: the earlier spelling, still accepted
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")

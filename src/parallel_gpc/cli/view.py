@@ -10,7 +10,7 @@ from __future__ import annotations
 import importlib.util
 from pathlib import Path
 
-from .vocabulary import add_package_path_argument
+from .vocabulary import PACKAGE_PATH
 
 #: How to get the view when meshcat is not installed.
 INSTALL_HINT = 'the meshcat view needs the meshcat package (a dependency of parallel-gpc): pip install "meshcat>=0.3.2"'
@@ -99,13 +99,12 @@ def cmd_view(args) -> int:
 def register_view(sub) -> None:
     """Add the ``view`` sub-command."""
     p = sub.add_parser(
-        "view", help="show a result file (.npz written by track, demo, plan) in meshcat",
+        "view", parents=[PACKAGE_PATH], help="show a result file (.npz written by track, demo, plan) in meshcat",
         description="Animate a result file: write a self-contained HTML file (--html, the default "
                     "RESULT.html) and/or serve it live on 127.0.0.1 (--serve, until Ctrl-C).",
     )
     p.add_argument("result", metavar="RESULT.npz", help="result file (t, q, robot; the format: docs/validation.md)")
     p.add_argument("--robot", default=None,
                    help="robot name or path, overriding the file's (for files that name none)")
-    add_package_path_argument(p)
     add_view_arguments(p)
     p.set_defaults(func=cmd_view)

@@ -2,12 +2,16 @@
 
 ``--forms`` takes space-separated names (``--forms absolute nonlinear``, or ``all``) in ``track``,
 ``demo`` and ``robustness``; ``--reference`` takes the same names in ``track`` and
-``robustness``. A misspelling ends with one line naming the valid words (exit 2).
+``robustness``. A misspelling ends with one line naming the valid words (exit 2). The options of
+the commands that load a robot file come from two parent parsers (argparse ``parents=``):
+:data:`PACKAGE_PATH` (``--package-path``) and :data:`ROBOT` (``--robot`` and ``--package-path``).
 """
 
 from __future__ import annotations
 
-from .defaults import FORMS, REFERENCES
+import argparse
+
+from .defaults import DEFAULT_ROBOT, FORMS, REFERENCES
 
 def add_forms_argument(p, default: tuple[str, ...] | None = None, *aliases: str) -> None:
     """``--forms F [F ...]`` (choices :data:`FORMS` and ``all``; ``default`` None: all of them)."""
@@ -31,8 +35,6 @@ REFERENCE_METAVAR = "{" + ",".join(REFERENCES) + ",FILE.csv,FILE.npz}"
 def reference_argument(text: str) -> str:
     """``--reference`` value: a name of :data:`REFERENCES` or a ``.csv`` / ``.npz`` path (the file
     is read, and its columns checked, when the robot is known)."""
-    import argparse
-
     if text in REFERENCES or text.lower().endswith((".csv", ".npz")):
         return text
     raise argparse.ArgumentTypeError(f"{text!r} is not one of {', '.join(REFERENCES)}, nor a .csv or .npz file")
@@ -64,13 +66,24 @@ def add_limit_arguments(p) -> None:
                    help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")
 
 
-def add_package_path_argument(p) -> None:
+def _add_package_path(p) -> None:
     """``--package-path DIR`` (repeatable): folders of the packages named by ``package://`` mesh URIs,
     searched before ``PARALLEL_GPC_PACKAGE_PATH`` and ``ROS_PACKAGE_PATH`` (applied by :func:`apply_package_path`)."""
     p.add_argument("--package-path", action="append", default=[], metavar="DIR", dest="package_path",
                    help="folder holding the packages of package:// mesh URIs (repeatable; searched in the order "
                         "given, before $PARALLEL_GPC_PACKAGE_PATH and $ROS_PACKAGE_PATH); meshes only matter for "
                         "the view")
+
+
+#: parent parser of the commands that load a robot file named elsewhere (``info``, ``sweep``,
+#: ``view``): ``--package-path DIR``.
+PACKAGE_PATH = argparse.ArgumentParser(add_help=False)
+_add_package_path(PACKAGE_PATH)
+#: parent parser of the commands that run one robot (``track``, ``demo``, ``plan``, ``robustness``):
+#: ``--robot NAME|PATH`` (default :data:`~.defaults.DEFAULT_ROBOT`) and ``--package-path DIR``.
+ROBOT = argparse.ArgumentParser(add_help=False)
+ROBOT.add_argument("--robot", default=DEFAULT_ROBOT, help=f"embedded robot name or path (default {DEFAULT_ROBOT})")
+_add_package_path(ROBOT)
 
 
 def apply_package_path(folders: list[str]) -> None:
