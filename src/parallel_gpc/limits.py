@@ -75,14 +75,15 @@ class Kind:
 #: every limit kind a :class:`Limits` holds, by field name, in field order.
 KIND_TABLE = {
     "torque": Kind("drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)", "input", "symmetric", "drive"),
-    "du": Kind("drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)", "input", "symmetric", "drive"),
-    "drive_position": Kind("drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)", "state", "bounds", "drive",
-                           kinematic=True),
+    "du": Kind("drive increment limit |u(k) − u(k−1)| ≤ δ (N·m or N per sample)", "input", "symmetric",
+               "drive"),
+    "drive_position": Kind("drive position range q_lo ≤ q_a ≤ q_hi (m or rad; a stroke)", "state", "bounds",
+                           "drive", kinematic=True),
     "drive_rate": Kind("drive rate limit |q̇_a| ≤ r (m/s or rad/s)", "state", "symmetric", "drive", kinematic=True),
     "output_box": Kind("workspace box y_lo ≤ y ≤ y_hi (m, rad)", "state", "bounds", "output"),
     "output_velocity": Kind("output velocity limit |ẏ| ≤ v (m/s, rad/s)", "state", "symmetric", "output"),
-    "joint_position": Kind("passive joint ranges q_lo ≤ q_j ≤ q_hi by joint name (m or rad)", "state", "named", "joint",
-                           kinematic=True),
+    "joint_position": Kind("passive joint ranges q_lo ≤ q_j ≤ q_hi by joint name (m or rad)", "state", "named",
+                           "joint", kinematic=True),
 }
 #: the limit kinds, by field name, with their meaning and unit.
 KINDS = {kind: k.meaning for kind, k in KIND_TABLE.items()}
@@ -431,7 +432,8 @@ class Limits:
             return NotImplemented
         return self._options() == other._options() and all(
             (a is None and b is None) or (a is not None and b is not None and (
-                dict(a) == dict(b) if KIND_TABLE[k].form == "named" else a.shape == b.shape and bool(np.array_equal(a, b))))
+                dict(a) == dict(b) if KIND_TABLE[k].form == "named"
+                else a.shape == b.shape and bool(np.array_equal(a, b))))
             for k, a, b in ((k, getattr(self, k), getattr(other, k)) for k in KINDS))
 
     def __hash__(self) -> int:

@@ -106,7 +106,8 @@ def _animations(args, robot, results, settings, out: Path) -> None:
 
 def register_demo(sub) -> None:
     """Add the ``demo`` sub-command."""
-    p = sub.add_parser("demo", parents=[ROBOT], help="the main job: the paper's Fig. 2 comparison of the GPC forms on the default robot",
+    p = sub.add_parser("demo", parents=[ROBOT],
+                       help="the main job: the paper's Fig. 2 comparison of the GPC forms on the default robot",
                        description=__doc__.split("\n\n")[0] + " Qu = 0 (dead-beat, form-independent) and Qu > 0 "
                        "on a mismatched, loaded plant with the disturbance estimate off and on.", epilog=EXIT_CODES)
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -95,7 +95,8 @@ def cmd_info(args) -> int:
 
 def register_info(sub) -> None:
     """Add the ``info`` sub-command."""
-    p = sub.add_parser("info", parents=[PACKAGE_PATH], help="describe a robot: DOF, drives, redundancy, conditioning, reach of A/B")
+    p = sub.add_parser("info", parents=[PACKAGE_PATH],
+                       help="describe a robot: DOF, drives, redundancy, conditioning, reach of A/B")
     p.add_argument("robot", nargs="?", default=DEFAULT_ROBOT,
                    help=f"embedded robot name or path to a URDF/sidecar (default {DEFAULT_ROBOT})")
     p.set_defaults(func=cmd_info)

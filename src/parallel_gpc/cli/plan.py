@@ -103,7 +103,8 @@ def cmd_plan(args) -> int:
 def register_plan(sub) -> None:
     """Add the ``plan`` sub-command."""
     p = sub.add_parser(
-        "plan", parents=[ROBOT], help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
+        "plan", parents=[ROBOT],
+        help="quadratically-optimal A→B planning without (a) and with (b) stopping information (Fig. 3/4)",
         description="Plan a point-to-point move with the end-point criterion (20): N = Nmax, No = N − k, "
                     "Qu over the whole horizon, re-solved every step on the nonlinear plant. Mode (a) keeps "
                     "N = Nmax (no stopping information: B is approached asymptotically); mode (b) shrinks "

@@ -63,7 +63,8 @@ def cmd_robustness(args) -> int:
 def register_robustness(sub) -> None:
     """Add the ``robustness`` sub-command."""
     p = sub.add_parser(
-        "robustness", parents=[ROBOT], help="tracking error of each GPC form under mass mismatch, noise and a constant force",
+        "robustness", parents=[ROBOT],
+        help="tracking error of each GPC form under mass mismatch, noise and a constant force",
         description="For each prediction form, run the closed loop on the full constrained plant with the "
                     "plant's masses/inertias scaled (-30 … +30 %), with measurement noise, and with a "
                     "constant force on the platform, along the robot's path (the S-curve on planar robots, the "

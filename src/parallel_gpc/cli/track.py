@@ -149,8 +149,9 @@ EXIT_CODES = (f"exit codes: 0 done; 2 bad input (one-line error, nothing run); {
 
 def register_track(sub) -> None:
     """Add the ``track`` sub-command."""
-    p = sub.add_parser("track", parents=[ROBOT], help="track a reference (a built-in path in the robot's outputs, a hold or a CSV "
-                                     "file) with each GPC form on the full constrained plant", epilog=EXIT_CODES)
+    p = sub.add_parser("track", parents=[ROBOT],
+                       help="track a reference (a built-in path in the robot's outputs, a hold or a CSV file) with "
+                            "each GPC form on the full constrained plant", epilog=EXIT_CODES)
     add_forms_argument(p, None, "--form")  # --form: the earlier spelling, still accepted
     p.add_argument("--out", default="out/track", help="output folder (default out/track)")
     add_tracking_arguments(p)

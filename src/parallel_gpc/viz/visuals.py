@@ -65,7 +65,8 @@ def _mesh_contents(path: Path):
     return data.decode("utf-8", errors="replace")
 
 
-def meshcat_shape(g: pin.GeometryObject, scale: float = 1.0, meshes: dict | None = None) -> tuple[mg.Geometry, np.ndarray]:
+def meshcat_shape(g: pin.GeometryObject, scale: float = 1.0,
+                  meshes: dict | None = None) -> tuple[mg.Geometry, np.ndarray]:
     """meshcat geometry of a drawn visual and its 4x4 intrinsic transform (local frame fix-up).
 
     Args:
