@@ -59,6 +59,27 @@ def test_limits_are_frozen_read_only_and_sized_once():
     np.testing.assert_array_equal(Limits(torque=4.0).scaled(0.5).torque, 2.0)
 
 
+def test_the_kind_table_sizes_each_kind_by_what_it_is_for():
+    """The kinds' groups (written out here, not read from the table) and the sizing they imply:
+    per-drive kinds by n_u, per-output kinds by n_y, named joint ranges never; the kinematic kinds
+    are the ones the constraint rows compute through the robot's kinematics."""
+    from parallel_gpc import limits
+    from parallel_gpc.gpc.constraints import KINEMATIC_KINDS
+
+    assert limits.INPUT_KINDS == ("torque", "du")
+    assert limits.STATE_KINDS == ("drive_position", "drive_rate", "output_box", "output_velocity", "joint_position")
+    assert limits.KINEMATIC_KINDS == ("drive_position", "drive_rate", "joint_position") == KINEMATIC_KINDS
+    lim = Limits(drive_rate=[1.0, 2.0], output_velocity=0.5, output_box=[-1.0, 1.0],
+                 joint_position={"b": (-1.0, 1.0), "a": (0.0, 2.0)})
+    assert lim.n_drives == 2 and lim.has_kinematic_limits and not Limits(output_velocity=0.5).has_kinematic_limits
+    sized = lim.for_drives(2, 3)
+    assert sized.output_velocity.shape == (3,) and sized.output_box.shape == (3, 2) and sized.drive_rate.shape == (2,)
+    assert dict(sized.joint_position) == {"a": (0.0, 2.0), "b": (-1.0, 1.0)}
+    assert "joint_position a [0, 2]; b [-1, 1] (soft)" in sized.describe()
+    assert sized == lim.for_drives(2, 3) and hash(sized) == hash(lim.for_drives(2, 3))
+    with pytest.raises(ShapeError, match="per-output limits of different lengths"):
+        Limits(output_velocity=[1.0, 2.0], output_box=[[0.0, 1.0]] * 3)
+
 def test_every_place_takes_a_limits_not_a_bare_number(robot4):
     with pytest.raises(InvalidParameterError, match="Limits"):
         GPCSettings(TS, Horizons(5), limits=60.0)

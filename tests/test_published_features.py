@@ -333,6 +333,27 @@ def test_inconsistent_welds_are_refused_with_the_globalized_minimum(tmp_path):
     assert "likely inconsistent" in message and "'close' ['ee', 'tip2']" in message
 
 
+def test_a_weld_that_misses_at_home_is_reported_in_m_and_rad(tmp_path):
+    """The same weld turned by 0.3 rad about x, with home.q_guess given (so home is assembled from
+    the guess, not searched from the drawing): the refusal names the closure and says by how much
+    it misses, positions in m and the rotation in rad apart (the positions meet: the hinges about y
+    cannot absorb the 0.3 rad)."""
+    import re
+
+    from parallel_gpc.errors import AssemblyError
+
+    tip = '<child link="tip2"/>\n    <origin xyz="0 0 0.35"/>'
+    urdf = mech.fivebar_urdf().replace(tip, tip.replace('"/>', '" rpy="0.3 0 0"/>'))
+    sidecar = mech.fivebar_sidecar(closures=False)
+    assert "[home.q_guess]" in sidecar
+    weld = sidecar + '[[closures]]\nname = "close"\nkind = "weld"\nframes = ["ee", "tip2"]\n'
+    with pytest.raises(AssemblyError, match="cannot be assembled") as info:
+        ParallelRobot.load(mech.write(tmp_path, "weld", urdf, weld))
+    found = re.search(r"'close' \['ee', 'tip2'\] by ([0-9.e+-]+) m and ([0-9.e+-]+) rad", str(info.value))
+    assert found is not None, str(info.value)
+    assert float(found.group(1)) <= 1e-9 and abs(float(found.group(2)) - 0.3) <= 1e-3, str(info.value)
+
+
 def test_the_globalized_solve_rescues_a_stalled_newton_on_a_robot_that_assembles(tmp_path, monkeypatch):
     """A 5-bar drawn (q = 0) with both legs stretched flat towards each other: the tips miss by
     0.9 m along x, and every joint moves them along z only, so Jᵀr = 0 and Newton's least-squares
