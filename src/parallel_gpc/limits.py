@@ -46,8 +46,8 @@ import numpy as np
 
 from .errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 
-__all__ = ["Limits", "KINDS", "INPUT_KINDS", "STATE_KINDS", "SOFT_DEFAULT", "DEFAULT_PENALTY", "SOFT_QUADRATIC",
-           "as_limits", "symmetric_limit", "bound_pairs", "joint_ranges"]
+__all__ = ["Limits", "KINDS", "INPUT_KINDS", "STATE_KINDS", "KINEMATIC_KINDS", "SOFT_DEFAULT", "DEFAULT_PENALTY",
+           "SOFT_QUADRATIC", "as_limits", "symmetric_limit", "bound_pairs", "joint_ranges"]
 
 #: the limit kinds a :class:`Limits` holds, by field name, with their meaning and unit.
 KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic drives)",
@@ -61,6 +61,9 @@ KINDS = {"torque": "drive torque limit |u| ≤ τ (N·m, or N for prismatic driv
 INPUT_KINDS = ("torque", "du")
 #: kinds on the predicted motion (stage-wise, linearized along the prediction).
 STATE_KINDS = ("drive_position", "drive_rate", "output_box", "output_velocity", "joint_position")
+#: state kinds computed through the robot's kinematics (positions and Jacobians of drives and joints):
+#: linearized along the condensed prediction, not stage-wise.
+KINEMATIC_KINDS = ("drive_position", "drive_rate", "joint_position")
 #: kinds given as (lower, upper) pairs; the others are symmetric ±value.
 BOUND_KINDS = ("drive_position", "output_box")
 #: kinds sized by the outputs (n_y); the others by the drives (n_u).

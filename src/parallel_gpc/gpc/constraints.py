@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
+from ..limits import KINEMATIC_KINDS, SOFT_QUADRATIC, STATE_KINDS, Limits
 from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
@@ -115,10 +115,6 @@ class DriveKinematics:
                                         f"limits need a robot's model (drive and joint kinematics); "
                                         f"{type(model).__name__} has none")
         return kin
-
-
-#: the state kinds computed through the robot's kinematics (positions and Jacobians of joints).
-KINEMATIC_KINDS = ("drive_position", "drive_rate", "joint_position")
 
 
 @dataclass
