@@ -399,8 +399,10 @@ class GPCController:
 
     def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None,
                      warm: np.ndarray | None = None) -> SolveResult:
-        """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),
-        QR's, with the Riccati failure in the message. A back end's exception becomes a failed result.
+        """The back end's solve of the condensed problem; after a failed stage-wise solve (``failed``),
+        the condensed default's of the same settings (:func:`~parallel_gpc.gpc.settings.condensed_default`:
+        QR without limits), with the stage-wise failure in the message. A back end's exception
+        becomes a failed result.
         ``warm``: the warm start in the decision variables proper (slack variables start at 0)."""
         if failed is None:
             backend = self._backend
