@@ -126,6 +126,7 @@ class GPCController:
         self.model = model
         self.n_y, self.n_u, self.n_x = model.n_y, model.n_u, model.n_x
         check_sample_time(model, settings.Ts, "model", "the controller's", required=False)  # once, here
+        self._backend, self._backend_name = None, None
         self._apply(settings)
         self._gain = conditioning_rule(model)
         self.reset(u0)
@@ -139,7 +140,7 @@ class GPCController:
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(
             criterion, self.model.C, settings.form, limits=self._qp_limits, Ts=settings.Ts)
-        if getattr(self, "_backend_name", None) != settings.solver:  # a new back end (kept across limit changes)
+        if self._backend_name != settings.solver:  # a new back end (the same one kept across limit changes)
             self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
             self._backend_name = settings.solver
         # the replacement of a failed stage-wise solve: the condensed default of these settings, built on first use
