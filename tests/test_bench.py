@@ -179,22 +179,24 @@ def test_tiny_benchmark_writes_json_and_plot(tiny_run):
     assert ("step", "absolute +limits bvls") in methods
     for r in data["results"]:
         assert r["ratio_to_qr_unit"] > 0
-    loops = data["closed_loop"]  # default (QR), Riccati, and the pure-Python reference
+    loops = data["closed_loop"]  # the default (stage-wise at Qu = 1e-5), QR, and the pure-Python reference (QR)
     assert [(loop["solver"], loop.get("reference", False)) for loop in loops] == [
-        ("qr", False), ("riccati", False), ("qr", True)]
+        ("riccati", False), ("qr", False), ("qr", True)]
     assert loops[2]["native"] is False and loops[0]["native"] == loops[1]["native"]
     for loop in loops:
         assert loop["wall_s"] > loop["controller_s"] > 0 and loop["simulated_s"] == BenchConfig.tiny().closed_loop_s
     for form in ("absolute", "incremental", "nonlinear"):
-        assert ("step", form) in methods and ("step", f"{form} +limits") in methods
+        assert ("step", form) in methods and ("step", f"{form} qr") in methods and ("step", f"{form} +limits") in methods
     names = {t["target"] for t in data["targets"]}
-    assert names >= {"absolute step median (replayed)", "nonlinear step median (closed loop)"}
+    assert names >= {"absolute step median (replayed)", "nonlinear step median (closed loop)",
+                     "absolute step (the default solver) in QR units (replayed)",
+                     "nonlinear step (solver qr) in QR units (closed loop)"}
     rows = {(r["section"], r["method"]): r for r in data["results"]}
     for form in ("absolute", "incremental", "nonlinear"):  # the speed-up over the same run's Python step
         fast, ref = rows[("step", form)], rows[("step", f"{form} (Python reference)")]
         assert fast["speedup_over_python"] == pytest.approx(ref["median_us"] / fast["median_us"])
         assert f"{form} step speed-up over the pure-Python reference step (replayed)" in names
-    assert sum(n.startswith("closed loop 0.02 s at 1000 Hz") for n in names) == 2  # QR and Riccati
+    assert sum(n.startswith("closed loop 0.02 s at 1000 Hz") for n in names) == 2  # the default and QR
 
 
 def test_tiny_benchmark_solutions_match_their_references(tiny_run):

@@ -655,7 +655,7 @@ def test_ctrl_c_during_a_dask_sweep_is_quiet_and_keeps_the_cells(tmp_path):
     import time
 
     spec = tmp_path / "s.toml"
-    spec.write_text('[base]\nrobot = "planar_3rrr"\nreference = "hold"\nduration = 3.0\nTs = 0.005\nQu = 1e-4\n'
+    spec.write_text('[base]\nrobot = "planar_3rrr"\nreference = "hold"\nduration = 6.0\nTs = 0.005\nQu = 1e-4\n'
                     f'[grid]\nN = {list(range(3, 13))}\nform = ["absolute", "nonlinear"]\n')
     out = tmp_path / "out"
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(Path(__file__).resolve().parents[1] / "src"),

@@ -95,7 +95,8 @@ STATE_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.on == "state")
 BOUND_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.form == "bounds")
 #: kinds sized by the outputs (n_y).
 OUTPUT_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.per == "output")
-#: the state kinds computed through the robot's kinematics (positions and Jacobians of drives and joints).
+#: the state kinds computed through the robot's kinematics (positions and Jacobians of drives and joints):
+#: linearized along the condensed prediction, not stage-wise.
 KINEMATIC_KINDS = tuple(kind for kind, k in KIND_TABLE.items() if k.kinematic)
 #: the kinds that are soft when ``soft`` is not given.
 SOFT_DEFAULT = frozenset(STATE_KINDS)

@@ -122,14 +122,18 @@ def _start_at(ctl: GPCController, smp: _Sample) -> None:
 def replay_controllers(model_factory, cfg: BenchConfig, N: int, tau):
     """The full-step configurations: (name, controller). ``model_factory(native)`` builds the
     controller's model: ``native=None`` the default (the compiled core when built), ``False`` the
-    pure-Python reference, timed in the same run for the speed-up rows."""
+    pure-Python reference (with QR: the issues' reference path), timed in the same run for the
+    speed-up rows. ``FORM`` rows run the default solver (:func:`~parallel_gpc.gpc.settings.default_solver`:
+    the stage-wise Riccati path at the benchmark's Qu), ``FORM qr`` the square-root QR reference."""
     H = Horizons(N)
     W = Weights(1.0, cfg.qu)
     limits = Limits(torque=tau)
     out = []
-    for form in ("absolute", "incremental", "nonlinear"):
+    for form in ("absolute", "incremental", "nonlinear"):  # the default solver (stage-wise here), QR, Python + QR
         out.append((f"{form}", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form)))
-        out.append((f"{form}{PYTHON_REFERENCE}", GPCController.build(model_factory(False), cfg.Ts, H, W, form=form)))
+        out.append((f"{form} qr", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form, solver="qr")))
+        out.append((f"{form}{PYTHON_REFERENCE}", GPCController.build(model_factory(False), cfg.Ts, H, W, form=form,
+                                                                      solver="qr")))
         out.append((f"{form} +limits", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form,
                                                            limits=limits)))
     for form in ("absolute", "incremental"):  # the paper's Fig. 2 weights: Qu = 0, minimum-norm QR
@@ -140,8 +144,6 @@ def replay_controllers(model_factory, cfg: BenchConfig, N: int, tau):
     out.append(("absolute +limits bvls", GPCController.build(model_factory(None), cfg.Ts, H, W, solver="bvls",
                                                              limits=limits)))
     out.append(("absolute cholesky", GPCController.build(model_factory(None), cfg.Ts, H, W, solver="cholesky")))
-    for form in ("absolute", "incremental", "nonlinear"):  # the Riccati recursion: no condensing
-        out.append((f"{form} riccati", GPCController.build(model_factory(None), cfg.Ts, H, W, form=form, solver="riccati")))
     return out
 
 

@@ -19,6 +19,8 @@ TARGETS = {
     "closed_loop_wall_per_simulated_s": 0.5,
     "step_speedup_over_python": 4.0,
     "nonlinear_step_speedup_over_python": 6.0,
+    "absolute_step_qr_units": 1.3,
+    "nonlinear_step_qr_units": 3.0,
 }
 #: suffix of the step rows timed with the pure-Python model update (the reference of the speed-ups)
 PYTHON_REFERENCE = " (Python reference)"
@@ -76,7 +78,7 @@ def ratios(rows: list[dict]) -> None:
             free = steps.get((r["section"], r["robot"], r["N"], r["method"].split(" +limits")[0]))
             r["ratio_to_unconstrained_step"] = r["median_us"] / free if free else None
         if r["section"] in ("step", "loop") and r["median_us"]:
-            form = r["method"].removesuffix(" riccati")  # the riccati rows against their form's reference
+            form = r["method"].removesuffix(" qr")  # the explicit QR rows against their form's reference
             ref = steps.get((r["section"], r["robot"], r["N"], form + PYTHON_REFERENCE))
             r["speedup_over_python"] = ref / r["median_us"] if ref else None
 
@@ -117,9 +119,16 @@ def evaluate_targets(rows: list[dict], closed_loop: list[dict] | None = None, ro
         r = get.get((sec, robot, N, "nonlinear"))
         if r:
             add(f"nonlinear step median ({label})", r["median_us"], TARGETS["nonlinear_step_median_s"] * 1e6, "us")
+        for form in ("absolute", "nonlinear"):  # the default solver's step in units of one LAPACK QR
+            for method in (form, f"{form} qr"):
+                r = get.get((sec, robot, N, method))
+                if r and r.get("ratio_to_qr_unit"):
+                    which = "the default solver" if method == form else "solver qr"
+                    add(f"{form} step ({which}) in QR units ({label})", r["ratio_to_qr_unit"],
+                        TARGETS[f"{form}_step_qr_units"], "QR units")
         for form in ("absolute", "incremental", "nonlinear"):
             goal = TARGETS["nonlinear_step_speedup_over_python" if form == "nonlinear" else "step_speedup_over_python"]
-            for method in (form, f"{form} riccati"):  # the default (QR) step and the Riccati one
+            for method in (form, f"{form} qr"):  # the default (stage-wise) step and the QR one
                 r = get.get((sec, robot, N, method))
                 if r and r.get("speedup_over_python"):
                     add(f"{method} step speed-up over the pure-Python reference step ({label})",

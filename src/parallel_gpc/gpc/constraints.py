@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..limits import SOFT_QUADRATIC, STATE_KINDS, Limits
+from ..limits import KINEMATIC_KINDS, SOFT_QUADRATIC, STATE_KINDS, Limits
 from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
@@ -106,7 +106,7 @@ class DriveKinematics:
         Raises:
             InvalidParameterError: such limits on a model that is not a robot's, or an unknown joint name.
         """
-        if not any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
+        if not limits.has_kinematic_limits:
             return None
         joints = tuple(limits.joint_position or ())
         kin = cls.of(model, joints)
@@ -115,10 +115,6 @@ class DriveKinematics:
                                         f"limits need a robot's model (drive and joint kinematics); "
                                         f"{type(model).__name__} has none")
         return kin
-
-
-#: the state kinds computed through the robot's kinematics (positions and Jacobians of joints).
-KINEMATIC_KINDS = ("drive_position", "drive_rate", "joint_position")
 
 
 @dataclass
@@ -241,7 +237,7 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
     # rows in the order the two producers write them: output_box, output_velocity, drive_position,
     # joint_position, drive_rate
     blocks = output_rows(limits, H, Ts, p)
-    if any(getattr(limits, k) is not None for k in KINEMATIC_KINDS):
+    if limits.has_kinematic_limits:
         blocks += _kinematic_rows(limits, H, Ts, y_now, fe[1:], y_lin, drives)
     G_rows, h_rows, kinds, slack_of = [], [], [], []
     n_slack = 0

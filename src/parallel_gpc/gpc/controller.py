@@ -40,7 +40,7 @@ from .prediction import Prediction, absolute_prediction, incremental_prediction,
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
 from .riccati import RiccatiPath
-from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings
+from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings, condensed_default
 
 __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "DEFAULT_BOX_SOLVER", "LIMIT_MARGIN",
            "APPLIED_LIMIT_RTOL"]
@@ -126,9 +126,9 @@ class GPCController:
         self.model = model
         self.n_y, self.n_u, self.n_x = model.n_y, model.n_u, model.n_x
         check_sample_time(model, settings.Ts, "model", "the controller's", required=False)  # once, here
+        self._backend, self._backend_name = None, None
         self._apply(settings)
         self._gain = conditioning_rule(model)
-        self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
         self.reset(u0)
 
     def _apply(self, settings: GPCSettings) -> None:
@@ -140,6 +140,11 @@ class GPCController:
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(
             criterion, self.model.C, settings.form, limits=self._qp_limits, Ts=settings.Ts)
+        if self._backend_name != settings.solver:  # a new back end (the same one kept across limit changes)
+            self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
+            self._backend_name = settings.solver
+        # the replacement of a failed stage-wise solve: the condensed default of these settings, built on first use
+        self._replacement = None
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
             self._drives)
@@ -162,12 +167,14 @@ class GPCController:
     def limits(self) -> Limits:
         """The input :class:`~parallel_gpc.limits.Limits`, every value (m,). Assigning new
         limits (a drive derated while running) checks them against the form, the solver and the
-        drive count like the settings; the plan and estimates are kept."""
+        drive count like the settings (a default solver is chosen again for the new limits); the plan
+        and estimates are kept."""
         return self._limits
 
     @limits.setter
     def limits(self, value: Limits) -> None:
-        self._apply(replace(self._settings, limits=value))
+        again = {"solver": None} if self._settings.solver_is_default else {}
+        self._apply(replace(self._settings, limits=value, **again))
 
     # ------------------------------------------------------------------ state
     def reset(self, u_prev=None) -> None:
@@ -321,11 +328,14 @@ class GPCController:
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
         result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
-        if result is not None and result.ok:
-            pred, t2 = self._riccati.input_map(self, stages), t1
-            constraint_report = self._riccati.report
-        else:  # the dense path (and a failed Riccati solve's visible replacement: QR, with its reason)
-            pred = self.predict(X) if pred is None else pred
+        if result is not None and result.ok:  # checked here: one beyond the limits is replaced like a failed one
+            pred = self._riccati.input_map(self, stages)
+            result = self._within_limits(pred, result)
+        staged = result is not None and result.ok
+        if staged:
+            t2, constraint_report = t1, self._riccati.report
+        else:  # the dense path (and a failed stage-wise solve's visible replacement, with its reason)
+            pred = self.predict(X) if stages is not None else pred  # (a stage-wise pred is the input map only)
             problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             warm = self._warm_start(pred, problem.n)
             rows = self._stage_rows(pred, X, warm)
@@ -346,9 +356,8 @@ class GPCController:
                 self._backend.solve, self.disturbance, t0, rows)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
-        violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
-        if violation:  # "optimal" beyond the limits (a loose tolerance): a failure, never applied
-            result = replace(result, status="limits violated", message=f"{result.status}, but {violation}")
+        if not staged:  # a dense (or iterated) solution; a stage-wise one is checked above
+            result = self._within_limits(pred, result)
         fallback = not result.ok
         if fallback:
             result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
@@ -374,6 +383,13 @@ class GPCController:
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, iterations.iterations, iterations.residual,
                         iterations.budget_hit, constraint_report)
 
+    def _within_limits(self, pred: Prediction, result: SolveResult) -> SolveResult:
+        """``result``, or marked ``limits violated`` (not ok) when it is "optimal" but its first move
+        breaks a torque or Δu limit (a loose tolerance): a failure, never applied."""
+        violation = limit_violation(pred, result.v, self.form, self.u_prev, self._limits) if result.ok else ""
+        return replace(result, status="limits violated", message=f"{result.status}, but {violation}") if violation \
+            else result
+
     def _stage_rows(self, pred: Prediction, X: np.ndarray, warm: np.ndarray | None):
         """The state/output limits' rows for this step (None without them), the drive limits
         linearized along the poses of the previous plan (ŷ at the warm start)."""
@@ -384,13 +400,17 @@ class GPCController:
 
     def _dense_solve(self, problem, pred: Prediction, failed: SolveResult | None,
                      warm: np.ndarray | None = None) -> SolveResult:
-        """The back end's solve of the condensed problem; after a failed Riccati solve (``failed``),
-        QR's, with the Riccati failure in the message. A back end's exception becomes a failed result.
+        """The back end's solve of the condensed problem; after a failed stage-wise solve (``failed``),
+        the condensed default's of the same settings (:func:`~parallel_gpc.gpc.settings.condensed_default`:
+        QR without limits), with the stage-wise failure in the message. A back end's exception
+        becomes a failed result.
         ``warm``: the warm start in the decision variables proper (slack variables start at 0)."""
         if failed is None:
             backend = self._backend
-        else:  # a failed stage-wise solve: the condensed default of these limits, or QR without any
-            backend = make_solver(DEFAULT_LIMITED_SOLVER) if self._limits.needs_qp else QRSolver()
+        else:  # a failed stage-wise solve: the condensed default of these limits (QR without any)
+            if self._replacement is None:
+                self._replacement = make_solver(condensed_default(self.form, self._limits, self._settings.terminal))
+            backend = self._replacement
         if warm is not None and problem.n_slack:
             warm = np.concatenate([warm, np.zeros(problem.n_slack)])
         try:

@@ -1,4 +1,5 @@
-"""The controller's unconstrained problems solved by the Riccati recursion (``solver="riccati"``).
+"""The controller's unconstrained problems solved by the Riccati recursion (``solver="riccati"``,
+the default where it gives QR's minimizer: :func:`~parallel_gpc.gpc.settings.default_solver`).
 
 The criterion (5) of every form is a linear-quadratic tracking problem of a state-space model
 over the horizon; instead of condensing it into ŷ = f + G v (eq. (7)–(12)) and solving the

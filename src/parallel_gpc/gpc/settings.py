@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..errors import InvalidParameterError
-from ..limits import Limits, as_limits
+from ..limits import KINEMATIC_KINDS, Limits, as_limits
 from ..validation import number, positive
 from .criterion import Weights
 from .prediction import Horizons
@@ -18,14 +18,31 @@ FORMS = ("absolute", "incremental", "incremental-delayed", "nonlinear")
 PAPER_FORMS = ("absolute", "incremental", "nonlinear")
 #: forms whose decision variable is the increment Δu (the incremental forms).
 INCREMENTAL_FORMS = ("incremental", "incremental-delayed", "nonlinear")
-#: back end used with limits and no solver named, incremental forms (the torque limit acts on
-#: cumulative sums of Δu: linear limits).
+#: condensed back end used with limits and no solver named, incremental forms (the torque limit
+#: acts on cumulative sums of Δu: linear limits).
 DEFAULT_LIMITED_SOLVER = "qr-first:daqp-direct"
-#: back end used with limits and no solver named, absolute form (the torque limit is a box on
-#: v = u): QR, then bounded-variable least squares when a limit binds — an exact active set on
-#: the square-root form (KKT residual ≤ 4e-15 relative on the benchmark problems of every robot,
-#: DAQP's regularized QP ≤ 2e-10) and no dense QP setup.
+#: condensed back end used with limits and no solver named, absolute form (the torque limit is a
+#: box on v = u): QR, then bounded-variable least squares when a limit binds — an exact active set
+#: on the square-root form (KKT residual ≤ 4e-15 relative on the benchmark problems of every
+#: robot, DAQP's regularized QP ≤ 2e-10) and no dense QP setup.
 DEFAULT_BOX_SOLVER = "qr-first:bvls"
+#: the stage-wise path is the default only when σ_min(Qu) ≥ RICCATI_QU_MARGIN · σ_max(Qy) · Ts²
+#: (Qy·Ts² is the scale of the outputs' weight on an input: G ~ Ts² M⁻¹B; the Riccati recursion
+#: works with R + BᵀPB, the square of the conditioning QR sees, so its plan drifts from QR's as Qu
+#: shrinks on redundant drives). Measured, plan ‖v − v_qr‖/‖v_qr‖ over one step of the absolute,
+#: incremental and nonlinear forms (planar_4rrr, delta_3rus, hexapod_6ups, hexapod_8ups,
+#: docs/your-robot/fivebar.urdf; Ts = 1, 2, 10 ms, Qu = 1e-2 … 1e-10): ≤ 4.1e-11 at
+#: σ_min(Qu)/(σ_max(Qy)·Ts²) ≥ 1e-2, 3e-10 to 4.4e-10 at 1e-3 to 2.5e-3, up to 1.7e-4 at 1e-6 (the
+#: redundant robots; the others stay ≤ 4e-11 at every Qu measured).
+RICCATI_QU_MARGIN = 1e-2
+#: with limits, the stage-wise interior point is the default from this horizon on (N ≥): measured
+#: faster than the condensed default at N ≥ 80 (1.4–1.8× absolute, 2.5–8× incremental, torque
+#: limits, planar_4rrr) with the same objective to 10–12 digits, slower at N ≤ 40
+#: (benchmarks/README.md, "With limits: the stage-wise interior point"). The one constant to retune
+#: when a faster stage-wise limited solver lands.
+STAGEWISE_LIMITED_MIN_N = 80
+#: forms and limit kinds the limited stage-wise default was measured on.
+STAGEWISE_LIMITED_FORMS = ("absolute", "incremental")
 #: terminal equalities of the tracking forms: ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: that and
 #: ŷ(k+N) = ŷ(k+N−1) (zero mean velocity over the last predicted sample).
 TERMINALS = ("pose", "stop")
@@ -47,13 +64,15 @@ class GPCSettings:
         form: ``"absolute"`` (7), ``"incremental"`` (8)–(9) with state [X; u(k−1)],
             ``"incremental-delayed"`` (8)–(9) as printed: state [X; u(k)], B̄ = [0; I], the
             increment realized one sample later (needs N ≥ 2), or ``"nonlinear"`` (10)–(12).
-        solver: back-end name (:func:`parallel_gpc.solvers.make_solver`), or ``"riccati"``: the
-            problem solved stage-wise, no condensing (needs Qu nonsingular; the Riccati recursion
-            without limits, :mod:`parallel_gpc.gpc.riccati`; with torque, du, output_box and
+        solver: back-end name (:func:`parallel_gpc.solvers.make_solver`: ``"qr"``, the paper's
+            square-root reference, and the condensed back ends), or ``"riccati"``: the problem
+            solved stage-wise, no condensing (needs Qu nonsingular; the Riccati recursion without
+            limits, :mod:`parallel_gpc.gpc.riccati`; with torque, du, output_box and
             output_velocity limits a stage-wise interior point, :mod:`parallel_gpc.gpc.stagewise`;
-            not with drive limits); None resolves to ``"qr"`` without limits;
-            with input limits only :data:`DEFAULT_BOX_SOLVER` (absolute form) or
-            :data:`DEFAULT_LIMITED_SOLVER` (incremental forms, and any form with state limits).
+            not with drive limits, a terminal equality or weight, or iterations > 1); None: the
+            default of :func:`default_solver` (``"riccati"`` where it gives QR's minimizer and
+            is faster, otherwise ``"qr"`` or a condensed QP back end). After validation the
+            name the controller uses; :attr:`solver_is_default` says whether it was chosen.
         limits: the :class:`~parallel_gpc.limits.Limits` (torque |u| ≤ τ; increment
             |u(k) − u(k−1)| ≤ δ, incremental forms only; the state kinds drive_position,
             drive_rate, output_box, output_velocity, joint_position, hard or soft,
@@ -83,6 +102,9 @@ class GPCSettings:
             ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: also ŷ(k+N) = ŷ(k+N−1) (the mean velocity over
             the last predicted sample is zero: stop at the target; needs N − No ≥ 2); None
             (default): none. The terminal weight is the weights' ``Qf``.
+        solver_is_default: True when ``solver`` was left unset and :func:`default_solver` chose
+            it (not a constructor argument; a changed copy, ``dataclasses.replace(settings,
+            limits=...)`` with ``solver=None``, chooses again).
 
     Raises:
         InvalidParameterError: bad Ts, form, horizons, weights or limits type, solver/limits
@@ -101,6 +123,7 @@ class GPCSettings:
     tolerance: float = 1e-8
     time_budget: float | None = None
     terminal: str | None = None
+    solver_is_default: bool = field(default=False, init=False)
 
     def __post_init__(self):
         def put(name, value):
@@ -118,32 +141,28 @@ class GPCSettings:
             raise InvalidParameterError(
                 f"form 'incremental-delayed' needs N ≥ 2 (its increment acts from k+2 on); got N = {self.horizons.N}")
         check_form_limits(self.form, self.limits)
+        check_iterations(self)
         check_terminal(self)
-        put("solver", resolve_solver(self.solver, self.form, self.limits, self.terminal))
-        if self.solver == "riccati" and self.weights.Qf is not None and np.any(np.asarray(self.weights.Qf) != 1.0):
-            raise InvalidParameterError(f"solver 'riccati' takes the paper's criterion; the terminal weight "
-                                        f"Qf = {self.weights.Qf!r} needs a dense back end such as 'qr'")
+        put("solver_is_default", self.solver is None)
+        put("solver", default_solver(self) if self.solver is None else resolve_solver(
+            self.solver, self.form, self.limits, self.terminal, stagewise_obstacle(self)))
         if self.disturbance_gain is None:
             put("disturbance_gain", 0.0 if self.form == "absolute" else 0.5)
         put("disturbance_gain", unit_interval("disturbance_gain", self.disturbance_gain))
         put("max_condition", positive("max_condition", self.max_condition))
-        check_iterations(self)
         put("tolerance", positive("tolerance", self.tolerance))
         if self.time_budget is not None:
             put("time_budget", positive("time_budget", self.time_budget, " s"))
 
 
 def check_iterations(settings: "GPCSettings") -> None:
-    """Refuse iterations that are not an integer ≥ 1, or > 1 outside the nonlinear form's dense solve."""
+    """Refuse iterations that are not an integer ≥ 1, or > 1 outside the nonlinear form."""
     n = settings.iterations
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InvalidParameterError(f"iterations = {n!r} must be an integer ≥ 1 (1: the paper's single step)")
     if n > 1 and settings.form != "nonlinear":
         raise InvalidParameterError(f"iterations = {n} iterates the nonlinear form's prediction; form is "
                                     f"{settings.form!r} (use form='nonlinear' or iterations=1)")
-    if n > 1 and settings.solver == "riccati":
-        raise InvalidParameterError(f"iterations = {n} needs a dense back end (e.g. 'qr'); solver 'riccati' "
-                                    "solves the paper's single step only")
 
 
 def check_terminal(settings: "GPCSettings") -> None:
@@ -170,35 +189,105 @@ def check_form_limits(form: str, limits: Limits) -> None:
                                     "form is 'absolute'")
 
 
-def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str | None = None) -> str:
-    """The back end of a form with these limits (and terminal equality): None resolves to the
-    default; a back end that cannot enforce them is refused.
+def stagewise_obstacle(settings: "GPCSettings") -> str:
+    """Why the stage-wise path (``solver="riccati"``) cannot solve these settings' problem, or ""
+    when it can: the one owner of that rule (the default and an explicit ``"riccati"`` both ask).
+    Qu's singularity is checked where the weights meet the drive count
+    (:class:`~parallel_gpc.gpc.riccati.RiccatiSolver`)."""
+    limits, qf = settings.limits, np.asarray(settings.weights.Qf, dtype=float)
+    if settings.terminal is not None:
+        return f"it cannot enforce the terminal equality {settings.terminal!r} (general equality rows)"
+    if np.any(qf != 1.0):
+        return (f"it takes the paper's criterion; the terminal weight Qf = {settings.weights.Qf!r} needs a "
+                "dense back end")
+    if settings.iterations > 1:
+        return f"iterations = {settings.iterations} needs a dense back end; it solves the paper's single step only"
+    kinematic = [kind for kind in KINEMATIC_KINDS if getattr(limits, kind) is not None]
+    if kinematic:
+        return (f"it enforces torque, du, output_box and output_velocity limits stage-wise; the drive limits or "
+                f"joint ranges ({', '.join(kinematic)}) in {limits.describe()} are linearized along the condensed "
+                "prediction")
+    return ""
+
+
+def weight_margin(weights: Weights, Ts: float) -> float:
+    """σ_min(Qu) / (σ_max(Qy)·Ts²) (1/s², compared with :data:`RICCATI_QU_MARGIN`); inf when Qy = 0."""
+    def singular_values(w):
+        w = np.asarray(w, dtype=float)
+        return np.abs(w).ravel() if w.ndim < 2 else np.linalg.svd(w, compute_uv=False)
+    qy = singular_values(weights.Qy).max()
+    return np.inf if qy == 0.0 else singular_values(weights.Qu).min() / (qy * Ts * Ts)
+
+
+def condensed_default(form: str, limits: Limits, terminal: str | None = None) -> str:
+    """The condensed back end of a form with these limits (and terminal equality): ``"qr"``
+    without limits, :data:`DEFAULT_BOX_SOLVER` for box limits on the absolute form, otherwise
+    :data:`DEFAULT_LIMITED_SOLVER` (also the replacement of a failed stage-wise solve)."""
+    if not limits.needs_qp and terminal is None:
+        return "qr"
+    box_only = form == "absolute" and not limits.has_state_limits and terminal is None
+    return DEFAULT_BOX_SOLVER if box_only else DEFAULT_LIMITED_SOLVER
+
+
+def default_solver(settings: "GPCSettings") -> str:
+    """The back end ``solver=None`` resolves to: the one place of the default policy.
+
+    ======================================================  =========================================
+    the settings                                            default
+    ======================================================  =========================================
+    stage-wise exact (below), no limits                     ``"riccati"`` (the Riccati recursion)
+    stage-wise exact, torque/du limits only, form in        ``"riccati"`` (the stage-wise interior
+    :data:`STAGEWISE_LIMITED_FORMS`, N ≥                    point)
+    :data:`STAGEWISE_LIMITED_MIN_N`
+    otherwise                                               :func:`condensed_default`: ``"qr"``
+                                                            without limits (Qu singular: QR's
+                                                            minimum-norm answer, no drive fighting),
+                                                            :data:`DEFAULT_BOX_SOLVER`,
+                                                            :data:`DEFAULT_LIMITED_SOLVER`
+    ======================================================  =========================================
+
+    Stage-wise exact: the Riccati path gives the condensed problem's minimizer to rounding — no
+    :func:`stagewise_obstacle` (terminal equality or weight, iterations > 1, drive or joint
+    limits) and :func:`weight_margin` ≥ :data:`RICCATI_QU_MARGIN` (Qu nonsingular with margin).
+    """
+    limits, H = settings.limits, settings.horizons
+    exact = not stagewise_obstacle(settings) and weight_margin(settings.weights, settings.Ts) >= RICCATI_QU_MARGIN
+    inputs_only = not limits.has_state_limits
+    if exact and (not limits.needs_qp or (inputs_only and settings.form in STAGEWISE_LIMITED_FORMS
+                                          and H.N >= STAGEWISE_LIMITED_MIN_N)):
+        return "riccati"
+    return condensed_default(settings.form, limits, settings.terminal)
+
+
+def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str | None = None,
+                   stagewise: str | None = None) -> str:
+    """A back-end name checked against a form with these limits (and terminal equality); None
+    resolves to :func:`condensed_default` (the planner's condensed problems; a controller's
+    default is :func:`default_solver`).
+
+    Args:
+        stagewise: :func:`stagewise_obstacle` of a controller's settings ("" none): ``"riccati"``
+            is refused with it; None: no stage-wise path (a condensed problem).
 
     Raises:
-        InvalidParameterError: not a name, or a name that cannot enforce ``limits`` (qr, cholesky,
-            riccati with a drive or joint limit, a terminal equality or Qf ≠ 1; bvls with the incremental
-            forms' torque limit, state limits or a terminal equality).
+        InvalidParameterError: not a name, or a name that cannot enforce ``limits`` or the
+            terminal equality (qr, cholesky; riccati where :func:`stagewise_obstacle` says why;
+            bvls with the incremental forms' torque limit, state limits or a terminal equality).
     """
-    limited = limits.needs_qp or terminal is not None
-    if terminal is not None and solver is not None and isinstance(solver, str) and (
-            solver in ("qr", "cholesky", "riccati") or solver.endswith("bvls")):
-        raise InvalidParameterError(f"solver {solver!r} cannot enforce the terminal equality {terminal!r} (general "
-                                    f"equality rows); use {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
     if solver is None:
-        box_only = form == "absolute" and not limits.has_state_limits and terminal is None
-        return "qr" if not limited else DEFAULT_BOX_SOLVER if box_only else DEFAULT_LIMITED_SOLVER
+        return condensed_default(form, limits, terminal)
     if not isinstance(solver, str):
         raise InvalidParameterError(f"solver {solver!r} must be a back-end name such as 'qr'")
-    if solver in ("qr", "cholesky") and limited:
+    if solver == "riccati" and stagewise:
+        raise InvalidParameterError(f"solver 'riccati' cannot solve this problem: {stagewise}; use a back end such "
+                                    f"as {condensed_default(form, limits, terminal)!r} (or leave solver unset)")
+    if terminal is not None and (solver in ("qr", "cholesky") or solver.endswith("bvls")):
+        raise InvalidParameterError(f"solver {solver!r} cannot enforce the terminal equality {terminal!r} (general "
+                                    f"equality rows); use {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
+    if solver in ("qr", "cholesky") and limits.needs_qp:
         raise InvalidParameterError(
             f"solver {solver!r} cannot enforce the limits {limits!r}; use a QP back end such as "
-            f"{DEFAULT_LIMITED_SOLVER!r}, 'osqp-direct' or 'qpsolvers:osqp'")
-    if solver == "riccati" and any(getattr(limits, kind) is not None
-                                   for kind in ("drive_position", "drive_rate", "joint_position")):
-        raise InvalidParameterError(
-            f"solver 'riccati' enforces torque, du, output_box and output_velocity limits stage-wise; the drive limits "
-            f"or joint ranges in {limits.describe()} are linearized along the condensed prediction: use a QP back end "
-            f"such as {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
+            f"{condensed_default(form, limits)!r}, 'osqp-direct' or 'qpsolvers:osqp'")
     if solver.endswith("bvls") and limits.has_state_limits:
         raise InvalidParameterError(
             f"solver {solver!r} handles box limits only; the state limits {limits.describe()} are linear rows in the "

@@ -92,6 +92,11 @@ def gain_column() -> Column:
     return Column("est. α", 6, "", lambda res, m: f"{res.meta.get('disturbance_gain', float('nan')):6.2f}")
 
 
+def solver_column() -> Column:
+    """The back end the run's controller used (its default resolved: ``riccati``, ``qr``, …)."""
+    return Column("solver", 20, "", lambda res, m: f"{str(res.meta.get('solver', '?')):>20}")
+
+
 def step_time_columns(Ts: float | None = None) -> list[Column]:
     """Mean and largest (``p99`` without ``Ts``) controller step time in ms; with ``Ts`` the number
     of steps longer than Ts (deadline overruns)."""

@@ -35,7 +35,7 @@ from ..validation import finite_vector, positive
 from ..estimation import StateEstimator, SensedPlant, Sensors
 from .loop import run_loop
 from .simulation import SimulationResult, simulate
-from .tables import (FORM_WIDTH, Column, effort_columns, error_columns, gain_column, output_space_of,
+from .tables import (FORM_WIDTH, Column, effort_columns, error_columns, gain_column, output_space_of, solver_column,
                      step_time_columns, text_table)
 
 #: plants a tracking run can drive
@@ -71,7 +71,9 @@ class TrackingSettings:
             :data:`~parallel_gpc.gpc.settings.TERMINALS`; hard rows, a QP back end), or None.
         limits: the controllers' input :class:`~parallel_gpc.limits.Limits` (a du limit: incremental
             forms only); default none.
-        solver: back-end name or None (each form's default: QR without limits).
+        solver: back-end name or None (each form's default,
+            :func:`~parallel_gpc.gpc.settings.default_solver`: the stage-wise ``riccati`` where it
+            gives QR's minimizer, ``qr`` at Qu = 0; shown in the table's ``solver`` column).
         disturbance_gain: α ∈ [0, 1] of the state-disturbance estimate, the same for every form
             (so that form and estimator effects are never confounded); 0 = no estimator;
             None (default): each controller's own default (0 absolute, 0.5 incremental forms),
@@ -406,7 +408,8 @@ def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None =
     """A text table of the tracking metrics by form (position error in mm, orientation error in
     mrad — the norm of the angular output errors, ψ on a planar robot; only with angular
     outputs —, drive effort in ``drive_unit``, step times in ms), with the gain α of the
-    disturbance estimate each form ran with and, for runs with an estimator, its RMS error.
+    disturbance estimate and the back end each form ran with and, for runs with an estimator,
+    its RMS error.
 
     Args:
         results: simulation results by form name.
@@ -415,7 +418,7 @@ def metrics_table(results: dict[str, SimulationResult], drive_unit: str | None =
     """
     space = output_space_of(results.values())
     cols = [gain_column(), *error_columns(space), *effort_columns(space, drive_unit), *step_time_columns(),
-            Column("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}")]
+            Column("fallb.", 6, "", lambda res, m: f"{m['fallbacks']:6d}"), solver_column()]
     if any(res.estimate_error is not None for res in results.values()):
         cols.append(Column("est. err", 9, "[mm]", lambda res, m: f"{1e3 * m['rms_estimate_position_error_m']:9.2e}"
                            if "rms_estimate_position_error_m" in m else f"{'—':>9}"))
