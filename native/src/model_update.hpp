@@ -140,7 +140,8 @@ class ModelUpdate {
   nb::object handler_;
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
-  Vec q_, zero_v_;
+  Vec q_, zero_v_, g_;
+  std::vector<Mat> rate_dPhi_;  // Φ̇_q(T e_i), i < n_y (factor_rates)
   Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
   Mat aug_, E_;
   TopRowsExpm expm_;

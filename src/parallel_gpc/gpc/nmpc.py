@@ -264,8 +264,10 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
+            JX = np.empty_like(A_seq)
+            JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
             try:
-                JX = self.model.stage_jacobians(X_seq, u_traj, self.Ts)
+                JX[1:] = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break

@@ -29,6 +29,7 @@ from .linalg import spd_solve
 from .native import native_module
 from .native_update import compiled_model_update, model_update_status, use_native
 from .robot import ParallelRobot
+from ..errors import InvalidParameterError
 from ..validation import finite_vector, positive
 
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
@@ -359,7 +360,8 @@ class ReducedModel:
             return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
-    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
+    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP,
+                        start: int = 0):
         """∂Φ/∂X of the stage map Φ(X, u) = E(X)·[X; u; 1] = A_d(X) X + B_d(X) u + c_d(X)
         (:meth:`discrete`, the pre-simulation's map (10)) at each stage of a trajectory.
 
@@ -377,30 +379,34 @@ class ReducedModel:
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
-            Ts: sample time (s); step: relative central-difference step of the y-derivatives of Z.
+            Ts: sample time (s); step: relative central-difference step of the y-derivatives of Z;
+            start: the first stage (0..K): the stages before it are skipped (a fixed initial state
+                needs no ∂Φ/∂X at stage 0).
 
         Returns:
-            (K, n_x, n_x) Jacobians.
+            (K − start, n_x, n_x) Jacobians of the stages start..K−1.
         """
         X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
         K, n, ny = len(u_seq), self.n_x, self.n_y
+        if not 0 <= start <= K:
+            raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
         compiled = native_module() if self.native else None
         if compiled is not None and hasattr(compiled, "stage_jacobians"):
             return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
-                                            Ts, step).reshape(K, n, n)
-        J = np.empty((K, n, n))
+                                            Ts, step, start).reshape(K - start, n, n)
+        J = np.empty((K - start, n, n))
         M_top = np.zeros((n, n + self.n_u + 1))
         M_top[:ny, ny:n] = np.eye(ny) * Ts
         D_top = np.zeros((n, n, n + self.n_u + 1))
         sim = self._sim_warm  # the last pre-simulation's assemblies: usually at these very states
-        for i in range(K):
+        for i in range(start, K):
             x = X_seq[i]
             base = sim[i] if i < len(sim) and np.array_equal(sim[i][1], x[:ny]) else None
             Z, dZ = self._factor_derivatives(x, step, base)
             M_top[ny:, ny:] = Z * Ts
             D_top[:, ny:, ny:] = dZ * Ts
             E, dE = expm_derivative_action(M_top, D_top, np.concatenate([x, u_seq[i], [1.0]]))
-            J[i] = E[:, :n] + dE
+            J[i - start] = E[:, :n] + dE
         return J
 
     def stage_jacobians_differences(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float,
