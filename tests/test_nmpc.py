@@ -156,6 +156,18 @@ def test_compiled_stage_jacobians_equal_the_python_reference(name):
     assert np.abs(J - J_ref).max() <= 1e-8 * np.abs(J_ref).max()  # differences of two rounding paths
 
 
+def test_compiled_stage_jacobians_reuse_the_presimulations_factorization(robot4):
+    """Along the last pre-simulation the compiled Jacobian takes each state's factorization from it;
+    a model without that pre-simulation (every state assembled anew) gives the same Jacobians."""
+    from parallel_gpc.model.native import native_module
+    if not hasattr(native_module(), "stage_jacobians"):
+        pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    model, traj, u = _moving("planar_4rrr")
+    reused = model.stage_jacobians(traj, u, TS)
+    fresh = ReducedModel(robot4).stage_jacobians(traj, u, TS)
+    assert np.abs(reused - fresh).max() <= 1e-8 * np.abs(fresh).max()
+
+
 @pytest.mark.parametrize("native", [None, False])
 def test_stage_jacobians_from_a_later_stage_are_those_stages(native, robot4):
     """start = 1 (the iterations skip the fixed initial state's stage) gives the same Jacobians as

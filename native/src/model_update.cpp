@@ -93,10 +93,26 @@ const Mat &ModelUpdate::factor_here(const Vec &yd) {
 const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
   const Vec y = X.head(n_y), yd = X.tail(n_y);
   kinematics(y, base);
-  factor_here(yd);
-  warm_->W = W_;
-  warm_->yd = yd;
-  warm_->has_w = true;
+  if (base != nullptr && base->has_z && base->y == y && base->yd == yd) {
+    // the base's own state (a pre-simulation's, linearized along by stage_jacobians): its factorization,
+    // computed at the same q, T, Φ_z⁺ and ẏ (the same numbers)
+    Z_ = base->Z;
+    M_ = base->M;
+    red_ = base->red;
+    g_ = base->g;
+    W_ = base->W;
+  } else {
+    factor_here(yd);
+  }
+  Warm &w = *warm_;
+  w.W = W_;
+  w.yd = yd;
+  w.has_w = true;
+  w.Z = Z_;
+  w.M = M_;
+  w.red = red_;
+  w.g = g_;
+  w.has_z = true;
   return Z_;
 }
 

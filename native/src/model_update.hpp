@@ -46,6 +46,11 @@ struct Warm {
   bool has_w = false;
   Mat W;
   Vec yd;
+  // the factorization at (y, ẏ = yd) when has_z (factor_rows): Z, the full mass matrix M, [M_r | Tᵀ rhs] and
+  // the gravity torques g; a later factor_rows at this very state takes them instead of recomputing
+  bool has_z = false;
+  Mat Z, M, red;
+  Vec g;
 };
 
 // Kinematics of the assembly rows Ψ = [Φ; h − y] (closures.py, outputs.py, universal.py).
