@@ -375,7 +375,8 @@ class ReducedModel:
         linear in ẏ), ∂Z/∂y a forward difference of Z along the closures' tangent with step
         h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): n_y model updates without
         assembly per stage (the states' own assemblies come from the last pre-simulation when it
-        visited them) instead of the 2·n_x assembled updates and exponentials of differences of Φ
+        visited them, in the compiled core their factorizations too) instead of the 2·n_x
+        assembled updates and exponentials of differences of Φ
         (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~3e-9 relative). The
         compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
         is its reference.
