@@ -156,6 +156,34 @@ def test_compiled_stage_jacobians_equal_the_python_reference(name):
     assert np.abs(J - J_ref).max() <= 1e-8 * np.abs(J_ref).max()  # differences of two rounding paths
 
 
+def test_compiled_stage_jacobians_reuse_the_presimulations_factorization(robot4):
+    """Along the last pre-simulation the compiled Jacobian takes each state's factorization from it;
+    a model without that pre-simulation (every state assembled anew) gives the same Jacobians."""
+    from parallel_gpc.model.native import native_module
+    if not hasattr(native_module(), "stage_jacobians"):
+        pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    model, traj, u = _moving("planar_4rrr")
+    reused = model.stage_jacobians(traj, u, TS)
+    fresh = ReducedModel(robot4).stage_jacobians(traj, u, TS)
+    assert np.abs(reused - fresh).max() <= 1e-8 * np.abs(fresh).max()
+
+
+@pytest.mark.parametrize("native", [None, False])
+def test_stage_jacobians_from_a_later_stage_are_those_stages(native, robot4):
+    """start = 1 (the iterations skip the fixed initial state's stage) gives the same Jacobians as
+    the stages 1.. of the full call; a start beyond the stages is refused."""
+    model, traj, u = _moving("planar_4rrr")
+    model = ReducedModel(robot4, native=native)
+    traj = model.simulate_factorized(traj[0], u, TS)[3]  # with the warm starts of its own states
+    full = model.stage_jacobians(traj, u, TS)
+    later = model.stage_jacobians(traj, u, TS, start=1)
+    assert later.shape == (4, 6, 6)
+    assert np.abs(later - full[1:]).max() <= 1e-12 * np.abs(full).max()
+    assert model.stage_jacobians(traj, u, TS, start=5).shape == (0, 6, 6)
+    with pytest.raises(InvalidParameterError, match=r"start = 6 .*valid: 0\.\.5"):
+        model.stage_jacobians(traj, u, TS, start=6)
+
+
 @pytest.mark.parametrize("name,limits", [
     ("planar_4rrr", None),
     ("planar_4rrr", "torque"),

@@ -80,11 +80,11 @@ Mat ModelUpdate::solve_reduced(const Mat &A, const Mat &B) {
 const Mat &ModelUpdate::factor_here(const Vec &yd) {
   Mat K;
   bias_rows(T_ * yd, K);
-  pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
+  g_ = pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
   // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
   rhs_.leftCols(n_y).noalias() = M_ * T_;
   rhs_.middleCols(n_y, n_y) = K;
-  rhs_.col(rhs_.cols() - 1) = -kin.data.g;
+  rhs_.col(rhs_.cols() - 1) = -g_;
   red_.noalias() = T_.transpose() * rhs_;
   Z_ = solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y));
   return Z_;
@@ -93,10 +93,26 @@ const Mat &ModelUpdate::factor_here(const Vec &yd) {
 const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
   const Vec y = X.head(n_y), yd = X.tail(n_y);
   kinematics(y, base);
-  factor_here(yd);
-  warm_->W = W_;
-  warm_->yd = yd;
-  warm_->has_w = true;
+  if (base != nullptr && base->has_z && base->y == y && base->yd == yd) {
+    // the base's own state (a pre-simulation's, linearized along by stage_jacobians): its factorization,
+    // computed at the same q, T, Φ_z⁺ and ẏ (the same numbers)
+    Z_ = base->Z;
+    M_ = base->M;
+    red_ = base->red;
+    g_ = base->g;
+    W_ = base->W;
+  } else {
+    factor_here(yd);
+  }
+  Warm &w = *warm_;
+  w.W = W_;
+  w.yd = yd;
+  w.has_w = true;
+  w.Z = Z_;
+  w.M = M_;
+  w.red = red_;
+  w.g = g_;
+  w.has_z = true;
   return Z_;
 }
 
@@ -112,13 +128,38 @@ const Mat &ModelUpdate::factor_rows_at(const Vec &q, const Vec &yd) {
 
 const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates) {
   factor_rows(X, base);
-  // K is linear in ẏ: K(e_j) = ∂K/∂ẏ_j at the same q (no assembly); one solve with M_r for all j
-  Mat rhs(nv, n_y * n_y), K;
-  for (Index j = 0; j < n_y; ++j) {
-    bias_rows(T_.col(j), K);
-    rhs.middleCols(j * n_y, n_y) = K;
+  // K is linear in ẏ: K(e_j) = M_z W̄(e_j) − ½ ∂h/∂v(T e_j) T = ∂K/∂ẏ_j at the same q (no assembly), with the
+  // q-only parts (M_, g_, Φ_z⁺, T) of factor_rows computed once. h − g = b(v, v) is a symmetric bilinear form
+  // in v, so ∂h/∂v(T e_j) T e_i = 2 b(T e_j, T e_i): n_y (n_y + 1) / 2 RNEA passes by polarization instead of
+  // n_y RNEA derivatives; Φ̇_q(T e_i) (n_y passes) serves W(e_j) and the unsymmetric closure term alike
+  auto &model = kin.model;
+  auto &data = kin.data;
+  const Index ny = n_y;
+  rate_dPhi_.resize(ny);
+  for (Index i = 0; i < ny; ++i) kin.jacobian_rate(q_, T_.col(i), rate_dPhi_[i]);
+  Mat P(nv, ny * ny);  // column i·n_y + j: 2 b(T e_i, T e_j)
+  for (Index i = 0; i < ny; ++i)
+    P.col(i * ny + i) = 2.0 * (pinocchio::rnea(model, data, q_, T_.col(i), zero_v_) - g_);
+  for (Index i = 0; i < ny; ++i)
+    for (Index j = i + 1; j < ny; ++j) {
+      const Vec both = T_.col(i) + T_.col(j);
+      P.col(i * ny + j) = pinocchio::rnea(model, data, q_, both, zero_v_) - g_ -
+                          0.5 * (P.col(i * ny + i) + P.col(j * ny + j));
+      P.col(j * ny + i) = P.col(i * ny + j);
+    }
+  Mat Mz(nv, n_z), rhs(nv, ny * ny), Wb(n_z, ny);
+  for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
+  for (Index j = 0; j < ny; ++j) {
+    Wb.noalias() = pinv_ * (rate_dPhi_[j] * T_);
+    if (!cfg.bias_symmetric) {  // ½ (W + Φ_z⁺ [Φ̇_q(T e_i) T e_j]_i)
+      W2_.resize(kin.rows, ny);
+      for (Index i = 0; i < ny; ++i) W2_.col(i).noalias() = rate_dPhi_[i] * T_.col(j);
+      Wb = 0.5 * (Wb + pinv_ * W2_);
+    }
+    rhs.middleCols(j * ny, ny).noalias() = Mz * Wb;
+    rhs.middleCols(j * ny, ny) -= 0.5 * P.middleCols(j * ny, ny);
   }
-  rates = solve_reduced(red_.leftCols(n_y), T_.transpose() * rhs);
+  rates = solve_reduced(red_.leftCols(ny), T_.transpose() * rhs);
   return Z_;
 }
 

@@ -46,6 +46,11 @@ struct Warm {
   bool has_w = false;
   Mat W;
   Vec yd;
+  // the factorization at (y, ẏ = yd) when has_z (factor_rows): Z, the full mass matrix M, [M_r | Tᵀ rhs] and
+  // the gravity torques g; a later factor_rows at this very state takes them instead of recomputing
+  bool has_z = false;
+  Mat Z, M, red;
+  Vec g;
 };
 
 // Kinematics of the assembly rows Ψ = [Φ; h − y] (closures.py, outputs.py, universal.py).
@@ -140,7 +145,8 @@ class ModelUpdate {
   nb::object handler_;
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
-  Vec q_, zero_v_;
+  Vec q_, zero_v_, g_;
+  std::vector<Mat> rate_dPhi_;  // Φ̇_q(T e_i), i < n_y (factor_rates)
   Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
   Mat aug_, E_;
   TopRowsExpm expm_;

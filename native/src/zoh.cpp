@@ -7,70 +7,84 @@
 namespace pgpc {
 namespace {
 constexpr double EXPM_THETA = 0.5;  // discretization._EXPM_THETA
+
+// 1/k!, k = 0..n−1 (exact up to 22!, the degrees used after scaling are far below)
+std::vector<double> inverse_factorials(size_t n) {
+  std::vector<double> inv(n, 1.0);
+  double fact = 1.0;
+  for (size_t k = 1; k < n; ++k) {
+    fact *= static_cast<double>(k);
+    inv[k] = 1.0 / fact;
+  }
+  return inv;
 }
+
+// the squarings s with ‖M‖/2^s ≤ θ (Frobenius norm of the top rows: the zero rows add nothing)
+int squarings(double norm) { return norm > EXPM_THETA ? static_cast<int>(std::ceil(std::log2(norm / EXPM_THETA))) : 0; }
+
+// the smallest Taylor degree K whose table norm covers `norm` (discretization.DEGREE_NORMS)
+Index degree(const std::vector<double> &norms, double norm) {
+  return std::lower_bound(norms.begin(), norms.end(), norm) - norms.begin() + 1;
+}
+
+// F (m, n) = top rows of Σ_(k ≤ K) A^k / k!, A (m, n) the top rows of a matrix whose other rows are zero;
+// the top rows of A^k = (top rows of A^(k−1))[:, :m] · A. P, Pn: workspaces
+void taylor_top(const Mat &A, Index K, const std::vector<double> &inv_fact, Mat &F, Mat &P, Mat &Pn) {
+  const Index m = A.rows(), n = A.cols();
+  F.setZero(m, n);
+  F.leftCols(m).setIdentity();
+  P = A;
+  F += P;
+  for (Index k = 2; k <= K; ++k) {
+    Pn.noalias() = P.leftCols(m) * A;
+    P.swap(Pn);
+    F += inv_fact[k] * P;
+  }
+}
+
+// E ← E^(2^s) on the top rows: [[E₁, E₂], [0, I]]² = [[E₁ E₁, E₁ E₂ + E₂], [0, I]]. E2: workspace
+void square_top(Mat &E, int s, Mat &E2) {
+  const Index m = E.rows(), n = E.cols();
+  for (int i = 0; i < s; ++i) {
+    E2.noalias() = E.leftCols(m) * E;
+    E2.rightCols(n - m) += E.rightCols(n - m);
+    E.swap(E2);
+  }
+}
+}  // namespace
 
 void TopRowsExpm::set_table(std::vector<double> degree_norms) {
   norms_ = std::move(degree_norms);
-  inv_fact_.assign(norms_.size() + 2, 1.0);
-  double fact = 1.0;  // exact up to 22!, the degrees used after scaling are far below
-  for (size_t k = 1; k < inv_fact_.size(); ++k) {
-    fact *= static_cast<double>(k);
-    inv_fact_[k] = 1.0 / fact;
-  }
+  inv_fact_ = inverse_factorials(norms_.size() + 2);
 }
 
 bool TopRowsExpm::run(const Mat &M_top, Mat &E) {
-  const Index m = M_top.rows(), n = M_top.cols();
-  double norm = std::sqrt(M_top.squaredNorm());  // Frobenius norm (the zero rows add nothing)
+  const double norm = std::sqrt(M_top.squaredNorm());
   if (!std::isfinite(norm)) return false;
-  int s = 0;
-  M_ = M_top;
-  if (norm > EXPM_THETA) {
-    s = static_cast<int>(std::ceil(std::log2(norm / EXPM_THETA)));
-    const double scale = std::ldexp(1.0, -s);
-    M_ *= scale;
-    norm *= scale;
-  }
-  const Index K = std::lower_bound(norms_.begin(), norms_.end(), norm) - norms_.begin() + 1;
-  // E = Σ_k M^k / k!; the top rows of M^k = (top rows of M^(k-1))[:, :m] · M_top
-  E.setZero(m, n);
-  E.leftCols(m).setIdentity();
-  P_ = M_;
-  E += inv_fact_[1] * P_;
-  for (Index k = 2; k <= K; ++k) {
-    Pn_.noalias() = P_.leftCols(m) * M_;
-    P_.swap(Pn_);
-    E += inv_fact_[k] * P_;
-  }
-  for (int i = 0; i < s; ++i) {  // [[E₁, E₂], [0, I]]² = [[E₁ E₁, E₁ E₂ + E₂], [0, I]]
-    E2_.noalias() = E.leftCols(m) * E;
-    E2_.rightCols(n - m) += E.rightCols(n - m);
-    E.swap(E2_);
-  }
+  const int s = squarings(norm);
+  const double scale = std::ldexp(1.0, -s);
+  M_ = M_top * scale;
+  taylor_top(M_, degree(norms_, norm * scale), inv_fact_, E, P_, Pn_);
+  square_top(E, s, E2_);
   return true;
 }
 
 void TopRowsExpmDerivative::set_table(std::vector<double> degree_norms) {
   norms_ = std::move(degree_norms);
-  inv_fact_.assign(norms_.size() + 5, 1.0);
-  double fact = 1.0;
-  for (size_t k = 1; k < inv_fact_.size(); ++k) {
-    fact *= static_cast<double>(k);
-    inv_fact_[k] = 1.0 / fact;
-  }
+  inv_fact_ = inverse_factorials(norms_.size() + 5);
 }
 
-void TopRowsExpmDerivative::action(const Vec &u, Mat &out) {
-  const Index m = A_.rows(), n_dir = static_cast<Index>(D_.size()), Kd = K_ + 2;
+void TopRowsExpmDerivative::action(const std::vector<Mat> &D, const Vec &u, Mat &out) {
+  const Index m = A_.rows(), n_dir = static_cast<Index>(D.size()), Kd = K_ + 2;
   R_.resize(Kd);
   // R_l (m, n_dir): column k = D_k A^l u; A^l u lives in the top m rows for l ≥ 1
   for (Index l = 0; l < Kd; ++l) {
     R_[l].resize(m, n_dir);
     if (l == 0) {
-      for (Index k = 0; k < n_dir; ++k) R_[0].col(k).noalias() = D_[k] * u;
+      for (Index k = 0; k < n_dir; ++k) R_[0].col(k).noalias() = D[k] * u;
       w_.noalias() = A_ * u;
     } else {
-      for (Index k = 0; k < n_dir; ++k) R_[l].col(k).noalias() = D_[k].leftCols(m) * w_;
+      for (Index k = 0; k < n_dir; ++k) R_[l].col(k).noalias() = D[k].leftCols(m) * w_;
       wn_.noalias() = A_.leftCols(m) * w_;
       w_.swap(wn_);
     }
@@ -86,41 +100,27 @@ void TopRowsExpmDerivative::action(const Vec &u, Mat &out) {
 }
 
 bool TopRowsExpmDerivative::run(const Mat &M_top, const std::vector<Mat> &D, const Vec &xi, Mat &E, Mat &dE) {
-  const Index m = M_top.rows(), n = M_top.cols();
-  double norm = std::sqrt(M_top.squaredNorm());
+  const Index m = M_top.rows();
+  const double norm = std::sqrt(M_top.squaredNorm());
   if (!std::isfinite(norm)) return false;
-  int s = 0;
-  if (norm > EXPM_THETA) s = static_cast<int>(std::ceil(std::log2(norm / EXPM_THETA)));
+  const int s = squarings(norm);
   const double scale = std::ldexp(1.0, -s);
   A_ = M_top * scale;
-  D_.resize(D.size());
-  for (size_t k = 0; k < D.size(); ++k) D_[k] = D[k] * scale;
-  K_ = std::lower_bound(norms_.begin(), norms_.end(), norm * scale) - norms_.begin() + 1;
-  F_.setZero(m, n);
-  F_.leftCols(m).setIdentity();
-  P_ = A_;
-  F_ += P_;
-  for (Index k = 2; k <= K_; ++k) {
-    Pn_.noalias() = P_.leftCols(m) * A_;
-    P_.swap(Pn_);
-    F_ += inv_fact_[k] * P_;
-  }
+  K_ = degree(norms_, norm * scale);
+  taylor_top(A_, K_, inv_fact_, F_, P_, Pn_);
+  // the derivative is linear in the directions: run on D and scale the sum once (no scaled copies of D)
   u_ = xi;
-  action(u_, dE);
-  Mat acc;
+  action(D, u_, dE);
   for (long r = 1; r < (1L << s); ++r) {  // d(F^p ξ) = Σ_r F^(p−1−r) dF F^r ξ, Horner over r
     wn_.noalias() = F_ * u_;
     u_.head(m) = wn_;
-    action(u_, acc);
+    action(D, u_, acc_);
     Y_.noalias() = F_.leftCols(m) * dE;
-    dE = Y_ + acc;
+    dE = Y_ + acc_;
   }
+  dE *= scale;
   E = F_;
-  for (int i = 0; i < s; ++i) {  // [[E₁, E₂], [0, I]]² = [[E₁ E₁, E₁ E₂ + E₂], [0, I]]
-    E2_.noalias() = E.leftCols(m) * E;
-    E2_.rightCols(n - m) += E.rightCols(n - m);
-    E.swap(E2_);
-  }
+  square_top(E, s, E2_);
   return true;
 }
 }  // namespace pgpc

@@ -36,11 +36,11 @@ class TopRowsExpmDerivative {
   bool run(const Mat &M_top, const std::vector<Mat> &D, const Vec &xi, Mat &E, Mat &dE);
 
  private:
-  void action(const Vec &u, Mat &out);  // dF u for every direction (m, n_dir), F = e^(A), A = M/2^s
+  // dF u / 2^-s for every direction D_k (m, n_dir), F = e^A, A = M/2^s (dF along 2^-s D_k: linear in D_k)
+  void action(const std::vector<Mat> &D, const Vec &u, Mat &out);
   std::vector<double> norms_, inv_fact_;
-  std::vector<Mat> D_;
   std::vector<Mat> R_;
-  Mat A_, P_, Pn_, F_, E2_, Y_, S_;
+  Mat A_, P_, Pn_, F_, E2_, Y_, S_, acc_;
   Vec u_, w_, wn_;
   Index K_ = 0;
 };

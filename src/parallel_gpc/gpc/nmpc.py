@@ -23,8 +23,9 @@ J is one fixed function of v for the whole step, and ``iterations=1`` is the pap
 **The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
 (Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
-factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, differences of
-Z in y, 2·n_y model updates per stage in one compiled call; the frozen A_d misses
+factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, forward differences
+of Z in y, n_y model updates per stage in one compiled call, none at stage 0 whose state is fixed; the
+frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
 optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
@@ -264,8 +265,10 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
+            JX = np.empty_like(A_seq)
+            JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
             try:
-                JX = self.model.stage_jacobians(X_seq, u_traj, self.Ts)
+                JX[1:] = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break

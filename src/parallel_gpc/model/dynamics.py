@@ -29,15 +29,21 @@ from .linalg import spd_solve
 from .native import native_module
 from .native_update import compiled_model_update, model_update_status, use_native
 from .robot import ParallelRobot
+from ..errors import InvalidParameterError
 from ..validation import finite_vector, positive
 
 # discretize_zoh, expm and rk4_step live in .discretization; re-exported (tests and users import them from here).
-__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP"]
+__all__ = ["ReducedTerms", "ReducedModel", "kinetic_energy", "discretize_zoh", "expm", "rk4_step", "JACOBIAN_STEP",
+           "TANGENT_STEP"]
 
-#: relative step of the central differences in :meth:`ReducedModel.stage_jacobians` (of the factor rows
-#: along the closures' tangent) and :meth:`ReducedModel.stage_jacobians_differences` (of the whole
-#: stage map, the oracle): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11 relative.
+#: relative step of the central differences in :meth:`ReducedModel.stage_jacobians_differences` (of the
+#: whole stage map, the oracle): truncation O(h²) ≈ 1e-10, rounding ≈ 1e-11 relative.
 JACOBIAN_STEP = 1e-5
+#: relative step of the forward differences of the factor rows along the closures' tangent in
+#: :meth:`ReducedModel.stage_jacobians`, about √ε: truncation O(h) and rounding ε/h both ≈ 1e-8
+#: relative in ∂Z/∂y, which enters ∂Φ/∂X scaled by Ts (measured: within 3e-9 of the central
+#: differences of Φ, relative to ‖∂Φ/∂X‖, on planar_4rrr, delta_3rus and hexapod_6ups).
+TANGENT_STEP = 2e-8
 
 
 @dataclass
@@ -281,12 +287,13 @@ class ReducedModel:
 
         ∂Z/∂ẏ_j is exact: Z's first block −M_r⁻¹ C_r(y, ẏ) is linear in ẏ, so its derivative is the
         same block at ẏ = e_j (K of :meth:`_bias_rows` at e_j, one more solve with M_r), at the
-        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a central difference of Z along
-        the closures' tangent: Z at q ± T e_j h_j (h_j = ``step``·max(1, |y_j|)), not assembled.
-        Z(q) is smooth off the closures too (T and Φ_z⁺ from the assembly Jacobian at q), the line
-        q + T e_j h has the assembled curve's first derivative, and both ends are off it by the
-        same ½ z'' h², which cancels in the difference: O(h²) like the central difference on the
-        curve, without a Newton step.
+        same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a forward difference of Z along
+        the closures' tangent: Z at q + T e_j h_j (h_j = ``step``·max(1, |y_j|)), not assembled,
+        minus Z at X. Z(q) is smooth off the closures too (T and Φ_z⁺ from the assembly Jacobian at
+        q) and the line q + T e_j h has the assembled curve's first derivative (it leaves the curve
+        by ½ z'' h²): O(h) like the forward difference on the curve, without a Newton step, and
+        one model update per direction (a central difference costs two: measured, the forward
+        one at h ≈ √ε (:data:`TANGENT_STEP`) moves ∂Φ/∂X by ≤ 3e-9 of its norm).
 
         Args:
             X: (n_x,) state. step: relative step. base: the warm start of a pre-simulation at X
@@ -317,11 +324,8 @@ class ReducedModel:
         dZ[ny:, :, :ny] = sol[:, nc:].reshape(ny, ny, ny).transpose(1, 0, 2)
         for j in range(ny):
             h = step * max(1.0, abs(y[j]))
-            ends = []
-            for dq in (T[:, j] * h, T[:, j] * -h):
-                qs = r.integrate(q, dq)
-                ends.append(self._factor_at(qs, *r.velocity_map_nocopy(qs), yd)[0])
-            dZ[j] = (ends[0] - ends[1]) / (2.0 * h)
+            qs = r.integrate(q, T[:, j] * h)
+            dZ[j] = (self._factor_at(qs, *r.velocity_map_nocopy(qs), yd)[0] - Z) / h
         return Z, dZ
 
     def factorize(self, X: np.ndarray):
@@ -359,7 +363,8 @@ class ReducedModel:
             return zoh_split(self._native.discrete(X, Ts), self.n_x, self.n_u)
         return zoh_split(expm(self._zoh_augmented(X, Ts)), self.n_x, self.n_u)
 
-    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = JACOBIAN_STEP):
+    def stage_jacobians(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float, step: float = TANGENT_STEP,
+                        start: int = 0):
         """∂Φ/∂X of the stage map Φ(X, u) = E(X)·[X; u; 1] = A_d(X) X + B_d(X) u + c_d(X)
         (:meth:`discrete`, the pre-simulation's map (10)) at each stage of a trajectory.
 
@@ -367,40 +372,45 @@ class ReducedModel:
         (Z = M_r⁻¹ [−C_r | B_r | −g_r]); the second term is the Fréchet derivative of the
         exponential along Ts·∂Z/∂X_k applied to one vector
         (:func:`~parallel_gpc.model.discretization.expm_derivative_action`). ∂Z/∂ẏ is exact (Z is
-        linear in ẏ), ∂Z/∂y a central difference of Z along the closures' tangent with step
-        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): 2·n_y model updates without
+        linear in ẏ), ∂Z/∂y a forward difference of Z along the closures' tangent with step
+        h = ``step``·max(1, |y|) (:meth:`_factor_derivatives`): n_y model updates without
         assembly per stage (the states' own assemblies come from the last pre-simulation when it
-        visited them) instead of the 2·n_x assembled updates and exponentials of differences of Φ
-        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~1e-10 relative). The
+        visited them, in the compiled core their factorizations too) instead of the 2·n_x
+        assembled updates and exponentials of differences of Φ
+        (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~3e-9 relative). The
         compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
         is its reference.
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);
-            Ts: sample time (s); step: relative central-difference step of the y-derivatives of Z.
+            Ts: sample time (s); step: relative forward-difference step of the y-derivatives of Z;
+            start: the first stage (0..K): the stages before it are skipped (a fixed initial state
+                needs no ∂Φ/∂X at stage 0).
 
         Returns:
-            (K, n_x, n_x) Jacobians.
+            (K − start, n_x, n_x) Jacobians of the stages start..K−1.
         """
         X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
         K, n, ny = len(u_seq), self.n_x, self.n_y
+        if not 0 <= start <= K:
+            raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
         compiled = native_module() if self.native else None
         if compiled is not None and hasattr(compiled, "stage_jacobians"):
             return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
-                                            Ts, step).reshape(K, n, n)
-        J = np.empty((K, n, n))
+                                            Ts, step, start).reshape(K - start, n, n)
+        J = np.empty((K - start, n, n))
         M_top = np.zeros((n, n + self.n_u + 1))
         M_top[:ny, ny:n] = np.eye(ny) * Ts
         D_top = np.zeros((n, n, n + self.n_u + 1))
         sim = self._sim_warm  # the last pre-simulation's assemblies: usually at these very states
-        for i in range(K):
+        for i in range(start, K):
             x = X_seq[i]
             base = sim[i] if i < len(sim) and np.array_equal(sim[i][1], x[:ny]) else None
             Z, dZ = self._factor_derivatives(x, step, base)
             M_top[ny:, ny:] = Z * Ts
             D_top[:, ny:, ny:] = dZ * Ts
             E, dE = expm_derivative_action(M_top, D_top, np.concatenate([x, u_seq[i], [1.0]]))
-            J[i] = E[:, :n] + dE
+            J[i - start] = E[:, :n] + dE
         return J
 
     def stage_jacobians_differences(self, X_seq: np.ndarray, u_seq: np.ndarray, Ts: float,
