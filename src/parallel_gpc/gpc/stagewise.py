@@ -3,8 +3,11 @@
 The same stage models as the unconstrained Riccati path (:func:`~parallel_gpc.gpc.riccati.stage_models`:
 z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinear]) and the same criterion
 (5), Φ = J + const: Q_i = 2 C̄ᵀ Qyᵀ Qy C̄ on the penalized steps i = No+1..N, R = 2 Quᵀ Qu. The
-limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on, solved by the interior point
-of :mod:`parallel_gpc.solvers.stagewise_ipm` (work linear in N):
+limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on (work linear in N). A problem
+whose rows are all input rows (torque and Δu: each acts on one component of v(i)) is solved by
+the active set of :mod:`parallel_gpc.solvers.stagewise_active` (one Riccati sweep per change of
+the set), any other — and one whose active set does not settle, visibly (the result's message)
+— by the interior point of :mod:`parallel_gpc.solvers.stagewise_ipm`:
 
 The rows are the ones the condensed layout uses, defined once per kind
 (:func:`~parallel_gpc.gpc.criterion.input_rows`, :func:`~parallel_gpc.gpc.constraints.output_rows`);
@@ -19,7 +22,10 @@ this module only places them on the stages:
   instead of one per pair: the same optimum, the two sides never both bind).
 
 From the controller's second step on, the solve starts from the previous solution shifted by one
-stage (:class:`~parallel_gpc.solvers.StageStart`).
+stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; the interior point's
+plan, multipliers and slacks, :class:`~parallel_gpc.solvers.StageStart`).
+Not covered by the active set: the nonlinear form's torque rows after Nu (the held input plus
+the pre-simulated one: a row on the state alone) go to the interior point.
 
 Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
 (drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
@@ -35,7 +41,8 @@ import numpy as np
 from ..errors import SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import SolveResult, StageQP, StageQPSolution, StageStart, solve_stage_qp
+from ..solvers import (ActiveSetSolution, InputRows, SolveResult, StageQP, StageQPSolution, StageStart, input_rows_of,
+                       shift_active_set, solve_active_set, solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -145,14 +152,20 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
 
 
 class StagewiseSolver:
-    """Stage-wise interior-point solve of one controller's constrained problem.
+    """Stage-wise solve of one controller's constrained problem (active set or interior point).
 
     Args:
         Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). horizons: N, No, Nu.
         form: the controller's form. limits: sized to the drives and outputs (input kinds
             tightened by the controller's margin). Ts: sample time (s).
-        native: None = the compiled ``_native.stagewise_ipm`` when available, False = the Python
-            reference :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+        native: None = the compiled ``_native.stagewise_active`` and ``_native.stagewise_ipm`` when
+            available, False = the Python references :func:`~parallel_gpc.solvers.solve_active_set`
+            and :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+
+    Attributes:
+        method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
+            than input rows) or ``"interior-point after active set"`` (the set did not settle).
+        iterations: the last solve's (active-set sweeps, interior-point iterations), 0 when unused.
     """
 
     name = "riccati"
@@ -162,8 +175,11 @@ class StagewiseSolver:
         self.Wy, self.Wu = np.asarray(Wy, float), np.asarray(Wu, float)
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
-        self.native = self._compiled is not None
+        self._compiled_active = compiled_part(native, "stagewise_active", "the compiled stage-wise active set")
+        self.native = self._compiled is not None and self._compiled_active is not None
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
+        self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
+        self.method, self.iterations = "", (0, 0)
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
     def _start(self, qp: StageQP) -> StageStart | None:
@@ -182,8 +198,23 @@ class StagewiseSolver:
 
         return StageStart(v, shifted(last.lam), shifted(last.s))
 
+    def _active(self, qp: StageQP, rows: InputRows, start: np.ndarray | None):
+        """The active-set solve (compiled, or the Python reference)."""
+        if self._compiled_active is None:
+            return solve_active_set(qp, rows, start)
+        c = np.ascontiguousarray
+        try:
+            v, z, lam, fixed, iterations, ok, residual, message = self._compiled_active(
+                c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
+                c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.f, float), c(rows.comp, np.int64),
+                c(rows.sign, float), None if start is None else c(start, np.int64))
+        except RuntimeError as exc:
+            raise SolverError(str(exc)) from None
+        return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, None, iterations,
+                                 "optimal" if ok else "unconverged", residual, message, fixed)
+
     def _solve(self, qp: StageQP, start: StageStart | None) -> StageQPSolution:
-        """The compiled solve, or the Python reference."""
+        """The compiled interior point, or the Python reference."""
         if self._compiled is None:
             return solve_stage_qp(qp, start=start)
         try:
@@ -220,10 +251,22 @@ class StagewiseSolver:
         H, m = self.horizons, self.Wu.shape[0]
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
                                   y_now, y_sim, u_sim, u_prev, self._output_rows)
+        rows = input_rows_of(qp) if qp.S is None else None
+        fixed_start = shift_active_set(self._fixed, rows) if warm and rows is not None else None
         start = self._start(qp) if warm else None
-        self._last = None
+        self._last, self._fixed = None, None
         try:
-            sol = self._solve(qp, start)
+            sol, self.method, self.iterations = None, "interior-point", (0, 0)
+            if rows is not None:
+                sol = self._active(qp, rows, fixed_start)
+                self.iterations = (sol.iterations, 0)
+                if sol.status == "optimal":
+                    self.method, self._fixed = "active-set", sol.fixed
+                else:
+                    self.method, fell_back = "interior-point after active set", sol.message
+            if sol is None or sol.status != "optimal":
+                sol = self._solve(qp, start)
+                self.iterations = (self.iterations[0], sol.iterations)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None
@@ -246,8 +289,10 @@ class StagewiseSolver:
             binding = np.broadcast_to(kinds, used.shape)[active & state]
             report = ConstraintReport(tuple(sorted({str(kd) for kd in binding})), slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
+        if self.method == "interior-point after active set":
+            message = f"{fell_back}: solved by the interior point" + (f"; {message}" if message else "")
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
         if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):
             status, message = "infeasible", f"a hard limit is exceeded by {hard_excess:.3g} (infeasible)"
-        return SolveResult(v, J, status, self.name, sol.iterations, time.perf_counter() - t0,
+        return SolveResult(v, J, status, self.name, sum(self.iterations), time.perf_counter() - t0,
                            bool(active.any()), message), report
