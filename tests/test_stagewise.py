@@ -542,3 +542,54 @@ def test_conflicting_torque_and_du_limits_fall_back_visibly():
     assert path.constrained.method == "interior-point after active set"
     assert result.status == "infeasible"
     assert "active set" in result.message and "interior point" in result.message
+
+
+HAS_COMPILED_ACTIVE = native_module() is not None and hasattr(native_module(), "stagewise_active")
+if not HAS_COMPILED_ACTIVE and os.environ.get("CI"):
+    raise RuntimeError("CI must test the compiled stage-wise active set (parallel_gpc._native.stagewise_active)")
+
+
+@pytest.mark.skipif(not HAS_COMPILED_ACTIVE, reason="the compiled core has no stagewise_active")
+@pytest.mark.parametrize("incremental", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_active_set_equals_the_python_reference(seed, incremental):
+    """The same sweeps, sets, plan and multipliers (≤ 1e-9), cold and from a start; the cycling
+    problem of two rows on one component is reported unconverged by both."""
+    c = np.ascontiguousarray
+    for qp, start_of in ((_input_row_qp(seed, incremental, du=not incremental), shift_active_set),
+                         (_input_row_qp(0, True), None)):
+        rows = input_rows_of(qp)
+        cold = solve_active_set(qp, rows)
+        for start in (None, None if start_of is None else start_of(cold.fixed, rows)):
+            py = solve_active_set(qp, rows, start)
+            v, z, lam, fixed, iterations, ok, residual, message = native_module().stagewise_active(
+                c(qp.A), c(qp.B), c(qp.c), c(qp.z0), c(qp.Q), c(qp.q), c(qp.R), qp.n_decide, c(qp.Fz), c(qp.f),
+                c(rows.comp, np.int64), c(rows.sign), None if start is None else c(start, np.int64))
+            assert ok is (py.status == "optimal") and iterations == py.iterations, (message, py.message)
+            assert np.array_equal(fixed, py.fixed)
+            if ok:
+                assert np.abs(v - py.v).max() <= 1e-9 * max(1.0, np.abs(py.v).max())
+                assert np.abs(z - py.z).max() <= 1e-9 * max(1.0, np.abs(py.z).max())
+                assert np.abs(lam - py.lam).max() <= 1e-9 * max(1.0, np.abs(py.lam).max())
+            else:
+                assert message == py.message
+
+
+@pytest.mark.skipif(not (HAS_COMPILED and HAS_COMPILED_ACTIVE), reason="the compiled core has no stage-wise solvers")
+@pytest.mark.parametrize("case", list(INPUT_CASES))
+@pytest.mark.parametrize("form", FORMS)
+def test_compiled_active_set_path_equals_the_python_path(form, case):
+    """The controller's input-row problems (planar_4rrr, No = 2, Nu = 5): compiled and Python paths
+    take the same method and sweeps and give the same plan (≤ 1e-9)."""
+    ctl, X, w = _setup(ParallelRobot.load("planar_4rrr"), form, case, N=15, No=2, Nu=5, cases=INPUT_CASES)
+    stages = ctl._riccati.stages(ctl, X, w[ctl.horizons.No:])
+    results, methods = [], []
+    for native in (False, True):
+        path = RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+        path._extra = ctl._riccati._extra
+        results.append(path.solve(*stages))
+        methods.append((path.constrained.method, path.constrained.iterations))
+    assert methods[0] == methods[1]
+    python, compiled = results
+    assert python.status == compiled.status == "optimal"
+    assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()

@@ -42,6 +42,7 @@ struct QP {
   Mat R, S;
   bool has_S = false;
   Arr f;                                       // +inf on an unused row
+  Arr f0;                                      // f with 0 on the unused rows (formed once, read by every iterate)
   Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic> used, soft;
   double rho = 1.0, kappa = 1.0;
 };
@@ -251,15 +252,15 @@ struct Newton {
   const Mask &used, &soft;
   double scale, f_scale;
   const Point &pt;  // the iterate (outlives this system)
-  Arr f, Fx, r_t, r_s, d, sp, a, W;
+  const Arr &f;  // qp.f0
+  Arr Fx, r_t, r_s, d, sp, a, W;
   double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
   Riccati *ric = nullptr;  // the solve's workspace, once factorized for this system
 
   Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
          Riccati *factor)
-      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
-    f = where(used, qp.f, 0.0);
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point), f(qp.f0) {
     evaluate();
     if (factor) factorize(factor, false);
   }
@@ -363,7 +364,7 @@ struct Result {
 bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, const Mask &soft, double scale,
             double f_scale, double merit, Result &out) {
   Mask active = used && (point.lam * f_scale > point.t * scale);
-  Arr f = where(used, qp.f, 0.0);
+  const Arr &f = qp.f0;
   Point cur;
   Mask keep_soft;
   Arr gap;
@@ -434,7 +435,7 @@ struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
 Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
-  Arr f = where(used, qp.f, 0.0);
+  const Arr &f = qp.f0;
   const double n_ineq = double(used.count() + soft.count());
   Traj zero_v(qp.nd, Vec::Zero(qp.m)), nu0, rv0;
   costates(qp, z, zero_v, Arr::Zero(qp.N, qp.k), true, nu0, rv0);
@@ -549,6 +550,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
         if (qp.has_S) qp.S = Eigen::Map<const RowMat>(S.data(), qp.m, qp.nz);
         qp.f = Eigen::Map<const RowMat>(f.data(), qp.N, qp.k).array();
         qp.used = qp.f.isFinite();
+        qp.f0 = where(qp.used, qp.f, 0.0);
         qp.soft.resize(qp.N, qp.k);
         for (long i = 0; i < qp.N; ++i)
           for (long j = 0; j < qp.k; ++j) qp.soft(i, j) = soft.data()[i * qp.k + j];
