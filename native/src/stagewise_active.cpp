@@ -40,10 +40,13 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   bool fz;  // Fz_r ≠ 0
 };
 
-struct QP {
+using CMap = Eigen::Map<const RowMat>;
+using VMap = Eigen::Map<const Vec>;
+
+struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
-  std::vector<Mat> A, B, Q, Fz;
-  std::vector<Vec> c, q;
+  std::vector<CMap> A, B, Q, Fz;
+  std::vector<VMap> c, q;
   std::vector<std::vector<Row>> rows;  // per decision stage
   Vec z0;
   Mat R;
@@ -70,7 +73,7 @@ struct Sweep {
     P = qp.Q[N];
     p = qp.q[N];
     for (long i = N - 1; i >= 0; --i) {
-      const Mat &A = qp.A[i];
+      const CMap &A = qp.A[i];
       PA.noalias() = P.lazyProduct(A);
       w = p;
       w.noalias() += P.lazyProduct(qp.c[i]);
@@ -79,7 +82,7 @@ struct Sweep {
       lin = qp.q[i];
       lin.noalias() += A.transpose().lazyProduct(w);
       if (i < nd) {
-        const Mat &B = qp.B[i];
+        const CMap &B = qp.B[i];
         PB.noalias() = P.lazyProduct(B);
         Hvv = qp.R;
         Hvv.noalias() += B.transpose().lazyProduct(PB);
@@ -217,6 +220,17 @@ struct Outcome {
   std::string message;
 };
 
+// a start's entries that name no used row on their component: free (as in the Python twin)
+void sanitize(const QP &qp, Set &fixed) {
+  for (long i = 0; i < qp.nd; ++i)
+    for (long j = 0; j < qp.m; ++j) {
+      if (fixed(i, j) < 0) continue;
+      bool found = false;
+      for (const Row &row : qp.rows[i]) found = found || (row.r == fixed(i, j) && row.j == j);
+      if (!found) fixed(i, j) = -1;
+    }
+}
+
 Outcome solve_active_set(const QP &qp, Set fixed) {
   const long nd = qp.nd, m = qp.m;
   Sweep sweep(qp);
@@ -277,9 +291,9 @@ Outcome solve_active_set(const QP &qp, Set fixed) {
 }
 
 template <class T>
-Mat block(const T &arr, long i) {  // (N, a, b) row-major → stage i as a Mat
+CMap block(const T &arr, long i) {  // (N, a, b) row-major → a view of stage i
   const long a = long(arr.shape(1)), b = long(arr.shape(2));
-  return Eigen::Map<const RowMat>(arr.data() + i * a * b, a, b);
+  return CMap(arr.data() + i * a * b, a, b);
 }
 }  // namespace
 
@@ -302,11 +316,11 @@ void bind_stagewise_active(nb::module_ &m) {
           qp.A.push_back(block(A, i));
           qp.B.push_back(block(B, i));
           qp.Fz.push_back(block(Fz, i));
-          qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
+          qp.c.emplace_back(c.data() + i * qp.nz, qp.nz);
         }
         for (long i = 0; i <= qp.N; ++i) {
           qp.Q.push_back(block(Q, i));
-          qp.q.push_back(Eigen::Map<const Vec>(q.data() + i * qp.nz, qp.nz));
+          qp.q.emplace_back(q.data() + i * qp.nz, qp.nz);
         }
         qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
         qp.R = Eigen::Map<const RowMat>(R.data(), qp.m, qp.m);
@@ -326,6 +340,7 @@ void bind_stagewise_active(nb::module_ &m) {
           if (long(start->shape(0)) != qp.nd || long(start->shape(1)) != qp.m)
             throw std::invalid_argument("stagewise_active: the start must be (n_decide, m)");
           fixed = Eigen::Map<const Set>(start->data(), qp.nd, qp.m);
+          sanitize(qp, fixed);
         }
         Outcome res = solve_active_set(qp, fixed);
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);

@@ -179,6 +179,7 @@ class StagewiseSolver:
         self.native = self._compiled is not None and self._compiled_active is not None
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
+        self._rows: tuple | None = None  # (the used rows (N, k), their InputRows or None): the same every step
         self.method, self.iterations = "", (0, 0)
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
@@ -197,6 +198,14 @@ class StagewiseSolver:
             return np.concatenate([a[1:], a[-1:]])
 
         return StageStart(v, shifted(last.lam), shifted(last.s))
+
+    def _input_rows(self, qp: StageQP) -> InputRows | None:
+        """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
+        change (the rows' Fz, Fv and softness are the limits', the same every step)."""
+        used = np.isfinite(qp.f)
+        if self._rows is None or not np.array_equal(used, self._rows[0]):
+            self._rows = (used, input_rows_of(qp) if qp.S is None else None)
+        return self._rows[1]
 
     def _active(self, qp: StageQP, rows: InputRows, start: np.ndarray | None):
         """The active-set solve (compiled, or the Python reference)."""
@@ -251,8 +260,8 @@ class StagewiseSolver:
         H, m = self.horizons, self.Wu.shape[0]
         qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
                                   y_now, y_sim, u_sim, u_prev, self._output_rows)
-        rows = input_rows_of(qp) if qp.S is None else None
-        fixed_start = shift_active_set(self._fixed, rows) if warm and rows is not None else None
+        rows = self._input_rows(qp)
+        fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
         start = self._start(qp) if warm else None
         self._last, self._fixed = None, None
         try:
@@ -275,6 +284,9 @@ class StagewiseSolver:
         v = sol.v.reshape(-1)
         e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
         J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
+        if self.method == "active-set":  # input rows only (no state report), their KKT conditions verified
+            return SolveResult(v, J, "optimal", self.name, sol.iterations, time.perf_counter() - t0,
+                               bool((sol.fixed >= 0).any()), ""), None
         used = np.isfinite(qp.f)
         F_x = np.einsum("ikn,in->ik", qp.Fz, sol.z[:-1])
         F_x[:H.Nu] += np.einsum("ikm,im->ik", qp.Fv[:H.Nu], sol.v)

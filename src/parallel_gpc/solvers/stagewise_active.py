@@ -203,15 +203,20 @@ def _update(rows: InputRows, fixed: np.ndarray, lam, broken, tol_lam: float) -> 
     return np.where(is_broken, worst, np.where(keep, fixed, -1))
 
 
-def shift_active_set(fixed: np.ndarray | None, rows: InputRows) -> np.ndarray | None:
-    """A previous step's set (n_decide, m) shifted by one stage (the last stage repeated), kept only
-    where its row still exists on the same component; None without one or when the sizes changed."""
-    nd, k = fixed.shape[0] if fixed is not None else 0, rows.comp.shape[1]
-    if fixed is None or nd == 0 or (fixed >= k).any():
+def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
+    """A previous step's set (n_decide, m) shifted by one stage (the last stage repeated), or None."""
+    if fixed is None or fixed.shape[0] == 0:
         return None
-    out = np.concatenate([fixed[1:], fixed[-1:]])
-    same = np.take_along_axis(rows.comp[:nd], np.maximum(out, 0), axis=1) == np.arange(out.shape[1])
-    return np.where((out >= 0) & same, out, -1)
+    return np.concatenate([fixed[1:], fixed[-1:]])
+
+
+def _valid(fixed: np.ndarray, rows: InputRows) -> np.ndarray:
+    """``fixed`` with the entries that name no used row on their component freed (−1)."""
+    nd, m = fixed.shape
+    k = rows.comp.shape[1]
+    r = np.clip(fixed, 0, k - 1)
+    named = np.take_along_axis(rows.comp[:nd], r, axis=1) == np.arange(m)
+    return np.where((fixed >= 0) & (fixed < k) & named, fixed, -1)
 
 
 def solve_active_set(qp: StageQP, rows: InputRows, start: np.ndarray | None = None,
@@ -220,8 +225,9 @@ def solve_active_set(qp: StageQP, rows: InputRows, start: np.ndarray | None = No
 
     Args:
         qp: the problem. rows: its :func:`input_rows_of`. start: (n_decide, m) a guess of the active
-            set (:func:`shift_active_set` of the previous step's), or None: the unconstrained plan's
-            broken rows. max_iter: Riccati sweeps at most. tol: :data:`AS_TOL`.
+            set, the row fixing each component or −1 (:func:`shift_active_set` of the previous step's;
+            an entry naming no used row on its component is freed), or None: the unconstrained
+            plan's broken rows. max_iter: Riccati sweeps at most. tol: :data:`AS_TOL`.
 
     Returns:
         status ``"optimal"`` (the KKT conditions verified: residual ≤ :data:`AS_ACCEPT`) or ``"unconverged"``
@@ -235,7 +241,7 @@ def solve_active_set(qp: StageQP, rows: InputRows, start: np.ndarray | None = No
     used = np.isfinite(qp.f)
     f = np.where(used, qp.f, 0.0)
     f_scale = max(float(np.max(np.abs(f[used]), initial=0.0)), 1e-12)
-    fixed = np.full((nd, m), -1) if start is None else np.asarray(start).copy()
+    fixed = np.full((nd, m), -1) if start is None else _valid(np.asarray(start, dtype=int), rows)
     seen = set()
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
