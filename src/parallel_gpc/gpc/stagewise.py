@@ -35,19 +35,20 @@ plan — the condensed back ends take them.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import (ActiveSetSolution, InputRows, SolveResult, StageQP, StageQPSolution, StageStart, input_rows_of,
-                       shift_active_set, solve_active_set, solve_stage_qp)
+from ..solvers import (ActiveSetSolution, InputRowMap, SolveResult, StageQP, StageQPSolution, StageStart,
+                       input_rows_of, shift_active_set, solve_active_set, solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
 
-__all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
+__all__ = ["StagewiseSolver", "stage_problem", "tracking_gradient", "STAGEWISE_KINDS"]
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
@@ -58,6 +59,14 @@ def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
     rows [Fz; −Fz] z + [Fv; −Fv] v ≤ [hi − const; const − lo]: (kind, Fz, Fv, f, soft), (N, 2k, ·)."""
     return (kind, np.concatenate([Fz, -Fz], axis=1), np.concatenate([Fv, -Fv], axis=1),
             np.concatenate([hi - const, const - lo], axis=1), soft)
+
+
+def tracking_gradient(CQ, r, N: int, No: int) -> np.ndarray:
+    """The criterion's linear stage terms q (N + 1, nz): −2 C̄ᵀ Qy r(i) on the penalized steps
+    i = No+1..N, 0 before. CQ: (nz, p) C̄ᵀ Qy. r: (N − No, p) targets."""
+    q = np.zeros((N + 1, CQ.shape[0]))
+    q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
+    return q
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
@@ -82,11 +91,10 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     H = horizons
     N, No, Nu = H.N, H.No, H.Nu
     nz, m, p = Ab.shape[1], Bb.shape[2], Cz.shape[0]
-    Qy = Wy.T @ Wy
-    Q, q = np.zeros((N + 1, nz, nz)), np.zeros((N + 1, nz))
-    CQ = Cz.T @ Qy
+    CQ = Cz.T @ (Wy.T @ Wy)
+    Q = np.zeros((N + 1, nz, nz))
     Q[No + 1:] = 2.0 * CQ @ Cz
-    q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
+    q = tracking_gradient(CQ, r, N, No)
     decided = (np.arange(N) < Nu)[:, None, None]  # v(i) exists on the stages i < Nu
     blocks = []
     nonlinear = form == "nonlinear"
@@ -179,7 +187,10 @@ class StagewiseSolver:
         self.native = self._compiled is not None and self._compiled_active is not None
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
-        self._rows: tuple | None = None  # (the used rows (N, k), their InputRows or None): the same every step
+        # the first step's problem when only its models and targets change from step to step (input rows
+        # of the linear forms: Q, the rows and their bounds are the limits' and the weights'), and its kinds
+        self._template: tuple | None = None
+        self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
         self.method, self.iterations = "", (0, 0)
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
@@ -199,7 +210,7 @@ class StagewiseSolver:
 
         return StageStart(v, shifted(last.lam), shifted(last.s))
 
-    def _input_rows(self, qp: StageQP) -> InputRows | None:
+    def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
         change (the rows' Fz, Fv and softness are the limits', the same every step)."""
         used = np.isfinite(qp.f)
@@ -207,7 +218,7 @@ class StagewiseSolver:
             self._rows = (used, input_rows_of(qp) if qp.S is None else None)
         return self._rows[1]
 
-    def _active(self, qp: StageQP, rows: InputRows, start: np.ndarray | None):
+    def _active(self, qp: StageQP, rows: InputRowMap, start: np.ndarray | None):
         """The active-set solve (compiled, or the Python reference)."""
         if self._compiled_active is None:
             return solve_active_set(qp, rows, start)
@@ -258,8 +269,14 @@ class StagewiseSolver:
         t0 = time.perf_counter()
         Ab, Bb, cb, Cz, z0 = stage_models
         H, m = self.horizons, self.Wu.shape[0]
-        qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
-                                  y_now, y_sim, u_sim, u_prev, self._output_rows)
+        if self._template is not None:
+            template, kinds, CQ = self._template
+            qp = replace(template, A=Ab, B=Bb, c=cb, z0=z0, q=tracking_gradient(CQ, r, H.N, H.No))
+        else:
+            qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
+                                      y_now, y_sim, u_sim, u_prev, self._output_rows)
+            if self.form != "nonlinear" and not self._output_rows:
+                self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
         rows = self._input_rows(qp)
         fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
         start = self._start(qp) if warm else None

@@ -33,7 +33,7 @@ import scipy.linalg as sla
 from ..errors import SolverError
 from .stagewise_ipm import StageQP, StageQPSolution
 
-__all__ = ["InputRows", "ActiveSetSolution", "input_rows_of", "shift_active_set", "solve_active_set", "AS_MAX_ITER",
+__all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "solve_active_set", "AS_MAX_ITER",
            "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged.
@@ -49,7 +49,7 @@ AS_ACCEPT = 1e-8
 
 
 @dataclass(frozen=True)
-class InputRows:
+class InputRowMap:
     """Which component each row of a :class:`StageQP` acts on.
 
     Attributes:
@@ -73,13 +73,13 @@ class ActiveSetSolution(StageQPSolution):
     fixed: np.ndarray | None = None
 
 
-def input_rows_of(qp: StageQP) -> InputRows | None:
-    """The :class:`InputRows` of ``qp``, or None when a used row is soft, on a stage without a
+def input_rows_of(qp: StageQP) -> InputRowMap | None:
+    """The :class:`InputRowMap` of ``qp``, or None when a used row is soft, on a stage without a
     decision, or not of the form σ v_j + Fz z ≤ f with σ = ±1 (the interior point's problems)."""
     used = np.isfinite(qp.f)
     N, k = qp.f.shape
     if not used.any():
-        return InputRows(np.full((N, k), -1), np.zeros((N, k)))
+        return InputRowMap(np.full((N, k), -1), np.zeros((N, k)))
     nd = qp.n_decide
     if (qp.soft & used).any() or used[nd:].any():
         return None
@@ -93,10 +93,10 @@ def input_rows_of(qp: StageQP) -> InputRows | None:
     comp[:nd] = np.where(used[:nd], np.argmax(nonzero, axis=2), -1)
     sgn = np.zeros((N, k))
     sgn[:nd] = np.where(used[:nd], sign, 0.0)
-    return InputRows(comp, sgn)
+    return InputRowMap(comp, sgn)
 
 
-def _sweep(qp: StageQP, rows: InputRows, fixed: np.ndarray):
+def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     """The plan (z (N + 1, nz), v (n_decide, m)) of the LQ problem with the components ``fixed``
     (n_decide, m: the row fixing each, −1 free) held on their rows: one Riccati sweep.
 
@@ -153,7 +153,7 @@ def _sweep(qp: StageQP, rows: InputRows, fixed: np.ndarray):
     return z, v
 
 
-def _multipliers(qp: StageQP, rows: InputRows, fixed: np.ndarray, z, v):
+def _multipliers(qp: StageQP, rows: InputRowMap, fixed: np.ndarray, z, v):
     """One backward pass, g = R v + S z + Bᵀ ν(i+1), λ_r = −σ_r g_j on the active rows,
     ν(i) = Q z + q + Sᵀ v + Aᵀ ν(i+1) + Fzᵀ λ.
 
@@ -187,7 +187,7 @@ def _multipliers(qp: StageQP, rows: InputRows, fixed: np.ndarray, z, v):
     return lam, nu, grad, scale
 
 
-def _update(rows: InputRows, fixed: np.ndarray, lam, broken, tol_lam: float) -> np.ndarray:
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -> np.ndarray:
     """The next active set (n_decide, m): per component, its most broken row if one is broken,
     else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
     how far each row is broken beyond the tolerance (≤ 0: held)."""
@@ -210,7 +210,7 @@ def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
     return np.concatenate([fixed[1:], fixed[-1:]])
 
 
-def _valid(fixed: np.ndarray, rows: InputRows) -> np.ndarray:
+def _valid(fixed: np.ndarray, rows: InputRowMap) -> np.ndarray:
     """``fixed`` with the entries that name no used row on their component freed (−1)."""
     nd, m = fixed.shape
     k = rows.comp.shape[1]
@@ -219,7 +219,7 @@ def _valid(fixed: np.ndarray, rows: InputRows) -> np.ndarray:
     return np.where((fixed >= 0) & (fixed < k) & named, fixed, -1)
 
 
-def solve_active_set(qp: StageQP, rows: InputRows, start: np.ndarray | None = None,
+def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = None,
                      max_iter: int = AS_MAX_ITER, tol: float = AS_TOL) -> ActiveSetSolution:
     """Solve a :class:`StageQP` of input rows (:func:`input_rows_of`) by the primal-dual active set.
 
