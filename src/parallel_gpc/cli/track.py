@@ -39,7 +39,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                         "hard rows, solved by a QP back end (default none)")
     p.add_argument("--solver", default=None,
                    help="back end: qr, riccati (Qu > 0, stage-wise, no condensing: the Riccati recursion, with "
-                   "torque/du/output limits an interior point), "
+                   "torque/du limits an active set, with output limits an interior point), "
                    "osqp-direct, proxqp-direct, daqp-direct, "
                    "qpsolvers:NAME, qr-first:... (default: qr; with limits qr-first:bvls for the absolute form, qr-first:daqp-direct "
                    "for the incremental forms)")
