@@ -17,8 +17,8 @@ from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
 from parallel_gpc.limits import Limits
-from parallel_gpc.solvers import (QRSolver, StageQP, StageStart, input_rows_of, make_solver, shift_active_set,
-                                   solve_active_set, solve_stage_qp)
+from parallel_gpc.solvers import (QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
+                                   shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
 from parallel_gpc.solvers.problem import UNBOUNDED
 
@@ -592,3 +592,15 @@ def test_compiled_active_set_path_equals_the_python_path(form, case):
     python, compiled = results
     assert python.status == compiled.status == "optimal"
     assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_interior_points_active_rows_settle_the_active_set_in_one_sweep(seed):
+    """After a step the interior point took, its multipliers start the next step's set
+    (active_set_of): on the same problem that set is the optimal one, verified by one sweep."""
+    qp = _input_row_qp(seed, True, du=False)
+    rows = input_rows_of(qp)
+    start = active_set_of(qp, rows, solve_stage_qp(qp).lam)
+    sol = solve_active_set(qp, rows, start)
+    assert sol.status == "optimal" and sol.iterations == 1
+    assert np.array_equal(sol.fixed, start) and (start >= 0).sum() >= 3

@@ -30,7 +30,7 @@ using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cp
 using Traj = std::vector<Vec>;
 using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // (nd, m): row or −1
 
-constexpr int MAX_ITER = 80;      // AS_MAX_ITER
+constexpr int MAX_ITER = 30;      // AS_MAX_ITER
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-8;   // AS_ACCEPT
 

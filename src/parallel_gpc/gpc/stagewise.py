@@ -43,7 +43,7 @@ from ..errors import SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
 from ..solvers import (ActiveSetSolution, InputRowMap, SolveResult, StageQP, StageQPSolution, StageStart,
-                       input_rows_of, shift_active_set, solve_active_set, solve_stage_qp)
+                       active_set_of, input_rows_of, shift_active_set, solve_active_set, solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -293,6 +293,8 @@ class StagewiseSolver:
             if sol is None or sol.status != "optimal":
                 sol = self._solve(qp, start)
                 self.iterations = (self.iterations[0], sol.iterations)
+                if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
+                    self._fixed = active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None

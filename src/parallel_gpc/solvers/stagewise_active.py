@@ -33,13 +33,15 @@ import scipy.linalg as sla
 from ..errors import SolverError
 from .stagewise_ipm import StageQP, StageQPSolution
 
-__all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "solve_active_set", "AS_MAX_ITER",
+__all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "active_set_of", "solve_active_set",
+           "AS_MAX_ITER",
            "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
-#: start takes about N/5 sweeps on the controller's torque-limited problems (16–19 at N = 80; more than 25
-#: at N = 160), a warm one 1.5–3.
-AS_MAX_ITER = 80
+#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr), a warm
+#: one 1.5–3; at N = 160 with ~600 of 640 inputs on their limits the set does not settle from a cold
+#: start (80 sweeps tried): the interior point solves that step and its active rows start the next.
+AS_MAX_ITER = 30
 #: the set's tolerance: a row broken by more than AS_TOL × the largest bound, or a multiplier below
 #: −AS_TOL × the gradient's scale, changes the active set (the settled set meets both).
 AS_TOL = 1e-10
@@ -210,6 +212,18 @@ def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
     if fixed is None or fixed.shape[0] == 0:
         return None
     return np.concatenate([fixed[1:], fixed[-1:]])
+
+
+def active_set_of(qp: StageQP, rows: InputRowMap, lam: np.ndarray) -> np.ndarray:
+    """The active set (n_decide, m) that another solver's multipliers λ (N, k) indicate (the interior
+    point's, to start the next step): per component the row with the largest λ, where that λ is above
+    1e-6 of the largest one; the others free."""
+    nd, m = qp.n_decide, qp.R.shape[0]
+    on = rows.comp[:nd, None, :] == np.arange(m)[None, :, None]  # (nd, m, k)
+    weight = np.where(on, lam[:nd, None, :], -np.inf)
+    best = np.argmax(weight, axis=2)
+    top = np.take_along_axis(weight, best[..., None], axis=2)[..., 0]
+    return np.where(top > 1e-6 * max(float(np.max(lam, initial=0.0)), 1e-300), best, -1)
 
 
 def _valid(fixed: np.ndarray, rows: InputRowMap) -> np.ndarray:
