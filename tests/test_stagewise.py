@@ -17,7 +17,7 @@ from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
 from parallel_gpc.limits import Limits
-from parallel_gpc.solvers import (QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
+from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
                                    shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
 from parallel_gpc.solvers.problem import UNBOUNDED
@@ -563,7 +563,8 @@ def test_compiled_active_set_equals_the_python_reference(seed, incremental):
             py = solve_active_set(qp, rows, start)
             v, z, lam, fixed, iterations, ok, residual, message = native_module().stagewise_active(
                 c(qp.A), c(qp.B), c(qp.c), c(qp.z0), c(qp.Q), c(qp.q), c(qp.R), qp.n_decide, c(qp.Fz), c(qp.f),
-                c(rows.comp, np.int64), c(rows.sign), None if start is None else c(start, np.int64))
+                c(rows.comp, np.int64), c(rows.sign), None if start is None else c(start, np.int64),
+                AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
             assert ok is (py.status == "optimal") and iterations == py.iterations, (message, py.message)
             assert np.array_equal(fixed, py.fixed)
             if ok:

@@ -30,7 +30,6 @@ using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cp
 using Traj = std::vector<Vec>;
 using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // (nd, m): row or −1
 
-constexpr int MAX_ITER = 30;      // AS_MAX_ITER
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-8;   // AS_ACCEPT
 
@@ -231,7 +230,7 @@ void sanitize(const QP &qp, Set &fixed) {
     }
 }
 
-Outcome solve_active_set(const QP &qp, Set fixed) {
+Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
   const long nd = qp.nd, m = qp.m;
   Sweep sweep(qp);
   Outcome out;
@@ -240,7 +239,7 @@ Outcome solve_active_set(const QP &qp, Set fixed) {
   Set next(nd, m);
   std::vector<double> worst(m);
   char buf[200];
-  for (int it = 1; it <= MAX_ITER; ++it) {
+  for (int it = 1; it <= max_iter; ++it) {
     sweep.run(fixed, out.z, out.v);
     const double scale = std::max(multipliers(qp, fixed, out.z, out.v, out.lam, grad), 1e-300);
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;
@@ -284,7 +283,7 @@ Outcome solve_active_set(const QP &qp, Set fixed) {
     fixed = next;
   }
   out.fixed = fixed;
-  std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", MAX_ITER,
+  std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", max_iter,
                 out.residual);
   out.message = buf;
   return out;
@@ -301,7 +300,7 @@ void bind_stagewise_active(nb::module_ &m) {
   m.def(
       "stagewise_active",
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In2 f, InI comp, In2 sign,
-         std::optional<InI> start) {
+         std::optional<InI> start, int max_iter) {
         QP qp;
         qp.N = long(A.shape(0));
         qp.nz = long(A.shape(1));
@@ -342,7 +341,8 @@ void bind_stagewise_active(nb::module_ &m) {
           fixed = Eigen::Map<const Set>(start->data(), qp.nd, qp.m);
           sanitize(qp, fixed);
         }
-        Outcome res = solve_active_set(qp, fixed);
+        if (max_iter < 1) throw std::invalid_argument("stagewise_active: max_iter must be ≥ 1");
+        Outcome res = solve_active_set(qp, fixed, max_iter);
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
         for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.v[i].transpose();
         for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.z[i].transpose();
@@ -350,8 +350,9 @@ void bind_stagewise_active(nb::module_ &m) {
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"),
-      nb::arg("start") = nb::none(),
+      nb::arg("start") = nb::none(), nb::arg("max_iter") = 30,
       "(v, z, λ, fixed, iterations, ok, residual, message): solvers.stagewise_active.solve_active_set compiled "
-      "(see that module); comp and sign: its InputRows; start (n_decide, m) int64 or None");
+      "(see that module); comp and sign: its InputRowMap; start (n_decide, m) int64 or None; max_iter: its "
+      "AS_MAX_ITER (cold) or AS_WARM_MAX_ITER (from a start)");
 }
 }  // namespace pgpc

@@ -42,8 +42,9 @@ import numpy as np
 from ..errors import SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import (ActiveSetSolution, InputRowMap, SolveResult, StageQP, StageQPSolution, StageStart,
-                       active_set_of, input_rows_of, shift_active_set, solve_active_set, solve_stage_qp)
+from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
+                       StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
+                       solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -227,7 +228,8 @@ class StagewiseSolver:
             v, z, lam, fixed, iterations, ok, residual, message = self._compiled_active(
                 c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
                 c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.f, float), c(rows.comp, np.int64),
-                c(rows.sign, float), None if start is None else c(start, np.int64))
+                c(rows.sign, float), None if start is None else c(start, np.int64),
+                AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
         except RuntimeError as exc:
             raise SolverError(str(exc)) from None
         return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, None, iterations,
