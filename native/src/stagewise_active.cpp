@@ -18,20 +18,19 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "stage_arrays.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
 namespace {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
+    stage_arrays::RowMat;
 using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Traj = std::vector<Vec>;
 using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // (nd, m): row or −1
 
 constexpr double TOL = 1e-10;     // AS_TOL
-constexpr double ACCEPT = 1e-8;   // AS_ACCEPT
+constexpr double ACCEPT = 1e-6;   // AS_ACCEPT
 
 struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   long r, j;
@@ -39,7 +38,6 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   bool fz;  // Fz_r ≠ 0
 };
 
-using CMap = Eigen::Map<const RowMat>;
 using VMap = Eigen::Map<const Vec>;
 
 struct QP {  // views of the caller's arrays (no copy)
@@ -289,11 +287,6 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
   return out;
 }
 
-template <class T>
-CMap block(const T &arr, long i) {  // (N, a, b) row-major → a view of stage i
-  const long a = long(arr.shape(1)), b = long(arr.shape(2));
-  return CMap(arr.data() + i * a * b, a, b);
-}
 }  // namespace
 
 void bind_stagewise_active(nb::module_ &m) {

@@ -18,14 +18,13 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "stage_arrays.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
 namespace {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
+    stage_arrays::RowMat;
 using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
 
@@ -510,11 +509,6 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   return best;
 }
 
-template <class T>
-Mat block(const T &arr, long i) {  // (N, a, b) row-major → stage i as a Mat
-  const long a = long(arr.shape(1)), b = long(arr.shape(2));
-  return Eigen::Map<const RowMat>(arr.data() + i * a * b, a, b);
-}
 }  // namespace
 
 void bind_stagewise_ipm(nb::module_ &m) {
