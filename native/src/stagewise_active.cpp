@@ -295,27 +295,10 @@ void bind_stagewise_active(nb::module_ &m) {
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In2 f, InI comp, In2 sign,
          std::optional<InI> start, int max_iter) {
         QP qp;
-        qp.N = long(A.shape(0));
-        qp.nz = long(A.shape(1));
-        qp.m = long(B.shape(2));
-        qp.nd = n_decide;
-        qp.k = long(f.shape(1));
-        if (qp.nd < 1 || qp.nd > qp.N || long(Q.shape(0)) != qp.N + 1 || long(Fz.shape(0)) != qp.N ||
-            long(f.shape(0)) != qp.N || long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k ||
-            long(sign.shape(0)) != qp.N || long(sign.shape(1)) != qp.k)
+        stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_active");
+        if (long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k || long(sign.shape(0)) != qp.N ||
+            long(sign.shape(1)) != qp.k)
           throw std::invalid_argument("stagewise_active: inconsistent stage shapes");
-        for (long i = 0; i < qp.N; ++i) {
-          qp.A.push_back(block(A, i));
-          qp.B.push_back(block(B, i));
-          qp.Fz.push_back(block(Fz, i));
-          qp.c.emplace_back(c.data() + i * qp.nz, qp.nz);
-        }
-        for (long i = 0; i <= qp.N; ++i) {
-          qp.Q.push_back(block(Q, i));
-          qp.q.emplace_back(q.data() + i * qp.nz, qp.nz);
-        }
-        qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
-        qp.R = Eigen::Map<const RowMat>(R.data(), qp.m, qp.m);
         qp.rows.resize(qp.nd);
         for (long i = 0; i < qp.N; ++i)
           for (long r = 0; r < qp.k; ++r) {

@@ -518,28 +518,13 @@ void bind_stagewise_ipm(nb::module_ &m) {
          double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
          std::optional<In2> lam0, std::optional<In2> s0) {
         QP qp;
-        qp.N = long(A.shape(0));
-        qp.nz = long(A.shape(1));
-        qp.m = long(B.shape(2));
-        qp.nd = n_decide;
-        qp.k = long(f.shape(1));
-        if (qp.nd < 1 || qp.nd > qp.N || long(Q.shape(0)) != qp.N + 1 || long(Fz.shape(0)) != qp.N ||
-            long(f.shape(0)) != qp.N || long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k)
+        stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_ipm");
+        if (long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k || long(Fv.shape(0)) != qp.N)
           throw std::invalid_argument("stagewise_ipm: inconsistent stage shapes");
         for (long i = 0; i < qp.N; ++i) {
-          qp.A.push_back(block(A, i));
-          qp.B.push_back(block(B, i));
-          qp.Fz.push_back(block(Fz, i));
-          qp.fz_zero.push_back(qp.Fz.back().isZero(0.0));
+          qp.fz_zero.push_back(qp.Fz[i].isZero(0.0));
           qp.Fv.push_back(block(Fv, i));
-          qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
         }
-        for (long i = 0; i <= qp.N; ++i) {
-          qp.Q.push_back(block(Q, i));
-          qp.q.push_back(Eigen::Map<const Vec>(q.data() + i * qp.nz, qp.nz));
-        }
-        qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
-        qp.R = Eigen::Map<const RowMat>(R.data(), qp.m, qp.m);
         qp.has_S = S.size() == size_t(qp.m * qp.nz);
         if (qp.has_S) qp.S = Eigen::Map<const RowMat>(S.data(), qp.m, qp.nz);
         qp.f = Eigen::Map<const RowMat>(f.data(), qp.N, qp.k).array();
