@@ -195,11 +195,10 @@ class StagewiseSolver:
         self.method, self.iterations = "", (0, 0)
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
-    def _start(self, qp: StageQP) -> StageStart | None:
-        """The last solution shifted by one stage (the warm start of the next step), or None: v(i) ←
+    def _start(self, qp: StageQP, last: StageQPSolution | None) -> StageStart | None:
+        """The last solution shifted by one stage (the interior point's warm start), or None: v(i) ←
         v(i+1) (absolute: the last held; the increments of the incremental forms: 0 at the end; the
         nonlinear form's deviation from a new pre-simulation: the unconstrained plan), λ and s likewise."""
-        last = self._last
         if last is None or last.lam.shape != qp.f.shape or last.v.shape[0] != qp.n_decide:
             return None
         v = None
@@ -281,8 +280,7 @@ class StagewiseSolver:
                 self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
         rows = self._input_rows(qp)
         fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
-        start = self._start(qp) if warm else None
-        self._last, self._fixed = None, None
+        last, self._last, self._fixed = self._last if warm else None, None, None
         try:
             sol, self.method, self.iterations = None, "interior-point", (0, 0)
             if rows is not None:
@@ -293,7 +291,7 @@ class StagewiseSolver:
                 else:
                     self.method, fell_back = "interior-point after active set", sol.message
             if sol is None or sol.status != "optimal":
-                sol = self._solve(qp, start)
+                sol = self._solve(qp, self._start(qp, last))
                 self.iterations = (self.iterations[0], sol.iterations)
                 if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
                     self._fixed = active_set_of(qp, rows, sol.lam)

@@ -21,6 +21,12 @@ feasibility, λ ≥ 0, stationarity of the free components, complementarity by c
 then verified, not trusted — or when a set comes back (a cycle) or the cap is reached: status
 ``"unconverged"``, for the caller to hand the problem to the interior point. A start (the
 previous step's set shifted by one stage) saves the iterations the changes of the set cost.
+
+Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
+the incremental forms binding together on one component pin the held input (a row on the state),
+and the set then cycles. With most inputs on a limit (planar_4rrr, absolute, N = 160: ~600 of 640)
+the full-step update of the set does not settle either (the few free inputs swing far past their
+bounds between sweeps). Both are reported unconverged.
 """
 
 from __future__ import annotations
@@ -34,8 +40,7 @@ from ..errors import SolverError
 from .stagewise_ipm import StageQP, StageQPSolution
 
 __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "active_set_of", "solve_active_set",
-           "AS_MAX_ITER", "AS_WARM_MAX_ITER",
-           "AS_TOL", "AS_ACCEPT"]
+           "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
 #: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr), a warm
