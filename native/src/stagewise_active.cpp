@@ -51,21 +51,32 @@ struct QP {  // views of the caller's arrays (no copy)
 };
 
 // The Riccati sweep of a fixed set (_sweep in the Python twin), its buffers kept from sweep to sweep
+// (one per thread, kept from call to call: a controller's solves of one size allocate nothing here)
 struct Sweep {
-  const QP &qp;
+  const QP *qpp = nullptr;
   std::vector<Mat> K, E;
   Traj k, e;
   std::vector<std::vector<long>> free;
   std::vector<char> has_E;
   Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
-  Vec p, lin, w, gv, gw;
+  Vec p, lin, w, gv, gw, vf;
   Eigen::LLT<Mat> llt;
 
-  explicit Sweep(const QP &qp)
-      : qp(qp), K(qp.nd), E(qp.nd, Mat::Zero(qp.m, qp.nz)), k(qp.nd), e(qp.nd, Vec::Zero(qp.m)), free(qp.nd),
-        has_E(qp.nd, 0) {}
+  // bind to qp, the per-stage buffers sized for it
+  void prepare(const QP &qp) {
+    qpp = &qp;
+    if (long(E.size()) != qp.nd || (qp.nd && (E[0].rows() != qp.m || E[0].cols() != qp.nz))) {
+      K.assign(qp.nd, Mat());
+      E.assign(qp.nd, Mat::Zero(qp.m, qp.nz));
+      k.assign(qp.nd, Vec());
+      e.assign(qp.nd, Vec::Zero(qp.m));
+      free.assign(qp.nd, {});
+      has_E.assign(qp.nd, 1);  // E is zeroed on its first use
+    }
+  }
 
   void run(const Set &fixed, Traj &z, Traj &v) {
+    const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, m = qp.m;
     P = qp.Q[N];
     p = qp.q[N];
@@ -166,7 +177,7 @@ struct Sweep {
         if (has_E[i]) v[i].noalias() += E[i].lazyProduct(z[i]);
         const std::vector<long> &fr = free[i];
         if (!fr.empty()) {
-          Vec vf = k[i];
+          vf = k[i];
           vf.noalias() += K[i].lazyProduct(z[i]);
           for (size_t a = 0; a < fr.size(); ++a) v[i](fr[a]) = vf(long(a));
         }
@@ -182,7 +193,9 @@ double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v,
   lam.setZero(N, qp.k);
   grad.setZero(nd, qp.m);
   double scale = 0.0;
-  Vec nu = qp.Q[N] * z[N] + qp.q[N], nxt(qp.nz), g(qp.m), Rv(qp.m);
+  thread_local Vec nu, nxt, g, Rv;  // storage kept from call to call
+  nu.noalias() = qp.Q[N] * z[N];
+  nu += qp.q[N];
   for (long i = N - 1; i >= 0; --i) {
     nxt.noalias() = qp.A[i].transpose().lazyProduct(nu);
     if (i < nd) {
@@ -200,7 +213,8 @@ double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v,
       }
     }
     if (i > 0) {
-      nu = qp.Q[i] * z[i] + qp.q[i];
+      nu.noalias() = qp.Q[i] * z[i];
+      nu += qp.q[i];
       nu += nxt;
     }
   }
@@ -230,7 +244,8 @@ void sanitize(const QP &qp, Set &fixed) {
 
 Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
   const long nd = qp.nd, m = qp.m;
-  Sweep sweep(qp);
+  thread_local Sweep sweep;
+  sweep.prepare(qp);
   Outcome out;
   RowMat grad;
   std::vector<Set> seen;
