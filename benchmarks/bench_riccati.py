@@ -86,9 +86,11 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
 
 def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None:
     """``--limited``: the torque-limited step (τ = half the unconstrained run's largest |u|) with
-    ``solver="riccati"`` (the stage-wise interior point) against the condensed default of the
-    form, and against the unconstrained Riccati step of the same form; per N, then the fitted
-    exponent of the step time in N."""
+    ``solver="riccati"`` (the stage-wise active set; the interior point when its set does not
+    settle) against the condensed default of the form, and against the unconstrained Riccati step
+    of the same form; per N, then the fitted exponent of the step time in N. Also the active
+    set's sweeps per step (the first step of a pass cold, the others warm) and how many steps
+    went to the interior point."""
     robot = ParallelRobot.load(name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     model = ReducedModel(robot)
@@ -104,15 +106,20 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None
                     model, TS, Horizons(N), WEIGHTS, form=form, solver=solver, limits=Limits(torque=tau))
             times = {key: [] for key in configs}
             us = {key: [] for key in configs}
+            sweeps, ipm = {"cold": [], "warm": []}, 0
             for _ in range(reps):
                 for key, ctl in configs.items():
                     ctl.reset()
                     us[key] = []
-                    for X, w in zip(Xs, ws):
+                    for k, (X, w) in enumerate(zip(Xs, ws)):
                         t0 = time.perf_counter()
                         info = ctl.step(X, w)
                         times[key].append(time.perf_counter() - t0)
                         us[key].append(info.u)
+                        if key == "limited riccati":
+                            stagewise = ctl._riccati.constrained
+                            sweeps["warm" if k else "cold"].append(stagewise.iterations[0])
+                            ipm += stagewise.method != "active-set"
             med = {key: 1e6 * float(np.median(t)) for key, t in times.items()}
             lim, dflt = np.array(us["limited riccati"]), np.array(us["limited default"])
             rows[(form, N)] = med
@@ -120,7 +127,9 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None
                   f"({configs['limited default'].solver}) {med['limited default']:8.1f} µs, unconstrained riccati "
                   f"{med['unconstrained riccati']:7.1f} µs; limited/unconstrained "
                   f"{med['limited riccati'] / med['unconstrained riccati']:5.2f}, default/riccati "
-                  f"{med['limited default'] / med['limited riccati']:5.2f}; max|Δu|/τ {np.abs(lim - dflt).max() / tau:.1e}")
+                  f"{med['limited default'] / med['limited riccati']:5.2f}; max|Δu|/τ {np.abs(lim - dflt).max() / tau:.1e}; "
+                  f"sweeps cold {np.mean(sweeps['cold']):.1f} warm {np.mean(sweeps['warm']):.2f}, "
+                  f"{ipm}/{len(sweeps['cold']) + len(sweeps['warm'])} steps by the interior point")
     for form in ("absolute", "incremental"):
         for key in ("limited riccati", "limited default", "unconstrained riccati"):
             t = [rows[(form, N)][key] for N in horizons]
@@ -133,7 +142,7 @@ def main() -> None:
     parser.add_argument("--reps", type=int, default=7)
     parser.add_argument("--samples", type=int, default=60)
     parser.add_argument("--cases", default="planar_4rrr:10,planar_4rrr:20,planar_4rrr:40,hexapod_8ups:20")
-    parser.add_argument("--limited", action="store_true", help="the torque-limited step (stage-wise interior point)")
+    parser.add_argument("--limited", action="store_true", help="the torque-limited step (stage-wise active set)")
     parser.add_argument("--horizons", default="20,40,80,160", help="N values of --limited")
     parser.add_argument("--robot", default="planar_4rrr", help="robot of --limited")
     args = parser.parse_args()

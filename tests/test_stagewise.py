@@ -1,5 +1,5 @@
-"""solver="riccati" with limits: the stage-wise interior point (gpc/stagewise.py,
-solvers/stagewise_ipm.py) against DAQP on the controller's condensed problem, KKT conditions of
+"""solver="riccati" with limits: the stage-wise active set and interior point (gpc/stagewise.py,
+solvers/stagewise_active.py, solvers/stagewise_ipm.py) against DAQP on the controller's condensed problem, KKT conditions of
 that condensed problem computed here, a dense QP of a random stage problem, and its clear refusals."""
 
 from __future__ import annotations
@@ -17,7 +17,9 @@ from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
 from parallel_gpc.limits import Limits
-from parallel_gpc.solvers import QRSolver, StageQP, StageStart, make_solver, solve_stage_qp
+from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
+                                   shift_active_set, solve_active_set, solve_stage_qp)
+from parallel_gpc.solvers.stagewise_ipm import costates
 from parallel_gpc.solvers.problem import UNBOUNDED
 
 TS = 0.002
@@ -106,7 +108,7 @@ CASES = {  # name: Limits from the unconstrained plan's largest |u|, a box halvi
 }
 
 
-def _setup(robot, form, case, N=12, No=0, Nu=None):
+def _setup(robot, form, case, N=12, No=0, Nu=None, cases=CASES):
     model = ReducedModel(robot)
     rng = np.random.default_rng(7)
     H = Horizons(N, No, Nu or N)
@@ -124,7 +126,7 @@ def _setup(robot, form, case, N=12, No=0, Nu=None):
     box = np.array([[-1.0, 1.0]] * robot.n_y) + robot.home_pose[:, None]
     box[0, 1] = 0.5 * (robot.home_pose[0] + y_free[:, 0].max())
     speed = np.abs(np.diff(np.vstack([robot.home_pose, y_free]), axis=0)).max(axis=0) / TS
-    limits = CASES[case](u_free, box, np.maximum(speed, 1e-3))
+    limits = cases[case](u_free, box, np.maximum(speed, 1e-3))
     if form == "absolute" and limits.du is not None:
         pytest.skip("du applies to the incremental forms")
     ctl = GPCController.build(model, TS, H, weights, form=form, solver="riccati", limits=limits)
@@ -414,3 +416,192 @@ def test_compiled_singular_input_weight_is_named():
     qp.B[:, :, 1] = 0.0
     with pytest.raises(RuntimeError, match=r"R \+ BᵀPB .* not positive definite .*Qu must be nonsingular"):
         _compiled_solve(qp)
+
+
+# ---------------------------------------------------------------- the active set on the input rows
+INPUT_CASES = {  # torque and Δu limits tight enough to bind on many stages
+    "torque": lambda u, box, speed: Limits(torque=0.2 * u),
+    "du": CASES["du"],
+    "torque+du": CASES["torque+du"],
+}
+
+
+@pytest.mark.parametrize("horizons", [dict(N=12), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
+@pytest.mark.parametrize("case", list(INPUT_CASES))
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups"])  # redundant drives; prismatic drives
+def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horizons):
+    """Torque and Δu limits: the active set (not the interior point) reaches DAQP's plan and objective
+    on the condensed problem to 1e-8, its KKT residual (NNLS on the active rows) at the rounding
+    floor, the limits binding on several stages. The nonlinear form's torque rows after Nu act on
+    the held state alone: that problem goes to the interior point."""
+    robot = ParallelRobot.load(name)
+    ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
+    path = ctl._riccati
+    result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
+    H = ctl.horizons
+    expected = "interior-point" if form == "nonlinear" and H.Nu < H.N and "torque" in case else "active-set"
+    assert path.constrained.method == expected
+    assert result.status == "optimal" and result.message == "", result.message
+    full, x_ref = _condensed(ctl, X, w)
+    assert _kkt_residual(full, result.v) <= 1e-9
+    assert x_ref is not None
+    v_ref = x_ref[:full.n_decision]
+    assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
+    scale = max(_objective(full, np.zeros_like(result.v)), 1e-300)
+    assert abs(_objective(full, result.v) - _objective(full, v_ref)) <= 1e-10 * scale
+    if expected == "active-set":
+        binding = (path.constrained._fixed >= 0).any(axis=1)
+        assert binding.sum() >= 2, binding
+
+
+def _input_row_qp(seed: int, incremental: bool, du: bool = True):
+    """A random stage problem with torque-like rows on v(i) (incremental: on z[n:] + v(i), the held
+    input in the state) and (``du``) Δu-like boxes on v(i), for the active set and a dense QP."""
+    qp = _random_stage_qp(seed, Fz_zero=True)
+    N, nz = qp.A.shape[:2]
+    m, nd = qp.R.shape[0], qp.n_decide
+    qp.A[:, nz - m:] = 0.0
+    qp.A[:, nz - m:, nz - m:] = np.eye(m)  # the held input: z[n:](i+1) = z[n:](i) + v(i)
+    qp.B[:, nz - m:] = np.eye(m)
+    qp.c[:, nz - m:] = 0.0
+    k = (4 if du else 2) * m
+    Fz, Fv, f = np.zeros((N, k, nz)), np.zeros((N, k, m)), np.full((N, k), np.inf)
+    I = np.eye(m)
+    Fv[:nd] = np.concatenate([I, -I, I, -I][:k // m])
+    if incremental:
+        Fz[:nd, :2 * m, nz - m:] = np.concatenate([I, -I])
+    rng = np.random.default_rng(seed)
+    f[:nd, :2 * m] = 0.4 + 0.2 * rng.random((nd, 2 * m))
+    if du:
+        f[:nd, 2 * m:] = 0.3 + 0.2 * rng.random((nd, 2 * m))
+    f[1, 0] = np.inf
+    return StageQP(qp.A, qp.B, qp.c, 0.1 * qp.z0, qp.Q, 5.0 * qp.q, qp.R, nd, Fz, Fv, f, np.zeros((N, k), bool))
+
+
+@pytest.mark.parametrize("incremental", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_active_set_of_a_random_problem_equals_a_dense_qp_from_any_start(seed, incremental):
+    """Random input-row problems (absolute: torque and Δu boxes on v; incremental: torque rows on the
+    held input plus v): cold, from a random set and from the optimal set shifted, the active set
+    reaches the dense QP's plan (DAQP); KKT: rows held, λ ≥ 0 on the active rows, 0 elsewhere,
+    complementarity, the Lagrangian's v-gradient (R v + Bᵀν + Fvᵀλ, ν from the costates) zero."""
+    qp = _input_row_qp(seed, incremental, du=not incremental)
+    rows = input_rows_of(qp)
+    assert rows is not None
+    v_ref, _ = _dense(qp)
+    rng = np.random.default_rng(seed)
+    cold = solve_active_set(qp, rows)
+    nd, m = v_ref.shape
+    guess = rng.integers(-1, qp.f.shape[1], (nd, m))  # rows of other components and unused rows among them
+    for start in (None, guess, shift_active_set(cold.fixed)):
+        sol = solve_active_set(qp, rows, start)
+        assert sol.status == "optimal", sol.message
+        assert np.abs(sol.v - v_ref).max() <= 1e-9 * max(1.0, np.abs(v_ref).max())
+        used = np.isfinite(qp.f)
+        Fx = np.einsum("ikn,in->ik", qp.Fz, sol.z[:-1])
+        Fx[:nd] += np.einsum("ikm,im->ik", qp.Fv[:nd], sol.v)
+        assert np.all(Fx[used] <= qp.f[used] + 1e-12)
+        assert np.all(sol.lam >= 0.0) and np.all(sol.lam[~used] == 0.0)
+        assert np.all(np.abs(sol.lam * (Fx - np.where(used, qp.f, 0.0)))[used] <= 1e-10)
+        nu, rv = costates(qp, sol.z, sol.v, sol.lam)
+        assert np.abs(rv).max() <= 1e-10 * max(1.0, np.abs(sol.lam).max())
+    assert (cold.fixed >= 0).sum() >= 3  # the rows bind
+
+
+def test_two_rows_binding_one_component_are_left_to_the_interior_point():
+    """Torque and Δu rows of the incremental form binding together on one component (here at stage 2:
+    the held input then sits on a torque bound, a row on the state alone) are no set of one row per
+    component: the active set reports it unconverged, the interior point solves it."""
+    qp = _input_row_qp(0, True)
+    sol = solve_active_set(qp, input_rows_of(qp))
+    assert sol.status == "unconverged" and "active set" in sol.message
+    v_ref, _ = _dense(qp)
+    assert np.abs(solve_stage_qp(qp).v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
+
+
+def test_rows_other_than_input_rows_are_not_the_active_sets():
+    qp = _random_stage_qp(0)
+    assert input_rows_of(qp) is None  # soft, dense rows
+    qp = _input_row_qp(0, True)
+    qp.Fv[2, 1, 0] = 0.5
+    assert input_rows_of(qp) is None  # not a unit entry
+
+
+def test_conflicting_torque_and_du_limits_fall_back_visibly():
+    """|u(k−1)| beyond the torque limit plus the Δu limit: no plan holds both rows; the active set
+    cycles between them, the interior point takes over and reports the problem infeasible."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl = GPCController.build(ReducedModel(robot), TS, Horizons(6), Weights(1.0, 1e-3), form="incremental",
+                              solver="riccati", limits=Limits(torque=1.0, du=0.1))
+    ctl.u_prev = np.array([2.0, 0.0, 0.0, 0.0])
+    X = np.concatenate([robot.home_pose, np.zeros(3)])
+    path = ctl._riccati
+    result = path.solve(*path.stages(ctl, X, np.tile(robot.home_pose, (6, 1))))
+    assert path.constrained.method == "interior-point after active set"
+    assert result.status == "infeasible"
+    assert "active set" in result.message and "interior point" in result.message
+
+
+HAS_COMPILED_ACTIVE = native_module() is not None and hasattr(native_module(), "stagewise_active")
+if not HAS_COMPILED_ACTIVE and os.environ.get("CI"):
+    raise RuntimeError("CI must test the compiled stage-wise active set (parallel_gpc._native.stagewise_active)")
+
+
+@pytest.mark.skipif(not HAS_COMPILED_ACTIVE, reason="the compiled core has no stagewise_active")
+@pytest.mark.parametrize("incremental", [False, True])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_compiled_active_set_equals_the_python_reference(seed, incremental):
+    """The same sweeps, sets, plan and multipliers (≤ 1e-9), cold and from a start; the cycling
+    problem of two rows on one component is reported unconverged by both."""
+    c = np.ascontiguousarray
+    for qp, start_of in ((_input_row_qp(seed, incremental, du=not incremental), shift_active_set),
+                         (_input_row_qp(0, True), None)):
+        rows = input_rows_of(qp)
+        cold = solve_active_set(qp, rows)
+        for start in (None, None if start_of is None else start_of(cold.fixed)):
+            py = solve_active_set(qp, rows, start)
+            v, z, lam, fixed, iterations, ok, residual, message = native_module().stagewise_active(
+                c(qp.A), c(qp.B), c(qp.c), c(qp.z0), c(qp.Q), c(qp.q), c(qp.R), qp.n_decide, c(qp.Fz), c(qp.f),
+                c(rows.comp, np.int64), c(rows.sign), None if start is None else c(start, np.int64),
+                AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
+            assert ok is (py.status == "optimal") and iterations == py.iterations, (message, py.message)
+            assert np.array_equal(fixed, py.fixed)
+            if ok:
+                assert np.abs(v - py.v).max() <= 1e-9 * max(1.0, np.abs(py.v).max())
+                assert np.abs(z - py.z).max() <= 1e-9 * max(1.0, np.abs(py.z).max())
+                assert np.abs(lam - py.lam).max() <= 1e-9 * max(1.0, np.abs(py.lam).max())
+            else:
+                assert message == py.message
+
+
+@pytest.mark.skipif(not (HAS_COMPILED and HAS_COMPILED_ACTIVE), reason="the compiled core has no stage-wise solvers")
+@pytest.mark.parametrize("case", list(INPUT_CASES))
+@pytest.mark.parametrize("form", FORMS)
+def test_compiled_active_set_path_equals_the_python_path(form, case):
+    """The controller's input-row problems (planar_4rrr, No = 2, Nu = 5): compiled and Python paths
+    take the same method and sweeps and give the same plan (≤ 1e-9)."""
+    ctl, X, w = _setup(ParallelRobot.load("planar_4rrr"), form, case, N=15, No=2, Nu=5, cases=INPUT_CASES)
+    stages = ctl._riccati.stages(ctl, X, w[ctl.horizons.No:])
+    results, methods = [], []
+    for native in (False, True):
+        path = RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+        path._extra = ctl._riccati._extra
+        results.append(path.solve(*stages))
+        methods.append((path.constrained.method, path.constrained.iterations))
+    assert methods[0] == methods[1]
+    python, compiled = results
+    assert python.status == compiled.status == "optimal"
+    assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_interior_points_active_rows_settle_the_active_set_in_one_sweep(seed):
+    """After a step the interior point took, its multipliers start the next step's set
+    (active_set_of): on the same problem that set is the optimal one, verified by one sweep."""
+    qp = _input_row_qp(seed, True, du=False)
+    rows = input_rows_of(qp)
+    start = active_set_of(qp, rows, solve_stage_qp(qp).lam)
+    sol = solve_active_set(qp, rows, start)
+    assert sol.status == "optimal" and sol.iterations == 1
+    assert np.array_equal(sol.fixed, start) and (start >= 0).sum() >= 3

@@ -9,5 +9,6 @@ void bind_plant(nb::module_ &m);         // plant.cpp
 void bind_riccati(nb::module_ &m);       // riccati.cpp
 void bind_stage_jacobian(nb::module_ &m);  // stage_jacobian.cpp (after bind_model_update)
 void bind_stagewise_ipm(nb::module_ &m); // stagewise_ipm.cpp
+void bind_stagewise_active(nb::module_ &m);  // stagewise_active.cpp
 void bind_kalman(nb::module_ &m);        // kalman.cpp
 }  // namespace pgpc

@@ -10,5 +10,6 @@ NB_MODULE(_native, m) {
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
   pgpc::bind_stagewise_ipm(m);
+  pgpc::bind_stagewise_active(m);
   pgpc::bind_kalman(m);
 }

@@ -18,14 +18,13 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "stage_arrays.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
 namespace {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
+    stage_arrays::RowMat;
 using InB = nb::ndarray<const bool, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Arr = Eigen::ArrayXXd;  // (N, k) row quantities
 
@@ -42,6 +41,7 @@ struct QP {
   Mat R, S;
   bool has_S = false;
   Arr f;                                       // +inf on an unused row
+  Arr f0;                                      // f with 0 on the unused rows (formed once, read by every iterate)
   Eigen::Array<bool, Eigen::Dynamic, Eigen::Dynamic> used, soft;
   double rho = 1.0, kappa = 1.0;
 };
@@ -251,15 +251,15 @@ struct Newton {
   const Mask &used, &soft;
   double scale, f_scale;
   const Point &pt;  // the iterate (outlives this system)
-  Arr f, Fx, r_t, r_s, d, sp, a, W;
+  const Arr &f;  // qp.f0
+  Arr Fx, r_t, r_s, d, sp, a, W;
   double mu = 0.0, merit = 0.0, refine_above = 0.0;
   Traj nu, rv;
   Riccati *ric = nullptr;  // the solve's workspace, once factorized for this system
 
   Newton(const QP &qp, const Point &point, const Mask &used, const Mask &soft, double scale, double f_scale,
          Riccati *factor)
-      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point) {
-    f = where(used, qp.f, 0.0);
+      : qp(qp), used(used), soft(soft), scale(scale), f_scale(f_scale), pt(point), f(qp.f0) {
     evaluate();
     if (factor) factorize(factor, false);
   }
@@ -363,7 +363,7 @@ struct Result {
 bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, const Mask &soft, double scale,
             double f_scale, double merit, Result &out) {
   Mask active = used && (point.lam * f_scale > point.t * scale);
-  Arr f = where(used, qp.f, 0.0);
+  const Arr &f = qp.f0;
   Point cur;
   Mask keep_soft;
   Arr gap;
@@ -434,7 +434,7 @@ struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
 Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
-  Arr f = where(used, qp.f, 0.0);
+  const Arr &f = qp.f0;
   const double n_ineq = double(used.count() + soft.count());
   Traj zero_v(qp.nd, Vec::Zero(qp.m)), nu0, rv0;
   costates(qp, z, zero_v, Arr::Zero(qp.N, qp.k), true, nu0, rv0);
@@ -509,11 +509,6 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
   return best;
 }
 
-template <class T>
-Mat block(const T &arr, long i) {  // (N, a, b) row-major → stage i as a Mat
-  const long a = long(arr.shape(1)), b = long(arr.shape(2));
-  return Eigen::Map<const RowMat>(arr.data() + i * a * b, a, b);
-}
 }  // namespace
 
 void bind_stagewise_ipm(nb::module_ &m) {
@@ -523,32 +518,18 @@ void bind_stagewise_ipm(nb::module_ &m) {
          double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
          std::optional<In2> lam0, std::optional<In2> s0) {
         QP qp;
-        qp.N = long(A.shape(0));
-        qp.nz = long(A.shape(1));
-        qp.m = long(B.shape(2));
-        qp.nd = n_decide;
-        qp.k = long(f.shape(1));
-        if (qp.nd < 1 || qp.nd > qp.N || long(Q.shape(0)) != qp.N + 1 || long(Fz.shape(0)) != qp.N ||
-            long(f.shape(0)) != qp.N || long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k)
+        stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_ipm");
+        if (long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k || long(Fv.shape(0)) != qp.N)
           throw std::invalid_argument("stagewise_ipm: inconsistent stage shapes");
         for (long i = 0; i < qp.N; ++i) {
-          qp.A.push_back(block(A, i));
-          qp.B.push_back(block(B, i));
-          qp.Fz.push_back(block(Fz, i));
-          qp.fz_zero.push_back(qp.Fz.back().isZero(0.0));
+          qp.fz_zero.push_back(qp.Fz[i].isZero(0.0));
           qp.Fv.push_back(block(Fv, i));
-          qp.c.push_back(Eigen::Map<const Vec>(c.data() + i * qp.nz, qp.nz));
         }
-        for (long i = 0; i <= qp.N; ++i) {
-          qp.Q.push_back(block(Q, i));
-          qp.q.push_back(Eigen::Map<const Vec>(q.data() + i * qp.nz, qp.nz));
-        }
-        qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
-        qp.R = Eigen::Map<const RowMat>(R.data(), qp.m, qp.m);
         qp.has_S = S.size() == size_t(qp.m * qp.nz);
         if (qp.has_S) qp.S = Eigen::Map<const RowMat>(S.data(), qp.m, qp.nz);
         qp.f = Eigen::Map<const RowMat>(f.data(), qp.N, qp.k).array();
         qp.used = qp.f.isFinite();
+        qp.f0 = where(qp.used, qp.f, 0.0);
         qp.soft.resize(qp.N, qp.k);
         for (long i = 0; i < qp.N; ++i)
           for (long j = 0; j < qp.k; ++j) qp.soft(i, j) = soft.data()[i * qp.k + j];

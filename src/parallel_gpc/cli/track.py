@@ -37,11 +37,12 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                         "hard rows, solved by a QP back end (default none)")
     p.add_argument("--solver", default=None,
                    help="back end: qr (the paper's square-root reference), riccati (Qu > 0, stage-wise, no "
-                   "condensing: the Riccati recursion, with torque/du/output limits an interior point), "
-                   "osqp-direct, proxqp-direct, daqp-direct, qpsolvers:NAME, qr-first:... (default: riccati where it "
-                   "gives QR's minimizer — Qu ≥ 0.01·Qy·Ts², no terminal equality or weight, no limits, or torque/du "
-                   "limits at N ≥ 80 —, otherwise qr (Qu = 0: minimum-norm), with limits qr-first:bvls for the "
-                   "absolute form, qr-first:daqp-direct for the incremental forms; the table prints the one used)")
+                   "condensing: the Riccati recursion, with torque/du limits an active set, with output limits an "
+                   "interior point), osqp-direct, proxqp-direct, daqp-direct, qpsolvers:NAME, qr-first:... (default: "
+                   "riccati where it gives QR's minimizer — Qu ≥ 0.01·Qy·Ts², no terminal equality or weight, no "
+                   "limits, or torque/du limits on the absolute and incremental forms —, otherwise qr (Qu = 0: "
+                   "minimum-norm), with limits qr-first:bvls for the absolute form, qr-first:daqp-direct for the "
+                   "incremental forms; the table prints the one used)")
     p.add_argument("--torque-limit", type=float, default=None,
                    help="drive limit in N·m (N for prismatic drives); default: the robot file's (--limits none: none)")
     p.add_argument("--du-limit", type=float, default=None,

@@ -18,7 +18,7 @@ Stage models z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, output ŷ = C̄ z, C̄ = [
 
 The minimizer equals the QR back end's whenever it is unique: Qu nonsingular (R = QuᵀQu ≻ 0).
 With limits (torque, Δu, output box and velocity) the same stage models feed the stage-wise
-interior point of :mod:`parallel_gpc.gpc.stagewise`. Not covered (a clear
+active set (input limits) or interior point of :mod:`parallel_gpc.gpc.stagewise`. Not covered (a clear
 :class:`~parallel_gpc.errors.InvalidParameterError` when requested): Qu singular (redundant
 drives need the minimum-norm QR answer) and the drive limits (drive_position, drive_rate).
 """
@@ -192,7 +192,7 @@ class RiccatiPath:
         return Ad, Bd, cd, X, base, w
 
     def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
-        """:meth:`RiccatiSolver.solve`, or with limits the stage-wise interior point
+        """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
         from its last solution when ``warm`` (the controller's next step)."""
         if self.constrained is None:

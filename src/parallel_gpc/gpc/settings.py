@@ -35,12 +35,13 @@ DEFAULT_BOX_SOLVER = "qr-first:bvls"
 #: σ_min(Qu)/(σ_max(Qy)·Ts²) ≥ 1e-2, 3e-10 to 4.4e-10 at 1e-3 to 2.5e-3, up to 1.7e-4 at 1e-6 (the
 #: redundant robots; the others stay ≤ 4e-11 at every Qu measured).
 RICCATI_QU_MARGIN = 1e-2
-#: with limits, the stage-wise interior point is the default from this horizon on (N ≥): measured
-#: faster than the condensed default at N ≥ 80 (1.4–1.8× absolute, 2.5–8× incremental, torque
-#: limits, planar_4rrr) with the same objective to 10–12 digits, slower at N ≤ 40
-#: (benchmarks/README.md, "With limits: the stage-wise interior point"). The one constant to retune
-#: when a faster stage-wise limited solver lands.
-STAGEWISE_LIMITED_MIN_N = 80
+#: with torque/Δu limits, the stage-wise path (an active set of Riccati sweeps, the interior point
+#: when the set does not settle) is the default from this horizon on (N ≥): measured faster than the
+#: condensed default at every N measured, 10 … 160 (1.4–3.5× at N ≤ 20, 8–36× at N ≥ 80; absolute
+#: N = 160 1.55×, most of its steps by the interior point), torque limits, planar_4rrr, plans within
+#: 1e-8 of DAQP's (benchmarks/README.md, "Round 5: the active set on the input rows"). Shorter
+#: horizons were not measured: the condensed default there.
+STAGEWISE_LIMITED_MIN_N = 10
 #: forms and limit kinds the limited stage-wise default was measured on.
 STAGEWISE_LIMITED_FORMS = ("absolute", "incremental")
 #: terminal equalities of the tracking forms: ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: that and
@@ -236,8 +237,8 @@ def default_solver(settings: "GPCSettings") -> str:
     the settings                                            default
     ======================================================  =========================================
     stage-wise exact (below), no limits                     ``"riccati"`` (the Riccati recursion)
-    stage-wise exact, torque/du limits only, form in        ``"riccati"`` (the stage-wise interior
-    :data:`STAGEWISE_LIMITED_FORMS`, N ≥                    point)
+    stage-wise exact, torque/du limits only, form in        ``"riccati"`` (the stage-wise active set;
+    :data:`STAGEWISE_LIMITED_FORMS`, N ≥                    the interior point when it does not settle)
     :data:`STAGEWISE_LIMITED_MIN_N`
     otherwise                                               :func:`condensed_default`: ``"qr"``
                                                             without limits (Qu singular: QR's

@@ -3,8 +3,11 @@
 The same stage models as the unconstrained Riccati path (:func:`~parallel_gpc.gpc.riccati.stage_models`:
 z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinear]) and the same criterion
 (5), Φ = J + const: Q_i = 2 C̄ᵀ Qyᵀ Qy C̄ on the penalized steps i = No+1..N, R = 2 Quᵀ Qu. The
-limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on, solved by the interior point
-of :mod:`parallel_gpc.solvers.stagewise_ipm` (work linear in N):
+limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on (work linear in N). A problem
+whose rows are all input rows (torque and Δu: each acts on one component of v(i)) is solved by
+the active set of :mod:`parallel_gpc.solvers.stagewise_active` (one Riccati sweep per change of
+the set), any other — and one whose active set does not settle, visibly (the result's message)
+— by the interior point of :mod:`parallel_gpc.solvers.stagewise_ipm`:
 
 The rows are the ones the condensed layout uses, defined once per kind
 (:func:`~parallel_gpc.gpc.criterion.input_rows`, :func:`~parallel_gpc.gpc.constraints.output_rows`);
@@ -19,7 +22,10 @@ this module only places them on the stages:
   instead of one per pair: the same optimum, the two sides never both bind).
 
 From the controller's second step on, the solve starts from the previous solution shifted by one
-stage (:class:`~parallel_gpc.solvers.StageStart`).
+stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; the interior point's
+plan, multipliers and slacks, :class:`~parallel_gpc.solvers.StageStart`).
+Not covered by the active set: the nonlinear form's torque rows after Nu (the held input plus
+the pre-simulated one: a row on the state alone) go to the interior point.
 
 Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
 (drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
@@ -29,18 +35,21 @@ plan — the condensed back ends take them.
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 
 from ..errors import SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import SolveResult, StageQP, StageQPSolution, StageStart, solve_stage_qp
+from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
+                       StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
+                       solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
 
-__all__ = ["StagewiseSolver", "stage_problem", "STAGEWISE_KINDS"]
+__all__ = ["StagewiseSolver", "stage_problem", "tracking_gradient", "STAGEWISE_KINDS"]
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
@@ -51,6 +60,14 @@ def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
     rows [Fz; −Fz] z + [Fv; −Fv] v ≤ [hi − const; const − lo]: (kind, Fz, Fv, f, soft), (N, 2k, ·)."""
     return (kind, np.concatenate([Fz, -Fz], axis=1), np.concatenate([Fv, -Fv], axis=1),
             np.concatenate([hi - const, const - lo], axis=1), soft)
+
+
+def tracking_gradient(CQ, r, N: int, No: int) -> np.ndarray:
+    """The criterion's linear stage terms q (N + 1, nz): −2 C̄ᵀ Qy r(i) on the penalized steps
+    i = No+1..N, 0 before. CQ: (nz, p) C̄ᵀ Qy. r: (N − No, p) targets."""
+    q = np.zeros((N + 1, CQ.shape[0]))
+    q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
+    return q
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
@@ -75,11 +92,10 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     H = horizons
     N, No, Nu = H.N, H.No, H.Nu
     nz, m, p = Ab.shape[1], Bb.shape[2], Cz.shape[0]
-    Qy = Wy.T @ Wy
-    Q, q = np.zeros((N + 1, nz, nz)), np.zeros((N + 1, nz))
-    CQ = Cz.T @ Qy
+    CQ = Cz.T @ (Wy.T @ Wy)
+    Q = np.zeros((N + 1, nz, nz))
     Q[No + 1:] = 2.0 * CQ @ Cz
-    q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
+    q = tracking_gradient(CQ, r, N, No)
     decided = (np.arange(N) < Nu)[:, None, None]  # v(i) exists on the stages i < Nu
     blocks = []
     nonlinear = form == "nonlinear"
@@ -145,14 +161,20 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
 
 
 class StagewiseSolver:
-    """Stage-wise interior-point solve of one controller's constrained problem.
+    """Stage-wise solve of one controller's constrained problem (active set or interior point).
 
     Args:
         Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). horizons: N, No, Nu.
         form: the controller's form. limits: sized to the drives and outputs (input kinds
             tightened by the controller's margin). Ts: sample time (s).
-        native: None = the compiled ``_native.stagewise_ipm`` when available, False = the Python
-            reference :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+        native: None = the compiled ``_native.stagewise_active`` and ``_native.stagewise_ipm`` when
+            available, False = the Python references :func:`~parallel_gpc.solvers.solve_active_set`
+            and :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+
+    Attributes:
+        method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
+            than input rows) or ``"interior-point after active set"`` (the set did not settle).
+        iterations: the last solve's (active-set sweeps, interior-point iterations), 0 when unused.
     """
 
     name = "riccati"
@@ -162,15 +184,21 @@ class StagewiseSolver:
         self.Wy, self.Wu = np.asarray(Wy, float), np.asarray(Wu, float)
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
-        self.native = self._compiled is not None
+        self._compiled_active = compiled_part(native, "stagewise_active", "the compiled stage-wise active set")
+        self.native = self._compiled is not None and self._compiled_active is not None
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
+        self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
+        # the first step's problem when only its models and targets change from step to step (input rows
+        # of the linear forms: Q, the rows and their bounds are the limits' and the weights'), and its kinds
+        self._template: tuple | None = None
+        self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
+        self.method, self.iterations = "", (0, 0)
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
-    def _start(self, qp: StageQP) -> StageStart | None:
-        """The last solution shifted by one stage (the warm start of the next step), or None: v(i) ←
+    def _start(self, qp: StageQP, last: StageQPSolution | None) -> StageStart | None:
+        """The last solution shifted by one stage (the interior point's warm start), or None: v(i) ←
         v(i+1) (absolute: the last held; the increments of the incremental forms: 0 at the end; the
         nonlinear form's deviation from a new pre-simulation: the unconstrained plan), λ and s likewise."""
-        last = self._last
         if last is None or last.lam.shape != qp.f.shape or last.v.shape[0] != qp.n_decide:
             return None
         v = None
@@ -182,8 +210,32 @@ class StagewiseSolver:
 
         return StageStart(v, shifted(last.lam), shifted(last.s))
 
+    def _input_rows(self, qp: StageQP) -> InputRowMap | None:
+        """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
+        change (the rows' Fz, Fv and softness are the limits', the same every step)."""
+        used = np.isfinite(qp.f)
+        if self._rows is None or not np.array_equal(used, self._rows[0]):
+            self._rows = (used, input_rows_of(qp) if qp.S is None else None)
+        return self._rows[1]
+
+    def _active(self, qp: StageQP, rows: InputRowMap, start: np.ndarray | None):
+        """The active-set solve (compiled, or the Python reference)."""
+        if self._compiled_active is None:
+            return solve_active_set(qp, rows, start)
+        c = np.ascontiguousarray
+        try:
+            v, z, lam, fixed, iterations, ok, residual, message = self._compiled_active(
+                c(qp.A, float), c(qp.B, float), c(qp.c, float), c(qp.z0, float), c(qp.Q, float), c(qp.q, float),
+                c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.f, float), c(rows.comp, np.int64),
+                c(rows.sign, float), None if start is None else c(start, np.int64),
+                AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
+        except RuntimeError as exc:
+            raise SolverError(str(exc)) from None
+        return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, None, iterations,
+                                 "optimal" if ok else "unconverged", residual, message, fixed)
+
     def _solve(self, qp: StageQP, start: StageStart | None) -> StageQPSolution:
-        """The compiled solve, or the Python reference."""
+        """The compiled interior point, or the Python reference."""
         if self._compiled is None:
             return solve_stage_qp(qp, start=start)
         try:
@@ -218,12 +270,31 @@ class StagewiseSolver:
         t0 = time.perf_counter()
         Ab, Bb, cb, Cz, z0 = stage_models
         H, m = self.horizons, self.Wu.shape[0]
-        qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
-                                  y_now, y_sim, u_sim, u_prev, self._output_rows)
-        start = self._start(qp) if warm else None
-        self._last = None
+        if self._template is not None:
+            template, kinds, CQ = self._template
+            qp = replace(template, A=Ab, B=Bb, c=cb, z0=z0, q=tracking_gradient(CQ, r, H.N, H.No))
+        else:
+            qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
+                                      y_now, y_sim, u_sim, u_prev, self._output_rows)
+            if self.form != "nonlinear" and not self._output_rows:
+                self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
+        rows = self._input_rows(qp)
+        fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
+        last, self._last, self._fixed = self._last if warm else None, None, None
         try:
-            sol = self._solve(qp, start)
+            sol, self.method, self.iterations = None, "interior-point", (0, 0)
+            if rows is not None:
+                sol = self._active(qp, rows, fixed_start)
+                self.iterations = (sol.iterations, 0)
+                if sol.status == "optimal":
+                    self.method, self._fixed = "active-set", sol.fixed
+                else:
+                    self.method, fell_back = "interior-point after active set", sol.message
+            if sol is None or sol.status != "optimal":
+                sol = self._solve(qp, self._start(qp, last))
+                self.iterations = (self.iterations[0], sol.iterations)
+                if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
+                    self._fixed = active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
             return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
                                time.perf_counter() - t0, False, str(exc)), None
@@ -232,6 +303,9 @@ class StagewiseSolver:
         v = sol.v.reshape(-1)
         e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
         J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
+        if self.method == "active-set":  # input rows only (no state report), their KKT conditions verified
+            return SolveResult(v, J, "optimal", self.name, sol.iterations, time.perf_counter() - t0,
+                               bool((sol.fixed >= 0).any()), ""), None
         used = np.isfinite(qp.f)
         F_x = np.einsum("ikn,in->ik", qp.Fz, sol.z[:-1])
         F_x[:H.Nu] += np.einsum("ikm,im->ik", qp.Fv[:H.Nu], sol.v)
@@ -246,8 +320,10 @@ class StagewiseSolver:
             binding = np.broadcast_to(kinds, used.shape)[active & state]
             report = ConstraintReport(tuple(sorted({str(kd) for kd in binding})), slack)
         status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
+        if self.method == "interior-point after active set":
+            message = f"{fell_back}: solved by the interior point" + (f"; {message}" if message else "")
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))
         if status == "optimal" and hard_excess > STATE_TOL * (1.0 + float(np.max(np.abs(f), initial=0.0))):
             status, message = "infeasible", f"a hard limit is exceeded by {hard_excess:.3g} (infeasible)"
-        return SolveResult(v, J, status, self.name, sol.iterations, time.perf_counter() - t0,
+        return SolveResult(v, J, status, self.name, sum(self.iterations), time.perf_counter() - t0,
                            bool(active.any()), message), report

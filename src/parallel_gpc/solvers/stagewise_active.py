@@ -1,0 +1,298 @@
+"""Stage-wise primal-dual active-set method for linear-quadratic problems with input rows.
+
+The reference (Python) twin of the compiled ``_native.stagewise_active``; it knows nothing about
+GPC. The problem is a :class:`~parallel_gpc.solvers.stagewise_ipm.StageQP` whose every used row
+is hard and acts on ONE input component (an *input row*: a torque or Δu limit of a controller),
+
+    σ_r v_j(i) + Fz_r z(i) ≤ f_r,   σ_r = ±1,   i < n_decide        (row r of stage i, on component j)
+
+(Fz_r = 0 for a box on v; a selector of the held input for the incremental forms' torque rows).
+An active row fixes its component, v_j(i) = σ_r (f_r − Fz_r z(i)): affine in the state, so the
+problem with a fixed active set is again an LQ problem — with state–input cross terms and
+fewer free inputs — solved by ONE Riccati sweep (:func:`_sweep`: v = E_i z + e_i on the fixed
+components, the free ones v_F = K_i z + k_i). The multipliers of the active rows follow from
+the costates in one backward pass (:func:`_multipliers`): λ_r = −σ_r ∂L/∂v_j(i).
+
+The active set is updated as a primal-dual active set (Hintermüller–Ito–Kunisch): a component
+stays fixed while its multiplier is ≥ 0 and no other row on it is broken; a free component whose
+rows are broken is fixed by its most broken row; a fixed one whose multiplier turned negative is
+freed. The iterations stop when the set repeats its predecessor — the KKT conditions (primal
+feasibility, λ ≥ 0, stationarity of the free components, complementarity by construction) are
+then verified, not trusted — or when a set comes back (a cycle) or the cap is reached: status
+``"unconverged"``, for the caller to hand the problem to the interior point. A start (the
+previous step's set shifted by one stage) saves the iterations the changes of the set cost.
+
+Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
+the incremental forms binding together on one component pin the held input (a row on the state),
+and the set then cycles. With most inputs on a limit (planar_4rrr, absolute, N = 160: ~600 of 640)
+the full-step update of the set does not settle either (the few free inputs swing far past their
+bounds between sweeps). Both are reported unconverged.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.linalg as sla
+
+from ..errors import SolverError
+from .stagewise_ipm import StageQP, StageQPSolution
+
+__all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "active_set_of", "solve_active_set",
+           "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
+
+#: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
+#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr), a warm
+#: one 1.5–3; at N = 160 with ~600 of 640 inputs on their limits the set does not settle from a cold
+#: start (80 sweeps tried): the interior point solves that step and its active rows start the next.
+AS_MAX_ITER = 30
+#: the cap from a start (the previous step's set shifted): a good start settles in 1–3 sweeps (mean
+#: 1.5–2.5 up to N = 80); one that has not by this many goes to the interior point without the
+#: full cap's cost (absolute N = 160: 30 sweeps, then the interior point, on 20 of 24 steps).
+AS_WARM_MAX_ITER = 8
+#: the set's tolerance: a row broken by more than AS_TOL × the largest bound, or a multiplier below
+#: −AS_TOL × the gradient's scale, changes the active set (the settled set meets both).
+AS_TOL = 1e-10
+#: the settled set's solution is accepted when its KKT residual (the largest of the rows' excess
+#: over the largest bound, the multipliers' negative part and the free components' Lagrangian
+#: gradient over the gradient's scale) is at most this, the interior point's acceptance: the sweep's
+#: rounding leaves a free-component gradient of 2e-10–2e-8 of the scale (R v and Bᵀν cancel;
+#: planar_4rrr, Qu = 1e-5, N = 10–20); the excess and the signs already hold to AS_TOL once the set settles.
+AS_ACCEPT = 1e-6
+
+
+@dataclass(frozen=True)
+class InputRowMap:
+    """Which component each row of a :class:`StageQP` acts on.
+
+    Attributes:
+        comp: (N, k) int, the component j of v(i) the row acts on; −1 on an unused row.
+        sign: (N, k) σ_r = ±1 (0 on an unused row).
+    """
+
+    comp: np.ndarray
+    sign: np.ndarray
+
+
+@dataclass
+class ActiveSetSolution(StageQPSolution):
+    """A :class:`StageQPSolution` (``lam`` ≥ 0 on the active rows, 0 elsewhere; ``s`` = 0) and its set.
+
+    Attributes:
+        fixed: (n_decide, m) int, the row fixing each component (−1: free): the next step's start,
+            shifted by one stage.
+    """
+
+    fixed: np.ndarray | None = None
+
+
+def input_rows_of(qp: StageQP) -> InputRowMap | None:
+    """The :class:`InputRowMap` of ``qp``, or None when a used row is soft, on a stage without a
+    decision, or not of the form σ v_j + Fz z ≤ f with σ = ±1 (the interior point's problems)."""
+    used = np.isfinite(qp.f)
+    N, k = qp.f.shape
+    if not used.any():
+        return InputRowMap(np.full((N, k), -1), np.zeros((N, k)))
+    nd = qp.n_decide
+    if (qp.soft & used).any() or used[nd:].any():
+        return None
+    Fv = qp.Fv[:nd]
+    nonzero = Fv != 0.0
+    one = nonzero.sum(axis=2) == 1
+    sign = Fv.sum(axis=2)
+    if not np.all(one[used[:nd]]) or not np.all(np.abs(sign[used[:nd]]) == 1.0):
+        return None
+    comp = np.full((N, k), -1)
+    comp[:nd] = np.where(used[:nd], np.argmax(nonzero, axis=2), -1)
+    sgn = np.zeros((N, k))
+    sgn[:nd] = np.where(used[:nd], sign, 0.0)
+    return InputRowMap(comp, sgn)
+
+
+def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
+    """The plan (z (N + 1, nz), v (n_decide, m)) of the LQ problem with the components ``fixed``
+    (n_decide, m: the row fixing each, −1 free) held on their rows: one Riccati sweep.
+
+    Raises:
+        SolverError: the free inputs' Hessian is not positive definite (R not ≻ 0, non-finite data).
+    """
+    N, nd = qp.A.shape[0], qp.n_decide
+    nz, m = qp.A.shape[1], qp.R.shape[0]
+    gains = [None] * nd
+    P, p = qp.Q[N], qp.q[N]
+    for i in range(N - 1, -1, -1):
+        A, c = qp.A[i], qp.c[i]
+        PA, w = P @ A, P @ c + p
+        Pz, lin = qp.Q[i] + A.T @ PA, qp.q[i] + A.T @ w
+        if i < nd:
+            B = qp.B[i]
+            PB = P @ B
+            Hvv, gv = qp.R + B.T @ PB, B.T @ w
+            Hvz = PB.T @ A if qp.S is None else PB.T @ A + qp.S
+            E, e = np.zeros((m, nz)), np.zeros(m)
+            fix = fixed[i] >= 0
+            r = fixed[i][fix]
+            E[fix] = -rows.sign[i, r][:, None] * qp.Fz[i, r]
+            e[fix] = rows.sign[i, r] * qp.f[i, r]
+            if fix.any():  # v = E z + e on the fixed components, substituted
+                Hz, gv = Hvz + Hvv @ E, gv + Hvv @ e
+                Pz = Pz + E.T @ Hvz + Hz.T @ E
+                lin = lin + Hvz.T @ e + E.T @ gv
+            else:
+                Hz = Hvz
+            free = ~fix
+            K, k = np.zeros((0, nz)), np.zeros(0)
+            if free.any():
+                try:
+                    fac = sla.cho_factor(Hvv[np.ix_(free, free)], check_finite=True)
+                except (np.linalg.LinAlgError, ValueError) as exc:
+                    raise SolverError(f"stage-wise active set: the free inputs' Hessian R + BᵀPB at stage {i} is "
+                                      f"not positive definite (the input weight Qu must be nonsingular; {exc})") from None
+                Hwz = Hz[free]
+                K, k = -sla.cho_solve(fac, Hwz, check_finite=False), -sla.cho_solve(fac, gv[free], check_finite=False)
+                Pz, lin = Pz + Hwz.T @ K, lin + Hwz.T @ k
+            gains[i] = (free, K, k, E, e)
+        P, p = 0.5 * (Pz + Pz.T), lin
+    z = np.empty((N + 1, nz))
+    v = np.empty((nd, m))
+    z[0] = qp.z0
+    for i in range(N):
+        z[i + 1] = qp.A[i] @ z[i] + qp.c[i]
+        if i < nd:
+            free, K, k, E, e = gains[i]
+            v[i] = E @ z[i] + e
+            v[i, free] = K @ z[i] + k
+            z[i + 1] += qp.B[i] @ v[i]
+    return z, v
+
+
+def _multipliers(qp: StageQP, rows: InputRowMap, fixed: np.ndarray, z, v):
+    """One backward pass, g = R v + S z + Bᵀ ν(i+1), λ_r = −σ_r g_j on the active rows,
+    ν(i) = Q z + q + Sᵀ v + Aᵀ ν(i+1) + Fzᵀ λ.
+
+    Returns:
+        (λ (N, k), 0 off the active rows; ν (N + 1, nz), ν(0) = 0; the free components' g
+        (n_decide, m), 0 on the fixed ones: zero at the optimum; the gradient's scale, the largest
+        entry of R v and Bᵀ ν(i+1)).
+    """
+    N, nd = qp.A.shape[0], qp.n_decide
+    lam = np.zeros(qp.f.shape)
+    nu = np.zeros_like(z)
+    grad = np.zeros_like(v)
+    scale = 0.0
+    nu[N] = qp.Q[N] @ z[N] + qp.q[N]
+    for i in range(N - 1, -1, -1):
+        nxt = qp.A[i].T @ nu[i + 1]
+        if i < nd:
+            Rv, Bn = qp.R @ v[i], qp.B[i].T @ nu[i + 1]
+            scale = max(scale, float(np.max(np.abs(Rv))), float(np.max(np.abs(Bn))))
+            g = Rv + Bn
+            if qp.S is not None:
+                g += qp.S @ z[i]
+                nxt += qp.S.T @ v[i]
+            fix = fixed[i] >= 0
+            r = fixed[i][fix]
+            lam[i, r] = -rows.sign[i, r] * g[fix]
+            grad[i] = np.where(fix, 0.0, g)
+            nxt += qp.Fz[i, r].T @ lam[i, r]
+        if i > 0:
+            nu[i] = qp.Q[i] @ z[i] + qp.q[i] + nxt
+    return lam, nu, grad, scale
+
+
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -> np.ndarray:
+    """The next active set (n_decide, m): per component, its most broken row if one is broken,
+    else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
+    how far each row is broken beyond the tolerance (≤ 0: held)."""
+    nd, m = fixed.shape
+    comp = rows.comp[:nd]
+    on = comp[:, None, :] == np.arange(m)[None, :, None]  # (nd, m, k): row r acts on component j
+    viol = np.where(on, broken[:, None, :], -np.inf)
+    worst = np.argmax(viol, axis=2)
+    is_broken = np.take_along_axis(viol, worst[..., None], axis=2)[..., 0] > 0.0
+    held = fixed >= 0
+    lam_fixed = np.where(held, np.take_along_axis(lam[:nd], np.maximum(fixed, 0), axis=1), 0.0)
+    keep = held & (lam_fixed >= -tol_lam)
+    return np.where(is_broken, worst, np.where(keep, fixed, -1))
+
+
+def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
+    """A previous step's set (n_decide, m) shifted by one stage (the last stage repeated), or None."""
+    if fixed is None or fixed.shape[0] == 0:
+        return None
+    return np.concatenate([fixed[1:], fixed[-1:]])
+
+
+def active_set_of(qp: StageQP, rows: InputRowMap, lam: np.ndarray) -> np.ndarray:
+    """The active set (n_decide, m) that another solver's multipliers λ (N, k) indicate (the interior
+    point's, to start the next step): per component the row with the largest λ, where that λ is above
+    1e-6 of the largest one; the others free."""
+    nd, m = qp.n_decide, qp.R.shape[0]
+    on = rows.comp[:nd, None, :] == np.arange(m)[None, :, None]  # (nd, m, k)
+    weight = np.where(on, lam[:nd, None, :], -np.inf)
+    best = np.argmax(weight, axis=2)
+    top = np.take_along_axis(weight, best[..., None], axis=2)[..., 0]
+    return np.where(top > 1e-6 * max(float(np.max(lam, initial=0.0)), 1e-300), best, -1)
+
+
+def _valid(fixed: np.ndarray, rows: InputRowMap) -> np.ndarray:
+    """``fixed`` with the entries that name no used row on their component freed (−1)."""
+    nd, m = fixed.shape
+    k = rows.comp.shape[1]
+    r = np.clip(fixed, 0, k - 1)
+    named = np.take_along_axis(rows.comp[:nd], r, axis=1) == np.arange(m)
+    return np.where((fixed >= 0) & (fixed < k) & named, fixed, -1)
+
+
+def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = None,
+                     max_iter: int | None = None, tol: float = AS_TOL) -> ActiveSetSolution:
+    """Solve a :class:`StageQP` of input rows (:func:`input_rows_of`) by the primal-dual active set.
+
+    Args:
+        qp: the problem. rows: its :func:`input_rows_of`. start: (n_decide, m) a guess of the active
+            set, the row fixing each component or −1 (:func:`shift_active_set` of the previous step's;
+            an entry naming no used row on its component is freed), or None: the unconstrained
+            plan's broken rows. max_iter: Riccati sweeps at most (None: :data:`AS_MAX_ITER` cold,
+            :data:`AS_WARM_MAX_ITER` from a start). tol: :data:`AS_TOL`.
+
+    Returns:
+        status ``"optimal"`` (the KKT conditions verified: residual ≤ :data:`AS_ACCEPT`) or ``"unconverged"``
+        (a cycle or the cap; the message says which): then hand ``qp`` to the interior point.
+
+    Raises:
+        SolverError: a free inputs' Hessian that is not positive definite.
+    """
+    N, nd = qp.A.shape[0], qp.n_decide
+    m = qp.R.shape[0]
+    used = np.isfinite(qp.f)
+    f = np.where(used, qp.f, 0.0)
+    f_scale = max(float(np.max(np.abs(f[used]), initial=0.0)), 1e-12)
+    fixed = np.full((nd, m), -1) if start is None else _valid(np.asarray(start, dtype=int), rows)
+    if max_iter is None:
+        max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
+    seen = set()
+    for it in range(1, max_iter + 1):
+        z, v = _sweep(qp, rows, fixed)
+        lam, nu, grad, scale = _multipliers(qp, rows, fixed, z, v)
+        scale = max(scale, 1e-300)
+        Fx = np.einsum("ikn,in->ik", qp.Fz, z[:N])
+        Fx[:nd] += np.einsum("ikm,im->ik", qp.Fv[:nd], v)
+        gap = np.where(used, Fx - f, -np.inf)
+        new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale)
+        residual = max(float(np.max(gap, initial=0.0)) / f_scale, float(np.max(-lam, initial=0.0)) / scale,
+                       float(np.max(np.abs(grad), initial=0.0)) / scale)
+        if np.array_equal(new, fixed):
+            status = "optimal" if residual <= AS_ACCEPT else "unconverged"
+            message = "" if status == "optimal" else (
+                f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
+            return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
+        key = new.tobytes()
+        if key in seen:
+            return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, "unconverged", residual,
+                                     f"stage-wise active set: the active set cycles after {it} sweeps", fixed)
+        seen.add(fixed.tobytes())
+        fixed = new
+    return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, max_iter, "unconverged", residual,
+                             f"stage-wise active set: not converged in {max_iter} sweeps (KKT residual {residual:.3g})",
+                             fixed)
