@@ -39,6 +39,8 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ..gpc import GPCController, Horizons, Prediction, condense, SCurve, path_for, Weights, build_problem
+from ..gpc.riccati import stage_models
+from ..gpc.stagewise import StagewiseSolver
 from ..model import cached_identity, ReducedModel, ConstrainedPlant, ParallelRobot
 from ..limits import Limits
 from .report import evaluate_targets, machine_info, markdown_report, ratios
@@ -118,6 +120,10 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
         ltv.append(out)
     ours_ltv = [(f"ours: condense + {name}", make_solver(name))
                 for name in ("qr-first:daqp-direct", "proxqp-direct", "daqp-direct", "bvls")]
+    # the same problem stage by stage, no condensing: the controller's limited `riccati` path (the
+    # active set of Riccati sweeps on the torque rows), warm-started from its last set like a controller
+    Wy, Wu = W.blocks(robot.n_y, m)
+    stagewise_ltv = StagewiseSolver(Wy, Wu, H, "absolute", limits.for_drives(m, robot.n_y), Ts)
     peers = []
     for s in cfg.qpmpc_solvers:
         try:
@@ -170,6 +176,14 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
                     warm[("ltv", mname)] = _shift(res.v, m) if res.ok else None
                     if timed:
                         log_solve(run.entry("qpmpc", name, N, mname), dt, res.ok, res.v, v_ref_ltv)
+                t0 = time.perf_counter()
+                models = stage_models("absolute", A_seq, B_seq, c_seq, robot_C(robot), X, None, H)
+                res, _ = stagewise_ltv.solve(models, w.reshape(H.n_rows, robot.n_y), robot_C(robot) @ X,
+                                             warm=k > 0)
+                dt = time.perf_counter() - t0
+                if timed:
+                    log_solve(run.entry("qpmpc", name, N, "ours: stage-wise (riccati: active set)"), dt, res.ok,
+                              res.v, v_ref_ltv)
                 for peer in peers:
                     t0 = time.perf_counter()
                     with warnings.catch_warnings():
