@@ -58,9 +58,8 @@ class StepInfo:
         model_time, predict_time, solve_time: wall times in s of the three phases (solve_time
             includes the nonlinear form's further iterations).
         fallback: True when the applied u did not come from a successful solve.
-        iterations: Gauss–Newton iterations of the nonlinear form (``GPCSettings.iterations`` = 1:
-            the paper's single step; more allowed: the first is already the exact step,
-            :mod:`parallel_gpc.gpc.nmpc`).
+        iterations: Gauss–Newton iterations of the nonlinear form (1: the paper's single step;
+            ``GPCSettings.iterations``, :mod:`parallel_gpc.gpc.nmpc`).
         residual: relative size of the last Gauss–Newton step (0 at the NMPC optimum; NaN with
             a single iteration).
         budget_hit: True when the time budget stopped the iterations.
@@ -281,17 +280,14 @@ class GPCController:
             self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
     def presimulate(self, X: np.ndarray):
-        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10); iterated
-        (``iterations`` > 1), A_seq holds the exact ∂Φ/∂X along it (the first step is already the
-        exact Gauss–Newton step, :meth:`NMPCIterations.start <parallel_gpc.gpc.nmpc.NMPCIterations.start>`)."""
+        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
         C = self.model.C
         u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         self._null = False
-        JX = A_seq if self._nmpc is None else self._nmpc.start(A_seq, X_sim, u_sim)
-        return JX, B_seq, C, X_sim[1:] @ C.T, u_sim
+        return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
     # ------------------------------------------------------------------ step
     def _reference_rows(self, w) -> np.ndarray:

@@ -75,10 +75,6 @@ AT_VALUES = np.zeros(1)
 AT_PROBLEM = SimpleNamespace(n_decision=1, slack_unit=None)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
-#: the first prediction of a step had the exact Jacobians (:meth:`NMPCIterations.start`).
-EXACT = "exact"
-#: the first prediction of a step was the paper's, :meth:`NMPCIterations.start` not called.
-FROZEN = "the paper's frozen-Jacobian first step"
 
 
 @dataclass(frozen=True)
@@ -86,12 +82,7 @@ class IterationReport:
     """What the iterations of one step did.
 
     Attributes:
-        iterations: Gauss–Newton iterations used. With ``iterations=1`` allowed (the default) the one
-            is the paper's step; with more the first is already the exact Gauss–Newton step along the
-            pre-simulation (``exact_start``), so 2 mean that step plus one more, converged or not.
-        exact_start: True when the first step used the exact Jacobians along the pre-simulation;
-            False for the paper's step (``iterations=1``, or its fallback when a difference step
-            of those Jacobians left the workspace: then the result's message says so).
+        iterations: Gauss–Newton iterations used (1 = the paper's single step).
         residual: ‖v⁺ − v‖∞ / (1 + ‖v‖∞) of the last Gauss–Newton step (0 at a KKT point);
             NaN when only the paper's step ran without a second linearization.
         budget_hit: True when the time budget stopped the iterations.
@@ -105,7 +96,6 @@ class IterationReport:
     """
 
     iterations: int = 1
-    exact_start: bool = False
     residual: float = float("nan")
     budget_hit: bool = False
     converged: bool = False
@@ -133,7 +123,6 @@ class NMPCIterations:
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
-        self._start = FROZEN  # how the step's first prediction was linearized (:meth:`start`)
 
     # -------------------------------------------------------------- the true problem
     def _rollout(self, X, w, u0, u_map, v, d):
@@ -205,54 +194,14 @@ class NMPCIterations:
         _, s = self._slack(rows, AT_VALUES)
         return constraint_report(AT_PROBLEM, rows, np.concatenate([AT_VALUES, s]))
 
-    # -------------------------------------------------------------- the linearization
-    def state_jacobians(self, A_seq: np.ndarray, X_seq: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """∂Φ/∂X at the stages of a trajectory, (N, n_x, n_x): exact from stage 1
-        (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`); at stage 0 A_d(X(0)) (``A_seq[0]``:
-        X(0) is fixed, ∂Φ/∂X there multiplies a zero deviation and never enters G).
-
-        Args:
-            A_seq: (N, n_x, n_x) A_d along the trajectory. X_seq: (N+1, n_x) its states (m, rad, m/s,
-                rad/s). u: (N, n_u) its inputs (N·m).
-
-        Raises:
-            AssemblyError, SingularPoseError, NonFiniteError: a difference step leaves the workspace.
-        """
-        JX = np.empty_like(A_seq)
-        JX[0] = A_seq[0]
-        JX[1:] = self.model.stage_jacobians(X_seq, u, self.Ts, start=1)
-        return JX
-
-    def start(self, A_seq: np.ndarray, X_seq: np.ndarray, u: np.ndarray) -> np.ndarray:
-        """∂Φ/∂X for the first step, along the pre-simulation (v = 0, the shifted previous plan):
-        the exact Jacobians (:meth:`state_jacobians`), so that the first step is already the exact
-        Gauss–Newton step; the paper's frozen ``A_seq`` when a difference step leaves the workspace
-        (:meth:`run` then says so: ``IterationReport.exact_start`` False and the result's message).
-        Arguments as :meth:`state_jacobians`."""
-        try:
-            JX = self.state_jacobians(A_seq, X_seq, u)
-        except MODEL_ERRORS as exc:
-            self._start = f"the paper's frozen-Jacobian first step (exact ∂Φ/∂X failed: {type(exc).__name__}: {exc})"
-            return A_seq
-        self._start = EXACT
-        return JX
-
-    @staticmethod
-    def _noted(result: SolveResult, first: str) -> SolveResult:
-        """``result`` with a first step that was not the exact one said in its message (visible)."""
-        if first == EXACT:
-            return result
-        return replace(result, message=f"{result.message}; {first}" if result.message else first)
-
     # -------------------------------------------------------------- the iterations
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
             rows: ConstraintRows | None = None):
-        """Continue from the first step (``pred``, its solve ``result``) to the optimum.
+        """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
             X: (n_x,) measured state. w: (n_rows, p) reference rows (m, rad).
-            pred: the first prediction, along the pre-simulation of u_sim⁰: with the exact Jacobians
-                of :meth:`start` (the paper's frozen ones when they failed or it was not called).
+            pred: the paper's prediction (frozen Jacobians along the pre-simulation of u_sim⁰).
             result: its solve (v = the paper's increments, without slack variables).
             problem_of: Prediction → LeastSquaresProblem with the controller's input limits.
             solve: (problem, warm start) → SolveResult (the controller's back end).
@@ -264,9 +213,8 @@ class NMPCIterations:
             plan, :class:`IterationReport`).
         """
         w = np.asarray(w, dtype=float).reshape(-1)
-        first, self._start = self._start, FROZEN
         if not result.ok:
-            return pred, self._noted(result, first), IterationReport(exact_start=first == EXACT, stop="solve failed")
+            return pred, result, IterationReport(stop="solve failed")
         H, C = self.criterion.horizons, self.model.C
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
@@ -275,8 +223,7 @@ class NMPCIterations:
         merit = self._cost(pred.f, w, v) + self._penalty(true_rows, AT_VALUES)
         excess = self._hard(true_rows)
         lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
-        report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False,
-                      exact_start=first == EXACT)
+        report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
@@ -318,8 +265,10 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
+            JX = np.empty_like(A_seq)
+            JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
             try:
-                JX = self.state_jacobians(A_seq, X_seq, u_traj)
+                JX[1:] = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
@@ -341,5 +290,5 @@ class NMPCIterations:
                 report["stop"] = "solve failed"
                 break
             result, _ = split(problem, new)
-        return lin, self._noted(replace(result, v=v.copy(), cost=merit), first), IterationReport(cost=merit, constraints=self._report(
+        return lin, replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
             true_rows), **report)
