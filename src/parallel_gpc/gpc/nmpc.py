@@ -20,7 +20,9 @@ disturbance estimate, τ and δ the controller's limits (scaled by its margin, l
 Qu weighs the increments over the shifted previous plan as the nonlinear form defines them, so
 J is one fixed function of v for the whole step, and ``iterations=1`` is the paper's step.
 
-**The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
+**The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)); an exact first
+step was measured to save no iteration (the next Gauss–Newton step is still 1e-7…1e-5 relative,
+as after the paper's) and to cost one Jacobian more, the dearest part of an iteration. Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
 (Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
 factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, forward differences
