@@ -14,6 +14,10 @@ shifted previous plan); a symmetric torque limit. The plant is the full constrai
 external callback with its own finite-difference Jacobian, limited-memory Hessian): its times
 include the Python callback, unlike a hand-written symbolic model.
 
+Rows: "1 iteration" is the paper's step (``iterations=1``); "2"/"3 iterations" add one/two exact
+Gauss–Newton steps with their line search; "converged" iterates to the step tolerance (on the
+planar case three solves: the paper's and two exact ones, the last only to verify the stop).
+
 Usage: ``python benchmarks/bench_nmpc.py [--case planar|delta|both] [--quick] [--no-casadi] [--out DIR]``.
 Prints a table per case and writes DIR/bench_nmpc.json (default DIR: benchmarks/results).
 """

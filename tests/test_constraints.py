@@ -10,9 +10,9 @@ from scipy.optimize import nnls
 
 from parallel_gpc.errors import InfeasibleLimitsError, InvalidParameterError, ShapeError
 from parallel_gpc.gpc import DiscreteLinearModel, GPCController, Horizons, Weights
-from parallel_gpc.gpc.constraints import constrain, stage_constraints
+from parallel_gpc.gpc.constraints import constrain, hard_excess, hard_violation, stage_constraints
 from parallel_gpc.gpc.criterion import build_problem
-from parallel_gpc.gpc.prediction import absolute_prediction, incremental_prediction
+from parallel_gpc.gpc.prediction import Prediction, absolute_prediction, incremental_prediction
 from parallel_gpc.limits import Limits
 from parallel_gpc.solvers import make_solver
 
@@ -84,6 +84,29 @@ def test_hard_box_and_velocity_match_an_independent_qp(form, solver):
     np.testing.assert_allclose(res.v, x, atol=1e-6 * max(1.0, np.abs(x).max()))
     assert np.sum(Gc @ res.v - hc > -1e-7) >= 1  # a limit binds (a test that can fail)
     assert np.max(Gc @ np.linalg.solve(P, -q) - hc) > 1e-3  # the unconstrained optimum breaks them
+
+
+def test_rows_of_fixed_outputs_have_no_column_and_measure_their_violation():
+    """The rows of a trajectory's own outputs (no decision variable: how gpc/nmpc.py checks a
+    rolled-out plan) give the violation computed directly from the outputs, and the same as the
+    prediction's rows at that plan."""
+    H = Horizons(8)
+    X = np.array([0.3, -0.1, 2.0, -0.5])
+    pred = one_step("incremental", X, np.array([1.0, -2.0]), H)
+    v = np.random.default_rng(3).standard_normal(pred.G.shape[1]) * 20.0
+    y = pred.outputs(v)
+    limits = Limits(output_box=[[-1.0, 0.45], [-0.3, 1.0]], output_velocity=[1.5, 2.5], soft=()).for_drives(2, 2)
+    fixed = Prediction(y, np.zeros((len(y), 0)), np.zeros(0), np.zeros((0, 0)), H, "simulative")
+    rows = stage_constraints(fixed, limits, TS, X[:2])
+    assert rows.G.shape == (len(rows.h), 0)
+    Y = y.reshape(-1, 2)
+    box = np.maximum(Y - [0.45, 1.0], [-1.0, -0.3] - Y)
+    speed = np.abs(np.diff(np.vstack([X[:2], Y]), axis=0)) - np.array([1.5, 2.5]) * TS  # rows in m per sample
+    expected = max(box.max(), speed.max(), 0.0)
+    assert expected > 0.01  # the plan breaks the limits
+    assert hard_excess(rows, np.zeros(len(rows.h))) == pytest.approx(expected, rel=1e-9)
+    problem = build_problem(pred, np.tile([1.0, -0.6], (H.n_rows, 1)), Weights(1.0, 0.05), 2, 2)
+    assert hard_violation(problem, stage_constraints(pred, limits, TS, X[:2]), v) == pytest.approx(expected, rel=1e-9)
 
 
 @pytest.mark.parametrize("form", ["absolute", "incremental"])

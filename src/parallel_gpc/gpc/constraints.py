@@ -38,7 +38,7 @@ from .prediction import Prediction
 
 __all__ = ["DriveKinematics", "ConstraintRows", "OutputRows", "output_rows", "ConstraintReport", "stage_constraints",
            "terminal_rows", "constrain",
-           "report", "split", "hard_violation", "STATE_TOL"]
+           "report", "report_at", "split", "hard_violation", "hard_excess", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
 ACTIVE_TOL = 1e-7
@@ -243,10 +243,11 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
     n_slack = 0
     for b in blocks:
         j = np.arange(b.first, b.first + len(b.cur)) - H.No  # indices into Ge, fe
-        M = np.einsum("ikp,ipn->ikn", b.cur, Ge[j]).reshape(-1, n)
+        k = b.cur.shape[0] * b.cur.shape[1]  # rows of this block (explicit: n may be 0, a trajectory's own rows)
+        M = np.einsum("ikp,ipn->ikn", b.cur, Ge[j]).reshape(k, n)
         value = np.einsum("ikp,ip->ik", b.cur, fe[j]) + b.offset
         if b.prev is not None:
-            M += np.einsum("ikp,ipn->ikn", b.prev, Ge[j - 1]).reshape(-1, n)
+            M += np.einsum("ikp,ipn->ikn", b.prev, Ge[j - 1]).reshape(k, n)
             value = value + np.einsum("ikp,ip->ik", b.prev, fe[j - 1])
         value, lo, hi = value.reshape(-1), np.reshape(b.lo, -1), np.reshape(b.hi, -1)
         has_hi, has_lo = np.isfinite(hi), np.isfinite(lo)
@@ -352,9 +353,17 @@ def report(problem: LeastSquaresProblem, rows: ConstraintRows | None, x: np.ndar
     if rows is None or not len(rows.h):
         return None
     n = problem.n_decision
-    v, s = x[:n], x[n:] * (1.0 if problem.slack_unit is None else problem.slack_unit)  # in the limits' units
+    s = x[n:] * (1.0 if problem.slack_unit is None else problem.slack_unit)  # in the limits' units
+    return report_at(rows, rows.G @ x[:n], s)
+
+
+def report_at(rows: ConstraintRows | None, Gv: np.ndarray, s: np.ndarray) -> ConstraintReport | None:
+    """Which kinds are active where the rows' left sides are Gv = G v (k,), and the slack each used,
+    s (n_s,) the slack in the limits' units (m, rad, m/s, …); None without rows."""
+    if rows is None or not len(rows.h):
+        return None
     relaxed = rows.h + np.where(rows.slack_of >= 0, s[np.maximum(rows.slack_of, 0)] if s.size else 0.0, 0.0)
-    gap = relaxed - rows.G @ v
+    gap = relaxed - Gv
     active = sorted({str(k) for k in rows.kind[gap <= ACTIVE_TOL * (1.0 + np.abs(rows.h))]})
     slack = {}
     for kind in STATE_KINDS:
@@ -368,10 +377,18 @@ def hard_violation(problem: LeastSquaresProblem, rows: ConstraintRows | None, x:
     """The largest violation of a hard row at x = [v; s] (units of the limit: m, rad, m/s, …; 0 when kept)."""
     if rows is None or not len(rows.h):
         return 0.0
+    return hard_excess(rows, rows.G @ x[:problem.n_decision])
+
+
+def hard_excess(rows: ConstraintRows | None, Gv: np.ndarray) -> float:
+    """The largest violation of a hard row where the rows' left sides are Gv = G v (k,) (units of
+    the limit: m, rad, m/s, …; 0 when kept or without rows)."""
+    if rows is None or not len(rows.h):
+        return 0.0
     hard = rows.slack_of < 0
     if not hard.any():
         return 0.0
-    return float(max(0.0, np.max(rows.G[hard] @ x[:problem.n_decision] - rows.h[hard])))
+    return float(max(0.0, np.max(Gv[hard] - rows.h[hard])))
 
 
 def split(problem: LeastSquaresProblem, result: SolveResult) -> tuple[SolveResult, np.ndarray]:

@@ -20,7 +20,9 @@ disturbance estimate, τ and δ the controller's limits (scaled by its margin, l
 Qu weighs the increments over the shifted previous plan as the nonlinear form defines them, so
 J is one fixed function of v for the whole step, and ``iterations=1`` is the paper's step.
 
-**The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)). Every later step
+**The iteration.** Step 1 is the paper's (Jacobian frozen: ∂Φ/∂X ≈ A_d(X_sim)); an exact first
+step was measured to save no iteration (the next Gauss–Newton step is still 1e-7…1e-5 relative,
+as after the paper's) and to cost one Jacobian more, the dearest part of an iteration. Every later step
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
 (Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
 factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, forward differences
@@ -50,14 +52,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from types import SimpleNamespace
-
 from ..errors import AssemblyError, NonFiniteError, SingularPoseError
 from ..limits import SOFT_QUADRATIC, Limits
 from ..solvers import SolveResult
-from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_violation,
-                          split, stage_constraints)
-from .constraints import report as constraint_report
+from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
+                          hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
 from .prediction import Prediction, simulative_prediction
 
@@ -69,10 +68,9 @@ ARMIJO = 1e-4
 BACKTRACKS = 12
 #: errors of the model away from its domain (a trial plan beyond the workspace): a shorter step.
 MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
-#: where the rows of a trajectory's own state limits (:meth:`NMPCIterations._true_rows`) are evaluated.
-AT_VALUES = np.zeros(1)
-#: the problem shape those rows are read with (one decision variable, slack in the limits' units).
-AT_PROBLEM = SimpleNamespace(n_decision=1, slack_unit=None)
+#: the decision variables of a trajectory's own state-limit rows (:meth:`NMPCIterations._true_rows`):
+#: none, its outputs are fixed.
+NO_DECISION = np.zeros(0)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
 
@@ -150,13 +148,13 @@ class NMPCIterations:
         return stage_constraints(lin, self.limits, self.Ts, y_now, y_lin, self.drives)
 
     def _true_rows(self, y_rows: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
-        """The state limits at the outputs y_rows (n_rows·p,) of a nonlinear trajectory: rows with
-        one zero column (evaluated at v = :data:`AT_VALUES`), h = bound − value (the drive
-        positions at the poses themselves)."""
+        """The state limits at the outputs y_rows (n_rows·p,) of a nonlinear trajectory: rows without
+        a column (:data:`NO_DECISION`), h = bound − value (the drive positions at the poses
+        themselves)."""
         if self.limits is None:
             return None
         H = self.criterion.horizons
-        at = Prediction(y_rows, np.zeros((len(y_rows), 1)), np.zeros(0), np.zeros((0, 1)), H, "simulative")
+        at = Prediction(y_rows, np.zeros((len(y_rows), 0)), np.zeros(0), np.zeros((0, 0)), H, "simulative")
         return self._rows(at, y_rows, y_now)
 
     def _slack(self, rows: ConstraintRows, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -181,7 +179,7 @@ class NMPCIterations:
     def _hard(rows: ConstraintRows | None) -> float:
         """The largest violation of a hard row of a trajectory's own state limits (m, rad, m/s, …;
         0 when kept)."""
-        return hard_violation(AT_PROBLEM, rows, AT_VALUES)
+        return 0.0 if rows is None else hard_excess(rows, rows.G @ NO_DECISION)
 
     def _model_merit(self, lin: Prediction, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
         """J + penalty of the linearization ``lin`` (and its rows) at v."""
@@ -191,8 +189,8 @@ class NMPCIterations:
         """The state limits' report at a trajectory (its rows from :meth:`_true_rows`)."""
         if rows is None or not len(rows.h):
             return None
-        _, s = self._slack(rows, AT_VALUES)
-        return constraint_report(AT_PROBLEM, rows, np.concatenate([AT_VALUES, s]))
+        _, s = self._slack(rows, NO_DECISION)
+        return report_at(rows, rows.G @ NO_DECISION, s)
 
     # -------------------------------------------------------------- the iterations
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
@@ -220,7 +218,7 @@ class NMPCIterations:
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
         true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
-        merit = self._cost(pred.f, w, v) + self._penalty(true_rows, AT_VALUES)
+        merit = self._cost(pred.f, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
@@ -245,7 +243,7 @@ class NMPCIterations:
                 except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
                     alpha *= 0.5
                     continue
-                trial_merit = trial_cost + self._penalty(trial_rows, AT_VALUES)
+                trial_merit = trial_cost + self._penalty(trial_rows, NO_DECISION)
                 trial_excess = self._hard(trial_rows)
                 if (trial_excess <= max(excess, STATE_TOL) and trial_merit <= merit - ARMIJO * alpha * decrease) \
                         or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
