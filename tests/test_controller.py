@@ -135,7 +135,7 @@ def test_state_snapshot_restores_bit_identical_steps(robot4, form):
 
 def test_settings_are_frozen_validated_and_equivalent_to_keywords(robot4):
     settings = GPCSettings(TS, Horizons(10), Weights(1.0, 1e-3), form="incremental", limits=Limits(torque=12.0))
-    assert settings.solver == "qr-first:daqp-direct" and settings.disturbance_gain == 0.5
+    assert settings.solver == "riccati" and settings.solver_is_default and settings.disturbance_gain == 0.5
     with pytest.raises(dataclasses.FrozenInstanceError):
         settings.Ts = 0.02
     from_settings = GPCController(ReducedModel(robot4), settings)

@@ -40,8 +40,10 @@ def resolved(**kwargs) -> GPCSettings:
     (dict(weights=Weights(1.0, QU, 2.0)), "qr"),  # a terminal weight
     (dict(terminal="pose"), DEFAULT_LIMITED_SOLVER),
     (dict(form="nonlinear", iterations=3), "qr"),
-    (dict(limits=Limits(torque=5.0)), DEFAULT_BOX_SOLVER),  # small N: the condensed default is faster
-    (dict(form="incremental", limits=Limits(torque=5.0)), DEFAULT_LIMITED_SOLVER),
+    (dict(limits=Limits(torque=5.0)), "riccati"),  # input rows only: the stage-wise active set
+    (dict(form="incremental", limits=Limits(torque=5.0)), "riccati"),
+    (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N - 1), form="incremental", limits=Limits(torque=5.0)),
+     DEFAULT_LIMITED_SOLVER),  # below the measured horizons: the condensed default
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), limits=Limits(torque=5.0)), "riccati"),
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), form="incremental", limits=Limits(torque=5.0, du=1.0)),
      "riccati"),
@@ -99,8 +101,10 @@ def test_a_default_is_chosen_again_when_the_limits_change():
     assert ctl.solver == "riccati"
     ctl.limits = Limits(drive_rate=2.0)  # not stage-wise: the condensed default, not an error
     assert ctl.solver == DEFAULT_LIMITED_SOLVER and ctl.settings.solver_is_default
-    ctl.limits = Limits(torque=5.0)
-    assert ctl.solver == DEFAULT_BOX_SOLVER
+    ctl.limits = Limits(torque=5.0)  # input rows only, N ≥ the threshold: stage-wise again
+    assert ctl.solver == "riccati" and ctl.settings.solver_is_default
+    ctl.limits = Limits(torque=5.0, output_box=[[-1.0, 1.0]])  # a state row: not a box, the condensed QP
+    assert ctl.solver == DEFAULT_LIMITED_SOLVER
     ctl.limits = Limits()
     assert ctl.solver == "riccati" and ctl._backend is None
     explicit = GPCController.build(ReducedModel(robot), TS, Horizons(20), Weights(1.0, QU), solver="riccati")

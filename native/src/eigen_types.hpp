@@ -21,6 +21,7 @@ template <int D>
 using Out = nb::ndarray<double, nb::ndim<D>, nb::c_contig, nb::device::cpu>;
 using In1 = In<1>;
 using In2 = In<2>;
+using In3 = In<3>;
 using Out1 = Out<1>;
 using Out2 = Out<2>;
 // a read-only float64 array of any shape (nanobind converts another dtype or layout)

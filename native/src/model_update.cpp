@@ -176,7 +176,6 @@ void ModelUpdate::discrete(const Vec &X, double Ts, double *out) {
 
 void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es,
                            double *Xs) {
-  using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   Eigen::Map<RowMat> X(Xs, K + 1, n_x);
   X.row(0) = X0.transpose();
   std::vector<Warm> next;
@@ -208,7 +207,6 @@ void check_state(const ModelUpdate &self, const Vec &X) {
 }
 
 using Array = nb::ndarray<nb::numpy, double>;
-using Input2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 Array new_array(std::initializer_list<size_t> shape, double **data) {
   size_t n = 1;
@@ -287,7 +285,7 @@ void bind_model_update(nb::module_ &m) {
            },
            nb::arg("X"), nb::arg("Ts"), "(n_x, n_x + n_u + 1) top rows of the ZOH exponential at X")
       .def("simulate",
-           [](ModelUpdate &self, const Vec &X0, Input2 u, double Ts, std::optional<Vec> offset) {
+           [](ModelUpdate &self, const Vec &X0, In2 u, double Ts, std::optional<Vec> offset) {
              const long K = static_cast<long>(u.shape(0));
              if (u.shape(1) != size_t(self.n_u) || X0.size() != self.n_x)
                throw std::invalid_argument("simulate: X0 must be (n_x,) and u_seq (K, n_u)");

@@ -12,11 +12,9 @@
 #include "zoh.hpp"
 
 namespace pgpc::stage_arrays {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using pgpc::RowMat;
 using CMap = Eigen::Map<const RowMat>;
-using In1 = nb::ndarray<const double, nb::ndim<1>, nb::c_contig, nb::device::cpu>;
-using In2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
-using In3 = nb::ndarray<const double, nb::ndim<3>, nb::c_contig, nb::device::cpu>;
+using pgpc::In1, pgpc::In2, pgpc::In3;
 
 // stage i of an (N, a, b) row-major array, a view (no copy)
 template <class T>

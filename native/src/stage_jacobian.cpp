@@ -17,12 +17,10 @@
 
 namespace pgpc {
 namespace {
-using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using Input2 = nb::ndarray<const double, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 
 /// ((K − start)·n_x, n_x): rows (i − start)·n_x … hold ∂Φ/∂X at (X(i), u(i)), i = start..K−1; the y-columns
 /// of ∂Z by forward differences along the tangent with step h_j = step·max(1, |y_j(i)|) (the Python rule).
-RowMat stage_jacobians(ModelUpdate &self, Input2 X, Input2 u, double Ts, double step, long start) {
+RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, long start) {
   const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y, na = self.n_aug;
   if (u.shape(1) != size_t(m) || X.shape(1) != size_t(n) || X.shape(0) < size_t(K))
     throw std::invalid_argument("stage_jacobians: X_seq must be (>= K, n_x) and u_seq (K, n_u)");

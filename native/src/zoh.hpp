@@ -6,10 +6,9 @@
 
 #include <Eigen/Core>
 
+#include "eigen_types.hpp"
+
 namespace pgpc {
-using Mat = Eigen::MatrixXd;
-using Vec = Eigen::VectorXd;
-using Index = Eigen::Index;
 
 // exp(M) of an (n, n) matrix whose rows n_top.. are zero, computed on the n_top top rows only
 // (the other rows of exp(M) are those of the identity). Workspaces are kept between calls.
