@@ -10,4 +10,5 @@ void bind_riccati(nb::module_ &m);       // riccati.cpp
 void bind_stage_jacobian(nb::module_ &m);  // stage_jacobian.cpp (after bind_model_update)
 void bind_stagewise_ipm(nb::module_ &m); // stagewise_ipm.cpp
 void bind_kalman(nb::module_ &m);        // kalman.cpp
+void bind_input_svd(nb::module_ &m);     // input_svd.cpp
 }  // namespace pgpc

@@ -11,4 +11,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_riccati(m);
   pgpc::bind_stagewise_ipm(m);
   pgpc::bind_kalman(m);
+  pgpc::bind_input_svd(m);
 }
