@@ -7,6 +7,7 @@
 #include <cmath>
 #include <limits>
 #include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
 #include <stdexcept>
 
 #include "bindings.hpp"
@@ -16,9 +17,19 @@ namespace {
 using Mat = Eigen::MatrixXd;
 using Vec = Eigen::VectorXd;
 using Index = Eigen::Index;
+// any float64 2-D array, strided views included (a slice of the pre-simulation's stack): read in
+// place, no conversion to a column-major copy (which costs more than the SVD at these sizes)
+using In2 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;
+using Strided = Eigen::Map<const Mat, 0, Eigen::Stride<Eigen::Dynamic, Eigen::Dynamic>>;
+
+Strided view(const In2 &a) {
+  return Strided(a.data(), Index(a.shape(0)), Index(a.shape(1)),
+                 Eigen::Stride<Eigen::Dynamic, Eigen::Dynamic>(a.stride(1), a.stride(0)));
+}
 
 // σ_max/σ_min of G (min(p, m) singular values); inf when G is empty, not finite or singular
-double condition_number(const Mat &G) {
+double condition_number(const In2 &array) {
+  const Strided G = view(array);
   const double inf = std::numeric_limits<double>::infinity();
   if (G.size() == 0 || !G.allFinite()) return inf;
   Eigen::JacobiSVD<Mat> svd(G);
@@ -31,7 +42,8 @@ double condition_number(const Mat &G) {
 
 // (m − rank, m) orthonormal rows spanning null(B) of an (n, m) B (rank: singular values above
 // rtol·σ_max), an empty (0, m) at full column rank; B not finite: std::domain_error (ValueError)
-Mat null_basis(const Mat &B, double rtol) {
+Mat null_basis(const In2 &array, double rtol) {
+  const Strided B = view(array);
   const Index m = B.cols();
   if (!B.allFinite()) throw std::domain_error("null_basis: B contains NaN or inf");
   if (B.size() == 0) return Mat::Identity(m, m);
