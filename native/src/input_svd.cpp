@@ -1,8 +1,8 @@
 // The two singular value decompositions of every control step, compiled: the condition number of
 // the input gain (gpc/protocol.py condition_number) and the null(B_d) basis that keeps the drives
 // from fighting (gpc/redundancy.py null_basis). The Python functions (LAPACK gesdd through scipy)
-// are the reference; on the robots' 3×4 … 12×8 matrices a call there costs ~10 µs of wrapper
-// overhead, here ~1 µs. Eigen only (no Pinocchio): this file compiles on its own.
+// are the reference; on the robots' 3×4 … 12×8 matrices a call there is mostly the wrapper's
+// overhead (array conversion, workspace). Eigen only (no Pinocchio): this file compiles on its own.
 #include <Eigen/SVD>
 #include <cmath>
 #include <limits>

@@ -23,9 +23,9 @@ def null_basis(B: np.ndarray, native: bool | None = None) -> np.ndarray | None:
     """(m − rank, m) orthonormal rows spanning null(B) of an (n, m) B, or None at full column rank.
 
     The rank counts the singular values above :data:`NULL_RTOL`·σ_max. The incremental forms pay
-    this on every step: compiled (``_native.null_basis``, Eigen's Jacobi SVD, ~1 µs) when the core
-    is available; the reference is LAPACK ``dgesdd`` directly (the factorization of
-    ``numpy.linalg.svd(B)`` at half its per-call cost, still ~10 µs of wrapper overhead). The two
+    this on every step: compiled (``_native.null_basis``, Eigen's Jacobi SVD read in place) when the core is
+    available; the reference is LAPACK ``dgesdd`` directly (the factorization of
+    ``numpy.linalg.svd(B)`` at half its per-call cost, mostly the wrapper's overhead at these sizes). The two
     bases span the same subspace (what :func:`remove_null` uses); their rows may differ by sign or,
     for a null space of dimension > 1, by a rotation.
 
