@@ -10,7 +10,7 @@ from parallel_gpc.gpc.redundancy import NULL_RTOL, null_basis, remove_null, with
 from parallel_gpc.model.native import native_module
 
 HAS_COMPILED = native_module() is not None and hasattr(native_module(), "null_basis")
-NATIVE = [False, pytest.param(True, marks=pytest.mark.skipif(not HAS_COMPILED, reason="compiled core not built"))]
+NATIVE = [False, pytest.param(True, marks=pytest.mark.skipif(not HAS_COMPILED, reason="compiled core not available"))]
 
 
 @pytest.mark.parametrize("native", NATIVE)
