@@ -163,9 +163,11 @@ def test_assigning_a_limit_revalidates_it(robot4):
     np.testing.assert_array_equal(ctrl.limits.torque, [5.0, 6.0, 7.0, 8.0])  # unchanged by the failures
 
 
-def test_condition_number_matches_numpy_and_refuses_non_finite_gains():
-    """The conditioning check's σ_max/σ_min (LAPACK gesdd called directly) against numpy's 2-norm
-    condition number; NaN, inf, singular and empty gains count as infinitely ill-conditioned."""
+@pytest.mark.parametrize("native", [False, None])
+def test_condition_number_matches_numpy_and_refuses_non_finite_gains(native):
+    """The conditioning check's σ_max/σ_min (the reference: LAPACK gesdd called directly; None:
+    compiled when built) against numpy's 2-norm condition number; NaN, inf, singular and empty gains
+    count as infinitely ill-conditioned."""
     import math
 
     from parallel_gpc.gpc.protocol import condition_number
@@ -173,8 +175,10 @@ def test_condition_number_matches_numpy_and_refuses_non_finite_gains():
     rng = np.random.default_rng(7)
     for shape in ((3, 4), (6, 8), (4, 4), (5, 3)):
         g = rng.standard_normal(shape) * 10.0 ** rng.uniform(-3, 3)
-        assert condition_number(g) == pytest.approx(np.linalg.cond(g), rel=1e-10)
-    assert condition_number(np.diag([2.0, 1e-3])) == pytest.approx(2e3, rel=1e-12)
+        assert condition_number(g, native=native) == pytest.approx(np.linalg.cond(g), rel=1e-10)
+    assert condition_number(np.diag([2.0, 1e-3]), native=native) == pytest.approx(2e3, rel=1e-12)
+    near = np.diag([1.0, 1e-6]) @ np.random.default_rng(1).standard_normal((2, 3))  # rank 2, barely
+    assert condition_number(near, native=native) == pytest.approx(np.linalg.cond(near), rel=1e-6)
     for bad in (np.array([[1.0, np.nan], [0.0, 1.0]]), np.array([[1.0, np.inf], [0.0, 1.0]]),
                 np.array([[1.0, 2.0], [2.0, 4.0]]) * 0.0, np.zeros((0, 3))):
-        assert condition_number(bad) == math.inf
+        assert condition_number(bad, native=native) == math.inf

@@ -282,7 +282,7 @@ class GPCController:
     def presimulate(self, X: np.ndarray):
         """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
         C = self.model.C
-        u_sim = np.vstack([self.plan[1:], self.plan[-1:]])  # previous plan, shifted
+        u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])

@@ -116,6 +116,8 @@ class RiccatiSolver:
             H = horizons
             self._compiled = Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
         self.native = self._compiled is not None
+        m = Wu.shape[0]
+        self._zero_c, self._zero_u = _read_only(np.zeros(self.C.shape[1])), _read_only(np.zeros(m))  # per controller
 
     def solve(self, A, B, c, x0, u0, r) -> SolveResult:
         """The plan v (Nu·m,) of the form's problem.
@@ -135,9 +137,9 @@ class RiccatiSolver:
         n, m = self.C.shape[1], self.Wu.shape[0]
         try:
             if self._compiled is not None:
-                cc = np.zeros(n) if c is None else np.asarray(c, float)
+                cc = self._zero_c if c is None else np.asarray(c, float)
                 v, J = self._compiled.solve(np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
-                                            cc.reshape(-1), x0, np.zeros(m) if u0 is None else u0, r)
+                                            cc.reshape(-1), x0, self._zero_u if u0 is None else u0, r)
             else:
                 Ab, Bb, cb, Cz, z0 = stage_models(self.form, A, B, c, self.C, x0, u0, self.horizons)
                 v, J = lq_tracking(Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, self.horizons.No, self.horizons.Nu)
@@ -177,6 +179,11 @@ class RiccatiPath:
         self.report = None
         self._u_sim = None
         self._extra = {}
+        H, m = self.horizons, self.m  # the input map's parts that do not change from step to step
+        self._empty = (_read_only(np.empty(0)), _read_only(np.empty((0, H.Nu * m))))
+        self._u_map = cached_identity(H.Nu * m) if form == "absolute" else cumulative_map(
+            H.N if form == "nonlinear" else H.Nu, H.Nu, m)
+        self._zero_base = _read_only(np.zeros(H.Nu * m))
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
@@ -205,11 +212,17 @@ class RiccatiPath:
         """A :class:`~parallel_gpc.gpc.prediction.Prediction` carrying only the input map of the
         form (f and G are empty: nothing was condensed)."""
         H, m = self.horizons, self.m
-        empty, none = np.empty((0, H.Nu * m)), np.empty(0)
+        none, empty = self._empty
         if self.form == "absolute":
-            return Prediction(none, empty, np.zeros(H.Nu * m), cached_identity(H.Nu * m), H, "absolute")
+            return Prediction(none, empty, self._zero_base, self._u_map, H, "absolute")
         if self.form == "nonlinear":
-            return Prediction(none, empty, self._u_sim.reshape(-1), cumulative_map(H.N, H.Nu, m), H, "simulative")
+            return Prediction(none, empty, self._u_sim.reshape(-1), self._u_map, H, "simulative")
         base = stages[4]
         u_base = np.broadcast_to(base, (H.Nu, m)).reshape(-1)  # np.tile, without its overhead
-        return Prediction(none, empty, u_base, cumulative_map(H.Nu, H.Nu, m), H, "incremental")
+        return Prediction(none, empty, u_base, self._u_map, H, "incremental")
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    """``a``, made read-only (an array shared by every step of one controller)."""
+    a.setflags(write=False)
+    return a
