@@ -116,7 +116,8 @@ def sized_path(kind: str, robot, duration: float, max_condition: float) -> Refer
     direction d_i of its moved outputs; the workspace is probed along d_i to h_i /
     :data:`WORKSPACE_FRACTION` (:func:`ray_reach`, giving ρ_i), and the path is scaled by
     min(1, min_i WORKSPACE_FRACTION·ρ_i / h_i): its default size where the workspace is large
-    enough, smaller where it is not. The paper's S-curve of a planar robot is returned as it is.
+    enough, smaller where it is not. The paper's S-curve (planar outputs at the paper's home) is
+    returned as it is.
 
     Raises:
         InvalidParameterError: the path does not fit the robot's outputs (one line naming them).
