@@ -71,3 +71,33 @@ def test_the_title_of_a_one_column_figure_clears_its_panels():
     for text in texts:
         box = text.get_window_extent(renderer)
         assert not box.overlaps(top), (text.get_text(), box, top)
+
+
+@pytest.mark.parametrize("peak, lines", [(0.4, False), (20.0, True)])
+def test_a_far_drive_limit_does_not_squash_the_efforts(peak, lines):
+    """plan_fig4.png of a 3-PRR with a 50 N limit and efforts of 0.4 N: the ±50 N lines set the
+    y range and drew the efforts as a flat line at zero. Far below the limit it is named in the
+    legend (off scale) and the axis fits the efforts; near it the dotted lines are drawn."""
+    import numpy as np
+
+    from parallel_gpc.gpc import PlanResult
+    from parallel_gpc.gpc.plan_settings import PlanSettings
+    from parallel_gpc.limits import Limits
+    from parallel_gpc.plots import plot_fig4
+
+    K = 40
+    t = np.linspace(0.0, 0.4, K + 1)
+    settings = PlanSettings(Nmax=30, Nmin=10, limits=Limits(torque=50.0))
+    target = np.array([0.02, 0.01, 0.05])
+    poses = np.outer(t / t[-1], target)
+    res = PlanResult(mode="b", start=np.zeros(3), target=target, t=t, poses=poses, velocities=np.gradient(poses, axis=0),
+                     u=peak * np.sin(np.outer(t[:-1], [10.0, 20.0, 30.0])), horizon=np.full(K, 10),
+                     status=np.array(["ok"] * K), solve_time=np.zeros(K), q=None, settings=settings)
+    ax = plot_fig4([res]).axes[-1]
+    labels = ax.get_legend_handles_labels()[1]
+    low, high = ax.get_ylim()
+    if lines:
+        assert "drive limit" in labels and low <= -50.0 and high >= 50.0
+    else:
+        assert any("drive limit ±50" in s and "off scale" in s for s in labels)
+        assert -2 * peak < low < -0.5 * peak and 0.5 * peak < high < 2 * peak

@@ -11,6 +11,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..gpc import pose_error_norms
+from .common import mark_drive_limit
 from .paths import draw_path, path_axes
 from ..studies import SimulationResult
 
@@ -78,7 +79,8 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     """The forms side by side on shared axes: position and orientation error norms (mm and
     mrad, log scale; orientation only for robots with angular outputs) with the disturbance
     estimate off (dashed) and on (solid), drive efforts (the robot's drive unit) with the
-    estimate on, and the limit lines if one is set.
+    estimate on, and the limit lines if one is set (a legend entry instead when the efforts stay
+    below a tenth of it).
 
     Args:
         runs: results keyed by (form, estimator gain α), as from
@@ -93,6 +95,7 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     gains = sorted({gain for _, gain in runs})
     space = next(iter(runs.values())).output_space
     rows = 3 if space.has_angles else 2  # no orientation row without angular outputs
+    peak = max(float(np.max(np.abs(r.u), initial=0.0)) for (_, gain), r in runs.items() if gain == gains[-1])
     fig = Figure(figsize=(4.2 * len(forms), 2.9 * rows), layout="constrained")
     axes = fig.subplots(rows, len(forms), sharex="all", sharey="row", squeeze=False)
     for col, form in enumerate(forms):
@@ -111,9 +114,7 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
                 for j in range(res.u.shape[1]):
                     ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
         if limits is not None and limits.torque is not None:
-            lim = float(np.max(limits.torque))
-            for sign in (1, -1):
-                ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="drive limit" if sign > 0 else None)
+            mark_drive_limit(ax_u, limits.torque, peak, space.drive_unit)
         ax_p.set_title(form)
         ax_u.set_xlabel("t [s]")
         for ax in axes[:, col]:
