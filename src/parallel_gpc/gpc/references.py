@@ -446,9 +446,15 @@ def _is_planar(angular: np.ndarray) -> bool:
     return angular.tolist() == [False, False, True]
 
 
-def _is_paper_planar(home: np.ndarray, angular: np.ndarray) -> bool:
+def is_paper_planar(home, angular) -> bool:
     """Planar [x, y, ψ] outputs with the paper's home (:data:`PAPER_PLANAR_HOME`): the robots the
-    paper's S-curve and hold target are drawn for (another planar robot's workspace need not hold them)."""
+    paper's S-curve, hold target and poses A, B are drawn for (another planar robot's workspace
+    need not hold them).
+
+    Args:
+        home: (n_y,) home pose (m, rad). angular: (n_y,) bool, True for angular outputs.
+    """
+    angular = np.asarray(angular, dtype=bool)
     return _is_planar(angular) and bool(np.allclose(home, PAPER_PLANAR_HOME, rtol=0.0, atol=1e-9))
 
 
@@ -509,7 +515,7 @@ def path_for(kind: str, home_pose, angular, duration: float, size: float | None 
         raise InvalidParameterError(f"reference {kind!r} is not one of {list(PATH_KINDS)}")
     if kind == "auto":
         kind = default_path_kind(angular)
-    if kind == "s-curve" and _is_paper_planar(home, angular):
+    if kind == "s-curve" and is_paper_planar(home, angular):
         return SCurve(duration=duration)
     cols = moving_columns(angular)
     outputs = _describe(angular, labels)
@@ -541,6 +547,6 @@ def hold_pose_for(home_pose, angular) -> np.ndarray:
     output."""
     angular = np.asarray(angular, dtype=bool)
     home = finite_vector("home pose", home_pose, angular.size)
-    if _is_paper_planar(home, angular):
+    if is_paper_planar(home, angular):
         return np.array([0.55, 0.55, math.radians(5.0)])
     return home + np.where(angular, 0.0, 0.02)
