@@ -101,3 +101,22 @@ def test_a_far_drive_limit_does_not_squash_the_efforts(peak, lines):
     else:
         assert any("drive limit ±50" in s and "off scale" in s for s in labels)
         assert -2 * peak < low < -0.5 * peak and 0.5 * peak < high < 2 * peak
+
+
+def test_robustness_error_axes_start_at_zero():
+    """robustness.png of a 3-PRR: the steady-state errors 2.23e-14 and 2.35e-14 mm (rounding) were
+    drawn as a full-height rising line (axis 2.22e-14 … 2.35e-14); an error axis starts at 0."""
+    from parallel_gpc.plots import plot_robustness
+    from parallel_gpc.sweeps import RobustnessResult
+
+    def row(study, value, err):
+        return {"form": "nonlinear", "study": study, "value": value, "status": "ok",
+                "rms_position_error_mm": err, "steady_state_error_mm": err}
+
+    rows = [row("nominal", 0.0, 2.23e-14), row("mass", 30.0, 1.8e-3), row("noise", 1e-4, 0.34),
+            row("disturbance", 20.0, 2.35e-14)]
+    fig = plot_robustness(RobustnessResult(rows=rows, settings={"robot": "prr3", "outputs": ["x", "y", "rz"],
+                                                                "angular": [False, False, True]}))
+    for ax in fig.axes:
+        low, high = ax.get_ylim()
+        assert low == 0.0 and high > 0.0
