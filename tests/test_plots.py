@@ -120,3 +120,27 @@ def test_robustness_error_axes_start_at_zero():
     for ax in fig.axes:
         low, high = ax.get_ylim()
         assert low == 0.0 and high > 0.0
+
+
+def test_a_hold_reference_is_drawn_as_a_point():
+    """track_path.png of `track --reference hold`: the reference, one pose, was a dashed line of
+    zero length (in the legend, invisible in the plot); it is a cross at the held pose."""
+    import numpy as np
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 30
+    t = np.linspace(0.0, 0.3, K)
+    target = np.array([0.02, 0.40])
+    pose = target + np.outer(np.exp(-20 * t), [-0.02, -0.02])
+    res = SimulationResult(t=t, reference=np.tile(target, (K, 1)), pose=pose, velocity=np.gradient(pose, axis=0),
+                           u=np.zeros((K, 2)), internal_force=np.zeros(K), q=np.zeros((K, 4)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "z"), (False, False)))
+    ax = plot_paths({"nonlinear": res}).axes[0]
+    ref = [line for line in ax.lines if line.get_label().startswith("reference")]
+    assert len(ref) == 1 and ref[0].get_marker() == "x"
+    np.testing.assert_allclose(np.column_stack(ref[0].get_data()), [target])

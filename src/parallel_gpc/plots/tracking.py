@@ -18,12 +18,16 @@ from ..studies import SimulationResult
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
     """Reference and tracked paths in the plane or space of the translational outputs (axes
     named by the output labels, in m), one line per GPC form; for planar [x, y, ψ] outputs small
-    orientation markers along the path; with one translational output, that coordinate over time."""
+    orientation markers along the path; with one translational output, that coordinate over time.
+    A reference that holds one pose is drawn as a cross."""
     fig = Figure(figsize=(5.5, 5.5), layout="tight")
     first = next(iter(results.values()))
     space = first.output_space
     ax, cols = path_axes(fig, space)
-    draw_path(ax, cols, first.t, first.reference, "k--", lw=2, label="reference")
+    if len(cols) > 1 and not np.ptp(first.reference[:, cols], axis=0).any():  # a hold: one point, no line
+        draw_path(ax, cols, first.t[:1], first.reference[:1], "kx", ms=12, mew=2, label="reference (hold)")
+    else:
+        draw_path(ax, cols, first.t, first.reference, "k--", lw=2, label="reference")
     angles = space.rotational
     for name, res in results.items():
         draw_path(ax, cols, res.t, res.pose, lw=1.2, label=name)
