@@ -144,3 +144,27 @@ def test_a_hold_reference_is_drawn_as_a_point():
     ref = [line for line in ax.lines if line.get_label().startswith("reference")]
     assert len(ref) == 1 and ref[0].get_marker() == "x"
     np.testing.assert_allclose(np.column_stack(ref[0].get_data()), [target])
+
+
+def test_orientation_markers_scale_with_a_small_path():
+    """track_path.png of a 3-PRR over 0.6 s (a path 8 mm across): the orientation markers were
+    2.5 mm long (5 % of a 5 cm floor), a third of the plot; they are 5 % of the drawn extent."""
+    import numpy as np
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 60
+    t = np.linspace(0.0, 0.6, K)
+    pose = np.column_stack([0.008 * t / 0.6, -0.0187 + 0.0045 * (t / 0.6) ** 2, 0.05 * np.sin(5 * t)])
+    res = SimulationResult(t=t, reference=pose, pose=pose, velocity=np.gradient(pose, axis=0), u=np.zeros((K, 3)),
+                           internal_force=np.zeros(K), q=np.zeros((K, 7)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "y", "rz"), (False, False, True)))
+    ax = plot_paths({"nonlinear": res}).axes[0]
+    markers = [line for line in ax.lines if line.get_label().startswith("_") and len(line.get_xdata()) == 2]
+    assert len(markers) >= 10
+    lengths = [np.hypot(*np.diff(np.column_stack(m.get_data()), axis=0)[0]) for m in markers]
+    np.testing.assert_allclose(lengths, 0.05 * 0.008, rtol=1e-9)
