@@ -168,3 +168,18 @@ def test_orientation_markers_scale_with_a_small_path():
     assert len(markers) >= 10
     lengths = [np.hypot(*np.diff(np.column_stack(m.get_data()), axis=0)[0]) for m in markers]
     np.testing.assert_allclose(lengths, 0.05 * 0.008, rtol=1e-9)
+
+
+def test_heatmap_text_is_readable_on_its_cell():
+    """The 3-PRR sweep heatmap: 0.688 mm was written in black on a dark cell (the colour was
+    chosen against the median, 0.629, while one 23.6 mm cell stretched the colour scale); the text
+    is black on light cells and white on dark ones, by the cell colour's luminance."""
+    import pandas as pd
+
+    from parallel_gpc.plots import heatmap
+
+    frame = pd.DataFrame({"form": ["absolute", "nonlinear"] * 2, "Qu": [1e-4, 1e-4, 1e-3, 1e-3],
+                          "status": ["ok"] * 4, "rms_position_error_m": [0.688e-3, 0.0622e-3, 23.6e-3, 0.57e-3]})
+    ax = heatmap(frame, "form", "Qu").axes[0]
+    # viridis: the three small values are dark purple cells, 23.6 the yellow top of the scale
+    assert {t.get_text(): t.get_color() for t in ax.texts} == {"0.688": "w", "0.0622": "w", "0.57": "w", "23.6": "k"}
