@@ -185,3 +185,29 @@ def test_heatmap_text_is_readable_on_its_cell():
     ax = heatmap(frame, "form", "Qu").axes[0]
     # viridis: the three small values are dark purple cells, 23.6 the yellow top of the scale
     assert {t.get_text(): t.get_color() for t in ax.texts} == {"0.688": "w", "0.0622": "w", "0.57": "w", "23.6": "k"}
+
+
+def test_a_long_path_title_stays_inside_the_figure():
+    """demo_path.png: the title "platform path, estimator on (Qu = 0.001, mass × 1.2, load
+    [5.0, -5.0, 0.5])" was cut at both edges of the 5.5 in figure; it wraps."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 20
+    t = np.linspace(0.0, 0.2, K)
+    pose = np.column_stack([0.5 + 0.1 * t, 0.5 + 0.2 * t, 0.01 * t])
+    res = SimulationResult(t=t, reference=pose, pose=pose, velocity=np.gradient(pose, axis=0), u=np.zeros((K, 3)),
+                           internal_force=np.zeros(K), q=np.zeros((K, 3)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "y", "ψ"), (False, False, True)))
+    fig = plot_paths({"nonlinear": res}, "platform path, estimator on (Qu = 0.001, mass × 1.2, load [5.0, -5.0, 0.5])")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    box = fig.axes[0].title.get_window_extent(canvas.get_renderer())
+    assert box.x0 >= 0.0 and box.x1 <= fig.bbox.width
+    assert "load [5.0, -5.0, 0.5])" in fig.axes[0].get_title().replace("\n", " ")

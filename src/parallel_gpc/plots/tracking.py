@@ -7,6 +7,8 @@ Each function returns a :class:`matplotlib.figure.Figure`; save it with
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 from matplotlib.figure import Figure
 
@@ -40,7 +42,7 @@ def plot_paths(results: dict[str, SimulationResult], title: str = "platform path
             for k in range(0, len(res.t), step):
                 (x, y), psi = res.pose[k, cols], res.pose[k, angles[0]]
                 ax.plot([x, x + size * np.cos(psi)], [y, y + size * np.sin(psi)], color="0.4", lw=0.8)
-    ax.set_title(title)
+    ax.set_title("\n".join(textwrap.wrap(title, 56)))  # the figure is 5.5 in wide: long titles wrap
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     return fig
