@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 from ..errors import InvalidParameterError
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
-from .vocabulary import ROBOT, add_limit_arguments
+from .vocabulary import ROBOT, add_limit_arguments, limits_line
 
 if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
     import numpy as np
@@ -78,8 +78,7 @@ def cmd_plan(args) -> int:
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
           f"(move {settings.duration:g} s), Qy = {settings.weights.Qy}, Qu = {settings.weights.Qu}, "
           f"torque limit = {settings.limits.to_dict()['torque']}, solver = {settings.solver}")
-    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
-          f"{settings.limits.describe()}")
+    print(limits_line(args, settings.limits, robot.drive_unit))
     comparison = plan_modes(robot, A, B, settings, progress=not args.no_progress)
     results = comparison.results
     for res in results:
