@@ -151,3 +151,18 @@ def test_without_meshcat_demo_hints_and_an_explicit_view_fails(tmp_path, monkeyp
     assert not list(tmp_path.glob("*.html")) and len(list(tmp_path.glob("demo_*.npz"))) == 6  # α 0, α, encoders
     assert main(["view", str(tmp_path / "demo_absolute_a0.npz"), "--html", str(tmp_path / "x.html")]) == 2
     assert view.INSTALL_HINT in capsys.readouterr().err
+
+
+def test_the_limits_line_names_its_units():
+    """`track` on a 3-PRR printed "limits (robot file and flags): torque ±50, drive_position
+    [-0.15, 0.15]": N or N·m, m or rad? The line names the drive unit and the SI units."""
+    import argparse
+
+    from parallel_gpc.cli.vocabulary import limits_line
+    from parallel_gpc.limits import Limits
+
+    lim = Limits(torque=50.0, drive_position=[[-0.15, 0.15]] * 3)
+    line = limits_line(argparse.Namespace(limits="robot"), lim, "N")
+    assert line == ("limits (robot file and flags; efforts in N, positions in m and rad): "
+                    "torque ±50, drive_position [-0.15, 0.15] (soft)")
+    assert limits_line(argparse.Namespace(limits="none"), Limits(), "N·m").startswith("limits (flags only; efforts in N·m")

@@ -307,7 +307,7 @@ def test_track_keeps_the_workspace_box_and_prints_the_limits(tmp_path, capsys):
     assert main(["track", "--robot", "planar_4rrr", "--forms", "nonlinear", "--N", "10", "--no-progress",
                  "--out", str(tmp_path), *box]) == 0
     out = capsys.readouterr().out
-    assert "limits (robot file and flags): torque ±60, output_box [0.3, 0.6]; [0.1, 0.9]; [-1, 1] (soft)" in out
+    assert "limits (robot file and flags; efforts in N·m, positions in m and rad): torque ±60, output_box [0.3, 0.6]; [0.1, 0.9]; [-1, 1] (soft)" in out
     res = np.load(tmp_path / "track_nonlinear.npz", allow_pickle=True)
     assert res["pose"][:, 0].max() <= 0.6 + 1e-3 and res["reference"][:, 0].max() > 0.64
     assert not res["fallback"].any()

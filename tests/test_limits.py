@@ -260,3 +260,15 @@ def test_nonlinear_du_limit_plan_equals_an_independent_qp(robot4):
     active = np.sum(np.abs(Dabs @ u_qp - np.where(Dabs @ u_qp > 0, hi, lo)) < 1e-9)
     assert active > 0  # the limit binds at this step
     np.testing.assert_allclose(ctl.plan.reshape(-1), u_qp, rtol=0, atol=1e-7)
+
+
+def test_describe_keeps_the_order_of_different_ranges():
+    """`track --output-box -0.2 0.2 -0.2 0.2 -1 1` on a 3-PRR printed "output_box [-1, 1]; [-0.2, 0.2]"
+    (the distinct ranges sorted, as if x were within ±1 m); different values are listed in output
+    or drive order, one shared value once."""
+    lim = Limits(output_box=[[-0.2, 0.2], [-0.2, 0.2], [-1.0, 1.0]], torque=[50.0, 20.0, 50.0],
+                 drive_position=[[-0.15, 0.15]] * 3)
+    text = lim.describe()
+    assert "output_box [-0.2, 0.2]; [-0.2, 0.2]; [-1, 1] (soft)" in text
+    assert "torque ±50/20/50" in text and "drive_position [-0.15, 0.15] (soft)" in text
+    assert "torque ±3," in Limits(torque=[3.0, 3.0], du=0.5).describe()

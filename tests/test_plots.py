@@ -71,3 +71,143 @@ def test_the_title_of_a_one_column_figure_clears_its_panels():
     for text in texts:
         box = text.get_window_extent(renderer)
         assert not box.overlaps(top), (text.get_text(), box, top)
+
+
+@pytest.mark.parametrize("peak, lines", [(0.4, False), (20.0, True)])
+def test_a_far_drive_limit_does_not_squash_the_efforts(peak, lines):
+    """plan_fig4.png of a 3-PRR with a 50 N limit and efforts of 0.4 N: the ±50 N lines set the
+    y range and drew the efforts as a flat line at zero. Far below the limit it is named in the
+    legend (off scale) and the axis fits the efforts; near it the dotted lines are drawn."""
+    import numpy as np
+
+    from parallel_gpc.gpc import PlanResult
+    from parallel_gpc.gpc.plan_settings import PlanSettings
+    from parallel_gpc.limits import Limits
+    from parallel_gpc.plots import plot_fig4
+
+    K = 40
+    t = np.linspace(0.0, 0.4, K + 1)
+    settings = PlanSettings(Nmax=30, Nmin=10, limits=Limits(torque=50.0))
+    target = np.array([0.02, 0.01, 0.05])
+    poses = np.outer(t / t[-1], target)
+    res = PlanResult(mode="b", start=np.zeros(3), target=target, t=t, poses=poses, velocities=np.gradient(poses, axis=0),
+                     u=peak * np.sin(np.outer(t[:-1], [10.0, 20.0, 30.0])), horizon=np.full(K, 10),
+                     status=np.array(["ok"] * K), solve_time=np.zeros(K), q=None, settings=settings)
+    ax = plot_fig4([res]).axes[-1]
+    labels = ax.get_legend_handles_labels()[1]
+    low, high = ax.get_ylim()
+    if lines:
+        assert "drive limit" in labels and low <= -50.0 and high >= 50.0
+    else:
+        assert any("drive limit ±50" in s and "off scale" in s for s in labels)
+        assert -2 * peak < low < -0.5 * peak and 0.5 * peak < high < 2 * peak
+
+
+def test_robustness_error_axes_start_at_zero():
+    """robustness.png of a 3-PRR: the steady-state errors 2.23e-14 and 2.35e-14 mm (rounding) were
+    drawn as a full-height rising line (axis 2.22e-14 … 2.35e-14); an error axis starts at 0 and
+    ends a little above the largest error."""
+    from parallel_gpc.plots import plot_robustness
+    from parallel_gpc.sweeps import RobustnessResult
+
+    def row(study, value, err):
+        return {"form": "nonlinear", "study": study, "value": value, "status": "ok",
+                "rms_position_error_mm": err, "steady_state_error_mm": err}
+
+    rows = [row("nominal", 0.0, 2.23e-14), row("mass", 30.0, 1.8e-3), row("noise", 1e-4, 0.34),
+            row("disturbance", 20.0, 2.35e-14)]
+    fig = plot_robustness(RobustnessResult(rows=rows, settings={"robot": "prr3", "outputs": ["x", "y", "rz"],
+                                                                "angular": [False, False, True]}))
+    tops = {"mass": 1.8e-3, "noise": 0.34, "disturbance": 2.35e-14}
+    for ax in fig.axes:
+        low, high = ax.get_ylim()
+        assert low == 0.0 and 1.02 * tops[ax.get_title()] < high < 1.2 * tops[ax.get_title()]  # the points inside
+
+
+def test_a_hold_reference_is_drawn_as_a_point():
+    """track_path.png of `track --reference hold`: the reference, one pose, was a dashed line of
+    zero length (in the legend, invisible in the plot); it is a cross at the held pose."""
+    import numpy as np
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 30
+    t = np.linspace(0.0, 0.3, K)
+    target = np.array([0.02, 0.40])
+    pose = target + np.outer(np.exp(-20 * t), [-0.02, -0.02])
+    res = SimulationResult(t=t, reference=np.tile(target, (K, 1)), pose=pose, velocity=np.gradient(pose, axis=0),
+                           u=np.zeros((K, 2)), internal_force=np.zeros(K), q=np.zeros((K, 4)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "z"), (False, False)))
+    ax = plot_paths({"nonlinear": res}).axes[0]
+    ref = [line for line in ax.lines if line.get_label().startswith("reference")]
+    assert len(ref) == 1 and ref[0].get_marker() == "x"
+    np.testing.assert_allclose(np.column_stack(ref[0].get_data()), [target])
+
+
+def test_orientation_markers_scale_with_a_small_path():
+    """track_path.png of a 3-PRR over 0.6 s (a path 8 mm across): the orientation markers were
+    2.5 mm long (5 % of a 5 cm floor), a third of the plot; they are 5 % of the drawn extent."""
+    import numpy as np
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 60
+    t = np.linspace(0.0, 0.6, K)
+    pose = np.column_stack([0.008 * t / 0.6, -0.0187 + 0.0045 * (t / 0.6) ** 2, 0.05 * np.sin(5 * t)])
+    res = SimulationResult(t=t, reference=pose, pose=pose, velocity=np.gradient(pose, axis=0), u=np.zeros((K, 3)),
+                           internal_force=np.zeros(K), q=np.zeros((K, 7)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "y", "rz"), (False, False, True)))
+    ax = plot_paths({"nonlinear": res}).axes[0]
+    markers = [line for line in ax.lines if line.get_label().startswith("_") and len(line.get_xdata()) == 2]
+    assert len(markers) >= 10
+    lengths = [np.hypot(*np.diff(np.column_stack(m.get_data()), axis=0)[0]) for m in markers]
+    np.testing.assert_allclose(lengths, 0.05 * 0.008, rtol=1e-9)
+
+
+def test_heatmap_text_is_readable_on_its_cell():
+    """The 3-PRR sweep heatmap: 0.688 mm was written in black on a dark cell (the colour was
+    chosen against the median, 0.629, while one 23.6 mm cell stretched the colour scale); the text
+    is black on light cells and white on dark ones, by the cell colour's luminance."""
+    import pandas as pd
+
+    from parallel_gpc.plots import heatmap
+
+    frame = pd.DataFrame({"form": ["absolute", "nonlinear"] * 2, "Qu": [1e-4, 1e-4, 1e-3, 1e-3],
+                          "status": ["ok"] * 4, "rms_position_error_m": [0.688e-3, 0.0622e-3, 23.6e-3, 0.57e-3]})
+    ax = heatmap(frame, "form", "Qu").axes[0]
+    # viridis: the three small values are dark purple cells, 23.6 the yellow top of the scale
+    assert {t.get_text(): t.get_color() for t in ax.texts} == {"0.688": "w", "0.0622": "w", "0.57": "w", "23.6": "k"}
+
+
+def test_a_long_path_title_stays_inside_the_figure():
+    """demo_path.png: the title "platform path, estimator on (Qu = 0.001, mass × 1.2, load
+    [5.0, -5.0, 0.5])" was cut at both edges of the 5.5 in figure; it wraps."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from parallel_gpc.model.output_space import OutputSpace
+    from parallel_gpc.plots import plot_paths
+    from parallel_gpc.studies import SimulationResult
+
+    K = 20
+    t = np.linspace(0.0, 0.2, K)
+    pose = np.column_stack([0.5 + 0.1 * t, 0.5 + 0.2 * t, 0.01 * t])
+    res = SimulationResult(t=t, reference=pose, pose=pose, velocity=np.gradient(pose, axis=0), u=np.zeros((K, 3)),
+                           internal_force=np.zeros(K), q=np.zeros((K, 3)), step_time=np.zeros(K),
+                           solve_time=np.zeros(K), iterations=np.zeros(K, int), status=np.array(["ok"] * K),
+                           fallback=np.zeros(K, bool), saturated=np.zeros(K, bool),
+                           outputs=OutputSpace(("x", "y", "ψ"), (False, False, True)))
+    fig = plot_paths({"nonlinear": res}, "platform path, estimator on (Qu = 0.001, mass × 1.2, load [5.0, -5.0, 0.5])")
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    box = fig.axes[0].title.get_window_extent(canvas.get_renderer())
+    assert box.x0 >= 0.0 and box.x1 <= fig.bbox.width
+    assert "load [5.0, -5.0, 0.5])" in fig.axes[0].get_title().replace("\n", " ")

@@ -75,6 +75,9 @@ from parallel_gpc.gpc.robot_references import (  # noqa: E402
     WORKSPACE_FRACTION, check_reference, check_times, ray_reach, reference_for, sized_path)
 from parallel_gpc.model.output_space import OutputSpace  # noqa: E402
 
+from mechanisms import write  # noqa: E402
+from parallel_gpc.model.description import urdf_dir  # noqa: E402
+
 FIVEBAR = Path(__file__).resolve().parents[1] / "docs" / "your-robot" / "fivebar.urdf"
 T = np.linspace(-0.1, 2.1, 301)
 
@@ -125,6 +128,31 @@ def test_embedded_robots_keep_their_paths():
     assert sized_path("auto", planar, 2.0, 1e3) == SCurve(duration=2.0)
     delta = ParallelRobot.load("delta_3rus")
     assert sized_path("auto", delta, 2.0, 1e3) == path_for("helix", delta.home_pose, delta.output_angular, 2.0)
+
+
+def test_a_planar_robot_away_from_the_papers_home_gets_paths_about_its_own_home(tmp_path):
+    """The paper's S-curve and hold target are drawn about (0.5 m, 0.5 m, 0): a planar [x, y, ψ]
+    robot whose home is elsewhere (planar_3rrr with its home moved by (−4 cm, +3 cm)) gets an
+    S-curve centred on its own home that passes the workspace check, a hold target 2 cm from
+    home and no default plan poses (a 3-PRR written from the docs got the paper's poses, outside
+    its workspace)."""
+    sidecar = (urdf_dir() / "planar_3rrr.toml").read_text()
+    assert "pose = [0.5, 0.5, 0.0]" in sidecar
+    sidecar = sidecar.replace("pose = [0.5, 0.5, 0.0]", "pose = [0.46, 0.53, 0.0]")
+    robot = ParallelRobot.load(write(tmp_path, "moved", (urdf_dir() / "planar_3rrr.urdf").read_text(), sidecar))
+    home = robot.home_pose
+    np.testing.assert_allclose(home, [0.46, 0.53, 0.0], atol=1e-9)
+    ref = sized_path("auto", robot, 2.0, 1e3)
+    p = ref.sample(T)
+    np.testing.assert_allclose((p.max(axis=0) + p.min(axis=0)) / 2, home, atol=1e-9)  # centred on home
+    assert np.ptp(p[:, 1]) > 0.05 and np.ptp(p[:, 2]) > 0.05  # an S-curve: it moves y and swings ψ
+    check_reference(robot, ref, check_times(ref, 2.2, 0.002), 1e3)
+    np.testing.assert_allclose(reference_for("hold", robot, 1.0).pose(0.0), home + [0.02, 0.02, 0.0], atol=1e-12)
+    from parallel_gpc.cli.plan import default_poses
+
+    assert default_poses(robot) == (None, None)  # `plan` asks for --A/--B instead of the paper's (0.2, 0.2, -20°)
+    paper = ParallelRobot.load("planar_3rrr")
+    np.testing.assert_allclose(np.array(default_poses(paper))[:, :2], [[0.2, 0.2], [0.8, 0.8]])
 
 
 def test_workspace_probe_and_scaling_on_the_five_bar(fivebar):
@@ -185,3 +213,17 @@ def test_output_space_labels_and_units(fivebar):
     assert planar.labels == ("x", "y", "ψ") and planar.units == ("m", "m", "rad")
     with pytest.raises(InvalidParameterError, match="distinct"):
         OutputSpace(("x", "x"), (False, False))
+
+
+def test_poses_in_messages_show_no_negative_zero(tmp_path):
+    """`info` of a five-bar whose home x is −1e-12 m (the loader's refined home of a robot written
+    from the docs) printed "home pose [m, m] [-0.0, 0.38064]"."""
+    from parallel_gpc.cli.info import robot_info
+    from parallel_gpc.validation import rounded
+
+    assert [str(v) for v in rounded([-1e-12, 0.1234567, -0.25], 6)] == ["0.0", "0.123457", "-0.25"]
+    sidecar = FIVEBAR.with_suffix(".toml").read_text()
+    assert "pose = [0.0, 0.4]" in sidecar
+    urdf = write(tmp_path, "fb", FIVEBAR.read_text(), sidecar.replace("pose = [0.0, 0.4]", "pose = [-1e-12, 0.4]"))
+    rows = dict(robot_info(ParallelRobot.load(urdf)))
+    assert rows["home pose [m, m]"] == "[0.0, 0.4]"

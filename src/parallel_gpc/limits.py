@@ -419,11 +419,12 @@ class Limits:
                     else f"{len(arr)} joints"
             elif form == "bounds":
                 rows = np.unique(arr, axis=0)
-                shown = rows if len(rows) <= 2 else arr
+                shown = rows if len(rows) == 1 else arr  # one range for all, else each in output order
                 text = "; ".join(f"[{lo:g}, {hi:g}]" for lo, hi in shown) if len(shown) <= 6 else f"{len(arr)} ranges"
             else:
-                flat = np.unique(arr)
-                text = "±" + ("/".join(f"{x:g}" for x in flat) if flat.size <= 2 else f"{arr.size} values")
+                flat = np.unique(arr)  # one value for all, else each in drive / output order
+                shown = flat if flat.size == 1 else arr.ravel()
+                text = "±" + ("/".join(f"{x:g}" for x in shown) if shown.size <= 6 else f"{arr.size} values")
             hardness = "" if kind in INPUT_KINDS else (" (soft)" if kind in self.soft else " (hard)")
             parts.append(f"{kind} {text}{hardness}")
         return ", ".join(parts) if parts else "none"

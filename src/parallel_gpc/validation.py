@@ -71,6 +71,12 @@ def number(name: str, value) -> float:
         raise InvalidParameterError(f"{name} = {value!r} ({type(value).__name__}) must be a real number") from None
 
 
+def rounded(values, digits: int = 6) -> list[float]:
+    """``values`` rounded to ``digits`` decimals, as a list for a message or a table, without
+    negative zeros (a pose component of −1e-12 m shows as 0.0, not -0.0)."""
+    return (np.round(np.asarray(values, dtype=float), digits) + 0.0).tolist()
+
+
 def check_sample_time(owner, Ts: float, what: str, whose: str, required: bool = True) -> None:
     """Refuse ``owner`` (a plant, a discrete model) whose own sample time ``owner.Ts`` differs from
     ``Ts`` (relative 1e-12); checked once, where a loop or a controller starts, never per sample.

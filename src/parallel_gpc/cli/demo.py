@@ -25,7 +25,7 @@ from pathlib import Path
 
 from .defaults import DEMO
 from .track import EXIT_CODES, add_tracking_arguments, outcome_code, settings_from_args
-from .vocabulary import ROBOT, add_forms_argument, selected_forms
+from .vocabulary import ROBOT, add_forms_argument, limits_line, selected_forms
 
 
 def cmd_demo(args) -> int:
@@ -43,8 +43,7 @@ def cmd_demo(args) -> int:
     robot = ParallelRobot.load(settings.robot)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
-          f"{settings.limits.describe()}")
+    print(limits_line(args, settings.limits, robot.drive_unit))
     check = deadbeat_check(settings, duration=args.deadbeat_duration, robot=robot)
     diffs = ", ".join(f"{f} {d:.1e}" for f, d in check.max_difference().items())
     print(f"1) Qu = 0 (the paper's Fig. 2 setting), exact plant, Ts = {1e3 * settings.Ts:g} ms, N = {settings.horizons.N}: "

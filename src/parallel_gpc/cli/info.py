@@ -34,6 +34,7 @@ def robot_info(robot) -> list[tuple[str, str]]:
 
     from ..errors import ParallelGPCError
     from ..model import ReducedModel
+    from ..validation import rounded
     from .plan import default_poses
 
     from ..model import native_status
@@ -51,7 +52,7 @@ def robot_info(robot) -> list[tuple[str, str]]:
         ("closures", f"{len(robot.description.closures)} ({robot.n_constraints} constraint rows)"),
         ("joints nq", str(robot.model.nq)),
         (f"drive limit [{robot.drive_unit}]", str(None if robot.torque_limit is None else robot.torque_limit.tolist())),
-        (f"home pose [{', '.join(robot.output_space.units)}]", str(np.round(robot.home_pose, 6).tolist())),
+        (f"home pose [{', '.join(robot.output_space.units)}]", str(rounded(robot.home_pose, 6))),
         ("closure residual at home [m]", f"{np.max(np.abs(robot.closure_residual(q))):.2e}"),
         ("cond(M) full / reduced", f"{np.linalg.cond(terms.M):.3g} / {np.linalg.cond(terms.M_r):.3g}"),
         ("cond(Phi_z) / cond(B_r) at home", f"{cond['cond_phi_z']:.3g} / {cond['cond_B_r']:.3g}"),
@@ -66,7 +67,7 @@ def robot_info(robot) -> list[tuple[str, str]]:
         missing = f" (unresolved: {', '.join(d.unresolved_meshes)}; see --package-path)" if d.unresolved_meshes else ""
         rows.append(("meshes", f"{len(d.mesh_files)} resolved, {len(d.unresolved_meshes)} unresolved{missing}"))
     A, B = default_poses(robot)
-    checks = [(f"pose {label} {np.round(pose, 4).tolist()}", _reach, (pose,))
+    checks = [(f"pose {label} {rounded(pose, 4)}", _reach, (pose,))
               for label, pose in (("A", A), ("B", B)) if pose is not None]
     if A is not None and B is not None:
         checks.append(("segment A -> B", _segment, (A, B)))

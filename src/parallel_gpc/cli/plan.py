@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 from ..errors import InvalidParameterError
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments, show_trajectory
-from .vocabulary import ROBOT, add_limit_arguments
+from .vocabulary import ROBOT, add_limit_arguments, limits_line
 
 if TYPE_CHECKING:  # numpy is imported inside the handlers: --help stays fast
     import numpy as np
@@ -24,11 +24,14 @@ DEFAULT_B = (0.8, 0.8, 20.0)
 
 def default_poses(robot) -> tuple[np.ndarray | None, np.ndarray | None]:
     """(A, B) in m and rad: the sidecar's ``[home] A``, ``B``; for a robot without them whose
-    outputs are planar [x m, y m, ψ rad], the paper's poses; else None."""
+    outputs are planar [x m, y m, ψ rad] about the paper's home (0.5 m, 0.5 m, 0), the paper's
+    poses; else None."""
     import numpy as np
 
+    from ..gpc.references import is_paper_planar
+
     d = robot.description
-    planar = robot.output_angular.tolist() == [False, False, True]
+    planar = is_paper_planar(robot.home_pose, robot.output_angular)
     paper = [np.array([*p[:2], math.radians(p[2])]) if planar else None for p in (DEFAULT_A, DEFAULT_B)]
     return tuple(np.array(p, dtype=float) if p is not None else fallback
                  for p, fallback in zip((d.pose_a, d.pose_b), paper))
@@ -57,6 +60,7 @@ def cmd_plan(args) -> int:
     from ..model import ParallelRobot
     from ..plots import plot_fig3, plot_fig4, save_figure
     from ..studies import run_limits
+    from ..validation import rounded
 
     out = prepare_out_dir(args.out)
     check_view_outputs(args)
@@ -70,12 +74,11 @@ def cmd_plan(args) -> int:
     limits.check_pose(A, robot.output_space.labels)
     settings = PlanSettings(Nmax=args.Nmax, Nmin=args.Nmin, Ts=args.Ts, weights=Weights(args.Qy, args.Qu),
                             limits=limits, solver=args.solver, settle_steps=args.settle)
-    print(f"planning {robot.name}: A = {np.round(A, 4).tolist()} → B = {np.round(B, 4).tolist()} (m, rad); "
+    print(f"planning {robot.name}: A = {rounded(A, 4)} → B = {rounded(B, 4)} (m, rad); "
           f"Nmax = {settings.Nmax}, Nmin = {settings.Nmin}, k = {settings.k}, Ts = {settings.Ts * 1000:g} ms "
           f"(move {settings.duration:g} s), Qy = {settings.weights.Qy}, Qu = {settings.weights.Qu}, "
           f"torque limit = {settings.limits.to_dict()['torque']}, solver = {settings.solver}")
-    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
-          f"{settings.limits.describe()}")
+    print(limits_line(args, settings.limits, robot.drive_unit))
     comparison = plan_modes(robot, A, B, settings, progress=not args.no_progress)
     results = comparison.results
     for res in results:

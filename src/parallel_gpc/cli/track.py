@@ -16,7 +16,8 @@ from pathlib import Path
 from .defaults import EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
-from .vocabulary import ROBOT, add_forms_argument, add_limit_arguments, add_reference_argument, selected_forms
+from .vocabulary import (ROBOT, add_forms_argument, add_limit_arguments, add_reference_argument, limits_line,
+                         selected_forms)
 
 
 def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
@@ -109,8 +110,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
           f"sensors {settings.sensors}, plant {settings.plant}, mass scale {settings.mass_scale:g}, load {list(settings.platform_force) if any(settings.platform_force) else 'none'}, "
           "disturbance estimate α = " + ("each form's default (est. α column)" if settings.disturbance_gain is None
                                          else f"{settings.disturbance_gain:g} (every form)"))
-    print(f"limits ({'robot file and flags' if args.limits == 'robot' else 'flags only'}): "
-          f"{settings.limits.describe()}")
+    print(limits_line(args, settings.limits, robot.drive_unit))
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
         res.save(out / f"track_{form}.npz")

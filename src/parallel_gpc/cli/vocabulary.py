@@ -66,6 +66,13 @@ def add_limit_arguments(p) -> None:
                    help="every state limit hard (default: soft, exact penalty, unless the robot file says otherwise)")
 
 
+def limits_line(args, limits, drive_unit: str) -> str:
+    """The line ``track``, ``demo`` and ``plan`` print about the limits in force: where they come
+    from (``--limits``), their units (efforts in the robot's drive unit, the rest SI) and each limit."""
+    source = "robot file and flags" if args.limits == "robot" else "flags only"
+    return f"limits ({source}; efforts in {drive_unit}, positions in m and rad): {limits.describe()}"
+
+
 def _add_package_path(p) -> None:
     """``--package-path DIR`` (repeatable): folders of the packages named by ``package://`` mesh URIs,
     searched before ``PARALLEL_GPC_PACKAGE_PATH`` and ``ROS_PACKAGE_PATH`` (applied by :func:`apply_package_path`)."""

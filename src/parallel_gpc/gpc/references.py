@@ -437,10 +437,25 @@ PATH_KINDS = ("auto", "s-curve", "circle", "line", "helix")
 DEFAULT_PATH_SIZE = {"s-curve": 0.05, "circle": 0.08, "line": 0.1}
 #: Swing (rad) of the angular outputs a path does not move (and of the helix's angles).
 ANGLE_SWING = 0.05
+#: Home pose (x m, y m, ψ rad) of the embedded planar robots: the centre of the paper's S-curve
+#: (:class:`SCurve`'s defaults) and the pose the paper's hold target (0.55 m, 0.55 m, 5°) is near.
+PAPER_PLANAR_HOME = (0.5, 0.5, 0.0)
 
 
 def _is_planar(angular: np.ndarray) -> bool:
     return angular.tolist() == [False, False, True]
+
+
+def is_paper_planar(home, angular) -> bool:
+    """Planar [x, y, ψ] outputs with the paper's home (:data:`PAPER_PLANAR_HOME`): the robots the
+    paper's S-curve, hold target and poses A, B are drawn for (another planar robot's workspace
+    need not hold them).
+
+    Args:
+        home: (n_y,) home pose (m, rad). angular: (n_y,) bool, True for angular outputs.
+    """
+    angular = np.asarray(angular, dtype=bool)
+    return _is_planar(angular) and bool(np.allclose(home, PAPER_PLANAR_HOME, rtol=0.0, atol=1e-9))
 
 
 def moving_columns(angular) -> list[int]:
@@ -458,8 +473,8 @@ def _describe(angular, labels) -> str:
 
 
 def default_path_kind(angular) -> str:
-    """What ``"auto"`` means for these outputs: the paper's S-curve for planar [x, y, ψ]
-    outputs, the helix for three translational outputs, an S-curve for two, a line for one."""
+    """What ``"auto"`` means for these outputs: an S-curve for planar [x, y, ψ] outputs (the
+    paper's on the paper's home, see :func:`path_for`), the helix for three translational outputs, an S-curve for two, a line for one."""
     angular = np.asarray(angular, dtype=bool)
     if _is_planar(angular):
         return "s-curve"
@@ -473,9 +488,10 @@ def path_for(kind: str, home_pose, angular, duration: float, size: float | None 
     :func:`~parallel_gpc.gpc.robot_references.reference_for` sizes and checks it for a robot).
 
     Args:
-        kind: ``"s-curve"`` (planar [x m, y m, ψ rad] outputs: the paper's S-curve
-            :class:`SCurve`, unchanged; else an :class:`OutputPath` S-curve in the plane of the
-            first two translational outputs, centred on home), ``"circle"`` (ditto, a circle about
+        kind: ``"s-curve"`` (planar [x m, y m, ψ rad] outputs with the paper's home
+            :data:`PAPER_PLANAR_HOME`: the paper's S-curve :class:`SCurve`, unchanged; else an
+            :class:`OutputPath` S-curve in the plane of the first two translational outputs,
+            centred on home), ``"circle"`` (ditto, a circle about
             home), ``"line"`` (a segment through home along the diagonal of the translational
             outputs), ``"helix"`` (three translational outputs: one turn of radius 0.08 m rising
             0.12 m, centred on the home pose) or ``"auto"`` (:func:`default_path_kind`). Angular
@@ -499,7 +515,7 @@ def path_for(kind: str, home_pose, angular, duration: float, size: float | None 
         raise InvalidParameterError(f"reference {kind!r} is not one of {list(PATH_KINDS)}")
     if kind == "auto":
         kind = default_path_kind(angular)
-    if kind == "s-curve" and _is_planar(angular):
+    if kind == "s-curve" and is_paper_planar(home, angular):
         return SCurve(duration=duration)
     cols = moving_columns(angular)
     outputs = _describe(angular, labels)
@@ -526,9 +542,11 @@ def path_for(kind: str, home_pose, angular, duration: float, size: float | None 
 
 
 def hold_pose_for(home_pose, angular) -> np.ndarray:
-    """A hold target near home: the planar robots' (0.55 m, 0.55 m, 5°) for [x, y, ψ] outputs
-    (the home pose there is (0.5, 0.5, 0)); else home + 0.02 m on each translational output."""
+    """A hold target near home: the paper's (0.55 m, 0.55 m, 5°) for planar [x, y, ψ] outputs
+    with the paper's home :data:`PAPER_PLANAR_HOME`; else home + 0.02 m on each translational
+    output."""
     angular = np.asarray(angular, dtype=bool)
-    if _is_planar(angular):
+    home = finite_vector("home pose", home_pose, angular.size)
+    if is_paper_planar(home, angular):
         return np.array([0.55, 0.55, math.radians(5.0)])
-    return finite_vector("home pose", home_pose, angular.size) + np.where(angular, 0.0, 0.02)
+    return home + np.where(angular, 0.0, 0.02)

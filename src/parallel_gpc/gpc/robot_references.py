@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import (AssemblyError, InvalidParameterError, NonFiniteError, ShapeError, SingularPoseError,
                       UnreachablePoseError)
 from ..model import ReducedModel
-from ..validation import positive
+from ..validation import positive, rounded
 from .protocol import condition_number
 from .references import (PATH_KINDS, Helix, Hold, Reference, SampledTrajectory, SCurve,
                          hold_pose_for, moving_columns, path_for)
@@ -116,7 +116,8 @@ def sized_path(kind: str, robot, duration: float, max_condition: float) -> Refer
     direction d_i of its moved outputs; the workspace is probed along d_i to h_i /
     :data:`WORKSPACE_FRACTION` (:func:`ray_reach`, giving ρ_i), and the path is scaled by
     min(1, min_i WORKSPACE_FRACTION·ρ_i / h_i): its default size where the workspace is large
-    enough, smaller where it is not. The paper's S-curve of a planar robot is returned as it is.
+    enough, smaller where it is not. The paper's S-curve (planar outputs at the paper's home) is
+    returned as it is.
 
     Raises:
         InvalidParameterError: the path does not fit the robot's outputs (one line naming them).
@@ -140,7 +141,7 @@ def sized_path(kind: str, robot, duration: float, max_condition: float) -> Refer
         return ref
     if scale <= 0.0:
         raise UnreachablePoseError(f"the workspace of {robot.name!r} ends next to its home pose "
-                                   f"{np.round(robot.home_pose, 6).tolist()}: no {kind} fits; give a CSV reference")
+                                   f"{rounded(robot.home_pose, 6)}: no {kind} fits; give a CSV reference")
     size = scale if isinstance(ref, Helix) else scale * ref.size
     return path_for(kind, robot.home_pose, robot.output_angular, duration, size=size, labels=labels)
 
@@ -222,7 +223,7 @@ def check_reference(robot, reference: Reference, times, max_condition: float | N
         model = ReducedModel(robot) if model is None else model
     q = None
     for t, pose in zip(times, poses):
-        where = (f"reference pose {np.round(pose, 6).tolist()} ({', '.join(space.labels)}) at t = {t:.4g} s")
+        where = (f"reference pose {rounded(pose, 6)} ({', '.join(space.labels)}) at t = {t:.4g} s")
         if not np.all(np.isfinite(pose)):
             raise NonFiniteError(f"the {where} is not finite; poses must be finite")
         try:

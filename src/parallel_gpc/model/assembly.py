@@ -13,7 +13,7 @@ import numpy as np
 import pinocchio as pin
 
 from ..errors import AssemblyError, RobotFormatError, SingularPoseError, UnreachablePoseError
-from ..validation import finite_vector
+from ..validation import finite_vector, rounded
 from .checks import numerical_rank
 from .forward import rates_to_velocity, resolution_array, solve_forward
 from .linalg import svd_thin
@@ -63,7 +63,7 @@ class AssemblyMixin:
         q = np.array(q_guess, dtype=float)
         if self.task_output is None:
             q[self._y_q] = pose
-        label = "closures" if pose is None else f"platform pose {np.round(pose, 6).tolist()}"
+        label = "closures" if pose is None else f"platform pose {rounded(pose, 6)}"
         for _ in range(max_iter):
             res, jac = self._eval(q)
             err_vec = self._error(res, pose)
@@ -308,13 +308,13 @@ class AssemblyMixin:
             q = self._follow(self.home_pose, self.q_home, pose)
         except _PathStop as stop:
             raise UnreachablePoseError(
-                f"platform pose {np.round(pose, 6).tolist()} cannot be assembled on the home branch of "
-                f"{self.name!r}: continuation from home stops at {np.round(stop.mid, 4).tolist()} "
+                f"platform pose {rounded(pose, 6)} cannot be assembled on the home branch of "
+                f"{self.name!r}: continuation from home stops at {rounded(stop.mid, 4)} "
                 f"({stop.reason})"
             ) from None
         if not np.array_equal(self.branch_signature(q), self._branch):
             raise UnreachablePoseError(
-                f"platform pose {np.round(pose, 6).tolist()} is reachable only on another assembly branch "
+                f"platform pose {rounded(pose, 6)} is reachable only on another assembly branch "
                 f"(a leg passes through its singular stretched/folded configuration on the way)"
             )
         return q
@@ -328,15 +328,15 @@ class AssemblyMixin:
                 singular configuration, or the branch joints' signs at home differ from the drawing's.
         """
         home = self.home_pose
-        ends = (f"home pose {np.round(home, 6).tolist()} of {self.name!r} and the configuration the file is drawn "
-                f"at (output {np.round(y_draw, 6).tolist()})")
+        ends = (f"home pose {rounded(home, 6)} of {self.name!r} and the configuration the file is drawn "
+                f"at (output {rounded(y_draw, 6)})")
         hint = ("give home.q_guess (rough joint values at home) to choose the configuration, or a home pose "
                 "reachable from the drawing on its branch")
         try:
             q = self._follow(y_draw, q_draw, home, watch_singular=True)
         except _PathStop as stop:
             raise AssemblyError(f"{ends} are not joined on one assembly branch: the straight path stops at "
-                                f"{np.round(stop.mid, 4).tolist()} ({stop.reason}); {hint}") from None
+                                f"{rounded(stop.mid, 4)} ({stop.reason}); {hint}") from None
         drawn, at_home = self.branch_signature(q_draw), self.branch_signature(q)
         if np.any(drawn * at_home < 0):
             names = self.description.branch_joints
@@ -440,7 +440,7 @@ class AssemblyMixin:
         if out is None:
             s = np.linalg.svd(jac[:, self.z_idx], compute_uv=False)
             raise SingularPoseError(
-                f"legs singular at platform pose {np.round(self.platform_pose(q), 6).tolist()}: "
+                f"legs singular at platform pose {rounded(self.platform_pose(q), 6)}: "
                 f"cond(Φ_z) = {s[0] / max(s[self.n_z - 1], 1e-300):.3g} (limit {1 / SINGULAR_RCOND:.0e})"
             )
         self._vm_cache = (key, *out)
@@ -467,7 +467,7 @@ class AssemblyMixin:
         worst = max(cond.values())
         if worst > max_cond:
             raise SingularPoseError(
-                f"platform pose {np.round(np.asarray(pose), 6).tolist()} is near-singular: "
+                f"platform pose {rounded(np.asarray(pose), 6)} is near-singular: "
                 f"cond(Φ_z) = {cond['cond_phi_z']:.3g}, cond(B_r) = {cond['cond_B_r']:.3g} (limit {max_cond:.3g})"
             )
         return q

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import AssemblyError, InvalidParameterError, SensorError, ShapeError, SingularPoseError
-from ..validation import finite_vector
+from ..validation import finite_vector, rounded
 
 #: default encoder resolution of a revolute drive: 2^20 counts per revolution
 DEFAULT_COUNTS_PER_REV = 2.0**20
@@ -290,11 +290,11 @@ def _inconsistency(robot, readings, sol: ForwardSolution, resolution: np.ndarray
     suspects = [int(i) for i in np.flatnonzero(std >= 0.999 * std.max())]
     worst = max(suspects, key=lambda i: abs(r[i]))
     which = (f"drive {worst} ({names[worst]!r}) is off by {abs(r[worst]):.3g} counts ({sol.residual[worst]:.3g} "
-             f"{units[worst]}) at the best pose {np.round(sol.pose, 6).tolist()}")
+             f"{units[worst]}) at the best pose {rounded(sol.pose, 6)}")
     if len(suspects) > 1:
         which += (f"; drives {[names[i] for i in suspects]} explain the mismatch equally (one redundant drive "
                   "cannot tell which encoder is broken)")
-    return (f"drive readings {np.round(readings, 9).tolist()} are inconsistent: no pose of {robot.name!r} explains "
+    return (f"drive readings {rounded(readings, 9)} are inconsistent: no pose of {robot.name!r} explains "
             f"them within {max_residual:g} counts; {which} (a broken encoder?)")
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import NonFiniteError, SingularPoseError
+from ..validation import rounded
 from .discretization import DEGREE_NORMS
 from .forward import CompiledForward, assemble_validated
 from .linalg import spd_solve
@@ -39,7 +40,7 @@ class _ValidatedPath:
     def singular(self, q: np.ndarray) -> None:
         """The compiled rank check failed where Python's passed (a borderline K): raise."""
         cond = self.robot.singularity(q)["cond_phi_z"]
-        raise SingularPoseError(f"legs singular at platform pose {np.round(self.robot.platform_pose(q), 6).tolist()}: "
+        raise SingularPoseError(f"legs singular at platform pose {rounded(self.robot.platform_pose(q), 6)}: "
                                 f"cond(Φ_z) = {cond:.3g} (compiled model update)")
 
     def assembled(self, pose, q_guess):

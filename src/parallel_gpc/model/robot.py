@@ -29,7 +29,7 @@ import pinocchio as pin
 from ..errors import (AssemblyError, ParallelGPCError, ParallelGPCWarning, RobotFormatError, UnderactuatedError,
                       UnreachablePoseError)
 from ..limits import Limits
-from ..validation import finite_vector, positive
+from ..validation import finite_vector, positive, rounded
 from .assembly import SINGULAR_RCOND, AssemblyMixin  # noqa: F401  (SINGULAR_RCOND re-exported)
 from .builder import build_model, drawn_configuration, joint_unit
 from .checks import check_actuation, check_parametrization
@@ -267,7 +267,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
             err = self._error(res, pose)
             q = self._step(q, np.linalg.lstsq(jac[:len(err), self.z_idx], err, rcond=1e-10)[0])
         bad = self._closure_misses(self.closure_residual(q))
-        where = "" if pose is None else f" at the home pose {np.round(pose, 6).tolist()}"
+        where = "" if pose is None else f" at the home pose {rounded(pose, 6)}"
         return (f"the closures of {self.name!r} cannot be assembled{where}: "
                 f"{'missing ' + '; '.join(bad) if bad else str(exc)} "
                 f"(check the closure frames, home.pose and home.q_guess in the sidecar)")

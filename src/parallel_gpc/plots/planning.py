@@ -20,6 +20,7 @@ from matplotlib.patches import Polygon
 
 from ..gpc import PlanResult
 from ..model import output_world_axes, stick_figure
+from .common import mark_drive_limit
 from .paths import draw_path, path_axes
 
 #: Colors of the modes (and of anything else the figures draw per mode).
@@ -151,7 +152,7 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
     their velocities (m/s, and deg/s if angular); drive efforts (the robot's drive unit: N·m
     revolute, N prismatic). Dashed vertical lines mark the planned arrival t = Nmax·Ts and, in
     mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
-    limits. Curves are labelled with the output labels.
+    limits (a legend entry instead when the efforts stay below a tenth of the limit: off scale). Curves are labelled with the output labels.
 
     Returns:
         The figure.
@@ -161,6 +162,7 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
     rows = [("position [m]", lin, "pose", 1.0), ("orientation [deg]", ang, "pose", math.degrees(1.0)),
             ("velocity [m/s]", lin, "velocity", 1.0), ("angular velocity [deg/s]", ang, "velocity", math.degrees(1.0))]
     rows = [r for r in rows if r[1]]
+    peak = max(float(np.max(np.abs(r.u), initial=0.0)) for r in results)  # the effort rows share their y axis
     fig = Figure(figsize=(6.0 * len(results), 2.4 * (len(rows) + 1)), layout="constrained")
     axes = fig.subplots(len(rows) + 1, len(results), squeeze=False, sharex="all", sharey="row")  # comparable columns
     for col, res in enumerate(results):
@@ -180,9 +182,7 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
         for j in range(res.u.shape[1]):
             ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")
         if s.limits.torque is not None:
-            lim = np.max(s.limits.torque)
-            for sign in (1, -1):
-                ax[-1].axhline(sign * lim, color="k", ls=":", lw=1, label="drive limit" if sign > 0 else None)
+            mark_drive_limit(ax[-1], s.limits.torque, peak, space.drive_unit)
         ax[-1].set_ylabel(f"drive effort [{space.drive_unit}]")
         for a in ax:
             a.axvline(s.duration, color="0.3", ls="--", lw=1)

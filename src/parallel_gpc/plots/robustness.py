@@ -12,7 +12,7 @@ from ..sweeps import RobustnessResult
 def plot_robustness(result: RobustnessResult) -> Figure:
     """Three panels: RMS position error vs mass change, vs noise level, and steady-state error vs
     the constant load on the first output (a force in N, a moment in N·m for an angle; named by
-    the output label), one line per form. Diverged runs are left out."""
+    the output label), one line per form, the error axes from 0. Diverged runs are left out."""
     forms = list(dict.fromkeys(r["form"] for r in result.rows))
     labels, angular = result.settings.get("outputs", ["x"]), result.settings.get("angular", [False])
     force = f"{'moment' if angular[0] else 'force'} on output {labels[0]} [{'N·m' if angular[0] else 'N'}]"
@@ -36,6 +36,9 @@ def plot_robustness(result: RobustnessResult) -> Figure:
                                 fontsize=7, rotation=90)
         if study == "noise":
             ax.set_xscale("symlog", linthresh=1e-6)
+        # errors are norms: from 0 (rounding noise of 1e-14 mm is not drawn as a trend), 8 % above the largest
+        top = max((float(max(line.get_ydata(), default=0.0)) for line in ax.lines), default=0.0)
+        ax.set_ylim(0.0, 1.08 * top if top > 0.0 else None)
         ax.set_xlabel(xlabel)
         ax.set_ylabel(ylabel)
         ax.set_title(study)

@@ -111,12 +111,12 @@ def heatmap(frame, x: str, y: str, metric: str = "rms_position_error_m", agg: st
     ax = fig.add_subplot()
     cmap = matplotlib.colormaps["viridis"].with_extremes(bad="0.8")
     image = ax.imshow(np.ma.masked_invalid(grid), origin="lower", aspect="auto", cmap=cmap)
-    finite = grid[np.isfinite(grid)]
-    middle = np.nanmedian(finite) if finite.size else 0.0
     for (i, j), value in np.ndenumerate(grid):
         text = ("diverged" if diverged[i, j] else "failed") if np.isnan(value) \
             else f"{value:.3g}" + ("*" if diverged[i, j] else "")
-        ax.text(j, i, text, ha="center", va="center", fontsize=7, color="k" if np.isnan(value) or value > middle else "w")
+        # black on a light cell, white on a dark one: the luminance of the cell's own colour
+        r, g, b, _ = (0.8, 0.8, 0.8, 1.0) if np.isnan(value) else image.cmap(image.norm(value))
+        ax.text(j, i, text, ha="center", va="center", fontsize=7, color="k" if 0.299 * r + 0.587 * g + 0.114 * b > 0.5 else "w")
     ax.set_xticks(range(len(xs)), [_tick(v) for v in xs])
     ax.set_yticks(range(len(ys)), [_tick(v) for v in ys])
     ax.set_xlabel(x)

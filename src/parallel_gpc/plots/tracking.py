@@ -7,32 +7,42 @@ Each function returns a :class:`matplotlib.figure.Figure`; save it with
 
 from __future__ import annotations
 
+import textwrap
+
 import numpy as np
 from matplotlib.figure import Figure
 
 from ..gpc import pose_error_norms
+from .common import mark_drive_limit
 from .paths import draw_path, path_axes
 from ..studies import SimulationResult
 
 def plot_paths(results: dict[str, SimulationResult], title: str = "platform path") -> Figure:
     """Reference and tracked paths in the plane or space of the translational outputs (axes
     named by the output labels, in m), one line per GPC form; for planar [x, y, ψ] outputs small
-    orientation markers along the path; with one translational output, that coordinate over time."""
+    orientation markers along the path; with one translational output, that coordinate over time.
+    A reference that holds one pose is drawn as a cross."""
     fig = Figure(figsize=(5.5, 5.5), layout="tight")
     first = next(iter(results.values()))
     space = first.output_space
     ax, cols = path_axes(fig, space)
-    draw_path(ax, cols, first.t, first.reference, "k--", lw=2, label="reference")
+    if len(cols) > 1 and not np.ptp(first.reference[:, cols], axis=0).any():  # a hold: one point, no line
+        draw_path(ax, cols, first.t[:1], first.reference[:1], "kx", ms=12, mew=2, label="reference (hold)")
+    else:
+        draw_path(ax, cols, first.t, first.reference, "k--", lw=2, label="reference")
     angles = space.rotational
+    # orientation markers: 5 % of the drawn extent (a path of 8 mm got 2.5 mm markers from a 5 cm floor)
+    extent = max(float(np.ptp(np.vstack([first.reference[:, cols], *(r.pose[:, cols] for r in results.values())]),
+                              axis=0).max()), 1e-9)
     for name, res in results.items():
         draw_path(ax, cols, res.t, res.pose, lw=1.2, label=name)
         if len(cols) == 2 and len(angles) == 1:  # planar: the platform's orientation along the path
             step = max(1, len(res.t) // 12)
-            size = 0.05 * max(float(np.ptp(first.reference[:, cols], axis=0).max()), 0.05)
+            size = 0.05 * extent
             for k in range(0, len(res.t), step):
                 (x, y), psi = res.pose[k, cols], res.pose[k, angles[0]]
                 ax.plot([x, x + size * np.cos(psi)], [y, y + size * np.sin(psi)], color="0.4", lw=0.8)
-    ax.set_title(title)
+    ax.set_title("\n".join(textwrap.wrap(title, 56)))  # the figure is 5.5 in wide: long titles wrap
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize=8)
     return fig
@@ -78,7 +88,8 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     """The forms side by side on shared axes: position and orientation error norms (mm and
     mrad, log scale; orientation only for robots with angular outputs) with the disturbance
     estimate off (dashed) and on (solid), drive efforts (the robot's drive unit) with the
-    estimate on, and the limit lines if one is set.
+    estimate on, and the limit lines if one is set (a legend entry instead when the efforts stay
+    below a tenth of it).
 
     Args:
         runs: results keyed by (form, estimator gain α), as from
@@ -93,6 +104,7 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
     gains = sorted({gain for _, gain in runs})
     space = next(iter(runs.values())).output_space
     rows = 3 if space.has_angles else 2  # no orientation row without angular outputs
+    peak = max(float(np.max(np.abs(r.u), initial=0.0)) for (_, gain), r in runs.items() if gain == gains[-1])
     fig = Figure(figsize=(4.2 * len(forms), 2.9 * rows), layout="constrained")
     axes = fig.subplots(rows, len(forms), sharex="all", sharey="row", squeeze=False)
     for col, form in enumerate(forms):
@@ -111,9 +123,7 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
                 for j in range(res.u.shape[1]):
                     ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
         if limits is not None and limits.torque is not None:
-            lim = float(np.max(limits.torque))
-            for sign in (1, -1):
-                ax_u.axhline(sign * lim, color="k", ls=":", lw=1, label="drive limit" if sign > 0 else None)
+            mark_drive_limit(ax_u, limits.torque, peak, space.drive_unit)
         ax_p.set_title(form)
         ax_u.set_xlabel("t [s]")
         for ax in axes[:, col]:
