@@ -97,7 +97,8 @@ def test_result_round_trips_through_npz_and_csv(s_curve_runs, tmp_path):
 
 
 def test_qr_solver_with_limits_is_rejected(robot4):
-    with pytest.raises(InvalidParameterError, match="cannot enforce"):
+    # the limits as the package describes them (not the dataclass's repr) and the way out
+    with pytest.raises(InvalidParameterError, match=r"cannot enforce the limits torque ±10;.*drop the limits"):
         GPCController.build(ReducedModel(robot4), TS, Horizons(5), solver="qr", limits=Limits(torque=10.0))
 
 

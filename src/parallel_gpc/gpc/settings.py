@@ -287,8 +287,9 @@ def resolve_solver(solver: str | None, form: str, limits: Limits, terminal: str 
                                     f"equality rows); use {DEFAULT_LIMITED_SOLVER!r} (or leave solver unset)")
     if solver in ("qr", "cholesky") and limits.needs_qp:
         raise InvalidParameterError(
-            f"solver {solver!r} cannot enforce the limits {limits!r}; use a QP back end such as "
-            f"{condensed_default(form, limits)!r}, 'osqp-direct' or 'qpsolvers:osqp'")
+            f"solver {solver!r} cannot enforce the limits {limits.describe()}; use a QP back end such as "
+            f"{condensed_default(form, limits)!r}, 'osqp-direct' or 'qpsolvers:osqp', or drop the limits "
+            f"(Limits(); a robot file's limits: track --limits none)")
     if solver.endswith("bvls") and limits.has_state_limits:
         raise InvalidParameterError(
             f"solver {solver!r} handles box limits only; the state limits {limits.describe()} are linear rows in the "
