@@ -40,6 +40,21 @@ def test_bench_plot_returns_a_figure(tmp_path):
     assert save_figure(fig, tmp_path / "a" / "b.png").stat().st_size > 10_000
 
 
+def test_bench_plot_keeps_twenty_methods_and_five_robots_apart():
+    """The step panels carry ~20 methods and the run five robots: every method of a panel gets its
+    own colour and every robot its own (line style, marker) pair (tab10 repeated after ten methods
+    and the line styles after four robots, so "absolute" and a Python reference looked alike)."""
+    methods = [f"method {i}" for i in range(20)]
+    robots = ["planar_4rrr", "planar_3rrr", "delta_3rus", "hexapod_6ups", "hexapod_8ups"]
+    rows = [{"section": "step", "method": m, "robot": r, "N": n, "median_us": 10.0 * n}
+            for m in methods for r in robots for n in (10, 20)]
+    ax = plot_results(rows).axes[2]
+    first_robot = [line for line in ax.lines if line.get_label() in methods]
+    assert len({tuple(line.get_color()) for line in first_robot}) == 20
+    of_one_method = [line for line in ax.lines if tuple(line.get_color()) == tuple(first_robot[0].get_color())]
+    assert len({(line.get_linestyle(), line.get_marker()) for line in of_one_method}) == 5
+
+
 def test_the_title_of_a_one_column_figure_clears_its_panels():
     """track_time.png of a single run of a 6-output robot (9 panels, as the hexapod's): the
     figure's title stays clear of the column's title and of the panels' offset texts (errors of

@@ -15,18 +15,21 @@ def plot_results(rows: list[dict]) -> Figure:
     axes = fig.subplots(3, 2)
     axes = axes.ravel()
     styles = ["-", "--", ":", "-."]
+    markers = ["o", "s", "^", "D", "v", "P"]  # with the line style: five robots stay apart
     titles = {"unconstrained": "unconstrained solve", "limited": "solve with binding torque limits",
-              "step": "full control step (GPCController.step), interleaved",
+              "step": "full control step (GPCController.step), replayed",
               "loop": "full control step in the closed loop", "qpmpc": "LTV MPC problem: ours vs qpmpc"}
     for ax, section in zip(axes, sections):
         methods = list(dict.fromkeys(r["method"] for r in rows if r["section"] == section))
-        colors = colormaps["tab10"](np.arange(len(methods)) % 10)
+        # one colour per method of the panel (tab10 repeats after ten: the step panels have ~20)
+        palette = colormaps["tab10" if len(methods) <= 10 else "tab20"]
+        colors = palette(np.arange(len(methods)) % palette.N)
         for mi, method in enumerate(methods):
             for ri, robot in enumerate(robots):
                 pts = sorted((r["N"], r["median_us"]) for r in rows if r["section"] == section
                              and r["method"] == method and r["robot"] == robot and r["median_us"])
                 if pts:
-                    ax.plot([p[0] for p in pts], [p[1] for p in pts], styles[ri % 4], marker="o", ms=3,
+                    ax.plot([p[0] for p in pts], [p[1] for p in pts], styles[ri % 4], marker=markers[ri % 6], ms=3,
                             color=colors[mi], label=method if ri == 0 else None)
         ax.set_yscale("log")
         ax.set_xlabel("horizon N")
@@ -36,5 +39,6 @@ def plot_results(rows: list[dict]) -> Figure:
         ax.set_ylabel("median time per call [µs]")
     for ax in axes[len(sections):]:
         ax.axis("off")
-    fig.suptitle("GPC on the S-curve: " + ", ".join(f"{r} ({styles[i % 4]})" for i, r in enumerate(robots)))
+    fig.suptitle("GPC on the S-curve: " + ", ".join(f"{r} ({styles[i % 4]} {markers[i % 6]})"
+                                                    for i, r in enumerate(robots)))
     return fig
