@@ -35,7 +35,8 @@ def plot_results(rows: list[dict]) -> Figure:
         ax.set_xlabel("horizon N")
         ax.set_title(titles[section])
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7, loc="upper left")
+        if ax.lines:  # a section the run did not measure (e.g. qpmpc not installed) stays an empty panel
+            ax.legend(fontsize=7, loc="upper left")
         ax.set_ylabel("median time per call [µs]")
     for ax in axes[len(sections):]:
         ax.axis("off")
