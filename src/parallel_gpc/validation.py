@@ -49,6 +49,16 @@ def finite_matrix(name: str, value, shape: tuple[int | None, int | None]) -> np.
     return arr
 
 
+def read_only(value) -> np.ndarray | None:
+    """A read-only float64 copy of ``value`` (None stays None): arrays an object shares with its
+    callers, which must not change under it."""
+    if value is None:
+        return None
+    arr = np.array(value, dtype=float, copy=True)
+    arr.setflags(write=False)
+    return arr
+
+
 def positive(name: str, value: float, unit: str = "") -> float:
     """Return ``value`` as a float if it is a real number (not a string or bool), finite and > 0."""
     x = number(name, value)

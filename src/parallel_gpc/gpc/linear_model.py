@@ -15,13 +15,7 @@ from typing import Callable
 import numpy as np
 
 from ..errors import InvalidParameterError, NonFiniteError, ShapeError
-from ..validation import finite_matrix, finite_vector, positive
-
-
-def _read_only(arr: np.ndarray) -> np.ndarray:
-    arr = np.array(arr, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
+from ..validation import finite_matrix, finite_vector, positive, read_only
 
 
 class DiscreteLinearModel:
@@ -44,7 +38,7 @@ class DiscreteLinearModel:
 
     def __init__(self, A, B, C, c=None, *, Ts: float):
         self.Ts = positive("Ts", Ts, " s")
-        self.C = _read_only(finite_matrix("C", C, (None, None)))
+        self.C = read_only(finite_matrix("C", C, (None, None)))
         self.n_y, self.n_x = self.C.shape
         self._fn: Callable | None = None
         if A is None:  # set by from_function
@@ -53,7 +47,7 @@ class DiscreteLinearModel:
         B = finite_matrix("B", B, (self.n_x, None))
         self.n_u = B.shape[1]
         c = np.zeros(self.n_x) if c is None else finite_vector("c", c, self.n_x)
-        self._lti = (_read_only(A), _read_only(B), _read_only(c))
+        self._lti = (read_only(A), read_only(B), read_only(c))
 
     @classmethod
     def from_function(cls, fn: Callable, C, n_u: int, *, Ts: float) -> "DiscreteLinearModel":

@@ -33,6 +33,7 @@ from ..errors import InvalidParameterError, SolverError
 from ..limits import Limits
 from ..model import compiled_part, cached_identity
 from ..solvers import SolveResult, lq_tracking
+from ..validation import read_only
 from .prediction import Horizons, Prediction, cumulative_map
 from .stagewise import StagewiseSolver
 
@@ -117,7 +118,7 @@ class RiccatiSolver:
             self._compiled = Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
         self.native = self._compiled is not None
         m = Wu.shape[0]
-        self._zero_c, self._zero_u = _read_only(np.zeros(self.C.shape[1])), _read_only(np.zeros(m))  # per controller
+        self._zero_c, self._zero_u = read_only(np.zeros(self.C.shape[1])), read_only(np.zeros(m))  # per controller
 
     def solve(self, A, B, c, x0, u0, r) -> SolveResult:
         """The plan v (Nu·m,) of the form's problem.
@@ -180,10 +181,10 @@ class RiccatiPath:
         self._u_sim = None
         self._extra = {}
         H, m = self.horizons, self.m  # the input map's parts that do not change from step to step
-        self._empty = (_read_only(np.empty(0)), _read_only(np.empty((0, H.Nu * m))))
+        self._empty = (read_only(np.empty(0)), read_only(np.empty((0, H.Nu * m))))
         self._u_map = cached_identity(H.Nu * m) if form == "absolute" else cumulative_map(
             H.N if form == "nonlinear" else H.Nu, H.Nu, m)
-        self._zero_base = _read_only(np.zeros(H.Nu * m))
+        self._zero_base = read_only(np.zeros(H.Nu * m))
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
@@ -220,9 +221,3 @@ class RiccatiPath:
         base = stages[4]
         u_base = np.broadcast_to(base, (H.Nu, m)).reshape(-1)  # np.tile, without its overhead
         return Prediction(none, empty, u_base, self._u_map, H, "incremental")
-
-
-def _read_only(a: np.ndarray) -> np.ndarray:
-    """``a``, made read-only (an array shared by every step of one controller)."""
-    a.setflags(write=False)
-    return a

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..errors import InvalidParameterError
 from ..limits import KINEMATIC_KINDS, Limits, as_limits
-from ..validation import number, positive
+from ..validation import number, positive, read_only
 from .criterion import Weights
 from .prediction import Horizons
 
@@ -316,12 +316,6 @@ def unit_interval(name: str, value) -> float:
     return x
 
 
-def _frozen(value):
-    if value is None:
-        return None
-    arr = np.array(value, dtype=float, copy=True)
-    arr.setflags(write=False)
-    return arr
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,4 +343,4 @@ class ControllerState:
 
     def __post_init__(self):
         for name in ("u_prev", "plan", "disturbance", "x_next", "warm_start"):
-            object.__setattr__(self, name, _frozen(getattr(self, name)))
+            object.__setattr__(self, name, read_only(getattr(self, name)))
