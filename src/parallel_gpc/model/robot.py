@@ -48,7 +48,7 @@ from .description import (  # noqa: F401  (re-exported for the robot's users)
     urdf_dir,
 )
 from .linalg import fast_index
-from .output_space import OutputSpace
+from .output_space import OutputSpace, drive_unit_of
 from .outputs import TaskOutput
 from .universal import UniversalJoints
 
@@ -371,8 +371,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def drive_unit(self) -> str:
         """Unit of the drive efforts u: ``"N·m"`` (revolute drives), ``"N"`` (prismatic drives) or
         ``"N·m | N"`` when the robot has both kinds."""
-        units = set(self.drive_position_units)
-        return {frozenset({"rad"}): "N·m", frozenset({"m"}): "N"}.get(frozenset(units), "N·m | N")
+        return drive_unit_of(self.drive_angular)
 
     @property
     def output_space(self) -> OutputSpace:
