@@ -19,6 +19,12 @@ GREEK = {"psi": "ψ", "phi": "φ", "theta": "θ", "alpha": "α", "beta": "β", "
 DRIVE_UNITS = ("N·m", "N", "N·m | N")
 
 
+def effort_integral_unit(drive_unit: str) -> str:
+    """Unit of the effort integral ∫‖u‖² dt ≈ Σ‖u‖²·Ts of drives in ``drive_unit``: N²·m²·s
+    (revolute drives), N²·s (prismatic), ``(N·m | N)²·s`` for both kinds. Not an energy (J)."""
+    return {"N·m": "N²·m²·s", "N": "N²·s"}.get(drive_unit, f"({drive_unit})²·s")
+
+
 def drive_unit_of(drive_angular) -> str:
     """The common drive unit of drives of these kinds (True: revolute)."""
     kinds = set(drive_angular)
@@ -123,8 +129,8 @@ class OutputSpace:
 
     @property
     def effort_unit(self) -> str:
-        """Unit of Σ‖u‖²·Ts: N²·m²·s (revolute drives), N²·s (prismatic)."""
-        return {"N·m": "N²·m²·s", "N": "N²·s"}.get(self.drive_unit, f"({self.drive_unit})²·s")
+        """Unit of the effort integral ∫‖u‖² dt (:func:`effort_integral_unit` of :attr:`drive_unit`)."""
+        return effort_integral_unit(self.drive_unit)
 
     def drive_name(self, j: int) -> str:
         """Name of drive j (its joint), or ``u{j+1}`` when the drives are not named."""

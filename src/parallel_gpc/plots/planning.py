@@ -193,8 +193,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
                 a.legend(loc="best", fontsize=8)
         pos, angle = res.end_error
         error = f"end error {pos:.2g} m" + (f", {_angle_text(angle)}" if ang else "")
-        ax[0].set_title(f"{res.label}\n{error}, energy {res.energy:.3g} {space.effort_unit}, "
-                        f"peak {res.peak_torque:.3g} {space.drive_unit}", fontsize=10)
+        ax[0].set_title(f"{res.label}\n{error}, ∫‖u‖²dt {res.effort_integral:.3g} {space.effort_unit}, "
+                        f"peak {res.peak_drive_effort:.3g} {space.drive_unit}", fontsize=10)
         note = "dashed: planned arrival Nmax·Ts" + ("; dash-dot: N reaches Nmin" if res.mode == "b" else "")
         ax[-1].set_xlabel(f"t [s]    ({note})")
     fig.suptitle("Time histories of the planned moves", fontsize=11)
