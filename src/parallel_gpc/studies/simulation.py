@@ -121,8 +121,9 @@ class SimulationResult:
         return self.pose - self.reference
 
     def metrics(self, skip: float = 0.0) -> dict:
-        """Summary numbers (SI): RMS/max position error (m), orientation error (rad), peak torque
-        (N·m), mean/max internal-force measure (N·m), mean and p99 step time (s), fallbacks."""
+        """Summary numbers (SI): RMS/max position error (m), orientation error (rad), peak drive
+        effort and mean/max internal-force measure (in the drives' unit: N·m revolute, N
+        prismatic; :attr:`OutputSpace.drive_unit`), mean and p99 step time (s), fallbacks."""
         sel = self.t >= skip
         e = self.error[sel]
         pos, ang = pose_error_norms(e, self.angular)
@@ -136,9 +137,9 @@ class SimulationResult:
             "max_position_error_m": float(np.max(pos)),
             "rms_orientation_error_rad": float(np.sqrt(np.mean(ang**2))),
             "max_orientation_error_rad": float(np.max(ang)),
-            "peak_torque_Nm": float(np.max(np.abs(self.u))),
-            "mean_internal_force_Nm": float(np.mean(self.internal_force)),
-            "max_internal_force_Nm": float(np.max(self.internal_force)),
+            "peak_drive_effort": float(np.max(np.abs(self.u))),
+            "mean_internal_force": float(np.mean(self.internal_force)),
+            "max_internal_force": float(np.max(self.internal_force)),
             "mean_step_time_s": float(np.mean(self.step_time)),
             "p99_step_time_s": float(np.percentile(self.step_time, 99)),
             "fallbacks": int(np.sum(self.fallback)),
