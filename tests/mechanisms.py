@@ -357,24 +357,26 @@ PRR_ROD_ANGLE, PRR_SLIDE_ANGLE = math.radians(40.0), math.radians(60.0)
 PRR_STROKE, PRR_FORCE = 0.15, 50.0
 
 
-def _prr_leg(i: int):
+def _prr_leg(i: int, rod_angle: float = PRR_ROD_ANGLE):
     """(platform anchor, slider position at q = 0, slide axis) of leg i in the x-y plane (m)."""
     phi = math.radians(90.0 + 120.0 * i)
     anchor = PRR_RADIUS * np.array([math.cos(phi), math.sin(phi)])
-    rod = np.array([math.cos(phi + PRR_ROD_ANGLE), math.sin(phi + PRR_ROD_ANGLE)])  # anchor → slider
-    axis = np.array([math.cos(phi + PRR_ROD_ANGLE + PRR_SLIDE_ANGLE), math.sin(phi + PRR_ROD_ANGLE + PRR_SLIDE_ANGLE)])
+    rod = np.array([math.cos(phi + rod_angle), math.sin(phi + rod_angle)])  # anchor → slider
+    axis = np.array([math.cos(phi + rod_angle + PRR_SLIDE_ANGLE), math.sin(phi + rod_angle + PRR_SLIDE_ANGLE)])
     return anchor, anchor + PRR_ROD * rod, axis
 
 
-def prr3_urdf() -> str:
+def prr3_urdf(rod_angle: float = PRR_ROD_ANGLE) -> str:
     """A planar 3-PRR: three prismatic drives ``s1..s3`` on the base (±PRR_STROKE), a revolute
     at each slider, rods to a triangular platform (tree through leg 1; legs 2 and 3 close on the
-    platform by point closures). The platform centre is at the origin at q = 0."""
+    platform by point closures). The platform centre is at the origin at q = 0. With
+    ``rod_angle`` 0 the rods are radial: their lines meet at the centre, and the platform can
+    turn about it with the drives locked (a singular home)."""
     inertia = '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{ixx}" iyz="0" izz="{izz}"/>'
     parts = ['<?xml version="1.0"?>', '<robot name="prr3_test">', '  <link name="base"/>']
     anchor1 = _prr_leg(0)[0]
     for i in range(3):
-        anchor, slider, axis = _prr_leg(i)
+        anchor, slider, axis = _prr_leg(i, rod_angle)
         back = anchor - slider  # slider → platform anchor, in the rod frame (no rotation anywhere at q = 0)
         k = i + 1
         parts += [
