@@ -357,7 +357,7 @@ PRR_ROD_ANGLE, PRR_SLIDE_ANGLE = math.radians(40.0), math.radians(60.0)
 PRR_STROKE, PRR_FORCE = 0.15, 50.0
 
 
-def _prr_leg(i: int, rod_angle: float = PRR_ROD_ANGLE):
+def prr_leg(i: int, rod_angle: float = PRR_ROD_ANGLE):
     """(platform anchor, slider position at q = 0, slide axis) of leg i in the x-y plane (m)."""
     phi = math.radians(90.0 + 120.0 * i)
     anchor = PRR_RADIUS * np.array([math.cos(phi), math.sin(phi)])
@@ -374,9 +374,9 @@ def prr3_urdf(rod_angle: float = PRR_ROD_ANGLE) -> str:
     turn about it with the drives locked (a singular home)."""
     inertia = '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{ixx}" iyz="0" izz="{izz}"/>'
     parts = ['<?xml version="1.0"?>', '<robot name="prr3_test">', '  <link name="base"/>']
-    anchor1 = _prr_leg(0)[0]
+    anchor1 = prr_leg(0)[0]
     for i in range(3):
-        anchor, slider, axis = _prr_leg(i, rod_angle)
+        anchor, slider, axis = prr_leg(i, rod_angle)
         back = anchor - slider  # slider → platform anchor, in the rod frame (no rotation anywhere at q = 0)
         k = i + 1
         parts += [

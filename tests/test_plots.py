@@ -284,3 +284,46 @@ def test_a_robot_with_both_drive_kinds_labels_each_drive_in_its_unit():
         OutputSpace(("x", "y"), (False, False), "N", ("hip", "slide"), (True, False))
     with pytest.raises(InvalidParameterError, match="give drive_angular"):
         OutputSpace(("x", "y"), (False, False), "N·m | N", ("hip", "slide"))
+
+
+def test_fig3_draws_every_platform_edge_and_the_prismatic_rails(prr3):
+    """Field test: plan_fig3 of a 3-PRR drew two of the platform's three edges (the leg carrying
+    the platform was drawn to two closure frames) and no slide rails. Every closure edge of the
+    platform and each prismatic drive's rail between its stroke limits are drawn, where the
+    docs' geometry puts them (mechanisms.prr3_urdf: anchors, sliders and slide axes)."""
+    import math
+
+    import mechanisms as mech
+    import numpy as np
+
+    from parallel_gpc import PlanSettings, plan_point_to_point
+    from parallel_gpc.model import stick_figure
+    from parallel_gpc.plots import plot_fig3
+
+    legs = [mech.prr_leg(i) for i in range(3)]
+    A = np.array(prr3.description.pose_a)
+    c, s = math.cos(A[2]), math.sin(A[2])
+    anchors_at_A = [np.array([[c, -s], [s, c]]) @ anchor + A[:2] for anchor, _, _ in legs]
+    rails = [(slider - mech.PRR_STROKE * axis, slider + mech.PRR_STROKE * axis) for _, slider, axis in legs]
+
+    def same_points(got, expected):
+        got, expected = np.asarray(got), np.asarray(expected)
+        assert len(got) == len(expected)
+        for point in expected:  # in any order
+            assert np.min(np.linalg.norm(got - point, axis=1)) < 1e-9, (point, got)
+
+    figure = stick_figure(prr3)
+    same_points(figure.platform[:, :2], [anchor for anchor, _, _ in legs])
+    assert len(figure.legs) == 3 and figure.rail_stroke == (True, True, True)
+    same_points([leg[-1, :2] for leg in figure.legs], [anchor for anchor, _, _ in legs])  # each leg reaches the platform
+    same_points(figure.rails[:, :, :2].reshape(-1, 2), np.reshape(rails, (-1, 2)))
+
+    plan = plan_point_to_point(prr3, A, np.array(prr3.description.pose_b),
+                               PlanSettings(Nmax=20, Nmin=8, Ts=0.01, settle_steps=2), mode="b")
+    ax = plot_fig3([plan], prr3).axes[0]
+    outline = next(line for line in ax.lines if line.get_label() == "platform")
+    xy = np.column_stack(outline.get_data())
+    assert len(xy) == 4 and np.allclose(xy[0], xy[-1])  # closed: three edges
+    same_points(xy[:3], anchors_at_A)
+    drawn = [np.column_stack(line.get_data()) for line in ax.lines if line.get_linewidth() == 4]
+    same_points(np.vstack(drawn), np.reshape(rails, (-1, 2)))
