@@ -53,7 +53,7 @@ SETTLE_FRACTION = 0.1
 METRIC_COLUMNS = ("rms_position_error_m", "max_position_error_m", "rms_orientation_error_rad",
                   "max_orientation_error_rad", "steady_state_error_m", "peak_drive_effort", "drive_energy_J",
                   "effort_integral", "mean_internal_force", "max_internal_force", "mean_step_time_s",
-                  "p99_step_time_s", "fallbacks", "saturated_steps", "steps")
+                  "p99_step_time_s", "fallbacks", "replaced_steps", "saturated_steps", "steps")
 #: Metric columns named before their unit was the drives' own (sweep journals and tables written
 #: then are read with the new names): old name -> current name.
 LEGACY_METRICS = {"peak_torque_Nm": "peak_drive_effort", "effort_N2m2s": "effort_integral",
