@@ -160,8 +160,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
 
     Rows: translational outputs (m); angular outputs (deg; only if the robot has them);
     their velocities (m/s, and deg/s if angular); drive efforts (one line per drive, labelled
-    with the drive's name and unit: N·m revolute, N prismatic). Dashed vertical lines mark the planned arrival t = Nmax·Ts and, in
-    mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
+    with the drive's name and unit: N·m revolute, N prismatic). Dashed vertical lines mark the
+    planned arrival t = Nmax·Ts and, in mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
     limits (a legend entry instead when the efforts stay below a tenth of the limit: off scale). Curves are labelled with the output labels.
 
     Returns:
@@ -190,7 +190,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
                     a.plot(t, factor * res.velocities[:, i], color=color, label=f"d{name}/dt")
             a.set_ylabel(ylabel)
         for j in range(res.u.shape[1]):
-            ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=space.drive_label(j))
+            ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)],
+                        label=space.drive_label(j))
         if s.limits.torque is not None:
             mark_drive_limit(ax[-1], s.limits.torque, peak, space.drive_unit)
         ax[-1].set_ylabel(f"drive effort [{space.drive_unit}]")

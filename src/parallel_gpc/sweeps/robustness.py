@@ -11,7 +11,7 @@ changes one thing at a time:
 
 Each case is one closed-loop run of :func:`~parallel_gpc.simulation.simulate` along the
 paper's S-curve (or a hold of the home pose); the table reports RMS/max position error,
-orientation error, the steady-state error (mean over the last 10 % of the run), peak torque,
+orientation error, the steady-state error (mean over the last 10 % of the run), peak drive effort (N·m or N),
 saturated steps and solver fallbacks. A run whose closed loop diverges (the platform leaves the
 workspace, meets a singular pose …) is kept as a row with status ``diverged (Cause at t = … s)``
 and the metrics of the part run (left out of the figure); Ctrl-C stops the study and keeps the
