@@ -1,4 +1,4 @@
-"""Shared fixtures: the two embedded robots and a random-state generator."""
+"""Shared fixtures: the two embedded robots, a 3-PRR with prismatic drives and a random-state generator."""
 
 from __future__ import annotations
 
@@ -26,6 +26,16 @@ def robot4() -> ParallelRobot:
 @pytest.fixture(scope="session")
 def robot3() -> ParallelRobot:
     return ParallelRobot.load("planar_3rrr")
+
+
+@pytest.fixture(scope="session")
+def prr3(tmp_path_factory) -> ParallelRobot:
+    """A planar 3-PRR (prismatic drives s1..s3 in N, pose output x, y, rz) written from the docs
+    (:func:`mechanisms.prr3_urdf`)."""
+    import mechanisms as mech
+
+    folder = tmp_path_factory.mktemp("prr3")
+    return ParallelRobot.load(mech.write(folder, "prr3_test", mech.prr3_urdf(), mech.prr3_sidecar()))
 
 
 def random_states(rng: np.random.Generator, n: int) -> list[np.ndarray]:

@@ -349,6 +349,82 @@ def write(tmp_path, stem: str, model: str, sidecar: str, model_suffix: str = ".u
     return path
 
 
+# ---------------------------------------------------------------- planar 3-PRR in the x-y plane
+#: platform circumradius, rod length (m), rod angle from radial and slide angle from the rod (rad),
+#: stroke (m) and drive limit (N) of the 3-PRR written from docs/your-robot.md.
+PRR_RADIUS, PRR_ROD = 0.10, 0.30
+PRR_ROD_ANGLE, PRR_SLIDE_ANGLE = math.radians(40.0), math.radians(60.0)
+PRR_STROKE, PRR_FORCE = 0.15, 50.0
+
+
+def prr_leg(i: int, rod_angle: float = PRR_ROD_ANGLE):
+    """(platform anchor, slider position at q = 0, slide axis) of leg i in the x-y plane (m)."""
+    phi = math.radians(90.0 + 120.0 * i)
+    anchor = PRR_RADIUS * np.array([math.cos(phi), math.sin(phi)])
+    rod = np.array([math.cos(phi + rod_angle), math.sin(phi + rod_angle)])  # anchor → slider
+    axis = np.array([math.cos(phi + rod_angle + PRR_SLIDE_ANGLE), math.sin(phi + rod_angle + PRR_SLIDE_ANGLE)])
+    return anchor, anchor + PRR_ROD * rod, axis
+
+
+def prr3_urdf(rod_angle: float = PRR_ROD_ANGLE) -> str:
+    """A planar 3-PRR: three prismatic drives ``s1..s3`` on the base (±PRR_STROKE), a revolute
+    at each slider, rods to a triangular platform (tree through leg 1; legs 2 and 3 close on the
+    platform by point closures). The platform centre is at the origin at q = 0. With
+    ``rod_angle`` 0 the rods are radial: their lines meet at the centre, and the platform can
+    turn about it with the drives locked (a singular home)."""
+    inertia = '<inertia ixx="{ixx}" ixy="0" ixz="0" iyy="{ixx}" iyz="0" izz="{izz}"/>'
+    parts = ['<?xml version="1.0"?>', '<robot name="prr3_test">', '  <link name="base"/>']
+    anchor1 = prr_leg(0)[0]
+    for i in range(3):
+        anchor, slider, axis = prr_leg(i, rod_angle)
+        back = anchor - slider  # slider → platform anchor, in the rod frame (no rotation anywhere at q = 0)
+        k = i + 1
+        parts += [
+            f'  <joint name="s{k}" type="prismatic"><parent link="base"/><child link="slider{k}"/>'
+            f'<origin xyz="{slider[0]:.9f} {slider[1]:.9f} 0"/><axis xyz="{axis[0]:.9f} {axis[1]:.9f} 0"/>'
+            f'<limit lower="{-PRR_STROKE}" upper="{PRR_STROKE}" effort="{PRR_FORCE}" velocity="1"/></joint>',
+            f'  <link name="slider{k}"><inertial><mass value="0.5"/>{inertia.format(ixx="1e-4", izz="1e-4")}</inertial></link>',
+            f'  <joint name="rev{k}" type="revolute"><parent link="slider{k}"/><child link="rod{k}"/>'
+            f'<axis xyz="0 0 1"/><limit lower="-3.14" upper="3.14" effort="0" velocity="10"/></joint>',
+            f'  <link name="rod{k}"><inertial><origin xyz="{back[0] / 2:.9f} {back[1] / 2:.9f} 0"/><mass value="0.3"/>'
+            f'{inertia.format(ixx="2.25e-3", izz="2.25e-3")}</inertial></link>',
+        ]
+        if k == 1:
+            parts += [
+                f'  <joint name="pivot1" type="revolute"><parent link="rod1"/><child link="platform"/>'
+                f'<origin xyz="{back[0]:.9f} {back[1]:.9f} 0"/><axis xyz="0 0 1"/>'
+                f'<limit lower="-3.14" upper="3.14" effort="0" velocity="10"/></joint>',
+                f'  <link name="platform"><inertial><origin xyz="{-anchor1[0]:.9f} {-anchor1[1]:.9f} 0"/>'
+                f'<mass value="1.0"/>{inertia.format(ixx="2.5e-3", izz="5e-3")}</inertial></link>',
+                f'  <joint name="centre_joint" type="fixed"><parent link="platform"/><child link="centre"/>'
+                f'<origin xyz="{-anchor1[0]:.9f} {-anchor1[1]:.9f} 0"/></joint>',
+                '  <link name="centre"/>',
+            ]
+        else:
+            rel = anchor - anchor1
+            parts += [
+                f'  <joint name="tip{k}_joint" type="fixed"><parent link="rod{k}"/><child link="tip{k}"/>'
+                f'<origin xyz="{back[0]:.9f} {back[1]:.9f} 0"/></joint>',
+                f'  <link name="tip{k}"/>',
+                f'  <joint name="seat{k}_joint" type="fixed"><parent link="platform"/><child link="seat{k}"/>'
+                f'<origin xyz="{rel[0]:.9f} {rel[1]:.9f} 0"/></joint>',
+                f'  <link name="seat{k}"/>',
+            ]
+    return "\n".join(parts + ["</robot>", ""])
+
+
+def prr3_sidecar() -> str:
+    """The 3-PRR's sidecar (TOML): pose output (x, y, rz) of the platform centre, the drives'
+    strokes from the URDF as position limits."""
+    closures = "".join(f'\n[[closures]]\nname = "leg{k}"\nkind = "point"\nframes = ["tip{k}", "seat{k}"]\n'
+                       for k in (2, 3))
+    return ('name = "prr3_test"\n\n[output]\nframe = "centre"\nkind = "pose"\naxes = ["x", "y", "rz"]\n\n'
+            '[home]\npose = [0.0, 0.0, 0.0]\nA = [-0.01, -0.005, -0.03]\nB = [0.01, 0.008, 0.03]\n'
+            '[home.q_guess]\ns1 = 0.0\ns2 = 0.0\ns3 = 0.0\n\n'
+            f'[drives]\njoints = ["s1", "s2", "s3"]\ntorque_limit = {PRR_FORCE}\n\n'
+            '[limits]\ndrive_position = "urdf"\n' + closures)
+
+
 # ---------------------------------------------------------------- oracles
 _CONTACT = {"point": pin.ContactType.CONTACT_3D, "weld": pin.ContactType.CONTACT_6D}
 

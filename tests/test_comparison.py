@@ -64,7 +64,7 @@ def test_no_drive_fighting_in_any_form_at_any_Qu(robot4, form, Qu):
     plant = ConstrainedPlant(robot4, np.concatenate([ref.pose(0.0), np.zeros(3)]), Ts=TS)
     res = simulate(ctrl, plant, ref, 0.4, progress=False)
     assert np.max(np.abs(res.u)) > 1.0
-    assert res.metrics()["max_internal_force_Nm"] < 1e-6
+    assert res.metrics()["max_internal_force"] < 1e-6
 
 
 def test_internal_force_is_measured_against_the_plant_drives(robot4):
@@ -137,7 +137,7 @@ def test_steady_state_error_needs_increments_and_the_estimator(comparison):
         assert ss[(form, 0.5)] < 1e-5
     assert ss[("absolute", 0.5)] > 3e-4
     assert min(ss[(f, 0.0)] for f in FORMS) > 5e-4
-    assert all(r.metrics()["max_internal_force_Nm"] < 1e-6 for r in comparison.values())
+    assert all(r.metrics()["max_internal_force"] < 1e-6 for r in comparison.values())
     table = comparison_table(comparison)
     assert table.count("\n") == 2 + len(comparison) - 1 and "est. α" in table
 

@@ -100,7 +100,7 @@ def test_linear_once_reaches_B_with_the_minimum_energy_inputs(g_frozen):
     # ramp in time (all samples but the last, which only reaches y(N))
     second_diff = np.diff(res.u[:-1], n=2, axis=0)
     assert np.max(np.abs(second_diff)) <= 1e-9 * np.max(np.abs(res.u))
-    assert res.energy == pytest.approx(np.sum(u_star**2) * s.Ts, rel=1e-9)
+    assert res.effort_integral == pytest.approx(np.sum(u_star**2) * s.Ts, rel=1e-9)
 
 
 def test_linear_once_with_input_weight_is_the_regularized_least_squares(g_frozen):
@@ -154,7 +154,7 @@ def test_mode_b_ends_at_B_at_rest_and_beats_the_single_solve(plans):
     assert b.stopped == "" and set(b.status) <= {"unconstrained", "optimal"}
     assert list(b.horizon[:3]) == [120, 119, 118] and b.horizon[-1] == b.settings.Nmin
     # smooth, moderate move: well inside the 60 N·m drives, about Nmax·Ts long
-    assert b.peak_torque < 30.0
+    assert b.peak_drive_effort < 30.0
     assert b.time_to_reach < b.settings.duration + 0.3
 
 
@@ -204,19 +204,19 @@ def test_the_plan_spreads_energy_unlike_a_deadbeat_move(robot4, plans):
     u_db = deadbeat_inputs(ReducedModel(robot4), np.concatenate([POSE_A, REST]), POSE_B, plans["b"].settings)
     assert u_db.shape == (2, robot4.n_u)
     for res in plans.values():
-        assert res.peak_torque < np.max(np.abs(u_db))
-    assert np.max(np.abs(u_db)) > 100 * plans["b"].peak_torque
+        assert res.peak_drive_effort < np.max(np.abs(u_db))
+    assert np.max(np.abs(u_db)) > 100 * plans["b"].peak_drive_effort
 
 
 @pytest.mark.parametrize("mode", ["a", "b", "once"])
 def test_torque_limits_are_respected(robot4, mode):
     free = PlanSettings(Ts=0.02, Nmax=60, Nmin=10)
     limited = PlanSettings(Ts=0.02, Nmax=60, Nmin=10, limits=Limits(torque=10.0))
-    peak_free = plan_point_to_point(robot4, POSE_A, POSE_B, free, mode=mode).peak_torque
+    peak_free = plan_point_to_point(robot4, POSE_A, POSE_B, free, mode=mode).peak_drive_effort
     res = plan_point_to_point(robot4, POSE_A, POSE_B, limited, mode=mode)
     assert peak_free > 11.0  # the limit binds
-    assert res.peak_torque <= 10.0 * (1 + 1e-6)
-    assert res.peak_torque >= 10.0 * (1 - 1e-3)
+    assert res.peak_drive_effort <= 10.0 * (1 + 1e-6)
+    assert res.peak_drive_effort >= 10.0 * (1 - 1e-3)
     assert res.metrics()["failed_solves"] == 0 and "optimal" in set(res.status)
     if mode == "b":
         pos, ang = res.end_error
@@ -284,10 +284,30 @@ def test_cli_plan_writes_figures_and_trajectories(tmp_path, capsys):
                               "--no-progress", "--out", str(tmp_path)])
     assert args.func(args) == 0
     out = capsys.readouterr().out
-    for text in ("end-point error", "time to reach", "drive energy", "peak drive effort [N·m]", "dead-beat"):
+    for text in ("end-point error", "time to reach", "effort integral ∫‖u‖² dt", "peak drive effort [N·m]", "dead-beat"):
         assert text in out
     for name in ("plan_fig3.png", "plan_fig4.png"):
         img = mpimg.imread(tmp_path / name)
         assert img.shape[0] > 300 and img.std() > 0.05  # a drawn figure, not a blank canvas
     traj = SampledTrajectory.load(tmp_path / "plan_b.npz")
     assert np.max(np.abs(traj.poses[-1] - POSE_B)) < 1e-2
+
+
+def test_the_effort_integral_is_named_for_what_it_is(prr3):
+    """Field test: `plan` printed "drive energy" for Σ‖u‖²·Ts (N²·s on a 3-PRR, not J). The
+    table, the metrics and the repr name it the effort integral ∫‖u‖² dt in its unit."""
+    from parallel_gpc.gpc import PlanResult
+    from parallel_gpc.gpc.plan_result import plan_table
+
+    K, Ts = 6, 0.01
+    u = np.arange(K * 3, dtype=float).reshape(K, 3) / 10
+    res = PlanResult(mode="b", start=np.zeros(3), target=np.zeros(3), t=Ts * np.arange(K + 1),
+                     poses=np.zeros((K + 1, 3)), velocities=np.zeros((K + 1, 3)), u=u, horizon=np.full(K, 10),
+                     status=np.array(["optimal"] * K), solve_time=np.zeros(K), q=None,
+                     settings=PlanSettings(Nmax=10, Nmin=4, Ts=Ts), outputs=prr3.output_space)
+    expected = sum(float(row @ row) for row in u) * Ts  # rectangle rule of the zero-order-held inputs
+    assert res.metrics()["effort_integral"] == pytest.approx(expected, rel=1e-12)
+    assert res.metrics()["peak_drive_effort"] == pytest.approx(np.abs(u).max(), rel=1e-12)
+    table = plan_table([res], prr3.drive_unit)
+    assert "effort integral ∫‖u‖² dt [N²·s]" in table and "peak drive effort [N]" in table
+    assert "energy" not in table + repr(res) and "N²·s" in repr(res)

@@ -226,3 +226,104 @@ def test_a_long_path_title_stays_inside_the_figure():
     box = fig.axes[0].title.get_window_extent(canvas.get_renderer())
     assert box.x0 >= 0.0 and box.x1 <= fig.bbox.width
     assert "load [5.0, -5.0, 0.5])" in fig.axes[0].get_title().replace("\n", " ")
+
+
+def _record(space, K: int = 20):
+    """A closed-loop record of ``space``'s robot with distinct efforts per drive."""
+    import numpy as np
+
+    from parallel_gpc.studies import SimulationResult
+
+    n_y, n_u = space.n_y, len(space.drives) or 3
+    t = np.linspace(0.0, 0.2, K)
+    pose = np.outer(t, np.ones(n_y)) * 0.01
+    return SimulationResult(t=t, reference=pose, pose=pose, velocity=np.gradient(pose, axis=0),
+                            u=np.outer(np.sin(10 * t), np.arange(1.0, n_u + 1)), internal_force=np.zeros(K),
+                            q=np.zeros((K, 3)), step_time=np.zeros(K), solve_time=np.zeros(K),
+                            iterations=np.zeros(K, int), status=np.array(["ok"] * K), fallback=np.zeros(K, bool),
+                            saturated=np.zeros(K, bool), outputs=space)
+
+
+def test_effort_plots_name_the_drives_with_their_units(prr3, robot4):
+    """Field test: the effort panels of a 3-PRR labelled its drives u1, u2, u3; they carry the
+    drive joints' names and each drive's unit (N prismatic, N·m revolute)."""
+    import numpy as np
+
+    from parallel_gpc.gpc import PlanResult
+    from parallel_gpc.gpc.plan_settings import PlanSettings
+    from parallel_gpc.limits import Limits
+    from parallel_gpc.plots import plot_comparison, plot_fig4, plot_time_histories
+
+    for robot in (prr3, robot4):
+        space = robot.output_space
+        unit = "N" if robot is prr3 else "N·m"
+        expected = [f"{name} [{unit}]" for name in robot.description.drive_joints]
+        res = _record(space)
+        ax = plot_time_histories({"absolute": res}).axes[-1]
+        assert ax.get_legend_handles_labels()[1] == expected
+        ax = plot_comparison({("absolute", 0.0): res}, Limits(torque=50.0)).axes[-1]
+        assert ax.get_legend_handles_labels()[1][:robot.n_u] == expected
+        K = 10
+        t = np.linspace(0.0, 0.1, K + 1)
+        plan = PlanResult(mode="a", start=np.zeros(robot.n_y), target=np.zeros(robot.n_y), t=t,
+                          poses=np.zeros((K + 1, robot.n_y)), velocities=np.zeros((K + 1, robot.n_y)),
+                          u=np.ones((K, robot.n_u)), horizon=np.full(K, 10), status=np.array(["ok"] * K),
+                          solve_time=np.zeros(K), q=None, settings=PlanSettings(Nmax=30, Nmin=10), outputs=space)
+        ax = plot_fig4([plan]).axes[-1]
+        assert ax.get_legend_handles_labels()[1] == expected
+
+
+def test_a_robot_with_both_drive_kinds_labels_each_drive_in_its_unit():
+    from parallel_gpc.errors import InvalidParameterError
+    from parallel_gpc.model.output_space import OutputSpace
+
+    space = OutputSpace(("x", "y"), (False, False), "N·m | N", ("hip", "slide"), (True, False))
+    assert [space.drive_label(j) for j in range(2)] == ["hip [N·m]", "slide [N]"]
+    assert OutputSpace(("x",), (False,)).drive_label(1) == "u2 [N·m]"  # a result without drive names
+    with pytest.raises(InvalidParameterError, match="does not match the drive kinds"):
+        OutputSpace(("x", "y"), (False, False), "N", ("hip", "slide"), (True, False))
+    with pytest.raises(InvalidParameterError, match="give drive_angular"):
+        OutputSpace(("x", "y"), (False, False), "N·m | N", ("hip", "slide"))
+
+
+def test_fig3_draws_every_platform_edge_and_the_prismatic_rails(prr3):
+    """Field test: plan_fig3 of a 3-PRR drew two of the platform's three edges (the leg carrying
+    the platform was drawn to two closure frames) and no slide rails. Every closure edge of the
+    platform and each prismatic drive's rail between its stroke limits are drawn, where the
+    docs' geometry puts them (mechanisms.prr3_urdf: anchors, sliders and slide axes)."""
+    import math
+
+    import mechanisms as mech
+    import numpy as np
+
+    from parallel_gpc import PlanSettings, plan_point_to_point
+    from parallel_gpc.model import stick_figure
+    from parallel_gpc.plots import plot_fig3
+
+    legs = [mech.prr_leg(i) for i in range(3)]
+    A = np.array(prr3.description.pose_a)
+    c, s = math.cos(A[2]), math.sin(A[2])
+    anchors_at_A = [np.array([[c, -s], [s, c]]) @ anchor + A[:2] for anchor, _, _ in legs]
+    rails = [(slider - mech.PRR_STROKE * axis, slider + mech.PRR_STROKE * axis) for _, slider, axis in legs]
+
+    def same_points(got, expected):
+        got, expected = np.asarray(got), np.asarray(expected)
+        assert len(got) == len(expected)
+        for point in expected:  # in any order
+            assert np.min(np.linalg.norm(got - point, axis=1)) < 1e-9, (point, got)
+
+    figure = stick_figure(prr3)
+    same_points(figure.platform[:, :2], [anchor for anchor, _, _ in legs])
+    assert len(figure.legs) == 3 and figure.rail_stroke == (True, True, True)
+    same_points([leg[-1, :2] for leg in figure.legs], [anchor for anchor, _, _ in legs])  # each leg reaches the platform
+    same_points(figure.rails[:, :, :2].reshape(-1, 2), np.reshape(rails, (-1, 2)))
+
+    plan = plan_point_to_point(prr3, A, np.array(prr3.description.pose_b),
+                               PlanSettings(Nmax=20, Nmin=8, Ts=0.01, settle_steps=2), mode="b")
+    ax = plot_fig3([plan], prr3).axes[0]
+    outline = next(line for line in ax.lines if line.get_label() == "platform")
+    xy = np.column_stack(outline.get_data())
+    assert len(xy) == 4 and np.allclose(xy[0], xy[-1])  # closed: three edges
+    same_points(xy[:3], anchors_at_A)
+    drawn = [np.column_stack(line.get_data()) for line in ax.lines if line.get_linewidth() == 4]
+    same_points(np.vstack(drawn), np.reshape(rails, (-1, 2)))

@@ -144,6 +144,24 @@ def test_meshes_resolve_only_inside_the_robot_folder_or_a_package_root(published
     assert uni.description.unresolved_meshes == tuple(u for u, w in MESHES.items() if w is None)
 
 
+def test_info_counts_mesh_references_distinct_files_and_missing_ones_apart(tmp_path, capsys):
+    """Field test: ``info`` said "2 resolved" for a file whose links drew two files many times.
+    References (mesh elements), distinct files (two URIs may name one file) and missing
+    references are three numbers."""
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "rel.stl").write_text("solid m\nendsolid m\n")
+    uris = ["meshes/rel.stl", "meshes/rel.stl", "./meshes/rel.stl", "package://missing/x.stl",
+            "package://missing/x.stl"]
+    path = mech.write(tmp_path, "ups_mesh_counts", ups.ups_urdf(True, PAIRS, {"cyl1": _visuals(uris)}),
+                      ups.ups_sidecar(True, PAIRS), ".urdf", ".yaml")
+    d = ParallelRobot.load(path).description
+    assert d.mesh_references == tuple(uris)
+    assert d.mesh_counts == {"references": 5, "files": 1, "missing": 2, "missing_uris": 1}
+    assert cli.main(["info", str(path)]) == 0
+    meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
+    assert "5 references to 1 distinct file, 2 references missing (1 URI)" in meshes, meshes
+
+
 def test_the_package_path_comes_from_the_environment_then_ros(published, monkeypatch, tmp_path):
     uni, _, packages = published
     path = uni.description.urdf_path
@@ -294,10 +312,10 @@ def test_the_cli_package_path_flag_resolves_package_meshes(published, tmp_path, 
     uri = "package://tools/meshes/leg.stl"
     assert cli.main(["info", path]) == 0
     meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
-    assert uri in meshes and "2 resolved, 7 unresolved" in meshes, meshes
+    assert uri in meshes and "9 references to 2 distinct files, 7 references missing (7 URIs)" in meshes, meshes
     assert cli.main(["info", path, "--package-path", str(tmp_path), "--package-path", str(packages)]) == 0
     meshes = next(line for line in capsys.readouterr().out.splitlines() if line.strip().startswith("meshes"))
-    assert uri not in meshes and "3 resolved, 6 unresolved" in meshes, meshes
+    assert uri not in meshes and "9 references to 3 distinct files, 6 references missing (6 URIs)" in meshes, meshes
     assert os.environ.get(PACKAGE_PATH_ENV, "").split(os.pathsep)[:2] == [str(tmp_path.resolve()),
                                                                          str(packages.resolve())]
     assert cli.main(["info", path, "--package-path", str(tmp_path / "nowhere")]) == 2

@@ -177,3 +177,32 @@ def test_drive_unit_follows_the_drive_joint_type():
     hexapod = ParallelRobot.load("hexapod_6ups")
     assert hexapod.drive_unit == "N"                                # prismatic drives: forces
     assert "[N]" in metrics_table({}, hexapod.drive_unit).splitlines()[1]
+
+
+def test_a_near_singular_home_warns_and_a_singular_one_is_refused(tmp_path):
+    """Field test: a home configuration at a singularity loaded without a word. A 3-PRR whose
+    rods are nearly radial (their lines almost meet at the platform centre: the drives barely
+    turn the platform) warns, naming the configuration and σ_min(B_r); exactly radial rods are
+    refused; the 3-PRR of the docs loads silently."""
+    import warnings
+
+    import mechanisms as mech
+    from parallel_gpc.errors import ParallelGPCWarning, UnderactuatedError
+
+    def load(rod_angle, stem):
+        return ParallelRobot.load(mech.write(tmp_path, stem, mech.prr3_urdf(rod_angle), mech.prr3_sidecar()))
+
+    with pytest.warns(ParallelGPCWarning, match=r"'prr3_test': the home configuration \(pose \[0.0, 0.0, 0.0\]; "
+                                                r"drives s1 = 0, s2 = 0, s3 = 0\) is near-singular: σ_min\(B_r\) = "
+                                                r".* along \[rz: \+1.000\]") as record:
+        robot = load(1e-5, "prr3_near")
+    # the number named is B_r's: its smallest singular value, computed here independently
+    T, _ = robot.velocity_map(robot.q_home)
+    s = np.linalg.svd(T.T @ robot.drive_selection, compute_uv=False)
+    assert s[0] / s[-1] > 1e4
+    assert f"σ_min(B_r) = {s[-1]:.3g}" in str(record[0].message)
+    with pytest.raises(UnderactuatedError, match=r"rank\(B_r\) = 2 of its 3 DOF"):
+        load(0.0, "prr3_radial")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ParallelGPCWarning)
+        assert load(mech.PRR_ROD_ANGLE, "prr3_ok").singularity(robot.q_home)["cond_B_r"] < 100

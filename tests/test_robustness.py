@@ -35,7 +35,7 @@ def test_table_has_one_row_per_form_and_case(hold_study):
     for r in rows:
         assert tuple(r) == COLUMNS
         assert r["status"] == "ok" and r["steps"] == 200 and r["fallbacks"] == 0
-        assert all(math.isfinite(r[k]) for k in ("rms_position_error_mm", "steady_state_error_mm", "peak_torque_Nm"))
+        assert all(math.isfinite(r[k]) for k in ("rms_position_error_mm", "steady_state_error_mm", "peak_drive_effort"))
     text = hold_study.format_table()
     assert len(text.splitlines()) == 2 + len(rows) and "disturbance" in text
 

@@ -14,6 +14,7 @@ import pytest
 from parallel_gpc import ConstrainedPlant, DiscreteLinearModel, GPCController, Horizons, Limits, ParallelRobot
 from parallel_gpc import ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.gpc import settings as settings_module
 from parallel_gpc.gpc.settings import (DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, RICCATI_QU_MARGIN,
                                        STAGEWISE_LIMITED_MIN_N, GPCSettings, weight_margin)
 
@@ -21,6 +22,14 @@ TS = 0.002
 QU = 1e-5  # the benchmark's weight: margin 2.5 at Ts = 2 ms
 A = np.array([[1.0, 0.1, 0, 0], [0, 1.0, 0, 0], [0, 0, 1.0, 0.1], [0, 0, 0, 1.0]])
 B = np.array([[0.005, 0.0], [0.1, 0.0], [0.0, 0.005], [0.0, 0.1]])
+
+
+@pytest.fixture(autouse=True)
+def compiled_stagewise(monkeypatch):
+    """The policy's rules with the compiled stage-wise solve present, also under
+    PARALLEL_GPC_NATIVE=0 (where the stage-wise path then runs its Python reference):
+    :func:`test_without_the_compiled_core_the_default_is_the_condensed_one` covers its absence."""
+    monkeypatch.setattr(settings_module, "stagewise_compiled", lambda limited: True)
 
 
 def resolved(**kwargs) -> GPCSettings:
@@ -57,6 +66,24 @@ def test_the_default_policy(kwargs, expected):
     s = resolved(**kwargs)
     assert s.solver == expected and s.solver_is_default
     assert not resolved(**kwargs, solver=DEFAULT_LIMITED_SOLVER).solver_is_default
+
+
+def test_without_the_compiled_core_the_default_is_the_condensed_one(monkeypatch):
+    """The pure-Python stage-wise solve was measured slower than QR on every form (docs/controller.md):
+    with PARALLEL_GPC_NATIVE=0 each stage-wise default is the condensed default of its settings; the
+    compiled core, where it is built, gives the stage-wise path back."""
+    monkeypatch.undo()  # the real availability
+    cases = [(dict(), "qr"), (dict(form="nonlinear"), "qr"), (dict(limits=Limits(torque=5.0)), DEFAULT_BOX_SOLVER),
+             (dict(form="incremental", limits=Limits(torque=5.0)), DEFAULT_LIMITED_SOLVER)]
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
+    assert not settings_module.stagewise_compiled(False) and not settings_module.stagewise_compiled(True)
+    for kwargs, condensed in cases:
+        s = resolved(**kwargs)
+        assert s.solver == condensed and s.solver_is_default, kwargs
+        assert resolved(**kwargs, solver="riccati").solver == "riccati"  # still selectable: the reference
+    monkeypatch.delenv("PARALLEL_GPC_NATIVE")
+    if settings_module.stagewise_compiled(True):  # a build with the compiled core
+        assert all(resolved(**kwargs).solver == "riccati" for kwargs, _ in cases)
 
 
 def test_the_margin_compares_qu_with_the_output_weight_over_ts_squared():

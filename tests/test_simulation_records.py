@@ -67,3 +67,57 @@ def test_batched_null_space_components_equal_the_single_ones():
     assert got[6] == pytest.approx(np.linalg.norm(u[6]))
     assert got[7] >= abs(u[7, 3]) - 1e-12  # the drive without effect is all internal
     assert np.all(got > 0)
+
+
+def _failing_every(n: int, monkeypatch):
+    """Make every n-th stage-wise solve (RiccatiPath.solve, from the first) fail visibly."""
+    from dataclasses import replace
+
+    from parallel_gpc.gpc.riccati import RiccatiPath
+
+    solve, calls = RiccatiPath.solve, [0]
+
+    def failing(self, *args, **kwargs):
+        result = solve(self, *args, **kwargs)
+        calls[0] += 1
+        if calls[0] % n == 1 or n == 1:
+            return replace(result, v=np.full_like(result.v, np.nan), status="failed",
+                           message="R + BᵀPB is not positive definite")
+        return result
+
+    monkeypatch.setattr(RiccatiPath, "solve", failing)
+
+
+def test_a_replaced_stagewise_step_is_recorded_saved_and_summarized(robot4, monkeypatch, tmp_path):
+    """Field test: a step where riccati failed and the condensed default replaced it was visible in
+    StepInfo.result only; the run records, per step, the back end that solved it, whether it
+    replaced a failed stage-wise solve and why, saves them, and summarizes them in one line."""
+    from parallel_gpc.results import load_result
+
+    _failing_every(3, monkeypatch)
+    reference = SCurve(duration=0.5)
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(1.0, 1e-5), solver="riccati")
+    plant = ConstrainedPlant(robot4, reference.initial_state(), Ts=TS)
+    res = simulate(ctrl, plant, reference, 0.07, progress=False)
+    expected = np.arange(7) % 3 == 0  # steps 0, 3, 6: their stage-wise solve failed
+    np.testing.assert_array_equal(res.replaced, expected)
+    assert list(res.solver) == ["qr" if e else "riccati" for e in expected]
+    assert all(m.startswith("riccati failed (R + BᵀPB is not positive definite); solved by QR")
+               for m in res.message[expected]) and not any(res.message[~expected])
+    assert not res.fallback.any() and res.metrics()["replaced_steps"] == 3
+    assert res.solver_summary().startswith("riccati 4, qr 3; 3 replaced; 0 fallbacks; first at t = 0.000 s: "
+                                           "riccati failed (R + BᵀPB")
+    saved = load_result(res.save(tmp_path / "run.npz")).arrays
+    np.testing.assert_array_equal(saved["replaced"], expected)
+    assert list(saved["solver"]) == list(res.solver) and list(saved["message"]) == list(res.message)
+
+
+def test_track_prints_which_solver_solved_the_steps(monkeypatch, tmp_path, capsys):
+    from parallel_gpc import cli
+
+    _failing_every(1, monkeypatch)  # every stage-wise solve fails: QR solves every step
+    assert cli.main(["track", "--forms", "absolute", "--solver", "riccati", "--duration", "0.03", "--Ts", "0.01",
+                     "--N", "4", "--Qu", "1e-4", "--reference", "hold", "--limits", "none", "--no-progress",
+                     "--out", str(tmp_path)]) == 0
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("solvers, absolute:"))
+    assert line.startswith("solvers, absolute: qr 3; 3 replaced; 0 fallbacks; first at t = 0.000 s: riccati failed")

@@ -382,7 +382,7 @@ def test_plots_return_figures_and_mark_failed_cells(tmp_path):
                       "grid": {"form": ["absolute", "nonlinear"], "mass_scale": [0.8, 1.0, -1.0]},
                       "random": {"noise_std": {"uniform": [0.0, 1e-5]}}})
     frame = run_sweep(spec, workers=0, progress=False).frame()
-    fig = heatmap(frame, "mass_scale", "form", "peak_torque_Nm")
+    fig = heatmap(frame, "mass_scale", "form", "peak_drive_effort")
     assert isinstance(fig, Figure)
     assert sum(t.get_text() == "failed" for t in fig.axes[0].texts) == 2
     assert isinstance(robustness_bands(frame, "mass_scale", "rms_position_error_m", "form"), Figure)
@@ -721,3 +721,30 @@ def test_the_cli_counts_only_the_saved_cells_after_ctrl_c(tmp_path, monkeypatch,
     out, err = capsys.readouterr()
     assert len(SweepStore(tmp_path / "out").finished()) == 1
     assert "1 finished cells are saved" in err and "1 of 3 cells finished" in out, (out, err)
+
+
+def test_drive_effort_columns_are_named_for_any_drive_kind(prr3, tmp_path):
+    """Field test: the column peak_torque_Nm held newtons for a 3-PRR's prismatic drives. The
+    effort columns carry no unit in their names (the drives' own: N here), hold max |u| and
+    ∫‖u‖² dt of the run, and tables and journals written with the old names read with the new."""
+    params = {**TINY, "robot": str(prr3.description.urdf_path), "reference": "s-curve", "s_curve_duration": 0.1,
+              "form": "absolute"}
+    record = run_cell(Cell(0, params, trajectory=True))
+    assert record["status"] == "ok", record["error"]
+    u = record["trajectory"].u
+    assert record["peak_drive_effort"] == pytest.approx(np.abs(u).max(), rel=1e-12) and np.abs(u).max() > 0
+    assert record["effort_integral"] == pytest.approx(TINY["Ts"] * np.sum(u**2), rel=1e-12)
+    assert not [k for k in record if k.endswith("_Nm") or k.endswith("N2m2s")]
+    # an older sweep folder: its journal and table use the old names
+    run_sweep(tiny_spec(N=[3, 4]), workers=0, store=tmp_path, progress=False)
+    journal = tmp_path / "records.jsonl"
+    new = journal.read_text()
+    journal.write_text(new.replace('"peak_drive_effort"', '"peak_torque_Nm"').replace('"effort_integral"', '"effort_N2m2s"'))
+    assert '"peak_torque_Nm"' in journal.read_text()
+    records = SweepStore(tmp_path).finished().values()
+    assert all("peak_drive_effort" in r and "effort_integral" in r and "peak_torque_Nm" not in r for r in records)
+    table = load_results(tmp_path / "results.csv")
+    table.rename(columns={"peak_drive_effort": "peak_torque_Nm"}).to_csv(tmp_path / "old.csv", index=False)
+    old = load_results(tmp_path / "old.csv")
+    assert "peak_drive_effort" in old and "peak_torque_Nm" not in old
+    np.testing.assert_array_equal(old["peak_drive_effort"], table["peak_drive_effort"])

@@ -38,7 +38,7 @@ _PUBLIC = {
     "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
     "SampledTrajectory": "gpc", "Helix": "gpc", "OutputPath": "gpc", "reference_for": "gpc",
     "check_reference": "gpc", "GPCSettings": "gpc", "ControllerState": "gpc", "DiscreteLinearModel": "gpc",
-    "ControlModel": "gpc", "Criterion": "gpc",
+    "ControlModel": "gpc", "Criterion": "gpc", "stagewise_compiled": "gpc",
     "plan_modes": "gpc", "plan_table": "gpc",
     "path_for": "gpc",
     # estimation

@@ -63,9 +63,13 @@ def robot_info(robot) -> list[tuple[str, str]]:
     if d.locked_joints:
         rows.append(("locked joints (idle motions)", ", ".join(
             f"{name} = {d.q_guess[name]:.6g}" for name in d.locked_joints)))
-    if d.mesh_files or d.unresolved_meshes:
-        missing = f" (unresolved: {', '.join(d.unresolved_meshes)}; see --package-path)" if d.unresolved_meshes else ""
-        rows.append(("meshes", f"{len(d.mesh_files)} resolved, {len(d.unresolved_meshes)} unresolved{missing}"))
+    if d.mesh_references:
+        n = d.mesh_counts
+        missing = f" ({', '.join(d.unresolved_meshes)}; see --package-path)" if d.unresolved_meshes else ""
+        counted = {k: f"{v} {noun}{'s' * (v != 1)}" for (k, v), noun in
+                   zip(n.items(), ("reference", "distinct file", "reference", "URI"))}
+        rows.append(("meshes", f"{counted['references']} to {counted['files']}, "
+                               f"{counted['missing']} missing ({counted['missing_uris']}){missing}"))
     A, B = default_poses(robot)
     checks = [(f"pose {label} {rounded(pose, 4)}", _reach, (pose,))
               for label, pose in (("A", A), ("B", B)) if pose is not None]

@@ -113,6 +113,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     print(limits_line(args, settings.limits, robot.drive_unit))
     print(metrics_table(results, robot.drive_unit))
     for form, res in results.items():
+        print(f"solvers, {form}: {res.solver_summary()}")
         res.save(out / f"track_{form}.npz")
     paths = [save_figure(plot_paths(results, f"{title}: path"), out / "track_path.png"),
              save_figure(plot_time_histories(results, f"{title}: error, velocity, drive effort"),

@@ -5,7 +5,7 @@ from .criterion import Criterion, Weights, build_problem
 from .protocol import ControlModel
 from .linear_model import DiscreteLinearModel
 from ..limits import Limits
-from .settings import PAPER_FORMS, TERMINALS, ControllerState, GPCSettings, unit_interval
+from .settings import PAPER_FORMS, TERMINALS, ControllerState, GPCSettings, stagewise_compiled, unit_interval
 from .controller import FORMS, GPCController, StepInfo
 from .references import Helix, Hold, OutputPath, Reference, SampledTrajectory, SCurve, path_for, pose_error_norms
 from .robot_references import (REFERENCE_KINDS, check_reference, check_times, is_file_reference, reference_for,
@@ -18,6 +18,7 @@ __all__ = [
     "pose_error_norms", "check_times", "is_file_reference", "PAPER_FORMS", "TERMINALS", "unit_interval", "INTERRUPTED",
     "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
     "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
+    "stagewise_compiled",
     "FORMS", "GPCController", "StepInfo", "Helix", "Hold", "OutputPath", "Reference", "SampledTrajectory", "SCurve",
     "path_for", "REFERENCE_KINDS", "check_reference", "reference_for", "workspace_radius", "PlanResult",
     "PlanSettings", "deadbeat_inputs", "plan_point_to_point", "MODES", "PlanComparison", "plan_modes", "plan_table",

@@ -65,6 +65,9 @@ class StepInfo:
         budget_hit: True when the time budget stopped the iterations.
         constraints: what the state/output limits did (active kinds, slack used), or None
             without state limits.
+        replaced: True when the stage-wise solve failed (or planned beyond a limit) and the
+            condensed default of the same settings solved the step instead (``result.solver``
+            names it, ``result.message`` says why).
     """
 
     u: np.ndarray
@@ -77,6 +80,7 @@ class StepInfo:
     residual: float = float("nan")
     budget_hit: bool = False
     constraints: ConstraintReport | None = None
+    replaced: bool = False
 
     @property
     def step_time(self) -> float:
@@ -381,7 +385,7 @@ class GPCController:
         Ad, Bd, cd = self._one_step[:3]
         self._x_next = Ad @ X + Bd @ u + cd
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, iterations.iterations, iterations.residual,
-                        iterations.budget_hit, constraint_report)
+                        iterations.budget_hit, constraint_report, replaced=stages is not None and not staged)
 
     def _within_limits(self, pred: Prediction, result: SolveResult) -> SolveResult:
         """``result``, or marked ``limits violated`` (not ok) when it is "optimal" but its first move

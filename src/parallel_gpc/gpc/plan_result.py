@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import AssemblyError, SingularPoseError
-from ..model import OutputSpace
+from ..model import OutputSpace, effort_integral_unit
 from ..results import save_result
 from .references import SampledTrajectory, pose_error_norms
 from .plan_settings import INTERRUPTED, MODE_LABELS, PlanSettings
@@ -77,7 +77,8 @@ class PlanResult:
         pos, ang = self.end_error if len(self.t) else (math.nan, math.nan)
         space = self.output_space
         return (f"PlanResult(mode={self.mode!r}, steps={len(self.u)}, end_error=({pos:.3g} m, {ang:.3g} rad), "
-                f"peak_torque={self.peak_torque:.4g} {space.drive_unit}, energy={self.energy:.4g} {space.effort_unit}"
+                f"peak_drive_effort={self.peak_drive_effort:.4g} {space.drive_unit}, "
+                f"effort_integral={self.effort_integral:.4g} {space.effort_unit}"
                 + (f", stopped={self.stopped!r}" if self.stopped else "") + ")")
 
     # ------------------------------------------------------------ errors
@@ -151,17 +152,21 @@ class PlanResult:
 
     # ------------------------------------------------------------ effort
     @property
-    def energy(self) -> float:
-        """Drive energy measure Σ‖u‖²·Ts in N²·m²·s (N²·s for prismatic drives)."""
+    def effort_integral(self) -> float:
+        """The effort integral ∫‖u‖² dt = Σ‖u‖²·Ts of the zero-order-held inputs, in N²·m²·s
+        (revolute drives; N²·s prismatic: :attr:`OutputSpace.effort_unit`). A measure of how
+        hard the drives work, not an energy in J."""
         return float(np.sum(self.u**2) * self.settings.Ts)
 
     @property
-    def peak_torque(self) -> float:
-        """max |u| over drives and samples in N·m (N for prismatic drives)."""
+    def peak_drive_effort(self) -> float:
+        """max |u| over drives and samples: N·m for revolute drives, N for prismatic ones."""
         return float(np.max(np.abs(self.u))) if self.u.size else 0.0
 
     def metrics(self) -> dict:
-        """Summary numbers (SI units in the key names)."""
+        """Summary numbers (SI units in the key names; ``effort_integral`` in
+        :attr:`OutputSpace.effort_unit`, ``peak_drive_effort`` in N·m for revolute drives and N
+        for prismatic ones)."""
         pos, ang = self.end_error
         apos, aang = self.arrival_error
         vlin, vang = self.end_speed
@@ -177,8 +182,8 @@ class PlanResult:
             "time_to_reach_s": self.time_to_reach,
             "overshoot_m": self.overshoot,
             "orientation_excursion_rad": self.orientation_excursion,
-            "energy_N2m2s": self.energy,
-            "peak_torque_Nm": self.peak_torque,
+            "effort_integral": self.effort_integral,
+            "peak_drive_effort": self.peak_drive_effort,
             "solves": int(np.sum(solved)),
             "failed_solves": int(np.sum(~ok)),
             "mean_solve_time_s": float(np.mean(self.solve_time[solved])) if solved.any() else math.nan,
@@ -268,9 +273,9 @@ def plan_table(results: list[PlanResult], drive_unit: str = "N·m") -> str:
              ("overshoot past B along A→B [m]", lambda r: f"{r.overshoot:.2e}")]
     if angular:
         rows.append(("rotation outside [A, B] (spin) [deg]", lambda r: f"{math.degrees(r.orientation_excursion):.3g}"))
-    unit2 = "N²·m²·s" if drive_unit == "N·m" else f"{drive_unit}²·s"
-    rows += [(f"drive energy Σ‖u‖²·Ts [{unit2}]", lambda r: _fmt(r.energy, ".4g")),
-             (f"peak drive effort [{drive_unit}]", lambda r: _fmt(r.peak_torque, ".4g")),
+    rows += [(f"effort integral ∫‖u‖² dt [{effort_integral_unit(drive_unit)}]",
+              lambda r: _fmt(r.effort_integral, ".4g")),
+             (f"peak drive effort [{drive_unit}]", lambda r: _fmt(r.peak_drive_effort, ".4g")),
              ("recorded duration [s]", lambda r: f"{r.t[-1]:.2f}"),
              ("solves (failed)", lambda r: f"{r.metrics()['solves']} ({r.metrics()['failed_solves']})"),
              ("mean solve time [ms]", lambda r: f"{1000 * r.metrics()['mean_solve_time_s']:.2f}")]

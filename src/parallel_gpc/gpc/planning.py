@@ -11,7 +11,7 @@ square-root system is the paper's eq. (20),
     \\begin{bmatrix} Q_y \\bar G \\\\ Q_u \\end{bmatrix} u \\approx
     \\begin{bmatrix} Q_y (w - f)_{N-k+1..N} \\\\ 0 \\end{bmatrix},
 
-whose solution spreads the drive energy quadratically over the horizon ("dead-beat spread in
+whose solution spreads the drive effort quadratically over the horizon ("dead-beat spread in
 time"). The paper's two modes (Fig. 3) are both receding-horizon: re-solved every step from the
 current state of the nonlinear plant with the model at that state, only the first input applied:
 

@@ -16,7 +16,7 @@ _PUBLIC = {
     "TaskOutput": "outputs", "ClosureKinematics": "robot", "ParallelRobot": "robot",
     "ReducedModel": "dynamics", "ReducedTerms": "dynamics", "discretize_zoh": "discretization",
     "kinetic_energy": "dynamics", "rk4_step": "discretization", "ConstrainedPlant": "plant", "ReducedPlant": "plant",
-    "OutputSpace": "output_space",
+    "OutputSpace": "output_space", "effort_integral_unit": "output_space",
 }
 
 __all__ = ["DEFAULT_ROBOT", "SIDECAR_KEYS", "Closure", "RobotDescription", "embedded_robots", "load_description",

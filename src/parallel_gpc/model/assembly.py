@@ -14,7 +14,7 @@ import pinocchio as pin
 
 from ..errors import AssemblyError, RobotFormatError, SingularPoseError, UnreachablePoseError
 from ..validation import finite_vector, rounded
-from .checks import numerical_rank
+from .checks import NEAR_SINGULAR_COND, numerical_rank
 from .forward import rates_to_velocity, resolution_array, solve_forward
 from .linalg import svd_thin
 from .native import native_enabled
@@ -460,7 +460,7 @@ class AssemblyMixin:
         cond_b = float(sb[0] / sb[-1]) if sb[-1] > 0 else math.inf
         return {"cond_phi_z": cond_z, "cond_B_r": cond_b}
 
-    def check_pose(self, pose, max_cond: float = 1e4) -> np.ndarray:
+    def check_pose(self, pose, max_cond: float = NEAR_SINGULAR_COND) -> np.ndarray:
         """Assemble ``pose`` and raise :class:`SingularPoseError` if it is near-singular."""
         q = self.assemble(pose)
         cond = self.singularity(q)

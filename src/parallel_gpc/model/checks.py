@@ -1,18 +1,26 @@
 """Load-time checks of a closed-chain robot: the output parametrizes it, the drives actuate it.
 
 Both are rank tests at the home configuration (SVD, singular values below ``1e-9·s_max``
-count as zero), with messages that name the numbers and the offending direction.
+count as zero), with messages that name the numbers and the offending direction. A home
+configuration that passes them but is near-singular (condition number above
+:data:`NEAR_SINGULAR_COND`) loads with a :class:`~parallel_gpc.errors.ParallelGPCWarning`.
 """
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
-from ..errors import RobotFormatError, UnderactuatedError
+from ..errors import ParallelGPCWarning, RobotFormatError, UnderactuatedError
+from ..validation import rounded
 from .description import idle_advice
 
 #: relative singular-value cut of the load-time rank tests.
 RANK_RCOND = 1e-9
+#: condition number of Φ_z or B_r above which a pose counts as near-singular: the home pose
+#: warns at load, :meth:`~parallel_gpc.model.robot.ParallelRobot.check_pose` refuses a pose.
+NEAR_SINGULAR_COND = 1e4
 
 
 def numerical_rank(s: np.ndarray) -> int:
@@ -73,6 +81,9 @@ def check_actuation(robot) -> int:
 
     Raises:
         UnderactuatedError: rank B_r < n_y, naming the numbers and the uncontrolled output direction.
+
+    Warns:
+        ParallelGPCWarning: the home configuration is near-singular (:func:`warn_near_singular`).
     """
     T, _ = robot.velocity_map(robot.q_home)
     B = T.T @ robot.drive_selection
@@ -84,4 +95,30 @@ def check_actuation(robot) -> int:
             f"span rank(B_r) = {r} of its {robot.n_y} DOF at the home pose (B_r = Tᵀ Sᵀ); no drive torque "
             f"accelerates the output along [{_labelled(robot, U[:, -1])}] (add or move a drive)"
         )
+    warn_near_singular(robot, s[:robot.n_y], U[:, robot.n_y - 1])
     return robot.n_u - r
+
+
+def warn_near_singular(robot, s_B: np.ndarray, weak: np.ndarray) -> None:
+    """Warn when the home configuration is near a singularity: cond(B_r) or cond(Φ_z) above
+    :data:`NEAR_SINGULAR_COND` (the reduced model's gains grow as 1/σ_min there).
+
+    Args:
+        robot: the robot being loaded (``q_home`` assembled).
+        s_B: (n_y,) the largest n_y singular values of B_r at home, descending (N·m or N to
+            output accelerations' generalized forces).
+        weak: (n_y,) the output direction of B_r's smallest of them.
+    """
+    cond_z = robot.singularity(robot.q_home)["cond_phi_z"]
+    cond_b = float(s_B[0] / s_B[-1])
+    if max(cond_z, cond_b) <= NEAR_SINGULAR_COND:
+        return
+    drives = ", ".join(f"{name} = {value:g}" for name, value in
+                       zip(robot.description.drive_joints, rounded(robot.q_home[robot.drive_q_indices], 6)))
+    warnings.warn(
+        f"{robot.name!r}: the home configuration (pose {rounded(robot.home_pose, 6)}; drives "
+        f"{drives}) is near-singular: σ_min(B_r) = {s_B[-1]:.3g} = {1 / cond_b:.2e}·σ_max along "
+        f"[{_labelled(robot, weak)}], cond(Φ_z) = {cond_z:.3g} (a condition number above "
+        f"{NEAR_SINGULAR_COND:.0e} warns; poses past it are refused by check_pose); the controller's gains "
+        "grow as 1/σ_min here: choose a home pose away from the singularity (sidecar [home] pose)",
+        ParallelGPCWarning, stacklevel=2)

@@ -121,6 +121,8 @@ class RobotDescription:
             :class:`~parallel_gpc.model.robot.ParallelRobot` reads the model file; no mesh is read).
         unresolved_meshes: URIs of the meshes that do not resolve in the model file's folder or
             the package path (filled with ``mesh_files``): the view draws the robot as a stick figure.
+        mesh_references: the URI of every mesh reference of the model file, in file order (one
+            per ``<mesh>`` element; filled with ``mesh_files``).
     """
 
     name: str
@@ -150,11 +152,25 @@ class RobotDescription:
     package_path: tuple[Path, ...] = ()
     mesh_files: dict = field(default_factory=dict)
     unresolved_meshes: tuple[str, ...] = ()
+    mesh_references: tuple[str, ...] = ()
 
     @property
     def n_y(self) -> int:
         """Number of output coordinates."""
         return len(self.output_joints) if self.output_kind == "joints" else len(self.output_axes)
+
+    @property
+    def mesh_counts(self) -> dict[str, int]:
+        """The model file's meshes counted three ways (filled when a robot reads the model file).
+
+        Returns:
+            ``references`` (mesh elements in the file), ``files`` (distinct files they resolve
+            to: several links may draw one file, and several URIs may name it), ``missing``
+            (references whose URI does not resolve) and ``missing_uris`` (distinct such URIs).
+        """
+        missing = set(self.unresolved_meshes)
+        return {"references": len(self.mesh_references), "files": len(set(self.mesh_files.values())),
+                "missing": sum(uri in missing for uri in self.mesh_references), "missing_uris": len(missing)}
 
 
 def _one(found: list[Path], what: str) -> list[Path]:

@@ -348,9 +348,10 @@ def check_model_file(description):
     :func:`check_urdf_text`; MJCF: the inertials), and where its meshes are.
 
     Returns:
-        (resolved, unresolved): the meshes that resolve among the model file's folder and the
-        description's ``package_path`` (dict URI → file) and the URIs that do not
-        (:func:`~parallel_gpc.model.meshes.resolve_meshes`; no mesh is read).
+        (resolved, unresolved, references): the meshes that resolve among the model file's folder
+        and the description's ``package_path`` (dict URI → file), the URIs that do not, and every
+        mesh reference's URI in file order (:func:`~parallel_gpc.model.meshes.resolve_meshes`;
+        no mesh is read).
 
     Raises:
         RobotFormatError: not a regular file, larger than :data:`URDF_MAX_BYTES`, not UTF-8,

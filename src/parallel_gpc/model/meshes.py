@@ -138,12 +138,14 @@ def resolve_meshes(root, model_format: str, model_path: Path, roots: tuple[Path,
     """Resolve every mesh of a parsed model file.
 
     Returns:
-        (resolved, unresolved): a dict URI → real file path of the meshes that resolve, and the
-        tuple of URIs that do not (each once, in file order).
+        (resolved, unresolved, references): a dict URI → real file path of the meshes that
+        resolve, the tuple of URIs that do not (each once, in file order), and the URI of every
+        mesh reference in file order (a URI named by several links is there once per link).
     """
     folder = Path(model_path).resolve().parent
     resolved, unresolved = {}, []
-    for uri, meshdir in mesh_uris(root, model_format):
+    uris = mesh_uris(root, model_format)
+    for uri, meshdir in uris:
         if uri in resolved or uri in unresolved:
             continue
         base = None if meshdir is None else folder / meshdir
@@ -152,4 +154,5 @@ def resolve_meshes(root, model_format: str, model_path: Path, roots: tuple[Path,
             unresolved.append(uri)
         else:
             resolved[uri] = found
-    return resolved, tuple(unresolved)
+    return resolved, tuple(unresolved), tuple(uri for uri, _ in uris)
+

@@ -19,6 +19,18 @@ GREEK = {"psi": "ψ", "phi": "φ", "theta": "θ", "alpha": "α", "beta": "β", "
 DRIVE_UNITS = ("N·m", "N", "N·m | N")
 
 
+def effort_integral_unit(drive_unit: str) -> str:
+    """Unit of the effort integral ∫‖u‖² dt ≈ Σ‖u‖²·Ts of drives in ``drive_unit``: N²·m²·s
+    (revolute drives), N²·s (prismatic), ``(N·m | N)²·s`` for both kinds. Not an energy (J)."""
+    return {"N·m": "N²·m²·s", "N": "N²·s"}.get(drive_unit, f"({drive_unit})²·s")
+
+
+def drive_unit_of(drive_angular) -> str:
+    """The common drive unit of drives of these kinds (True: revolute)."""
+    kinds = set(drive_angular)
+    return "N·m | N" if len(kinds) > 1 else "N·m" if True in kinds else "N"
+
+
 @dataclass(frozen=True)
 class OutputSpace:
     """Names and units of a robot's outputs y and of its drive efforts u.
@@ -27,11 +39,17 @@ class OutputSpace:
         labels: (n_y,) names of the output coordinates (the sidecar's ``[output] labels``).
         angular: (n_y,) True where the coordinate is an angle in rad, False for a length in m.
         drive_unit: unit of u: ``"N·m"`` (revolute drives), ``"N"`` (prismatic) or ``"N·m | N"``.
+        drives: (n_u,) names of the drives (the drive joints), or empty when unknown (then the
+            drives are shown as u1, u2, …).
+        drive_angular: (n_u,) True for a revolute drive (effort in N·m), False for a prismatic
+            one (N); may be empty when ``drive_unit`` is one kind (it then holds for every drive).
     """
 
     labels: tuple[str, ...]
     angular: tuple[bool, ...]
     drive_unit: str = "N·m"
+    drives: tuple[str, ...] = ()
+    drive_angular: tuple[bool, ...] = ()
 
     def __post_init__(self):
         labels = tuple(str(x) for x in self.labels)
@@ -43,13 +61,27 @@ class OutputSpace:
             raise InvalidParameterError(f"output labels {list(labels)} must be distinct")
         if self.drive_unit not in DRIVE_UNITS:
             raise InvalidParameterError(f"drive unit {self.drive_unit!r} is not one of {list(DRIVE_UNITS)}")
+        drives = tuple(str(x) for x in self.drives)
+        drive_angular = tuple(bool(a) for a in np.asarray(self.drive_angular, dtype=bool).ravel())
+        if drive_angular and len(drive_angular) != len(drives):
+            raise InvalidParameterError(f"drive names {list(drives)} and drive angular flags {list(drive_angular)} "
+                                        "must have one entry per drive")
+        if drives and not drive_angular and self.drive_unit not in ("N·m", "N"):
+            raise InvalidParameterError(f"drives {list(drives)} in {self.drive_unit!r}: give drive_angular "
+                                        "(one flag per drive) when the robot has both kinds")
+        if drive_angular and self.drive_unit != drive_unit_of(drive_angular):
+            raise InvalidParameterError(f"drive unit {self.drive_unit!r} does not match the drive kinds "
+                                        f"{list(drive_angular)} (it would be {drive_unit_of(drive_angular)!r})")
         object.__setattr__(self, "labels", labels)
         object.__setattr__(self, "angular", angular)
+        object.__setattr__(self, "drives", drives)
+        object.__setattr__(self, "drive_angular", drive_angular)
 
     @classmethod
     def of(cls, robot) -> "OutputSpace":
         """The outputs of a :class:`~parallel_gpc.model.robot.ParallelRobot`."""
-        return cls(tuple(robot.description.output_labels), tuple(robot.output_angular), robot.drive_unit)
+        return cls(tuple(robot.description.output_labels), tuple(robot.output_angular), robot.drive_unit,
+                   tuple(robot.description.drive_joints), tuple(robot.drive_angular.tolist()))
 
     @classmethod
     def from_angular(cls, angular, n_y: int | None = None, drive_unit: str = "N·m") -> "OutputSpace":
@@ -97,8 +129,23 @@ class OutputSpace:
 
     @property
     def effort_unit(self) -> str:
-        """Unit of Σ‖u‖²·Ts: N²·m²·s (revolute drives), N²·s (prismatic)."""
-        return {"N·m": "N²·m²·s", "N": "N²·s"}.get(self.drive_unit, f"({self.drive_unit})²·s")
+        """Unit of the effort integral ∫‖u‖² dt (:func:`effort_integral_unit` of :attr:`drive_unit`)."""
+        return effort_integral_unit(self.drive_unit)
+
+    def drive_name(self, j: int) -> str:
+        """Name of drive j (its joint), or ``u{j+1}`` when the drives are not named."""
+        return self.drives[j] if j < len(self.drives) else f"u{j + 1}"
+
+    def drive_effort_unit(self, j: int) -> str:
+        """Unit of drive j's effort: ``"N·m"`` (revolute) or ``"N"`` (prismatic); the common
+        :attr:`drive_unit` when the kinds are not known per drive."""
+        if j < len(self.drive_angular):
+            return "N·m" if self.drive_angular[j] else "N"
+        return self.drive_unit
+
+    def drive_label(self, j: int) -> str:
+        """Legend label of drive j with its unit, e.g. ``"slider_1 [N]"``."""
+        return f"{self.drive_name(j)} [{self.drive_effort_unit(j)}]"
 
     def describe(self) -> str:
         """The outputs with their units, e.g. ``"x [m], z [m]"``."""

@@ -48,7 +48,7 @@ from .description import (  # noqa: F401  (re-exported for the robot's users)
     urdf_dir,
 )
 from .linalg import fast_index
-from .output_space import OutputSpace
+from .output_space import OutputSpace, drive_unit_of
 from .outputs import TaskOutput
 from .universal import UniversalJoints
 
@@ -113,7 +113,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def _construct(self, description: RobotDescription, mass_scale: float, gravity) -> None:
         """Build the model of ``description``, assemble home and check it (the constructor's work)."""
         self.q_home = self._stalled = None
-        mesh_files, unresolved = check_model_file(description)
+        mesh_files, unresolved, references = check_model_file(description)
         model, closures = quiet_build(build_model, description)
         check_model_inertias(model, description.urdf_path)
         if not closures:
@@ -123,7 +123,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
                 "close the loops in the sidecar (closures / closed_loop) or, in an MJCF file, with "
                 "<equality><connect/weld>")
         self.description = dataclasses.replace(description, closures=closures, mesh_files=mesh_files,
-                                               unresolved_meshes=unresolved)
+                                               unresolved_meshes=unresolved, mesh_references=references)
         for j in range(1, model.njoints):
             inertia = model.inertias[j]
             model.inertias[j] = pin.Inertia(inertia.mass * mass_scale, inertia.lever, inertia.inertia * mass_scale)
@@ -371,8 +371,7 @@ class ParallelRobot(ClosureMixin, AssemblyMixin):
     def drive_unit(self) -> str:
         """Unit of the drive efforts u: ``"N·m"`` (revolute drives), ``"N"`` (prismatic drives) or
         ``"N·m | N"`` when the robot has both kinds."""
-        units = set(self.drive_position_units)
-        return {frozenset({"rad"}): "N·m", frozenset({"m"}): "N"}.get(frozenset(units), "N·m | N")
+        return drive_unit_of(self.drive_angular)
 
     @property
     def output_space(self) -> OutputSpace:

@@ -28,13 +28,13 @@ MODE_COLORS = {"a": "tab:red", "b": "tab:blue", "once": "tab:gray"}
 _DRIVE_COLORS = ["tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown"]
 
 
-def robot_outline(robot, q: np.ndarray, axes=(0, 1)) -> tuple[list[np.ndarray], np.ndarray]:
+def robot_outline(robot, q: np.ndarray, axes=(0, 1)) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
     """Sketch of a robot at configuration q from its joint frames
-    (:func:`~parallel_gpc.model.skeleton.skeleton`), projected on world axes ``axes``.
+    (:func:`~parallel_gpc.model.skeleton.stick_figure`), projected on world axes ``axes``.
 
-    For each closure, the side whose joint chain does not pass through the platform (output)
-    joints is a leg, drawn through its joint origins to the closure frame; the other side's
-    closure frames are the platform corners.
+    For each closure, the side whose joint chain does not pass through the platform is a leg,
+    drawn through its joint origins to the closure frame; the other side's closure frames are
+    platform corners (with the joint of a platform that a leg of the tree carries).
 
     Args:
         robot: the :class:`~parallel_gpc.model.robot.ParallelRobot`.
@@ -42,12 +42,13 @@ def robot_outline(robot, q: np.ndarray, axes=(0, 1)) -> tuple[list[np.ndarray], 
         axes: world axes kept (0 = x, 1 = y, 2 = z): two for a plane, three for space.
 
     Returns:
-        (legs, platform): a list of (n_i, len(axes)) polylines and the (n, len(axes)) platform
-        polygon (m).
+        (legs, platform, rails): a list of (n_i, len(axes)) polylines, the (n, len(axes))
+        platform polygon and the (r, 2, len(axes)) rails of the prismatic drives (their stroke,
+        :attr:`~parallel_gpc.model.skeleton.Skeleton.rails`), all in m.
     """
     sk = stick_figure(robot, q)
     axes = list(axes)
-    return [leg[:, axes] for leg in sk.legs], sk.platform[:, axes]
+    return [leg[:, axes] for leg in sk.legs], sk.platform[:, axes], sk.rails[:, :, axes]
 
 
 def _world_axes(robot, cols: list[int]) -> list[int] | None:
@@ -63,15 +64,25 @@ def _pose_marker(x: float, y: float, psi: float, size: float) -> np.ndarray:
     return shape @ np.array([[c, s], [-s, c]]) + [x, y]
 
 
+def _closed(platform: np.ndarray) -> np.ndarray:
+    """The platform polygon with its first corner repeated (every edge drawn; two corners: one edge)."""
+    return np.vstack([platform, platform[:1]]) if len(platform) > 2 else platform
+
+
 def _draw_robot(ax, robot, q, axes: list[int], color: str, alpha: float, label: str | None = None) -> None:
-    """The robot's legs (joint origins, drives as squares) and platform at q on a path axes whose
-    columns are the world axes ``axes``."""
-    legs, platform = robot_outline(robot, q, axes)
+    """The robot's legs (joint origins, drives as squares), platform (every edge between its
+    corners) and the prismatic drives' rails (thick grey, dots at the stroke limits) at q on
+    a path axes whose columns are the world axes ``axes``."""
+    legs, platform, rails = robot_outline(robot, q, axes)
+    for i, rail in enumerate(rails):
+        ax.plot(*rail.T, "-", color="0.8", lw=4, solid_capstyle="butt", zorder=0,
+                label="drive rails (stroke)" if i == 0 else None)
+        ax.plot(*rail.T, "o", color="0.4", ms=3, zorder=0)  # the stroke limits
     for i, leg in enumerate(legs):
         ax.plot(*leg.T, "-", color=color, alpha=alpha, lw=1.2, marker="o", ms=2.5, label=label if i == 0 else None)
         ax.plot(*leg[0], "s", color=color, alpha=alpha, ms=5)  # base / drive
-    if len(platform) > 2:
-        ax.plot(*np.vstack([platform, platform[:1]]).T, "-", color=color, alpha=alpha, lw=1.2)
+    if len(platform) > 1:
+        ax.plot(*_closed(platform).T, "-", color=color, alpha=alpha, lw=1.2, label="platform" if label else None)
 
 
 def _angle_text(rad: float) -> str:
@@ -103,10 +114,9 @@ def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
         world = None if robot is None or res.q is None or over_time else _world_axes(robot, cols)
         if world is not None:
             _draw_robot(ax, robot, res.q[0], world, "0.6", 0.7, label="robot at A")
-            _, platform = robot_outline(robot, res.q[-1], world)
-            if len(platform) > 2:
-                ax.plot(*np.vstack([platform, platform[:1]]).T, "--", color=color, lw=1.5,
-                        label=f"platform at t = {res.t[-1]:.2f} s")
+            _, platform, _ = robot_outline(robot, res.q[-1], world)
+            if len(platform) > 1:
+                ax.plot(*_closed(platform).T, "--", color=color, lw=1.5, label=f"platform at t = {res.t[-1]:.2f} s")
         draw_path(ax, cols, res.t, res.poses, "-", color=color, lw=2, label="path")
         angles = space.rotational
         if len(cols) == 2 and len(angles) == 1:  # planar: orientation markers along the path
@@ -149,9 +159,9 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
     """Fig. 4: time histories of the plans, one column per mode.
 
     Rows: translational outputs (m); angular outputs (deg; only if the robot has them);
-    their velocities (m/s, and deg/s if angular); drive efforts (the robot's drive unit: N·m
-    revolute, N prismatic). Dashed vertical lines mark the planned arrival t = Nmax·Ts and, in
-    mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
+    their velocities (m/s, and deg/s if angular); drive efforts (one line per drive, labelled
+    with the drive's name and unit: N·m revolute, N prismatic). Dashed vertical lines mark the
+    planned arrival t = Nmax·Ts and, in mode (b), the step where the horizon reaches Nmin; dotted lines the end pose B and the drive
     limits (a legend entry instead when the efforts stay below a tenth of the limit: off scale). Curves are labelled with the output labels.
 
     Returns:
@@ -180,7 +190,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
                     a.plot(t, factor * res.velocities[:, i], color=color, label=f"d{name}/dt")
             a.set_ylabel(ylabel)
         for j in range(res.u.shape[1]):
-            ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)], label=f"$u_{j + 1}$")
+            ax[-1].step(tu, res.u[:, j], where="post", color=_DRIVE_COLORS[j % len(_DRIVE_COLORS)],
+                        label=space.drive_label(j))
         if s.limits.torque is not None:
             mark_drive_limit(ax[-1], s.limits.torque, peak, space.drive_unit)
         ax[-1].set_ylabel(f"drive effort [{space.drive_unit}]")
@@ -193,8 +204,8 @@ def plot_fig4(results: list[PlanResult]) -> Figure:
                 a.legend(loc="best", fontsize=8)
         pos, angle = res.end_error
         error = f"end error {pos:.2g} m" + (f", {_angle_text(angle)}" if ang else "")
-        ax[0].set_title(f"{res.label}\n{error}, energy {res.energy:.3g} {space.effort_unit}, "
-                        f"peak {res.peak_torque:.3g} {space.drive_unit}", fontsize=10)
+        ax[0].set_title(f"{res.label}\n{error}, ∫‖u‖²dt {res.effort_integral:.3g} {space.effort_unit}, "
+                        f"peak {res.peak_drive_effort:.3g} {space.drive_unit}", fontsize=10)
         note = "dashed: planned arrival Nmax·Ts" + ("; dash-dot: N reaches Nmin" if res.mode == "b" else "")
         ax[-1].set_xlabel(f"t [s]    ({note})")
     fig.suptitle("Time histories of the planned moves", fontsize=11)

@@ -26,12 +26,13 @@ METRIC_LABELS = {
     "rms_orientation_error_rad": ("RMS orientation error", "mrad", 1e3),
     "max_orientation_error_rad": ("max orientation error", "mrad", 1e3),
     "steady_state_error_m": ("steady-state position error", "mm", 1e3),
-    "peak_torque_Nm": ("peak drive torque", "N·m", 1.0),
+    "peak_drive_effort": ("peak drive effort", "N·m or N", 1.0),
     "drive_energy_J": ("drive energy (positive work)", "J", 1.0),
-    "effort_N2m2s": ("control effort ∫‖u‖² dt", "N²·m²·s", 1.0),
+    "effort_integral": ("effort integral ∫‖u‖² dt", "N²·m²·s or N²·s", 1.0),
     "mean_step_time_s": ("mean controller step time", "ms", 1e3),
     "p99_step_time_s": ("p99 controller step time", "ms", 1e3),
-    "mean_internal_force_Nm": ("mean internal-force torque", "N·m", 1.0),
+    "mean_internal_force": ("mean internal-force effort", "N·m or N", 1.0),
+    "max_internal_force": ("max internal-force effort", "N·m or N", 1.0),
     "wall_time_s": ("wall time of the cell", "s", 1.0),
 }
 

@@ -51,7 +51,8 @@ def plot_paths(results: dict[str, SimulationResult], title: str = "platform path
 def plot_time_histories(results: dict[str, SimulationResult], title: str = "time histories") -> Figure:
     """Over time (s), one column per GPC form: the tracking error of each output (one panel
     each, mm or mrad), the velocities (m/s and rad/s panels for the outputs present) and the
-    drive efforts (in the robot's drive unit: N·m revolute, N prismatic)."""
+    drive efforts (one line per drive, labelled with the drive's name and unit: N·m revolute,
+    N prismatic)."""
     names = list(results)
     space = results[names[0]].output_space
     groups = [(idx, unit) for idx, unit in ((space.translational, "m/s"), (space.rotational, "rad/s")) if idx]
@@ -74,7 +75,7 @@ def plot_time_histories(results: dict[str, SimulationResult], title: str = "time
             ax.legend(fontsize=7, ncol=3)
         ax_u = axes[-1, col]
         for j in range(res.u.shape[1]):
-            ax_u.plot(res.t, res.u[:, j], label=f"u{j + 1}")
+            ax_u.plot(res.t, res.u[:, j], label=space.drive_label(j))
         ax_u.set_ylabel(f"drive effort [{space.drive_unit}]")
         ax_u.set_xlabel("t [s]")
         ax_u.legend(fontsize=7, ncol=2)
@@ -121,7 +122,7 @@ def plot_comparison(runs: dict, limits=None, title: str = "GPC forms compared"):
                 axes[1, col].semilogy(res.t, np.maximum(1e3 * ang, 1e-9), style, label=label)
             if gain == gains[-1]:
                 for j in range(res.u.shape[1]):
-                    ax_u.plot(res.t, res.u[:, j], lw=1.0, label=f"u{j + 1}")
+                    ax_u.plot(res.t, res.u[:, j], lw=1.0, label=space.drive_label(j))
         if limits is not None and limits.torque is not None:
             mark_drive_limit(ax_u, limits.torque, peak, space.drive_unit)
         ax_p.set_title(form)

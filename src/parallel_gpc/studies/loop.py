@@ -19,7 +19,8 @@ from ..errors import InvalidParameterError, ShapeError
 from ..estimation import StateEstimator, check_measurement, Sensors
 from ..validation import check_allocation, positive
 from ..gpc import INTERRUPTED
-from .simulation import DIVERGENCE_ERRORS, SimulationResult, divergence_message, null_space_components, run_meta
+from .simulation import (DIVERGENCE_ERRORS, STEP_RECORD, SimulationResult, divergence_message, null_space_components,
+                         run_meta, step_record)
 
 
 def _window(reference, t: float, Ts: float, N: int) -> np.ndarray:
@@ -96,8 +97,8 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
                      "shorten the run or increase Ts")
     truth = getattr(plant, "true_state", None)
     N = controller.horizons.N
-    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time", "solve_time",
-                           "iterations", "status", "fallback", "saturated", "estimate", "truth", "B_r")}
+    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time", *STEP_RECORD, "saturated",
+                           "estimate", "truth", "B_r")}
     u_pending = controller.u_prev.copy()
     overruns = 0
     stopped = ""
@@ -138,10 +139,8 @@ def run_loop(controller, plant, reference, duration: float, sensors: Sensors | N
             rec["u"].append(np.array(u_applied))
             rec["q"].append(q)
             rec["step_time"].append(elapsed)
-            rec["solve_time"].append(info.solve_time)
-            rec["iterations"].append(-1 if info.result.iterations is None else info.result.iterations)
-            rec["status"].append(info.result.status)
-            rec["fallback"].append(info.fallback)
+            for key, value in step_record(info).items():
+                rec[key].append(value)
             rec["saturated"].append(getattr(plant, "saturated", 0) > sat_before)
             rec["estimate"].append(X_hat)
             rec["truth"].append(X_rec)

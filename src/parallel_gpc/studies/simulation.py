@@ -67,6 +67,13 @@ class SimulationResult:
         estimate_error: (K, 2 n_y) state estimate − true state, or None (no estimator, or a
             plant that does not know its true state; :func:`~parallel_gpc.studies.loop.run_loop`).
         overruns: steps whose estimate + control time exceeded Ts (run_loop; 0 otherwise).
+        solver: (K,) the back end that solved each step (``result.solver``: e.g. ``"qr"`` on a
+            step of a ``riccati`` controller whose stage-wise solve failed), or None (a result
+            built without it).
+        replaced: (K,) bool, True where the stage-wise solve failed and the condensed default
+            solved the step (:attr:`~parallel_gpc.gpc.StepInfo.replaced`), or None.
+        message: (K,) the solver's message on replaced and fallback steps (why), "" on the
+            others, or None.
     """
 
     t: np.ndarray
@@ -88,6 +95,9 @@ class SimulationResult:
     estimate_error: np.ndarray | None = None
     overruns: int = 0
     outputs: OutputSpace | None = None
+    solver: np.ndarray | None = None
+    replaced: np.ndarray | None = None
+    message: np.ndarray | None = None
 
     @property
     def angular(self) -> np.ndarray | None:
@@ -121,8 +131,9 @@ class SimulationResult:
         return self.pose - self.reference
 
     def metrics(self, skip: float = 0.0) -> dict:
-        """Summary numbers (SI): RMS/max position error (m), orientation error (rad), peak torque
-        (N·m), mean/max internal-force measure (N·m), mean and p99 step time (s), fallbacks."""
+        """Summary numbers (SI): RMS/max position error (m), orientation error (rad), peak drive
+        effort and mean/max internal-force measure (in the drives' unit: N·m revolute, N
+        prismatic; :attr:`OutputSpace.drive_unit`), mean and p99 step time (s), fallbacks."""
         sel = self.t >= skip
         e = self.error[sel]
         pos, ang = pose_error_norms(e, self.angular)
@@ -136,16 +147,38 @@ class SimulationResult:
             "max_position_error_m": float(np.max(pos)),
             "rms_orientation_error_rad": float(np.sqrt(np.mean(ang**2))),
             "max_orientation_error_rad": float(np.max(ang)),
-            "peak_torque_Nm": float(np.max(np.abs(self.u))),
-            "mean_internal_force_Nm": float(np.mean(self.internal_force)),
-            "max_internal_force_Nm": float(np.max(self.internal_force)),
+            "peak_drive_effort": float(np.max(np.abs(self.u))),
+            "mean_internal_force": float(np.mean(self.internal_force)),
+            "max_internal_force": float(np.max(self.internal_force)),
             "mean_step_time_s": float(np.mean(self.step_time)),
             "p99_step_time_s": float(np.percentile(self.step_time, 99)),
             "fallbacks": int(np.sum(self.fallback)),
+            "replaced_steps": int(np.sum(self.replaced)) if self.replaced is not None else 0,
             "saturated_steps": int(np.sum(self.saturated)),
             "steps": int(len(self.t)),
             **extra,
         }
+
+    def solver_counts(self) -> dict[str, int]:
+        """Steps solved by each back end, most used first (empty without :attr:`solver`)."""
+        if self.solver is None:
+            return {}
+        names, counts = np.unique(np.asarray(self.solver, dtype=str), return_counts=True)
+        return {str(n): int(c) for n, c in sorted(zip(names, counts), key=lambda nc: (-nc[1], nc[0]))}
+
+    def solver_summary(self) -> str:
+        """One line: the steps each back end solved, the stage-wise steps the condensed default
+        replaced and the fallbacks, with the first such step's message, e.g. ``"riccati 499, qr 1;
+        1 replaced (first at t = 0.120 s: riccati failed (…); solved by QR); 0 fallbacks"``."""
+        counts = self.solver_counts()
+        used = ", ".join(f"{name} {count}" for name, count in counts.items()) or "not recorded"
+        replaced = np.zeros(len(self.t), bool) if self.replaced is None else np.asarray(self.replaced, bool)
+        parts = [used, f"{int(replaced.sum())} replaced", f"{int(np.sum(self.fallback))} fallbacks"]
+        first = np.flatnonzero(replaced | np.asarray(self.fallback, bool))
+        if first.size and self.message is not None:
+            k = int(first[0])
+            parts.append(f"first at t = {self.t[k]:.3f} s: {self.message[k]}")
+        return "; ".join(parts)
 
     def save(self, path) -> Path:
         """Save to ``.npz`` (a result file of :mod:`parallel_gpc.results`: everything, viewable with
@@ -155,17 +188,20 @@ class SimulationResult:
             n_y, n_u = self.pose.shape[1], self.u.shape[1]
             header = (["t"] + [f"ref_{i}" for i in range(n_y)] + [f"pose_{i}" for i in range(n_y)]
                       + [f"vel_{i}" for i in range(n_y)] + [f"u_{i}" for i in range(n_u)]
-                      + ["internal_force", "step_time", "solve_time", "status", "fallback"])
+                      + ["internal_force", "step_time", "solve_time", "status", "fallback", "solver", "replaced"])
             with writing(path, "CSV file"), path.open("w", newline="") as fh:
                 wr = csv.writer(fh)
                 wr.writerow(header)
                 for k in range(len(self.t)):
                     wr.writerow([self.t[k], *self.reference[k], *self.pose[k], *self.velocity[k], *self.u[k],
                                  self.internal_force[k], self.step_time[k], self.solve_time[k],
-                                 self.status[k], int(self.fallback[k])])
+                                 self.status[k], int(self.fallback[k]),
+                                 "" if self.solver is None else self.solver[k],
+                                 "" if self.replaced is None else int(self.replaced[k])])
             return path
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
-                                               "solve_time", "iterations", "status", "fallback")}
+                                               "solve_time", "iterations", "status", "fallback", "solver",
+                                               "replaced", "message") if getattr(self, k) is not None}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
         extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted),
                      diverged=np.array(self.diverged))
@@ -173,6 +209,20 @@ class SimulationResult:
                     saturated=saturation_flags(self.u, self.limits, rtol=1e-5),
                     kind="tracking", meta={**self.meta, "stopped": self.stopped}, arrays=extra)
         return path
+
+
+#: What a closed loop records of each controller step (:func:`step_record`).
+STEP_RECORD = ("solve_time", "iterations", "status", "fallback", "solver", "replaced", "message")
+
+
+def step_record(info) -> dict:
+    """The :data:`STEP_RECORD` of one :class:`~parallel_gpc.gpc.StepInfo`: solve time (s),
+    iterations (−1 if not reported), status, fallback, the back end that solved the step, whether
+    it replaced a failed stage-wise solve, and the solver's message on such and fallback steps."""
+    result = info.result
+    return {"solve_time": info.solve_time, "iterations": -1 if result.iterations is None else result.iterations,
+            "status": result.status, "fallback": info.fallback, "solver": result.solver, "replaced": info.replaced,
+            "message": result.message if info.replaced or info.fallback else ""}
 
 
 def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
@@ -293,8 +343,7 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
     if check:
         ks = np.unique(np.linspace(0, K - 1, min(K, REFERENCE_CHECKS)).round())
         check_reference(robot, reference, ks * Ts, None)
-    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time",
-                           "solve_time", "iterations", "status", "fallback", "saturated")}
+    rec = {k: [] for k in ("t", "reference", "pose", "velocity", "u", "q", "step_time", *STEP_RECORD, "saturated")}
     B_rs = []  # (n_y, n_u) B_r per sample with redundant drives: internal force after the loop
     N = controller.horizons.N
     batched = type(reference).window is Reference.window  # else the subclass's own window()
@@ -338,10 +387,8 @@ def simulate(controller: GPCController, plant, reference: Reference, duration: f
             rec["u"].append(info.u)
             rec["q"].append(q)
             rec["step_time"].append(info.step_time)
-            rec["solve_time"].append(info.solve_time)
-            rec["iterations"].append(-1 if info.result.iterations is None else info.result.iterations)
-            rec["status"].append(info.result.status)
-            rec["fallback"].append(info.fallback)
+            for key, value in step_record(info).items():
+                rec[key].append(value)
             rec["saturated"].append(plant.saturated > sat_before)
             if failure is not None:
                 stopped = divergence_message(failure, t, rec, K, robot.output_angular)

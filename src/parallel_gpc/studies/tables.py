@@ -83,8 +83,8 @@ def effort_columns(space, drive_unit: str | None = None) -> list[Column]:
     """Peak drive effort and the internal-force measure, in ``drive_unit`` (default: the output
     space's, N·m without one)."""
     unit = f"[{drive_unit or (space.drive_unit if space else 'N·m')}]"
-    return [Column("peak u", 8, unit, lambda res, m: f"{m['peak_torque_Nm']:8.2f}"),
-            Column("int. f", 8, unit, lambda res, m: f"{m['max_internal_force_Nm']:8.1e}")]
+    return [Column("peak u", 8, unit, lambda res, m: f"{m['peak_drive_effort']:8.2f}"),
+            Column("int. f", 8, unit, lambda res, m: f"{m['max_internal_force']:8.1e}")]
 
 
 def gain_column() -> Column:

@@ -11,7 +11,7 @@ changes one thing at a time:
 
 Each case is one closed-loop run of :func:`~parallel_gpc.simulation.simulate` along the
 paper's S-curve (or a hold of the home pose); the table reports RMS/max position error,
-orientation error, the steady-state error (mean over the last 10 % of the run), peak torque,
+orientation error, the steady-state error (mean over the last 10 % of the run), peak drive effort (N·m or N),
 saturated steps and solver fallbacks. A run whose closed loop diverges (the platform leaves the
 workspace, meets a singular pose …) is kept as a row with status ``diverged (Cause at t = … s)``
 and the metrics of the part run (left out of the figure); Ctrl-C stops the study and keeps the
@@ -64,7 +64,7 @@ _DIVERGED = DIVERGENCE_ERRORS
 _STOPPED = re.compile(r"at t = (\S+) s.*\(cause: (\w+):")
 
 COLUMNS = ("form", "study", "value", "unit", "rms_position_error_mm", "max_position_error_mm",
-           "rms_orientation_error_mrad", "steady_state_error_mm", "peak_torque_Nm", "saturated_steps",
+           "rms_orientation_error_mrad", "steady_state_error_mm", "peak_drive_effort", "saturated_steps",
            "fallbacks", "steps", "status")
 
 
@@ -146,7 +146,7 @@ class RobustnessResult:
         for r in self.rows:
             value = "" if r["study"] == "nominal" else f"{r['value']:g} {r['unit']}"
             lines.append((r["form"], r["study"], value, *(_fmt(r[keys[i]], 4) for i in shown),
-                          _fmt(r["peak_torque_Nm"], 1), str(r["saturated_steps"]), str(r["fallbacks"]), r["status"]))
+                          _fmt(r["peak_drive_effort"], 1), str(r["saturated_steps"]), str(r["fallbacks"]), r["status"]))
         widths = [max(len(h), *(len(line[i]) for line in lines)) if lines else len(h) for i, h in enumerate(head)]
         out = ["  ".join(h.ljust(w) for h, w in zip(head, widths))]
         out.append("  ".join("-" * w for w in widths))
@@ -204,7 +204,7 @@ def _row(form: str, case: RobustnessCase, record: dict) -> dict:
     row.update({f"{k}_{unit}": 1e3 * record[f"{k}_{si}"] for k, si, unit in (
         ("rms_position_error", "m", "mm"), ("max_position_error", "m", "mm"),
         ("rms_orientation_error", "rad", "mrad"), ("steady_state_error", "m", "mm"))})
-    row["peak_torque_Nm"] = record["peak_torque_Nm"]
+    row["peak_drive_effort"] = record["peak_drive_effort"]
     ok = record["status"] != "failed"  # diverged: the counts of the part run
     row.update({k: int(record[k]) if ok else 0 for k in ("saturated_steps", "fallbacks", "steps")})
     row["status"] = _status(record)

@@ -47,11 +47,17 @@ from ..studies import FLAT_KEYS, TrackingSettings
 
 #: Fraction of the run at its end over which the steady-state error is averaged.
 SETTLE_FRACTION = 0.1
-#: Metric columns of a record (SI units); NaN for a cell that failed.
+#: Metric columns of a record (SI units; ``peak_drive_effort`` and the internal-force columns in the
+#: drives' unit, N·m revolute or N prismatic, ``effort_integral`` ∫‖u‖² dt in its square times s);
+#: NaN for a cell that failed.
 METRIC_COLUMNS = ("rms_position_error_m", "max_position_error_m", "rms_orientation_error_rad",
-                  "max_orientation_error_rad", "steady_state_error_m", "peak_torque_Nm", "drive_energy_J",
-                  "effort_N2m2s", "mean_internal_force_Nm", "max_internal_force_Nm", "mean_step_time_s",
-                  "p99_step_time_s", "fallbacks", "saturated_steps", "steps")
+                  "max_orientation_error_rad", "steady_state_error_m", "peak_drive_effort", "drive_energy_J",
+                  "effort_integral", "mean_internal_force", "max_internal_force", "mean_step_time_s",
+                  "p99_step_time_s", "fallbacks", "replaced_steps", "saturated_steps", "steps")
+#: Metric columns named before their unit was the drives' own (sweep journals and tables written
+#: then are read with the new names): old name -> current name.
+LEGACY_METRICS = {"peak_torque_Nm": "peak_drive_effort", "effort_N2m2s": "effort_integral",
+                  "mean_internal_force_Nm": "mean_internal_force", "max_internal_force_Nm": "max_internal_force"}
 #: Columns that depend on the machine's speed, not on the cell (left out of equality checks).
 TIMING_COLUMNS = ("mean_step_time_s", "p99_step_time_s", "wall_time_s")
 #: Bookkeeping columns of a record, before its parameters.
@@ -362,7 +368,7 @@ def result_metrics(res, drive_q, Ts: float) -> dict:
     tail = max(1, int(round(SETTLE_FRACTION * len(res.t))))
     m["steady_state_error_m"] = float(np.mean(pose_error_norms(res.error[-tail:], res.angular)[0]))
     m["drive_energy_J"] = float(np.sum(np.abs(drive_work(res, drive_q))))  # no regeneration
-    m["effort_N2m2s"] = float(Ts * np.sum(res.u**2))
+    m["effort_integral"] = float(Ts * np.sum(res.u**2))
     return {k: m[k] for k in METRIC_COLUMNS}
 
 

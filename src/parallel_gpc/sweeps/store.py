@@ -26,7 +26,7 @@ import os
 from pathlib import Path
 
 from ..errors import InvalidParameterError
-from .spec import METRIC_COLUMNS, RECORD_COLUMNS
+from .spec import LEGACY_METRICS, METRIC_COLUMNS, RECORD_COLUMNS
 
 #: Statuses of a finished cell (an interrupted cell is run again on resume; a diverged one is a
 #: result, like an ok one, and is not retried).
@@ -162,7 +162,7 @@ def _record(line: bytes) -> dict | None:
     if not isinstance(record, dict) or not isinstance(record.get("key"), str) \
             or record.get("status") not in (*FINISHED, "interrupted"):
         return None
-    return record
+    return {LEGACY_METRICS.get(k, k): v for k, v in record.items()}
 
 
 def records_frame(records):
@@ -190,7 +190,8 @@ def records_frame(records):
 
 
 def load_results(path):
-    """The result table of a sweep folder, ``results.parquet`` or ``results.csv`` as a DataFrame.
+    """The result table of a sweep folder, ``results.parquet`` or ``results.csv`` as a DataFrame
+    (columns of an older table renamed by :data:`~parallel_gpc.sweeps.spec.LEGACY_METRICS`).
 
     Raises:
         InvalidParameterError: the path is neither a sweep folder nor a .parquet/.csv table.
@@ -201,8 +202,7 @@ def load_results(path):
     path = Path(path)
     if path.is_dir():
         path = path / "results.parquet"
-    if path.suffix == ".parquet":
-        return pd.read_parquet(path)
-    if path.suffix == ".csv":
-        return pd.read_csv(path)
+    if path.suffix in (".parquet", ".csv"):
+        frame = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
+        return frame.rename(columns=LEGACY_METRICS)
     raise InvalidParameterError(f"{path} is not a sweep folder, a .parquet or a .csv result table")
