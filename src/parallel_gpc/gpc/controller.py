@@ -35,7 +35,7 @@ from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrai
                           stage_constraints, terminal_rows)
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
-from .nmpc import IterationReport, NMPCIterations
+from .nmpc import IterationReport, NMPCIterations, riccati_steps
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
@@ -147,7 +147,7 @@ class GPCController:
         self._replacement = None
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
-            self._drives)
+            self._drives, riccati_steps(settings, criterion, self.model.C))
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -353,7 +353,7 @@ class GPCController:
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
             pred, result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0, rows)
+                self._backend.solve, self.disturbance, t0, rows, None if staged else problem)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
         if not staged:  # a dense (or iterated) solution; a stage-wise one is checked above

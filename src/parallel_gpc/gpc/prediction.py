@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model import cached_identity
+from ..model import cached_identity, native_module
 from ..errors import InvalidParameterError, ShapeError
 
 
@@ -312,13 +312,24 @@ def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> 
 
     Returns:
         ŷ = ŷ_sim + G Δu with u(k+i) = u_sim(k+i) + Σ_{j≤i} Δu(k+j).
+
+    The compiled core condenses G in one call (``_native.condense_deviation``, the same recursion
+    on the deviation state alone); the augmented :func:`condense` below is its reference
+    (``PARALLEL_GPC_NATIVE=0``).
     """
     A_seq, B_seq = np.asarray(A_seq, dtype=float), np.asarray(B_seq, dtype=float)
     N = horizons.N
     n, m = B_seq.shape[-2], B_seq.shape[-1]
-    Aa, Ba, _ = _augment(_per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m)), None)
-    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
-    _, G = condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)
+    A_seq, B_seq = _per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m))
+    C = np.asarray(C, dtype=float)
+    compiled = native_module()
+    if compiled is not None and hasattr(compiled, "condense_deviation") and C.ndim == 2 and C.shape[1] == n:
+        G = compiled.condense_deviation(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq),
+                                        np.ascontiguousarray(C), horizons.No, horizons.Nu)
+    else:
+        Aa, Ba, _ = _augment(A_seq, B_seq, None)
+        Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+        _, G = condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)
     y_sim = np.asarray(y_sim, dtype=float)
     if y_sim.shape != (N, C.shape[0]):
         raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, C.shape[0])}")
