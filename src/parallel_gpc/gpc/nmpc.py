@@ -220,17 +220,18 @@ class NMPCIterations:
         return report_at(rows, rows.G @ NO_DECISION, s)
 
     # -------------------------------------------------------------- the iterations
-    def _riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, lin: Prediction, w: np.ndarray,
+    def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, lin: Prediction, w: np.ndarray,
                       bounds: LeastSquaresProblem) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ``lin`` at X (n_x,) (stage models JX (N, n_x, n_x),
-        B_seq (N, n_x, m)) by the Riccati recursion, when :attr:`riccati` is set and its minimizer
-        keeps the input limits of ``bounds`` (the step's limit rows, the same in every iteration);
-        else None (the condensed problem then decides, every limit included). Without state limits
-        and with Qu nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the
-        recursion's and QR's agree to rounding."""
+        B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d) by the Riccati recursion,
+        when :attr:`riccati` is set and its minimizer keeps the input limits of ``bounds`` (the
+        step's problem: its limit rows are every iteration's); else None (the condensed problem
+        then decides, every limit included). w: (n_rows, p) or (n_rows·p,) reference rows (m, rad).
+        Without state limits and with Qu nonsingular (:func:`riccati_steps`) the subproblem's
+        minimizer is unique: the recursion's and QR's agree to rounding."""
         if self.riccati is None:
             return None
-        targets = (w - lin.f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): the deviation from 0
+        targets = (np.reshape(w, -1) - lin.f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
         new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
         if not new.ok or (bounds.constrained and not bounds.feasible(new.v)):
             return None
@@ -325,7 +326,7 @@ class NMPCIterations:
             except MODEL_ERRORS:
                 report["stop"] = "jacobian failed"
                 break
-            result = self._riccati_step(X, JX, B_seq, lin, w, bounds)
+            result = self.riccati_step(X, JX, B_seq, lin, w, bounds)
             if result is None:  # the condensed subproblem with every limit, by the controller's back end
                 problem = constrain(problem_of(lin), lin_rows, self.limits)
                 warm = v if not problem.n_slack else np.concatenate([v, np.zeros(problem.n_slack)])
