@@ -58,7 +58,7 @@ from ..solvers import LeastSquaresProblem, SolveResult
 from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
                           hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
-from .prediction import Prediction, simulative_prediction
+from .prediction import Prediction, deviation_gain
 from .riccati import RiccatiSolver
 from .settings import RICCATI_QU_MARGIN, GPCSettings, stagewise_obstacle, weight_margin
 
@@ -316,8 +316,7 @@ class NMPCIterations:
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
-            y_traj = X_seq[1:] @ C.T
-            G = simulative_prediction(JX, B_seq, C, y_traj, u_traj, H).G
+            G = deviation_gain(JX, B_seq, C, H)
             lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
             if bounds is None and self.riccati is not None:
                 bounds = problem_of(lin)
