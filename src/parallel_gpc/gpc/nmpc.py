@@ -31,7 +31,11 @@ frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
 optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
-v, every limit of the problem included. A
+v, every limit of the problem included. Where the Riccati recursion gives that problem's minimizer
+(:func:`riccati_steps`: the default back end, no state limit, Qu nonsingular, no terminal weight)
+every step, the paper's included, is solved stage-wise on the linearization's stage models
+(:meth:`NMPCIterations.riccati_step`, no least-squares factorization); a minimizer beyond an
+input limit goes to the condensed problem and the back end. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
