@@ -82,8 +82,8 @@ ROUNDING = 1e-12
 
 
 def riccati_steps(settings: GPCSettings, criterion: Criterion, C: np.ndarray) -> RiccatiSolver | None:
-    """The Riccati recursion that solves the exact Gauss–Newton steps (:meth:`NMPCIterations.run`),
-    or None. It gives the condensed subproblem's minimizer whenever the paper's single step of
+    """The Riccati recursion that solves every Gauss–Newton step of the iterations, the paper's
+    included (:meth:`NMPCIterations.riccati_step`), or None. It gives the condensed subproblem's minimizer whenever the paper's single step of
     these settings would take the stage-wise path (:func:`~parallel_gpc.gpc.settings.stagewise_obstacle`
     of ``iterations=1`` empty: no terminal equality or weight, no drive limit; Qu nonsingular with
     :data:`~parallel_gpc.gpc.settings.RICCATI_QU_MARGIN`), no state limit is set (their rows move
@@ -140,8 +140,8 @@ class NMPCIterations:
         limits: the controller's limits sized to the model (their state kinds are rebuilt along
             every iteration's trajectory), or None. drives: the robot's drive kinematics (needed
             by drive_position and drive_rate), or None.
-        riccati: the form's Riccati recursion for the exact steps (:func:`riccati_steps`), or
-            None: every step's condensed problem goes to the controller's back end.
+        riccati: the form's Riccati recursion for the steps (:func:`riccati_steps`), or None:
+            every step's condensed problem goes to the controller's back end.
     """
 
     def __init__(self, model, criterion: Criterion, Ts: float, iterations: int, tolerance: float,
@@ -225,7 +225,7 @@ class NMPCIterations:
 
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, lin: Prediction, w: np.ndarray,
-                      bounds: LeastSquaresProblem) -> SolveResult | None:
+                     bounds: LeastSquaresProblem) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ``lin`` at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d) by the Riccati recursion,
         when :attr:`riccati` is set and its minimizer keeps the input limits of ``bounds`` (the
