@@ -362,3 +362,19 @@ def test_riccati_steps_only_where_they_give_the_condensed_minimizer(kw, robot4):
     settings = dict(form="nonlinear", iterations=5, weights=Weights(QY, QU)) | kw
     ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), settings.pop("weights"), **settings)
     assert ctrl._nmpc.riccati is None
+
+
+def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4):
+    """No > 0 and Nu < N: the recursion's stage models hold Δu = 0 after Nu and skip the first No
+    outputs like the condensed problem."""
+    _, X, plan, target = _case("planar_4rrr")
+    H = Horizons(10, 2, 4)
+    infos = []
+    for solver in (None, "qr"):
+        ctrl = GPCController.build(ReducedModel(robot4), TS, H, Weights(QY, QU), form="nonlinear", iterations=50,
+                                   tolerance=1e-10, disturbance_gain=0.0, solver=solver)
+        ctrl.restore(ControllerState(plan[0], plan[:10], np.zeros(6)))
+        infos.append(ctrl.step(X, np.tile(target, (10, 1))))
+    fast, condensed = infos
+    assert fast.result.solver == "riccati" and condensed.result.solver == "qr" and fast.residual <= 1e-6
+    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
