@@ -327,3 +327,54 @@ def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
     _, info = _step(_Fenced(model, bound), X, plan, target, 10, 5)
     u = u0 + np.cumsum(info.result.v.reshape(10, -1), axis=0)
     assert np.abs(u).max() <= bound and not info.fallback and info.iterations >= 1
+
+
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name):
+    """The steps by the Riccati recursion (the default without state limits, Qu nonsingular: the
+    paper's and the exact ones) and by the condensed QR back end (an explicit solver) reach the
+    same plan."""
+    model, X, plan, target = _case(name)
+    ctrl, fast = _step(model, X, plan, target, 10, 50, tolerance=1e-10)
+    _, condensed = _step(ReducedModel(model.robot), X, plan, target, 10, 50, tolerance=1e-10, solver="qr")
+    assert ctrl._nmpc.riccati is not None and fast.result.solver == "riccati" and condensed.result.solver == "qr"
+    assert fast.residual <= 1e-6 and condensed.residual <= 1e-6 and not fast.fallback  # (rounding-limited stop)
+    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
+    np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
+
+
+def test_riccati_steps_leave_a_binding_torque_limit_to_the_condensed_problem(robot4):
+    model, X, plan, target = _case("planar_4rrr")
+    _, free = _step(model, X, plan, target, 10, 50)
+    u_free = np.vstack([plan[1:10], plan[9:10]]) + np.cumsum(free.result.v.reshape(10, -1), axis=0)
+    limits = Limits(torque=0.8 * np.abs(u_free).max())
+    ctrl, info = _step(ReducedModel(robot4), X, plan, target, 10, 50, limits=limits)
+    assert ctrl._nmpc.riccati is not None  # eligible, but its minimizer breaks the limit: QP decides
+    assert info.result.active_limits and info.result.solver != "riccati" and not info.fallback
+    assert np.abs(info.u).max() <= limits.torque.max() * (1.0 - LIMIT_MARGIN) * (1.0 + 1e-9)
+
+
+@pytest.mark.parametrize("kw", [dict(solver="qr"), dict(limits=Limits(output_box=[[0.0, 1.0], [0.0, 1.0], [-3.0, 3.0]])),
+                                dict(weights=Weights(QY, QU, Qf=2.0)), dict(weights=Weights(QY, 1e-9))])
+def test_riccati_steps_only_where_they_give_the_condensed_minimizer(kw, robot4):
+    """An explicit back end, a state limit, a terminal weight or a nearly singular Qu: every exact
+    step goes to the controller's back end."""
+    settings = dict(form="nonlinear", iterations=5, weights=Weights(QY, QU)) | kw
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), settings.pop("weights"), **settings)
+    assert ctrl._nmpc.riccati is None
+
+
+def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4):
+    """No > 0 and Nu < N: the recursion's stage models hold Δu = 0 after Nu and skip the first No
+    outputs like the condensed problem."""
+    _, X, plan, target = _case("planar_4rrr")
+    H = Horizons(10, 2, 4)
+    infos = []
+    for solver in (None, "qr"):
+        ctrl = GPCController.build(ReducedModel(robot4), TS, H, Weights(QY, QU), form="nonlinear", iterations=50,
+                                   tolerance=1e-10, disturbance_gain=0.0, solver=solver)
+        ctrl.restore(ControllerState(plan[0], plan[:10], np.zeros(6)))
+        infos.append(ctrl.step(X, np.tile(target, (10, 1))))
+    fast, condensed = infos
+    assert fast.result.solver == "riccati" and condensed.result.solver == "qr" and fast.residual <= 1e-6
+    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())

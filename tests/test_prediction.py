@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.model import native_module, native_status
 from parallel_gpc.gpc import (
     Horizons,
     absolute_prediction,
@@ -62,8 +63,10 @@ def test_incremental_prediction_equals_simulation_of_cumulated_inputs(N, No, Nu)
     np.testing.assert_allclose((pred.u_base + pred.u_map @ dv.reshape(-1)).reshape(-1, 3), inputs[:Nu], atol=1e-12)
 
 
-@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (8, 2, 3)])
-def test_simulative_prediction_equals_ltv_simulation_about_the_presimulated_path(N, No, Nu):
+@pytest.mark.parametrize("native", ["1", "0"])  # the compiled condensing and its Python reference
+@pytest.mark.parametrize("N,No,Nu", [(8, 0, 8), (8, 2, 3), (7, 6, 1)])
+def test_simulative_prediction_equals_ltv_simulation_about_the_presimulated_path(N, No, Nu, native, monkeypatch):
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", native)
     rng = np.random.default_rng(3 + N + Nu)
     A_seq, B_seq, c_seq, C = _random_system(rng, N=N)
     x0 = rng.normal(size=4)
@@ -76,6 +79,21 @@ def test_simulative_prediction_equals_ltv_simulation_about_the_presimulated_path
     expected = _simulate(A_seq, B_seq, c_seq, C, x0, inputs)[No:]
     np.testing.assert_allclose(pred.outputs(dv.reshape(-1)), expected.reshape(-1), rtol=0, atol=1e-10)
     np.testing.assert_allclose((pred.u_base + pred.u_map @ dv.reshape(-1)).reshape(-1, 3), inputs, atol=1e-12)
+
+
+@pytest.mark.parametrize("N,No,Nu", [(20, 0, 20), (8, 2, 3), (6, 5, 1), (1, 0, 1)])
+def test_compiled_deviation_condensing_equals_the_python_reference(N, No, Nu, monkeypatch):
+    if not hasattr(native_module(), "condense_deviation"):
+        pytest.skip(native_status())
+    rng = np.random.default_rng(5 * N + No + Nu)
+    A_seq, B_seq, _, C = _random_system(rng, n=6, m=4, p=3, N=N)
+    y_sim, u_sim = rng.normal(size=(N, 3)), rng.normal(size=(N, 4))
+    fast = simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, Horizons(N, No, Nu))
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", "0")
+    reference = simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, Horizons(N, No, Nu))
+    assert fast.G.shape == reference.G.shape == ((N - No) * 3, Nu * 4)
+    np.testing.assert_allclose(fast.G, reference.G, rtol=1e-12, atol=1e-12 * np.max(np.abs(reference.G)))
+    assert np.array_equal(fast.f, reference.f) and np.array_equal(fast.u_map, reference.u_map)
 
 
 def test_condense_matches_eq7_block_toeplitz_for_lti():

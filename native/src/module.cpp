@@ -13,4 +13,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_stagewise_active(m);
   pgpc::bind_kalman(m);
   pgpc::bind_input_svd(m);
+  pgpc::bind_deviation(m);
 }

@@ -1,6 +1,7 @@
 """GPC layer: criterion (5), predictions (6)–(13), receding-horizon controller, planning (20)–(21), references."""
 
-from .prediction import Horizons, Prediction, absolute_prediction, condense, incremental_prediction, simulative_prediction
+from .prediction import (Horizons, Prediction, absolute_prediction, condense, deviation_gain, incremental_prediction,
+                         simulative_prediction)
 from .criterion import Criterion, Weights, build_problem
 from .protocol import ControlModel
 from .linear_model import DiscreteLinearModel
@@ -16,7 +17,8 @@ from .plan_settings import INTERRUPTED
 
 __all__ = [
     "pose_error_norms", "check_times", "is_file_reference", "PAPER_FORMS", "TERMINALS", "unit_interval", "INTERRUPTED",
-    "Horizons", "Prediction", "absolute_prediction", "condense", "incremental_prediction", "simulative_prediction",
+    "Horizons", "Prediction", "absolute_prediction", "condense", "deviation_gain", "incremental_prediction",
+    "simulative_prediction",
     "Criterion", "Weights", "build_problem", "ControlModel", "DiscreteLinearModel", "ControllerState", "GPCSettings", "Limits",
     "stagewise_compiled",
     "FORMS", "GPCController", "StepInfo", "Helix", "Hold", "OutputPath", "Reference", "SampledTrajectory", "SCurve",

@@ -35,7 +35,7 @@ from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrai
                           stage_constraints, terminal_rows)
 from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
-from .nmpc import IterationReport, NMPCIterations
+from .nmpc import IterationReport, NMPCIterations, riccati_steps
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
 from .redundancy import null_basis, remove_null
@@ -151,7 +151,7 @@ class GPCController:
         self._replacement = None
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
-            self._drives)
+            self._drives, riccati_steps(settings, criterion, self.model.C))
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -290,6 +290,7 @@ class GPCController:
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
+        self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
         self._null = False
         return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
@@ -345,7 +346,8 @@ class GPCController:
             rows = self._stage_rows(pred, X, warm)
             full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
-            result = self._dense_solve(full, pred, result, warm)
+            first = None if self._nmpc is None else self._nmpc.riccati_step(X, *self._presimulated, pred, w, full)
+            result = first if first is not None else self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:
                 constraint_report = report(full, rows, result.v)
                 excess = hard_violation(full, rows, result.v)
@@ -357,7 +359,7 @@ class GPCController:
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
             pred, result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0, rows)
+                self._backend.solve, self.disturbance, t0, rows, None if staged else problem)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
         if not staged:  # a dense (or iterated) solution; a stage-wise one is checked above

@@ -31,7 +31,11 @@ frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
 optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
-v, every limit of the problem included. A
+v, every limit of the problem included. Where the Riccati recursion gives that problem's minimizer
+(:func:`riccati_steps`: the default back end, no state limit, Qu nonsingular, no terminal weight)
+every step, the paper's included, is solved stage-wise on the linearization's stage models
+(:meth:`NMPCIterations.riccati_step`, no least-squares factorization); a minimizer beyond an
+input limit goes to the condensed problem and the back end. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
@@ -54,13 +58,15 @@ import numpy as np
 
 from ..errors import AssemblyError, NonFiniteError, SingularPoseError
 from ..limits import SOFT_QUADRATIC, Limits
-from ..solvers import SolveResult
+from ..solvers import LeastSquaresProblem, SolveResult
 from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
                           hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
-from .prediction import Prediction, simulative_prediction
+from .prediction import Prediction, deviation_gain
+from .riccati import RiccatiSolver
+from .settings import RICCATI_QU_MARGIN, GPCSettings, stagewise_obstacle, weight_margin
 
-__all__ = ["NMPCIterations", "IterationReport", "ARMIJO", "BACKTRACKS"]
+__all__ = ["NMPCIterations", "IterationReport", "riccati_steps", "ARMIJO", "BACKTRACKS"]
 
 #: sufficient-decrease factor of the line search (fraction of the Gauss–Newton model's decrease).
 ARMIJO = 1e-4
@@ -73,6 +79,27 @@ MODEL_ERRORS = (AssemblyError, SingularPoseError, NonFiniteError)
 NO_DECISION = np.zeros(0)
 #: a Gauss–Newton model decrease below this fraction of J is rounding: the line search cannot see it.
 ROUNDING = 1e-12
+
+
+def riccati_steps(settings: GPCSettings, criterion: Criterion, C: np.ndarray) -> RiccatiSolver | None:
+    """The Riccati recursion that solves every Gauss–Newton step of the iterations, the paper's
+    included (:meth:`NMPCIterations.riccati_step`), or None. It gives the condensed subproblem's minimizer whenever the paper's single step of
+    these settings would take the stage-wise path (:func:`~parallel_gpc.gpc.settings.stagewise_obstacle`
+    of ``iterations=1`` empty: no terminal equality or weight, no drive limit; Qu nonsingular with
+    :data:`~parallel_gpc.gpc.settings.RICCATI_QU_MARGIN`), no state limit is set (their rows move
+    with every linearization) and the back end is the default (an explicit back end solves every
+    step). A minimizer that breaks an input limit goes to the condensed problem.
+
+    Args:
+        settings: the controller's settings (iterations > 1). criterion: its criterion.
+        C: (p, n_x) output matrix of the model.
+    """
+    if (settings.iterations == 1 or not settings.solver_is_default or settings.limits.has_state_limits
+            or stagewise_obstacle(replace(settings, iterations=1))
+            or weight_margin(settings.weights, settings.Ts) < RICCATI_QU_MARGIN):
+        return None
+    Wy, Wu = criterion.weights.blocks(criterion.n_outputs, criterion.n_inputs)
+    return RiccatiSolver(Wy, Wu, C, criterion.horizons, "nonlinear")
 
 
 @dataclass(frozen=True)
@@ -113,11 +140,15 @@ class NMPCIterations:
         limits: the controller's limits sized to the model (their state kinds are rebuilt along
             every iteration's trajectory), or None. drives: the robot's drive kinematics (needed
             by drive_position and drive_rate), or None.
+        riccati: the form's Riccati recursion for the steps (:func:`riccati_steps`), or None:
+            every step's condensed problem goes to the controller's back end.
     """
 
     def __init__(self, model, criterion: Criterion, Ts: float, iterations: int, tolerance: float,
-                 time_budget: float | None, limits: Limits | None = None, drives: DriveKinematics | None = None):
+                 time_budget: float | None, limits: Limits | None = None, drives: DriveKinematics | None = None,
+                 riccati: RiccatiSolver | None = None):
         self.model, self.criterion, self.Ts = model, criterion, Ts
+        self.riccati = riccati
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
@@ -193,8 +224,25 @@ class NMPCIterations:
         return report_at(rows, rows.G @ NO_DECISION, s)
 
     # -------------------------------------------------------------- the iterations
+    def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, lin: Prediction, w: np.ndarray,
+                     bounds: LeastSquaresProblem) -> SolveResult | None:
+        """The Gauss–Newton subproblem of the linearization ``lin`` at X (n_x,) (stage models JX (N, n_x, n_x),
+        B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d) by the Riccati recursion,
+        when :attr:`riccati` is set and its minimizer keeps the input limits of ``bounds`` (the
+        step's problem: its limit rows are every iteration's); else None (the condensed problem
+        then decides, every limit included). w: (n_rows, p) or (n_rows·p,) reference rows (m, rad).
+        Without state limits and with Qu nonsingular (:func:`riccati_steps`) the subproblem's
+        minimizer is unique: the recursion's and QR's agree to rounding."""
+        if self.riccati is None:
+            return None
+        targets = (np.reshape(w, -1) - lin.f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
+        new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
+        if not new.ok or (bounds.constrained and not bounds.feasible(new.v)):
+            return None
+        return new
+
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
-            rows: ConstraintRows | None = None):
+            rows: ConstraintRows | None = None, bounds: LeastSquaresProblem | None = None):
         """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
@@ -205,6 +253,8 @@ class NMPCIterations:
             solve: (problem, warm start) → SolveResult (the controller's back end).
             disturbance: (n_x,) d of the step. start: time.perf_counter() at the step's start.
             rows: the paper's step's state-limit rows (None without state limits).
+            bounds: the paper's step's problem (its input-limit rows are every iteration's:
+                u = u_sim⁰ + u_map v in all of them), or None (built from the first linearization).
 
         Returns:
             (prediction of the last linearization in the total v, its result with v the accepted
@@ -270,23 +320,26 @@ class NMPCIterations:
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
-            y_traj = X_seq[1:] @ C.T
-            G = simulative_prediction(JX, B_seq, C, y_traj, u_traj, H).G
+            G = deviation_gain(JX, B_seq, C, H)
             lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
+            if bounds is None and self.riccati is not None:
+                bounds = problem_of(lin)
             try:  # the state limits linearized along this plan's trajectory (exact at v)
                 lin_rows = self._rows(lin, y_rows, y_now)
             except MODEL_ERRORS:
                 report["stop"] = "jacobian failed"
                 break
-            problem = constrain(problem_of(lin), lin_rows, self.limits)
-            warm = v if not problem.n_slack else np.concatenate([v, np.zeros(problem.n_slack)])
-            try:
-                new = solve(problem, warm)
-            except Exception as exc:  # a back end's own exception ends the iterations, never leaks
-                new = SolveResult(warm, np.inf, "failed", "", message=f"{type(exc).__name__}: {exc}")
-            if not new.ok or hard_violation(problem, lin_rows, new.v) > STATE_TOL:
-                report["stop"] = "solve failed"
-                break
-            result, _ = split(problem, new)
+            result = self.riccati_step(X, JX, B_seq, lin, w, bounds)
+            if result is None:  # the condensed subproblem with every limit, by the controller's back end
+                problem = constrain(problem_of(lin), lin_rows, self.limits)
+                warm = v if not problem.n_slack else np.concatenate([v, np.zeros(problem.n_slack)])
+                try:
+                    new = solve(problem, warm)
+                except Exception as exc:  # a back end's own exception ends the iterations, never leaks
+                    new = SolveResult(warm, np.inf, "failed", "", message=f"{type(exc).__name__}: {exc}")
+                if not new.ok or hard_violation(problem, lin_rows, new.v) > STATE_TOL:
+                    report["stop"] = "solve failed"
+                    break
+                result, _ = split(problem, new)
         return lin, replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
             true_rows), **report)

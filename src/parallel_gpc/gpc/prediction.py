@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model import cached_identity
+from ..model import cached_identity, native_module
 from ..errors import InvalidParameterError, ShapeError
 
 
@@ -299,6 +299,36 @@ def incremental_prediction(Ad, Bd, cd, C, X, u_prev, horizons: Horizons, delayed
     return Prediction(f, G, u_base, u_map, horizons, "incremental")
 
 
+def deviation_gain(A_seq, B_seq, C, horizons: Horizons) -> np.ndarray:
+    """G of the deviation model along a trajectory, eq. (10)–(12): δX(i+1) = A_i δX(i) + B_i δu(i),
+    δX(0) = 0, δu(i) = Σ_{l ≤ min(i, Nu−1)} Δu(l), ŷ − ŷ_sim = G [Δu(0) … Δu(Nu−1)] on the
+    penalized outputs C δX(j), j = No+1..N.
+
+    The compiled core condenses it in one call (``_native.condense_deviation``, the recursion on
+    the deviation state alone); the augmented state of :func:`_augment` through :func:`condense`
+    is its reference (``PARALLEL_GPC_NATIVE=0``).
+
+    Args:
+        A_seq: (N, n, n), B_seq: (N, n, m): the stage models (one matrix each: the same at every stage).
+        C: (p, n) output matrix. horizons: N, No, Nu.
+
+    Returns:
+        ((N − No)·p, Nu·m) G.
+    """
+    A_seq, B_seq = np.asarray(A_seq, dtype=float), np.asarray(B_seq, dtype=float)
+    N = horizons.N
+    n, m = B_seq.shape[-2], B_seq.shape[-1]
+    A_seq, B_seq = _per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m))
+    C = np.asarray(C, dtype=float)
+    compiled = native_module()
+    if compiled is not None and hasattr(compiled, "condense_deviation") and C.ndim == 2 and C.shape[1] == n:
+        return compiled.condense_deviation(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq),
+                                           np.ascontiguousarray(C), horizons.No, horizons.Nu)
+    Aa, Ba, _ = _augment(A_seq, B_seq, None)
+    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
+    return condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)[1]
+
+
 def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:
     """Incremental prediction with nonlinear simulative substitution, eq. (10)–(12).
 
@@ -311,17 +341,14 @@ def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> 
         horizons: N, No, Nu.
 
     Returns:
-        ŷ = ŷ_sim + G Δu with u(k+i) = u_sim(k+i) + Σ_{j≤i} Δu(k+j).
+        ŷ = ŷ_sim + G Δu with u(k+i) = u_sim(k+i) + Σ_{j≤i} Δu(k+j), G of :func:`deviation_gain`.
     """
-    A_seq, B_seq = np.asarray(A_seq, dtype=float), np.asarray(B_seq, dtype=float)
-    N = horizons.N
-    n, m = B_seq.shape[-2], B_seq.shape[-1]
-    Aa, Ba, _ = _augment(_per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m)), None)
-    Ca = np.hstack([C, np.zeros((C.shape[0], m))])
-    _, G = condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)
+    N, p = horizons.N, np.shape(C)[0]
+    G = deviation_gain(A_seq, B_seq, C, horizons)
     y_sim = np.asarray(y_sim, dtype=float)
-    if y_sim.shape != (N, C.shape[0]):
-        raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, C.shape[0])}")
+    if y_sim.shape != (N, p):
+        raise ShapeError(f"y_sim has shape {y_sim.shape}; expected {(N, p)}")
     u_sim = np.asarray(u_sim, dtype=float)
     f = y_sim[horizons.No:].reshape(-1)
+    m = G.shape[1] // horizons.Nu
     return Prediction(f, G, u_sim.reshape(-1), cumulative_map(N, horizons.Nu, m), horizons, "simulative")
