@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "stage_model.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
@@ -28,7 +29,7 @@ class Riccati {
     if (form < 0 || form > 3) throw std::invalid_argument("Riccati: form must be 0..3");
     if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("Riccati: bad horizons");
     if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("Riccati: weight shapes");
-    nz = (form == 0 && Nu == N) ? n : n + m;
+    nz = stage_model::state_size(form, n, m, N, Nu);
     Mat Cz = Mat::Zero(p, nz);
     Cz.leftCols(n) = C;
     CQ_ = Cz.transpose() * (Wy.transpose() * Wy);
@@ -155,23 +156,9 @@ class Riccati {
   }
 
   void stage(long i, const double *A, const double *B, const double *c) {
-    Mat &Ai = Abar_[i];
-    Mat &Bi = Bbar_[i];
     An_[i] = CMap(A, n, n);
     Bn_[i] = CMap(B, n, m);
-    Ai.topLeftCorner(n, n) = CMap(A, n, n);
-    if (c && form != 3)
-      cbar_[i].head(n) = VMap(c, n);
-    if (nz == n) {
-      Bi = CMap(B, n, m);
-      return;
-    }
-    const bool decide = i < Nu;
-    const bool held = form != 0 || !decide;  // the input memory feeds x
-    if (held) Ai.topRightCorner(n, m) = CMap(B, n, m); else Ai.topRightCorner(n, m).setZero();
-    if (held) Ai.bottomRightCorner(m, m).setIdentity(); else Ai.bottomRightCorner(m, m).setZero();
-    if (form == 2) Bi.topRows(n).setZero(); else Bi.topRows(n) = CMap(B, n, m);
-    Bi.bottomRows(m).setIdentity();
+    stage_model::fill(form, n, m, Nu, i, A, B, c, Abar_[i], Bbar_[i], cbar_[i]);
   }
 
   Mat C_, Wy_, CQ_, CQC_, R_, PA_, T_, BPA_, PB_, H_;

@@ -19,6 +19,7 @@
 
 #include "bindings.hpp"
 #include "stage_arrays.hpp"
+#include "stage_model.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
@@ -187,7 +188,8 @@ struct Sweep {
   }
 };
 
-// λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (_multipliers)
+// λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (costates with the active set, in
+// solvers/stagewise_ipm.py)
 double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad) {
   const long N = qp.N, nd = qp.nd;
   lam.setZero(N, qp.k);
@@ -239,6 +241,24 @@ void sanitize(const QP &qp, Set &fixed) {
       bool found = false;
       for (const Row &row : qp.rows[i]) found = found || (row.r == fixed(i, j) && row.j == j);
       if (!found) fixed(i, j) = -1;
+    }
+}
+
+// qp.rows (per decision stage) and qp.f_scale from the InputRowMap (comp, sign) and the bounds f
+void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const char *who) {
+  if (long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k || long(sign.shape(0)) != qp.N ||
+      long(sign.shape(1)) != qp.k)
+    throw std::invalid_argument(std::string(who) + ": inconsistent stage shapes");
+  qp.rows.assign(qp.nd, {});
+  for (long i = 0; i < qp.N; ++i)
+    for (long r = 0; r < qp.k; ++r) {
+      const long j = long(comp.data()[i * qp.k + r]);
+      if (j < 0) continue;
+      if (i >= qp.nd || j >= qp.m)
+        throw std::invalid_argument(std::string(who) + ": a row on a stage without decision or a component ≥ m");
+      const double fr = f.data()[i * qp.k + r];
+      qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
+      qp.f_scale = std::max(qp.f_scale, std::abs(fr));
     }
 }
 
@@ -302,6 +322,103 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
   return out;
 }
 
+
+// The controller's torque/Δu-limited problem of a linear form (0 absolute, 1 incremental, 2 delayed)
+// in one call per step: the stage models (stage_model.hpp) and the criterion's linear terms built
+// here from the step's (A_d, B_d, c_d, x0, u0, targets), the rows (Fz, f, comp, sign: the controller's
+// StageQP template, the same every step) kept from construction, then solve_active_set and J.
+class RiccatiActive {
+ public:
+  RiccatiActive(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form, In3 Fz, In2 f,
+                InI comp, In2 sign)
+      : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
+    if (form < 0 || form > 2) throw std::invalid_argument("RiccatiActive: form must be 0..2 (a linear form)");
+    if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("RiccatiActive: bad horizons");
+    if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("RiccatiActive: weights");
+    nz = stage_model::state_size(form, n, m, N, Nu);
+    const long k = long(f.shape(1));
+    if (long(Fz.shape(0)) != N || long(Fz.shape(1)) != k || long(Fz.shape(2)) != nz || long(f.shape(0)) != N ||
+        long(comp.shape(0)) != N || long(comp.shape(1)) != k || long(sign.shape(0)) != N ||
+        long(sign.shape(1)) != k)
+      throw std::invalid_argument("RiccatiActive: rows Fz (N, k, nz), f, comp, sign (N, k)");
+    C_ = C;
+    Wy_ = Wy;
+    Wu_ = Wu;
+    Mat Cz = Mat::Zero(p, nz);
+    Cz.leftCols(n) = C;
+    CQ2_ = 2.0 * Cz.transpose() * (Wy.transpose() * Wy);
+    Q2_ = CQ2_ * Cz;
+    zero_ = RowMat::Zero(nz, nz);
+    Ab_.assign(N, RowMat::Zero(nz, nz));
+    Bb_.assign(N, RowMat::Zero(nz, m));
+    cb_ = RowMat::Zero(N, nz);
+    q_ = RowMat::Zero(N + 1, nz);
+    Fz_ = Eigen::Map<const RowMat>(Fz.data(), N * k, nz);
+    qp_.N = N;
+    qp_.nz = nz;
+    qp_.m = m;
+    qp_.nd = Nu;
+    qp_.k = k;
+    for (long i = 0; i < N; ++i) {
+      qp_.A.emplace_back(Ab_[i].data(), nz, nz);
+      qp_.B.emplace_back(Bb_[i].data(), nz, m);
+      qp_.Fz.emplace_back(Fz_.data() + i * k * nz, k, nz);
+      qp_.c.emplace_back(cb_.data() + i * nz, nz);
+    }
+    for (long i = 0; i <= N; ++i) {
+      qp_.Q.emplace_back(i > No ? Q2_.data() : zero_.data(), nz, nz);  // Q2_ symmetric: either layout
+      qp_.q.emplace_back(q_.data() + i * nz, nz);
+    }
+    qp_.R = 2.0 * Wu.transpose() * Wu;
+    qp_.z0 = Vec::Zero(nz);
+    read_rows(qp_, comp, sign, f, "RiccatiActive");
+  }
+
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m), r (N − No, p), start
+  // (Nu, m) or none → the Outcome (v, z, λ, set) and J of the criterion (5)
+  Outcome solve(const double *A, long nA, const double *B, long nB, const double *c, long nc, const double *x0,
+                const double *u0, const double *r, const int64_t *start, int max_iter, double &J) {
+    for (long i = 0; i < N; ++i)
+      stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
+                        c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+    qp_.z0.head(n) = VMap(x0, n);
+    if (form != 0) qp_.z0.tail(m) = VMap(u0, m);
+    Eigen::Map<const RowMat> W(r, N - No, p);
+    q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
+    Set fixed = Set::Constant(Nu, m, -1);
+    if (start) {
+      fixed = Eigen::Map<const Set>(start, Nu, m);
+      sanitize(qp_, fixed);
+    }
+    Outcome out = solve_active_set(qp_, fixed, max_iter);
+    J = 0.0;
+    for (long i = 0; i < Nu; ++i) J += (Wu_ * out.v[i]).squaredNorm();
+    for (long i = No + 1; i <= N; ++i) J += (Wy_ * (C_ * out.z[i].head(n) - W.row(i - No - 1).transpose())).squaredNorm();
+    return out;
+  }
+
+  long n, m, p, N, No, Nu, nz;
+  int form;
+
+ private:
+  QP qp_;
+  Mat C_, Wy_, Wu_, CQ2_;
+  RowMat Q2_, zero_, cb_, q_, Fz_;
+  std::vector<RowMat> Ab_, Bb_;
+};
+
+long stacked(const In2 &X, long n, const char *name) {
+  if (X.shape(0) % size_t(n) != 0) throw std::invalid_argument(std::string("RiccatiActive.solve: bad rows of ") + name);
+  return long(X.shape(0)) / n;
+}
+
+// (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
+nb::tuple outcome_tuple(const QP &qp, const Outcome &res) {
+  RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
+  for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.v[i].transpose();
+  for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.z[i].transpose();
+  return nb::make_tuple(vout, zout, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+}
 }  // namespace
 
 void bind_stagewise_active(nb::module_ &m) {
@@ -311,20 +428,7 @@ void bind_stagewise_active(nb::module_ &m) {
          std::optional<InI> start, int max_iter) {
         QP qp;
         stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_active");
-        if (long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k || long(sign.shape(0)) != qp.N ||
-            long(sign.shape(1)) != qp.k)
-          throw std::invalid_argument("stagewise_active: inconsistent stage shapes");
-        qp.rows.resize(qp.nd);
-        for (long i = 0; i < qp.N; ++i)
-          for (long r = 0; r < qp.k; ++r) {
-            const long j = long(comp.data()[i * qp.k + r]);
-            if (j < 0) continue;
-            if (i >= qp.nd || j >= qp.m)
-              throw std::invalid_argument("stagewise_active: a row on a stage without decision or a component ≥ m");
-            const double fr = f.data()[i * qp.k + r];
-            qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
-            qp.f_scale = std::max(qp.f_scale, std::abs(fr));
-          }
+        read_rows(qp, comp, sign, f, "stagewise_active");
         Set fixed = Set::Constant(qp.nd, qp.m, -1);
         if (start) {
           if (long(start->shape(0)) != qp.nd || long(start->shape(1)) != qp.m)
@@ -333,11 +437,7 @@ void bind_stagewise_active(nb::module_ &m) {
           sanitize(qp, fixed);
         }
         if (max_iter < 1) throw std::invalid_argument("stagewise_active: max_iter must be ≥ 1");
-        Outcome res = solve_active_set(qp, fixed, max_iter);
-        RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
-        for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.v[i].transpose();
-        for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.z[i].transpose();
-        return nb::make_tuple(vout, zout, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+        return outcome_tuple(qp, solve_active_set(qp, fixed, max_iter));
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"),
@@ -345,5 +445,41 @@ void bind_stagewise_active(nb::module_ &m) {
       "(v, z, λ, fixed, iterations, ok, residual, message): solvers.stagewise_active.solve_active_set compiled "
       "(see that module); comp and sign: its InputRowMap; start (n_decide, m) int64 or None; max_iter: its "
       "AS_MAX_ITER (cold) or AS_WARM_MAX_ITER (from a start)");
+
+  nb::class_<RiccatiActive>(m, "RiccatiActive",
+                            "the torque/Δu-limited problem of a linear form, one call per step (see gpc/stagewise.py)")
+      .def(nb::init<const Mat &, const Mat &, const Mat &, long, long, long, int, In3, In2, InI, In2>(), nb::arg("C"),
+           nb::arg("Wy"), nb::arg("Wu"), nb::arg("N"), nb::arg("No"), nb::arg("Nu"), nb::arg("form"), nb::arg("Fz"),
+           nb::arg("f"), nb::arg("comp"), nb::arg("sign"))
+      .def(
+          "solve",
+          [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
+             In1 u0, In2 r, std::optional<InI> start, int max_iter) {
+            const long n = self.n, m = self.m;
+            const long nA = stacked(A, n, "A"), nB = stacked(B, n, "B");
+            if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != self.N) ||
+                (nB != 1 && nB != self.N))
+              throw std::invalid_argument("RiccatiActive.solve: A must be (n or N·n, n), B (n or N·n, m)");
+            const long nc = long(c.size());
+            if (nc != 0 && nc != n && nc != self.N * n)
+              throw std::invalid_argument("RiccatiActive.solve: c must have 0, n or N·n entries");
+            if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(self.N - self.No) ||
+                r.shape(1) != size_t(self.p))
+              throw std::invalid_argument("RiccatiActive.solve: x0 (n,), u0 (m,), r (N − No, p)");
+            if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
+              throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
+            if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
+            double J = 0.0;
+            const Outcome res = self.solve(A.data(), nA, B.data(), nB, nc ? c.data() : nullptr, nc == n ? 1 : self.N,
+                                           x0.data(), u0.data(), r.data(), start ? start->data() : nullptr, max_iter,
+                                           J);
+            RowMat vout(self.Nu, m);
+            for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
+            return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+          },
+          nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30,
+          "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
+          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None");
 }
 }  // namespace pgpc

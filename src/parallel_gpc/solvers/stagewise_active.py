@@ -11,7 +11,8 @@ An active row fixes its component, v_j(i) = σ_r (f_r − Fz_r z(i)): affine in 
 problem with a fixed active set is again an LQ problem — with state–input cross terms and
 fewer free inputs — solved by ONE Riccati sweep (:func:`_sweep`: v = E_i z + e_i on the fixed
 components, the free ones v_F = K_i z + k_i). The multipliers of the active rows follow from
-the costates in one backward pass (:func:`_multipliers`): λ_r = −σ_r ∂L/∂v_j(i).
+the costates in one backward pass (:func:`~parallel_gpc.solvers.stagewise_ipm.costates` with the
+set): λ_r = −σ_r ∂L/∂v_j(i).
 
 The active set is updated as a primal-dual active set (Hintermüller–Ito–Kunisch): a component
 stays fixed while its multiplier is ≥ 0 and no other row on it is broken; a free component whose
@@ -37,7 +38,7 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import SolverError
-from .stagewise_ipm import StageQP, StageQPSolution
+from .stagewise_ipm import StageQP, StageQPSolution, costates
 
 __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "active_set_of", "solve_active_set",
            "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
@@ -167,44 +168,12 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     return z, v
 
 
-def _multipliers(qp: StageQP, rows: InputRowMap, fixed: np.ndarray, z, v):
-    """One backward pass, g = R v + S z + Bᵀ ν(i+1), λ_r = −σ_r g_j on the active rows,
-    ν(i) = Q z + q + Sᵀ v + Aᵀ ν(i+1) + Fzᵀ λ.
-
-    Returns:
-        (λ (N, k), 0 off the active rows; ν (N + 1, nz), ν(0) = 0; the free components' g
-        (n_decide, m), 0 on the fixed ones: zero at the optimum; the gradient's scale, the largest
-        entry of R v and Bᵀ ν(i+1)).
-    """
-    N, nd = qp.A.shape[0], qp.n_decide
-    lam = np.zeros(qp.f.shape)
-    nu = np.zeros_like(z)
-    grad = np.zeros_like(v)
-    scale = 0.0
-    nu[N] = qp.Q[N] @ z[N] + qp.q[N]
-    for i in range(N - 1, -1, -1):
-        nxt = qp.A[i].T @ nu[i + 1]
-        if i < nd:
-            Rv, Bn = qp.R @ v[i], qp.B[i].T @ nu[i + 1]
-            scale = max(scale, float(np.max(np.abs(Rv))), float(np.max(np.abs(Bn))))
-            g = Rv + Bn
-            if qp.S is not None:
-                g += qp.S @ z[i]
-                nxt += qp.S.T @ v[i]
-            fix = fixed[i] >= 0
-            r = fixed[i][fix]
-            lam[i, r] = -rows.sign[i, r] * g[fix]
-            grad[i] = np.where(fix, 0.0, g)
-            nxt += qp.Fz[i, r].T @ lam[i, r]
-        if i > 0:
-            nu[i] = qp.Q[i] @ z[i] + qp.q[i] + nxt
-    return lam, nu, grad, scale
-
-
-def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -> np.ndarray:
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, cautious: bool = False) -> np.ndarray:
     """The next active set (n_decide, m): per component, its most broken row if one is broken,
     else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
-    how far each row is broken beyond the tolerance (≤ 0: held)."""
+    how far each row is broken beyond the tolerance (≤ 0: held). ``cautious``: the components with a
+    broken row fixed by it, every other one as it is; only when no row is broken, the one component
+    with the most negative multiplier (below −tol_lam) freed."""
     nd, m = fixed.shape
     comp = rows.comp[:nd]
     on = comp[:, None, :] == np.arange(m)[None, :, None]  # (nd, m, k): row r acts on component j
@@ -214,7 +183,14 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -
     held = fixed >= 0
     lam_fixed = np.where(held, np.take_along_axis(lam[:nd], np.maximum(fixed, 0), axis=1), 0.0)
     keep = held & (lam_fixed >= -tol_lam)
-    return np.where(is_broken, worst, np.where(keep, fixed, -1))
+    if not cautious:
+        return np.where(is_broken, worst, np.where(keep, fixed, -1))
+    if is_broken.any():
+        return np.where(is_broken, worst, fixed)
+    new = fixed.copy()
+    if not keep[held].all():
+        new.flat[int(np.argmin(np.where(held & ~keep, lam_fixed, np.inf)))] = -1
+    return new
 
 
 def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
@@ -272,10 +248,14 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     if max_iter is None:
         max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
     seen = set()
+    fewest, cautious = nd * m + 1, start is not None
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
-        lam, nu, grad, scale = _multipliers(qp, rows, fixed, z, v)
-        scale = max(scale, 1e-300)
+        lam = np.zeros(qp.f.shape)
+        nu, grad = costates(qp, z, v, lam, active=(rows.comp, rows.sign, fixed))
+        # the gradient's scale: the largest entry of R v and Bᵀ ν(i+1) (they cancel at the optimum)
+        scale = max(float(np.max(np.abs(v @ qp.R.T), initial=0.0)),
+                    float(np.max(np.abs(np.einsum("imk,im->ik", qp.B[:nd], nu[1:nd + 1])), initial=0.0)), 1e-300)
         Fx = np.einsum("ikn,in->ik", qp.Fz, z[:N])
         Fx[:nd] += np.einsum("ikm,im->ik", qp.Fv[:nd], v)
         gap = np.where(used, Fx - f, -np.inf)
@@ -287,10 +267,16 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
             message = "" if status == "optimal" else (
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
             return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
-        key = new.tobytes()
-        if key in seen:
-            return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, "unconverged", residual,
-                                     f"stage-wise active set: the active set cycles after {it} sweeps", fixed)
+        # from a start the cautious update; from none the full one while it proposes fewer changes each sweep
+        # and no set seen before, then the cautious one (the full one swings when nearly every input is on a limit)
+        n_changed = int(np.count_nonzero(new != fixed))
+        cautious = cautious or n_changed >= fewest or new.tobytes() in seen
+        fewest = min(fewest, n_changed)
+        if cautious:
+            new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, cautious=True)
+            if new.tobytes() in seen:
+                return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, "unconverged", residual,
+                                         f"stage-wise active set: the active set cycles after {it} sweeps", fixed)
         seen.add(fixed.tobytes())
         fixed = new
     return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, max_iter, "unconverged", residual,
