@@ -269,17 +269,25 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
   Outcome out;
   RowMat grad;
   std::vector<Set> seen;
-  Set next(nd, m);
+  Set next(nd, m), brk(nd, m);  // brk: each component's most broken row, −1 when none is broken
   std::vector<double> worst(m);
   char buf[200];
+  long fewest = nd * m + 1;
+  bool cautious = false;
+  auto was_seen = [&seen](const Set &s) {
+    for (const Set &t : seen)
+      if (t == s) return true;
+    return false;
+  };
   for (int it = 1; it <= max_iter; ++it) {
     sweep.run(fixed, out.z, out.v);
     const double scale = std::max(multipliers(qp, fixed, out.z, out.v, out.lam, grad), 1e-300);
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;
     double broken = 0.0;
+    bool any_broken = false;
     for (long i = 0; i < nd; ++i) {  // the next set (_update)
       std::fill(worst.begin(), worst.end(), 0.0);
-      for (long j = 0; j < m; ++j) next(i, j) = -1;
+      for (long j = 0; j < m; ++j) brk(i, j) = -1;
       for (const Row &row : qp.rows[i]) {
         double Fx = row.sign * out.v[i](row.j);
         if (row.fz) Fx += qp.Fz[i].row(row.r).dot(out.z[i]);
@@ -287,11 +295,14 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
         broken = std::max(broken, gap);
         if (gap - tol_f > worst[row.j]) {
           worst[row.j] = gap - tol_f;
-          next(i, row.j) = row.r;
+          brk(i, row.j) = row.r;
         }
       }
-      for (long j = 0; j < m; ++j)
-        if (next(i, j) < 0 && fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) next(i, j) = fixed(i, j);
+      for (long j = 0; j < m; ++j) {
+        any_broken = any_broken || brk(i, j) >= 0;
+        next(i, j) = brk(i, j) >= 0 ? brk(i, j)
+                     : (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) ? fixed(i, j) : -1;
+      }
     }
     out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / scale,
                              grad.size() ? grad.cwiseAbs().maxCoeff() / scale : 0.0});
@@ -306,12 +317,33 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
       }
       return out;
     }
-    for (const Set &s : seen)
-      if (s == next) {
+    // the full update while it proposes fewer changes each sweep and no set seen before, then the cautious one
+    const long n_changed = long((next.array() != fixed.array()).count());
+    cautious = cautious || n_changed >= fewest || was_seen(next);
+    fewest = std::min(fewest, n_changed);
+    if (cautious) {  // the broken components fixed, the others kept; none broken: the most negative λ freed
+      if (any_broken) {
+        for (long i = 0; i < nd; ++i)
+          for (long j = 0; j < m; ++j) next(i, j) = brk(i, j) >= 0 ? brk(i, j) : fixed(i, j);
+      } else {
+        next = fixed;
+        long bi = -1, bj = -1;
+        double least = -tol_l;
+        for (long i = 0; i < nd; ++i)
+          for (long j = 0; j < m; ++j)
+            if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < least) {
+              least = out.lam(i, fixed(i, j));
+              bi = i;
+              bj = j;
+            }
+        if (bi >= 0) next(bi, bj) = -1;
+      }
+      if (was_seen(next)) {
         out.fixed = fixed;
         out.message = "stage-wise active set: the active set cycles after " + std::to_string(it) + " sweeps";
         return out;
       }
+    }
     seen.push_back(fixed);
     fixed = next;
   }

@@ -17,17 +17,24 @@ set): λ_r = −σ_r ∂L/∂v_j(i).
 The active set is updated as a primal-dual active set (Hintermüller–Ito–Kunisch): a component
 stays fixed while its multiplier is ≥ 0 and no other row on it is broken; a free component whose
 rows are broken is fixed by its most broken row; a fixed one whose multiplier turned negative is
-freed. The iterations stop when the set repeats its predecessor — the KKT conditions (primal
+freed. The iterations stop when that update would keep the set — the KKT conditions (primal
 feasibility, λ ≥ 0, stationarity of the free components, complementarity by construction) are
 then verified, not trusted — or when a set comes back (a cycle) or the cap is reached: status
-``"unconverged"``, for the caller to hand the problem to the interior point. A start (the
-previous step's set shifted by one stage) saves the iterations the changes of the set cost.
+``"unconverged"``, for the caller to hand the problem to the interior point.
+
+The full update changes every component at once; with most inputs on a limit (planar_4rrr,
+absolute, N = 160: 637 of 640) it swings without settling (the few free inputs pass far beyond
+their bounds between sweeps: 3 changes, then 30, 61, 34, … on a warm start). A *cautious* update
+then takes over: the components whose rows are broken are fixed, every other one kept; only when
+no row is broken is the one component with the most negative multiplier freed (as a primal active
+set drops one row per iteration). It takes over, for the rest of the solve, once the full update
+proposes no fewer changes than on the sweep before or a set seen before (N = 160 warm steps then
+settle in 1–6 sweeps instead of none in 8; the full update alone is faster from a poor start, where
+the cautious one pays a sweep per wrong row).
 
 Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
 the incremental forms binding together on one component pin the held input (a row on the state),
-and the set then cycles. With most inputs on a limit (planar_4rrr, absolute, N = 160: ~600 of 640)
-the full-step update of the set does not settle either (the few free inputs swing far past their
-bounds between sweeps). Both are reported unconverged.
+and the set then cycles: reported unconverged.
 """
 
 from __future__ import annotations
@@ -44,14 +51,14 @@ __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_se
            "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
-#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr), a warm
-#: one 1.5–3; at N = 160 with ~600 of 640 inputs on their limits the set does not settle from a cold
-#: start (80 sweeps tried): the interior point solves that step and its active rows start the next.
+#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 40 (planar_4rrr); at
+#: N = 80 and 160 with most inputs on their limits 56 and 173 (the cautious update frees one row per
+#: sweep): the interior point solves that first step and its active rows start the next.
 AS_MAX_ITER = 30
-#: the cap from a start (the previous step's set shifted): a good start settles in 1–3 sweeps (mean
-#: 1.5–2.5 up to N = 80); one that has not by this many goes to the interior point without the
-#: full cap's cost (absolute N = 160: 30 sweeps, then the interior point, on 20 of 24 steps).
-AS_WARM_MAX_ITER = 8
+#: the cap from a start (the previous step's set shifted): a start settles in 1–6 sweeps (mean 1.5–2.5 up
+#: to N = 80, ~4 at N = 160, planar_4rrr; 3–9 on the random problems of the tests); one that has not by
+#: this many goes to the interior point without the full cap's cost.
+AS_WARM_MAX_ITER = 12
 #: the set's tolerance: a row broken by more than AS_TOL × the largest bound, or a multiplier below
 #: −AS_TOL × the gradient's scale, changes the active set (the settled set meets both).
 AS_TOL = 1e-10
@@ -248,7 +255,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     if max_iter is None:
         max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
     seen = set()
-    fewest, cautious = nd * m + 1, start is not None
+    fewest, cautious = nd * m + 1, False
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
         lam = np.zeros(qp.f.shape)
@@ -267,8 +274,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
             message = "" if status == "optimal" else (
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
             return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
-        # from a start the cautious update; from none the full one while it proposes fewer changes each sweep
-        # and no set seen before, then the cautious one (the full one swings when nearly every input is on a limit)
+        # the full update while it proposes fewer changes each sweep and no set seen before, then the cautious one
         n_changed = int(np.count_nonzero(new != fixed))
         cautious = cautious or n_changed >= fewest or new.tobytes() in seen
         fewest = min(fewest, n_changed)
