@@ -59,13 +59,22 @@ struct Sweep {
   Traj k, e;
   std::vector<std::vector<long>> free;
   std::vector<char> has_E;
+  std::vector<Mat> Ps;  // P_i and p_i of the last sweep: a sweep redoes only the stages up to the last one
+  Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
+  Set last;             // the set of the last sweep
+  bool valid = false;   // Ps, ps and last belong to this solve
   Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
   Vec p, lin, w, gv, gw, vf;
   Eigen::LLT<Mat> llt;
 
-  // bind to qp, the per-stage buffers sized for it
+  // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
   void prepare(const QP &qp) {
     qpp = &qp;
+    valid = false;
+    if (long(Ps.size()) != qp.N + 1) {
+      Ps.assign(qp.N + 1, Mat());
+      ps.assign(qp.N + 1, Vec());
+    }
     if (long(E.size()) != qp.nd || (qp.nd && (E[0].rows() != qp.m || E[0].cols() != qp.nz))) {
       K.assign(qp.nd, Mat());
       E.assign(qp.nd, Mat::Zero(qp.m, qp.nz));
@@ -79,9 +88,20 @@ struct Sweep {
   void run(const Set &fixed, Traj &z, Traj &v) {
     const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, m = qp.m;
-    P = qp.Q[N];
-    p = qp.q[N];
-    for (long i = N - 1; i >= 0; --i) {
+    long top = N - 1;  // the last stage to redo
+    if (valid) {
+      top = -1;
+      for (long i = nd - 1; i >= 0 && top < 0; --i)
+        if (fixed.row(i) != last.row(i)) top = i;
+    } else {
+      Ps[N] = qp.Q[N];
+      ps[N] = qp.q[N];
+    }
+    if (top >= 0) {
+      P = Ps[top + 1];
+      p = ps[top + 1];
+    }
+    for (long i = top; i >= 0; --i) {
       const CMap &A = qp.A[i];
       PA.noalias() = P.lazyProduct(A);
       w = p;
@@ -166,7 +186,11 @@ struct Sweep {
       }
       P = 0.5 * (Pz + Pz.transpose());
       p = lin;
+      Ps[i] = P;
+      ps[i] = p;
     }
+    last = fixed;
+    valid = true;
     z.resize(N + 1);
     v.resize(nd);
     z[0] = qp.z0;

@@ -287,7 +287,7 @@ class StagewiseSolver:
             self._unsettled = (message, self.iterations)
             return None
         self.method, self._fixed = "active-set", fixed
-        self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)
+        self._last = StageQPSolution(v, None, np.zeros_like(lam), lam, None, iterations, "optimal", residual)
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
                            bool((fixed >= 0).any()), "")
 
