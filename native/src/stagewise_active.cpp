@@ -286,7 +286,8 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
     }
 }
 
-Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
+// warm: a start was given (the cautious update also when the changes stop shrinking, as in the Python twin)
+Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
   const long nd = qp.nd, m = qp.m;
   thread_local Sweep sweep;
   sweep.prepare(qp);
@@ -341,9 +342,10 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
       }
       return out;
     }
-    // the full update while it proposes fewer changes each sweep and no set seen before, then the cautious one
+    // the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
+    // then the cautious one
     const long n_changed = long((next.array() != fixed.array()).count());
-    cautious = cautious || n_changed >= fewest || was_seen(next);
+    cautious = cautious || (warm && n_changed >= fewest) || was_seen(next);
     fewest = std::min(fewest, n_changed);
     if (cautious) {  // the broken components fixed, the others kept; none broken: the most negative λ freed
       if (any_broken) {
@@ -446,7 +448,7 @@ class RiccatiActive {
       fixed = Eigen::Map<const Set>(start, Nu, m);
       sanitize(qp_, fixed);
     }
-    Outcome out = solve_active_set(qp_, fixed, max_iter);
+    Outcome out = solve_active_set(qp_, fixed, max_iter, start != nullptr);
     J = 0.0;
     for (long i = 0; i < Nu; ++i) J += (Wu_ * out.v[i]).squaredNorm();
     for (long i = No + 1; i <= N; ++i) J += (Wy_ * (C_ * out.z[i].head(n) - W.row(i - No - 1).transpose())).squaredNorm();
@@ -493,7 +495,7 @@ void bind_stagewise_active(nb::module_ &m) {
           sanitize(qp, fixed);
         }
         if (max_iter < 1) throw std::invalid_argument("stagewise_active: max_iter must be ≥ 1");
-        return outcome_tuple(qp, solve_active_set(qp, fixed, max_iter));
+        return outcome_tuple(qp, solve_active_set(qp, fixed, max_iter, bool(start)));
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"),

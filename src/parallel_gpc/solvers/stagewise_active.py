@@ -28,9 +28,10 @@ their bounds between sweeps: 3 changes, then 30, 61, 34, … on a warm start). A
 then takes over: the components whose rows are broken are fixed, every other one kept; only when
 no row is broken is the one component with the most negative multiplier freed (as a primal active
 set drops one row per iteration). It takes over, for the rest of the solve, once the full update
-proposes no fewer changes than on the sweep before or a set seen before (N = 160 warm steps then
-settle in 1–6 sweeps instead of none in 8; the full update alone is faster from a poor start, where
-the cautious one pays a sweep per wrong row).
+proposes a set seen before or — from a start — no fewer changes than on the sweep before (N = 160
+warm steps then settle in 1–6 sweeps instead of none in 8). Not from a cold start: there the
+full update's changes shrink unevenly on the way (N = 80, most inputs limited: 10–17 sweeps), the
+cautious one would pay a sweep per wrongly fixed row (over 30).
 
 Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
 the incremental forms binding together on one component pin the held input (a row on the state),
@@ -274,9 +275,10 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
             message = "" if status == "optimal" else (
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
             return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
-        # the full update while it proposes fewer changes each sweep and no set seen before, then the cautious one
+        # the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
+        # then the cautious one
         n_changed = int(np.count_nonzero(new != fixed))
-        cautious = cautious or n_changed >= fewest or new.tobytes() in seen
+        cautious = cautious or (start is not None and n_changed >= fewest) or new.tobytes() in seen
         fewest = min(fewest, n_changed)
         if cautious:
             new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, cautious=True)
