@@ -366,17 +366,21 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
       }
       if (was_seen(next)) {
         out.fixed = fixed;
-        out.message = "stage-wise active set: the active set cycles after " + std::to_string(it) + " sweeps";
+        out.ok = out.residual <= ACCEPT;  // _unsettled: the last sweep accepted when its KKT conditions hold
+        if (!out.ok) out.message = "stage-wise active set: the active set cycles after " + std::to_string(it) + " sweeps";
         return out;
       }
     }
     seen.push_back(fixed);
+    out.fixed = fixed;  // the set of the last sweep
     fixed = next;
   }
-  out.fixed = fixed;
-  std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", max_iter,
-                out.residual);
-  out.message = buf;
+  out.ok = out.residual <= ACCEPT;
+  if (!out.ok) {
+    std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", max_iter,
+                  out.residual);
+    out.message = buf;
+  }
   return out;
 }
 

@@ -221,7 +221,7 @@ class StagewiseSolver:
         def shifted(a):
             return np.concatenate([a[1:], a[-1:]])
 
-        return StageStart(v, shifted(last.lam), shifted(last.s))
+        return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
@@ -287,7 +287,7 @@ class StagewiseSolver:
             self._unsettled = (message, self.iterations)
             return None
         self.method, self._fixed = "active-set", fixed
-        self._last = StageQPSolution(v, None, np.zeros_like(lam), lam, None, iterations, "optimal", residual)
+        self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
                            bool((fixed >= 0).any()), "")
 

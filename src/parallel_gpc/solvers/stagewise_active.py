@@ -283,10 +283,18 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
         if cautious:
             new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, cautious=True)
             if new.tobytes() in seen:
-                return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, "unconverged", residual,
-                                         f"stage-wise active set: the active set cycles after {it} sweeps", fixed)
+                return _unsettled(v, z, lam, nu, it, residual, fixed,
+                                  f"stage-wise active set: the active set cycles after {it} sweeps")
         seen.add(fixed.tobytes())
-        fixed = new
-    return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, max_iter, "unconverged", residual,
-                             f"stage-wise active set: not converged in {max_iter} sweeps (KKT residual {residual:.3g})",
-                             fixed)
+        swept, fixed = fixed, new
+    return _unsettled(v, z, lam, nu, max_iter, residual, swept,
+                      f"stage-wise active set: not converged in {max_iter} sweeps (KKT residual {residual:.3g})")
+
+
+def _unsettled(v, z, lam, nu, iterations: int, residual: float, fixed, message: str) -> ActiveSetSolution:
+    """The last sweep's solution (of the set ``fixed``) when the set did not settle: accepted all the
+    same when its KKT residual is at most :data:`AS_ACCEPT` (rows whose multipliers hover at 0 toggling
+    in and out), else ``"unconverged"`` with ``message``."""
+    ok = residual <= AS_ACCEPT
+    return ActiveSetSolution(v, z, np.zeros(lam.shape), lam, nu, iterations, "optimal" if ok else "unconverged",
+                             residual, "" if ok else message, fixed)
