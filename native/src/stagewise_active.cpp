@@ -15,6 +15,7 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "bindings.hpp"
@@ -297,8 +298,9 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
   Set next(nd, m), brk(nd, m);  // brk: each component's most broken row, −1 when none is broken
   std::vector<double> worst(m);
   char buf[200];
-  long fewest = nd * m + 1;
-  bool cautious = false;
+  long fewest = nd * m + 1, frees = 0;  // frees: 0 while the full update runs
+  bool freed = false;
+  std::vector<std::pair<double, long>> negative;  // (λ, i·m + j) of the fixed components with λ < 0
   auto was_seen = [&seen](const Set &s) {
     for (const Set &t : seen)
       if (t == s) return true;
@@ -343,27 +345,27 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
       return out;
     }
     // the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
-    // then the cautious one
+    // then the cautious one: one component freed per sweep, twice as many after frees that broke no
+    // row, half as many after frees that did
     const long n_changed = long((next.array() != fixed.array()).count());
-    cautious = cautious || (warm && n_changed >= fewest) || was_seen(next);
+    if (frees == 0 && ((warm && n_changed >= fewest) || was_seen(next))) frees = 1;
     fewest = std::min(fewest, n_changed);
-    if (cautious) {  // the broken components fixed, the others kept; none broken: the most negative λ freed
-      if (any_broken) {
+    if (frees > 0) {
+      if (freed) frees = any_broken ? std::max(1L, frees / 2) : 2 * frees;
+      if (any_broken) {  // the broken components fixed, the others kept
         for (long i = 0; i < nd; ++i)
           for (long j = 0; j < m; ++j) next(i, j) = brk(i, j) >= 0 ? brk(i, j) : fixed(i, j);
-      } else {
+      } else {  // the `frees` most negative multipliers' components freed
         next = fixed;
-        long bi = -1, bj = -1;
-        double least = -tol_l;
+        negative.clear();
         for (long i = 0; i < nd; ++i)
           for (long j = 0; j < m; ++j)
-            if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < least) {
-              least = out.lam(i, fixed(i, j));
-              bi = i;
-              bj = j;
-            }
-        if (bi >= 0) next(bi, bj) = -1;
+            if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < -tol_l) negative.push_back({out.lam(i, fixed(i, j)), i * m + j});
+        std::stable_sort(negative.begin(), negative.end(),
+                         [](const auto &a, const auto &b) { return a.first < b.first; });
+        for (size_t a = 0; a < negative.size() && long(a) < frees; ++a) next(negative[a].second / m, negative[a].second % m) = -1;
       }
+      freed = !any_broken;
       if (was_seen(next)) {
         out.fixed = fixed;
         out.ok = out.residual <= ACCEPT;  // _unsettled: the last sweep accepted when its KKT conditions hold

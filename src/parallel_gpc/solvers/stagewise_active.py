@@ -25,13 +25,17 @@ then verified, not trusted — or when a set comes back (a cycle) or the cap is 
 The full update changes every component at once; with most inputs on a limit (planar_4rrr,
 absolute, N = 160: 637 of 640) it swings without settling (the few free inputs pass far beyond
 their bounds between sweeps: 3 changes, then 30, 61, 34, … on a warm start). A *cautious* update
-then takes over: the components whose rows are broken are fixed, every other one kept; only when
-no row is broken is the one component with the most negative multiplier freed (as a primal active
-set drops one row per iteration). It takes over, for the rest of the solve, once the full update
-proposes a set seen before or — from a start — no fewer changes than on the sweep before (N = 160
-warm steps then settle in 1–6 sweeps instead of none in 8). Not from a cold start: there the
-full update's changes shrink unevenly on the way (N = 80, most inputs limited: 10–17 sweeps), the
-cautious one would pay a sweep per wrongly fixed row (over 30).
+then takes over for the rest of the solve: the components whose rows are broken are fixed, every
+other one kept; only when no row is broken are components with negative multipliers freed, the
+most negative first — one on the first such sweep, twice as many after frees that broke no row,
+half as many after frees that did (a primal active set drops one row per iteration; freeing all
+at once is the full update's swing). It takes over once the full update proposes a set seen
+before or — from a start — no fewer changes than on the sweep before (N = 160 warm steps then
+settle in 1–7 sweeps instead of none in 8). Not from a cold start: there the full update's
+changes shrink unevenly on the way (N = 80, most inputs limited: 10–17 sweeps), the cautious one
+would pay for each wrongly fixed row (over 30 sweeps). A set that still does not settle is
+accepted when the last sweep's KKT residual is within :data:`AS_ACCEPT` (multipliers at 0
+toggling), else reported unconverged.
 
 Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
 the incremental forms binding together on one component pin the held input (a row on the state),
@@ -52,13 +56,13 @@ __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_se
            "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
-#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 40 (planar_4rrr); at
-#: N = 80 and 160 with most inputs on their limits 56 and 173 (the cautious update frees one row per
-#: sweep): the interior point solves that first step and its active rows start the next.
+#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr); at
+#: N = 160 with 637 of 640 inputs on their limits it does not settle in 200: the interior point solves
+#: that first step and its active rows start the next.
 AS_MAX_ITER = 30
-#: the cap from a start (the previous step's set shifted): a start settles in 1–6 sweeps (mean 1.5–2.5 up
-#: to N = 80, ~4 at N = 160, planar_4rrr; 3–9 on the random problems of the tests); one that has not by
-#: this many goes to the interior point without the full cap's cost.
+#: the cap from a start (the previous step's set shifted): a start settles in 1–12 sweeps (mean 1.5–3.7 up
+#: to N = 80, ~4.5 at N = 160, planar_4rrr; 3–10 on the random problems of the tests); one that has not
+#: by this many goes to the interior point without the full cap's cost.
 AS_WARM_MAX_ITER = 12
 #: the set's tolerance: a row broken by more than AS_TOL × the largest bound, or a multiplier below
 #: −AS_TOL × the gradient's scale, changes the active set (the settled set meets both).
@@ -176,12 +180,14 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     return z, v
 
 
-def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, cautious: bool = False) -> np.ndarray:
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, frees: int | None = None
+            ) -> np.ndarray:
     """The next active set (n_decide, m): per component, its most broken row if one is broken,
     else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
-    how far each row is broken beyond the tolerance (≤ 0: held). ``cautious``: the components with a
-    broken row fixed by it, every other one as it is; only when no row is broken, the one component
-    with the most negative multiplier (below −tol_lam) freed."""
+    how far each row is broken beyond the tolerance (≤ 0: held). ``frees`` (the cautious update):
+    the components with a broken row fixed by it, every other one as it is; only when no row is
+    broken, at most ``frees`` of the components whose multiplier is below −tol_lam freed (the most
+    negative ones)."""
     nd, m = fixed.shape
     comp = rows.comp[:nd]
     on = comp[:, None, :] == np.arange(m)[None, :, None]  # (nd, m, k): row r acts on component j
@@ -191,13 +197,13 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, c
     held = fixed >= 0
     lam_fixed = np.where(held, np.take_along_axis(lam[:nd], np.maximum(fixed, 0), axis=1), 0.0)
     keep = held & (lam_fixed >= -tol_lam)
-    if not cautious:
+    if frees is None:
         return np.where(is_broken, worst, np.where(keep, fixed, -1))
     if is_broken.any():
         return np.where(is_broken, worst, fixed)
     new = fixed.copy()
-    if not keep[held].all():
-        new.flat[int(np.argmin(np.where(held & ~keep, lam_fixed, np.inf)))] = -1
+    negative = np.flatnonzero(held & ~keep)
+    new.flat[negative[np.argsort(lam_fixed.flat[negative], kind="stable")[:frees]]] = -1
     return new
 
 
@@ -256,7 +262,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     if max_iter is None:
         max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
     seen = set()
-    fewest, cautious = nd * m + 1, False
+    fewest, frees, freed = nd * m + 1, None, False  # frees: None while the full update runs
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
         lam = np.zeros(qp.f.shape)
@@ -276,12 +282,18 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
             return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
         # the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
-        # then the cautious one
+        # then the cautious one: one component freed per sweep, twice as many after frees that broke no
+        # row, half as many after frees that did
         n_changed = int(np.count_nonzero(new != fixed))
-        cautious = cautious or (start is not None and n_changed >= fewest) or new.tobytes() in seen
+        if frees is None and ((start is not None and n_changed >= fewest) or new.tobytes() in seen):
+            frees = 1
         fewest = min(fewest, n_changed)
-        if cautious:
-            new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, cautious=True)
+        if frees is not None:
+            broken = gap[:nd] - tol * f_scale
+            any_broken = bool(np.any(broken > 0.0))
+            if freed:
+                frees = max(1, frees // 2) if any_broken else 2 * frees
+            new, freed = _update(rows, fixed, lam, broken, tol * scale, frees), not any_broken
             if new.tobytes() in seen:
                 return _unsettled(v, z, lam, nu, it, residual, fixed,
                                   f"stage-wise active set: the active set cycles after {it} sweeps")
