@@ -168,10 +168,6 @@ class Riccati {
   Eigen::LLT<Mat> llt_;
 };
 
-long stacked(const In2 &X, long n, const char *name) {
-  if (X.shape(0) % size_t(n) != 0) throw std::invalid_argument(std::string("Riccati.solve: bad rows of ") + name);
-  return long(X.shape(0)) / n;
-}
 }  // namespace
 
 void bind_riccati(nb::module_ &m) {
@@ -181,21 +177,13 @@ void bind_riccati(nb::module_ &m) {
       .def("solve",
            [](Riccati &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
               In1 u0, In2 r) {
-             const long n = self.n, m = self.m;
-             const long nA = stacked(A, n, "A"), nB = stacked(B, n, "B");
-             if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != self.N) ||
-                 (nB != 1 && nB != self.N))
-               throw std::invalid_argument("Riccati.solve: A must be (n or N·n, n), B (n or N·n, m)");
-             const long nc_total = long(c.size());
-             if (self.form != 3 && nc_total != n && nc_total != self.N * n)
-               throw std::invalid_argument("Riccati.solve: c must have n or N·n entries");
-             if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(self.N - self.No) ||
-                 r.shape(1) != size_t(self.p))
-               throw std::invalid_argument("Riccati.solve: x0 (n,), u0 (m,), r (N − No, p)");
+             const long m = self.m;
+             const stage_model::StepShape step = stage_model::check_step(
+                 "Riccati.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), self.form != 3, x0, u0, r);
              double *buf = new double[self.Nu * m];
              nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-             const double J = self.solve(A.data(), nA, B.data(), nB, nc_total ? c.data() : nullptr,
-                                         nc_total == n ? 1 : self.N, x0.data(), u0.data(), r.data(), buf);
+             const double J = self.solve(A.data(), step.nA, B.data(), step.nB, step.nc ? c.data() : nullptr,
+                                         step.nc, x0.data(), u0.data(), r.data(), buf);
              size_t shape[1] = {size_t(self.Nu * m)};
              return nb::make_tuple(Array(buf, 1, shape, owner), J);
            },

@@ -471,11 +471,6 @@ class RiccatiActive {
   std::vector<RowMat> Ab_, Bb_;
 };
 
-long stacked(const In2 &X, long n, const char *name) {
-  if (X.shape(0) % size_t(n) != 0) throw std::invalid_argument(std::string("RiccatiActive.solve: bad rows of ") + name);
-  return long(X.shape(0)) / n;
-}
-
 // (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
 nb::tuple outcome_tuple(const QP &qp, const Outcome &res) {
   RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
@@ -519,24 +514,16 @@ void bind_stagewise_active(nb::module_ &m) {
           "solve",
           [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
              In1 u0, In2 r, std::optional<InI> start, int max_iter) {
-            const long n = self.n, m = self.m;
-            const long nA = stacked(A, n, "A"), nB = stacked(B, n, "B");
-            if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != self.N) ||
-                (nB != 1 && nB != self.N))
-              throw std::invalid_argument("RiccatiActive.solve: A must be (n or N·n, n), B (n or N·n, m)");
-            const long nc = long(c.size());
-            if (nc != 0 && nc != n && nc != self.N * n)
-              throw std::invalid_argument("RiccatiActive.solve: c must have 0, n or N·n entries");
-            if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(self.N - self.No) ||
-                r.shape(1) != size_t(self.p))
-              throw std::invalid_argument("RiccatiActive.solve: x0 (n,), u0 (m,), r (N − No, p)");
+            const long m = self.m;
+            const stage_model::StepShape shape = stage_model::check_step(
+                "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             double J = 0.0;
-            const Outcome res = self.solve(A.data(), nA, B.data(), nB, nc ? c.data() : nullptr, nc == n ? 1 : self.N,
-                                           x0.data(), u0.data(), r.data(), start ? start->data() : nullptr, max_iter,
-                                           J);
+            const Outcome res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
+                                           shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
+                                           max_iter, J);
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
