@@ -1,9 +1,13 @@
 // The stage-wise primal-dual active set of solvers/stagewise_active.py (solve_active_set), compiled:
 // per iteration one Riccati sweep of the LQ problem with the active rows' components fixed
-// (v_j = σ (f − Fz z): affine in the state, substituted stage by stage), one backward pass for the
-// multipliers, the Hintermüller–Ito–Kunisch update of the set, stopped when the set repeats (KKT
-// verified), cycles or reaches the cap. The Python module is the reference; this file follows it
-// function by function (same names). One workspace serves every sweep of a solve.
+// (v_j = σ (f − Fz z): affine in the state, substituted stage by stage; only the stages up to the
+// last one whose set changed are factorized again), one backward pass for the multipliers, the
+// Hintermüller–Ito–Kunisch update of the set or, once that stops shrinking, the cautious one,
+// stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
+// reference; this file follows it function by function (same names). One workspace serves every
+// sweep of a solve. Two entry points: `stagewise_active` (any StageQP of input rows) and the class
+// `RiccatiActive` (a linear form's limited step in one call: its stage models and criterion built
+// here, gpc/stagewise.py).
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
