@@ -681,3 +681,28 @@ def test_nearly_saturated_warm_steps_settle_in_the_active_set():
         assert x_daqp is not None
         assert np.abs(v - x_daqp).max() <= 1e-8 * np.abs(x_daqp).max()
     assert (stagewise._fixed >= 0).mean() > 0.95
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_point(monkeypatch):
+    """A warm step whose set does not settle within the cap (here a cap of one sweep) is handed to the
+    interior point, warm-started from the compiled step's last solution (its plan and multipliers; no
+    slacks), visibly (method and message), and reaches DAQP's plan on the condensed problem."""
+    import parallel_gpc.gpc.stagewise as stagewise_module
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "incremental", "torque", cases=INPUT_CASES)
+    path = ctl._riccati
+    first = path.solve(*path.stages(ctl, X, w), warm=False)
+    assert first.status == "optimal" and path.constrained.method == "active-set"
+    assert path.constrained._step is not None and path.constrained._last.s is None
+    monkeypatch.setattr(stagewise_module, "AS_WARM_MAX_ITER", 1)
+    X = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.05)])
+    result = path.solve(*path.stages(ctl, X, w), warm=True)
+    assert path.constrained.method == "interior-point after active set"
+    assert result.status == "optimal" and "solved by the interior point" in result.message
+    assert path.constrained.iterations[0] == 1 and path.constrained.iterations[1] > 0
+    full, x_ref = _condensed(ctl, X, w)
+    assert x_ref is not None
+    v_ref = x_ref[:full.n_decision]
+    assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
