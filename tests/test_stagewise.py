@@ -16,7 +16,9 @@ from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
+from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
+from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
                                    shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
@@ -495,7 +497,9 @@ def test_active_set_of_a_random_problem_equals_a_dense_qp_from_any_start(seed, i
     nd, m = v_ref.shape
     guess = rng.integers(-1, qp.f.shape[1], (nd, m))  # rows of other components and unused rows among them
     for start in (None, guess, shift_active_set(cold.fixed)):
-        sol = solve_active_set(qp, rows, start)
+        # a random set is no warm start: it may need more sweeps than the warm cap (one per wrong row
+        # once the cautious update takes over)
+        sol = solve_active_set(qp, rows, start, max_iter=AS_MAX_ITER if start is guess else None)
         assert sol.status == "optimal", sol.message
         assert np.abs(sol.v - v_ref).max() <= 1e-9 * max(1.0, np.abs(v_ref).max())
         used = np.isfinite(qp.f)
@@ -605,3 +609,100 @@ def test_the_interior_points_active_rows_settle_the_active_set_in_one_sweep(seed
     sol = solve_active_set(qp, rows, start)
     assert sol.status == "optimal" and sol.iterations == 1
     assert np.array_equal(sol.fixed, start) and (start >= 0).sum() >= 3
+
+
+HAS_COMPILED_STEP = native_module() is not None and hasattr(native_module(), "RiccatiActive")
+if not HAS_COMPILED_STEP and os.environ.get("CI"):
+    raise RuntimeError("CI must test the compiled limited step (parallel_gpc._native.RiccatiActive)")
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("horizons", [dict(N=15), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
+@pytest.mark.parametrize("case", ["torque", "du", "torque+du"])
+@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
+def test_compiled_limited_step_equals_the_python_path_along_warm_steps(form, case, horizons):
+    """The compiled limited step of a linear form (``_native.RiccatiActive``: stage models, criterion,
+    active set and J in one call) against the Python reference (stage_models, stage_problem,
+    solve_active_set) over five warm-started steps at moving states: the same method and sweeps on
+    every step, plans ≤ 1e-9 and J ≤ 1e-9 relative."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
+    paths = [RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+             for native in (False, True)]
+    rng = np.random.default_rng(3)
+    for k in range(5):
+        stages = ctl._riccati.stages(ctl, X, w[ctl.horizons.No:])
+        for path in paths:
+            path._extra = ctl._riccati._extra  # y(k) (the rows' extra arguments) of these stages
+        results = [path.solve(*stages, warm=k > 0) for path in paths]
+        methods = [(path.constrained.method, path.constrained.iterations) for path in paths]
+        assert methods[0] == methods[1]
+        python, compiled = results
+        assert python.status == compiled.status == "optimal", (python.message, compiled.message)
+        assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
+        assert compiled.cost == pytest.approx(python.cost, rel=1e-9)
+        X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
+    assert paths[1].constrained._step is not None  # the compiled step, not the generic compiled active set
+
+
+def test_nearly_saturated_warm_steps_settle_in_the_active_set():
+    """planar_4rrr, absolute, N = 160, the torque limit at half the largest unconstrained |u(k)| along
+    the path: ~99 % of the 640 inputs on a limit. The full (HIK) update of the set swings there without
+    settling (20 of 24 steps went to the interior point); with the cautious update every warm step
+    settles in the active set, its plan DAQP's on the condensed problem (≤ 1e-8) with a KKT residual
+    (NNLS on the active rows) at the rounding floor."""
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    N, weights = 160, Weights(1.0, 1e-5)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    free = GPCController.build(model, TS, Horizons(N), weights, solver="riccati")
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
+    states, u_max = [], 0.0
+    for k in range(4):
+        w = ref.window(k * TS, TS, N)
+        states.append((plant.X.copy(), w))
+        u = free.step(plant.X, w).u
+        u_max = max(u_max, float(np.abs(u).max()))
+        plant.step(u)
+    limits = Limits(torque=0.5 * u_max)
+    ric = GPCController.build(model, TS, Horizons(N), weights, solver="riccati", limits=limits)
+    chk = GPCController.build(model, TS, Horizons(N), weights, solver="qr-first:bvls", limits=limits)
+    for k, (X, w) in enumerate(states):
+        chk.restore(ric.state)  # the same state: the same problem
+        chk._update_disturbance(X)
+        full, x_daqp = _condensed(chk, X, w)
+        info = ric.step(X, w)
+        stagewise = ric._riccati.constrained
+        assert info.result.ok, info.result.message
+        if k:
+            assert stagewise.method == "active-set", info.result.message
+        v = ric._v_prev
+        assert _kkt_residual(full, v) <= 1e-9
+        assert x_daqp is not None
+        assert np.abs(v - x_daqp).max() <= 1e-8 * np.abs(x_daqp).max()
+    assert (stagewise._fixed >= 0).mean() > 0.95
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_point(monkeypatch):
+    """A warm step whose set does not settle within the cap (here a cap of one sweep) is handed to the
+    interior point, warm-started from the compiled step's last solution (its plan and multipliers; no
+    slacks), visibly (method and message), and reaches DAQP's plan on the condensed problem."""
+    import parallel_gpc.gpc.stagewise as stagewise_module
+
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "incremental", "torque", cases=INPUT_CASES)
+    path = ctl._riccati
+    first = path.solve(*path.stages(ctl, X, w), warm=False)
+    assert first.status == "optimal" and path.constrained.method == "active-set"
+    assert path.constrained._step is not None and path.constrained._last.s is None
+    monkeypatch.setattr(stagewise_module, "AS_WARM_MAX_ITER", 1)
+    X = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.05)])
+    result = path.solve(*path.stages(ctl, X, w), warm=True)
+    assert path.constrained.method == "interior-point after active set"
+    assert result.status == "optimal" and "solved by the interior point" in result.message
+    assert path.constrained.iterations[0] == 1 and path.constrained.iterations[1] > 0
+    full, x_ref = _condensed(ctl, X, w)
+    assert x_ref is not None
+    v_ref = x_ref[:full.n_decision]
+    assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()

@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "stage_model.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
@@ -28,7 +29,7 @@ class Riccati {
     if (form < 0 || form > 3) throw std::invalid_argument("Riccati: form must be 0..3");
     if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("Riccati: bad horizons");
     if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("Riccati: weight shapes");
-    nz = (form == 0 && Nu == N) ? n : n + m;
+    nz = stage_model::state_size(form, n, m, N, Nu);
     Mat Cz = Mat::Zero(p, nz);
     Cz.leftCols(n) = C;
     CQ_ = Cz.transpose() * (Wy.transpose() * Wy);
@@ -155,23 +156,9 @@ class Riccati {
   }
 
   void stage(long i, const double *A, const double *B, const double *c) {
-    Mat &Ai = Abar_[i];
-    Mat &Bi = Bbar_[i];
     An_[i] = CMap(A, n, n);
     Bn_[i] = CMap(B, n, m);
-    Ai.topLeftCorner(n, n) = CMap(A, n, n);
-    if (c && form != 3)
-      cbar_[i].head(n) = VMap(c, n);
-    if (nz == n) {
-      Bi = CMap(B, n, m);
-      return;
-    }
-    const bool decide = i < Nu;
-    const bool held = form != 0 || !decide;  // the input memory feeds x
-    if (held) Ai.topRightCorner(n, m) = CMap(B, n, m); else Ai.topRightCorner(n, m).setZero();
-    if (held) Ai.bottomRightCorner(m, m).setIdentity(); else Ai.bottomRightCorner(m, m).setZero();
-    if (form == 2) Bi.topRows(n).setZero(); else Bi.topRows(n) = CMap(B, n, m);
-    Bi.bottomRows(m).setIdentity();
+    stage_model::fill(form, n, m, Nu, i, A, B, c, Abar_[i], Bbar_[i], cbar_[i]);
   }
 
   Mat C_, Wy_, CQ_, CQC_, R_, PA_, T_, BPA_, PB_, H_;
@@ -181,10 +168,6 @@ class Riccati {
   Eigen::LLT<Mat> llt_;
 };
 
-long stacked(const In2 &X, long n, const char *name) {
-  if (X.shape(0) % size_t(n) != 0) throw std::invalid_argument(std::string("Riccati.solve: bad rows of ") + name);
-  return long(X.shape(0)) / n;
-}
 }  // namespace
 
 void bind_riccati(nb::module_ &m) {
@@ -194,21 +177,13 @@ void bind_riccati(nb::module_ &m) {
       .def("solve",
            [](Riccati &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
               In1 u0, In2 r) {
-             const long n = self.n, m = self.m;
-             const long nA = stacked(A, n, "A"), nB = stacked(B, n, "B");
-             if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != self.N) ||
-                 (nB != 1 && nB != self.N))
-               throw std::invalid_argument("Riccati.solve: A must be (n or N·n, n), B (n or N·n, m)");
-             const long nc_total = long(c.size());
-             if (self.form != 3 && nc_total != n && nc_total != self.N * n)
-               throw std::invalid_argument("Riccati.solve: c must have n or N·n entries");
-             if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(self.N - self.No) ||
-                 r.shape(1) != size_t(self.p))
-               throw std::invalid_argument("Riccati.solve: x0 (n,), u0 (m,), r (N − No, p)");
+             const long m = self.m;
+             const stage_model::StepShape step = stage_model::check_step(
+                 "Riccati.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), self.form != 3, x0, u0, r);
              double *buf = new double[self.Nu * m];
              nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-             const double J = self.solve(A.data(), nA, B.data(), nB, nc_total ? c.data() : nullptr,
-                                         nc_total == n ? 1 : self.N, x0.data(), u0.data(), r.data(), buf);
+             const double J = self.solve(A.data(), step.nA, B.data(), step.nB, step.nc ? c.data() : nullptr,
+                                         step.nc, x0.data(), u0.data(), r.data(), buf);
              size_t shape[1] = {size_t(self.Nu * m)};
              return nb::make_tuple(Array(buf, 1, shape, owner), J);
            },

@@ -1,9 +1,13 @@
 // The stage-wise primal-dual active set of solvers/stagewise_active.py (solve_active_set), compiled:
 // per iteration one Riccati sweep of the LQ problem with the active rows' components fixed
-// (v_j = σ (f − Fz z): affine in the state, substituted stage by stage), one backward pass for the
-// multipliers, the Hintermüller–Ito–Kunisch update of the set, stopped when the set repeats (KKT
-// verified), cycles or reaches the cap. The Python module is the reference; this file follows it
-// function by function (same names). One workspace serves every sweep of a solve.
+// (v_j = σ (f − Fz z): affine in the state, substituted stage by stage; only the stages up to the
+// last one whose set changed are factorized again), one backward pass for the multipliers, the
+// Hintermüller–Ito–Kunisch update of the set or, once that stops shrinking, the cautious one,
+// stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
+// reference; this file follows it function by function (same names). One workspace serves every
+// sweep of a solve. Two entry points: `stagewise_active` (any StageQP of input rows) and the class
+// `RiccatiActive` (a linear form's limited step in one call: its stage models and criterion built
+// here, gpc/stagewise.py).
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
@@ -15,10 +19,12 @@
 #include <optional>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "bindings.hpp"
 #include "stage_arrays.hpp"
+#include "stage_model.hpp"
 #include "zoh.hpp"
 
 namespace pgpc {
@@ -58,13 +64,22 @@ struct Sweep {
   Traj k, e;
   std::vector<std::vector<long>> free;
   std::vector<char> has_E;
+  std::vector<Mat> Ps;  // P_i and p_i of the last sweep: a sweep redoes only the stages up to the last one
+  Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
+  Set last;             // the set of the last sweep
+  bool valid = false;   // Ps, ps and last belong to this solve
   Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
   Vec p, lin, w, gv, gw, vf;
   Eigen::LLT<Mat> llt;
 
-  // bind to qp, the per-stage buffers sized for it
+  // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
   void prepare(const QP &qp) {
     qpp = &qp;
+    valid = false;
+    if (long(Ps.size()) != qp.N + 1) {
+      Ps.assign(qp.N + 1, Mat());
+      ps.assign(qp.N + 1, Vec());
+    }
     if (long(E.size()) != qp.nd || (qp.nd && (E[0].rows() != qp.m || E[0].cols() != qp.nz))) {
       K.assign(qp.nd, Mat());
       E.assign(qp.nd, Mat::Zero(qp.m, qp.nz));
@@ -78,9 +93,20 @@ struct Sweep {
   void run(const Set &fixed, Traj &z, Traj &v) {
     const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, m = qp.m;
-    P = qp.Q[N];
-    p = qp.q[N];
-    for (long i = N - 1; i >= 0; --i) {
+    long top = N - 1;  // the last stage to redo
+    if (valid) {
+      top = -1;
+      for (long i = nd - 1; i >= 0 && top < 0; --i)
+        if (fixed.row(i) != last.row(i)) top = i;
+    } else {
+      Ps[N] = qp.Q[N];
+      ps[N] = qp.q[N];
+    }
+    if (top >= 0) {
+      P = Ps[top + 1];
+      p = ps[top + 1];
+    }
+    for (long i = top; i >= 0; --i) {
       const CMap &A = qp.A[i];
       PA.noalias() = P.lazyProduct(A);
       w = p;
@@ -165,7 +191,11 @@ struct Sweep {
       }
       P = 0.5 * (Pz + Pz.transpose());
       p = lin;
+      Ps[i] = P;
+      ps[i] = p;
     }
+    last = fixed;
+    valid = true;
     z.resize(N + 1);
     v.resize(nd);
     z[0] = qp.z0;
@@ -187,7 +217,8 @@ struct Sweep {
   }
 };
 
-// λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (_multipliers)
+// λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (costates with the active set, in
+// solvers/stagewise_ipm.py)
 double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad) {
   const long N = qp.N, nd = qp.nd;
   lam.setZero(N, qp.k);
@@ -242,24 +273,52 @@ void sanitize(const QP &qp, Set &fixed) {
     }
 }
 
-Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
+// qp.rows (per decision stage) and qp.f_scale from the InputRowMap (comp, sign) and the bounds f
+void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const char *who) {
+  if (long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k || long(sign.shape(0)) != qp.N ||
+      long(sign.shape(1)) != qp.k)
+    throw std::invalid_argument(std::string(who) + ": inconsistent stage shapes");
+  qp.rows.assign(qp.nd, {});
+  for (long i = 0; i < qp.N; ++i)
+    for (long r = 0; r < qp.k; ++r) {
+      const long j = long(comp.data()[i * qp.k + r]);
+      if (j < 0) continue;
+      if (i >= qp.nd || j >= qp.m)
+        throw std::invalid_argument(std::string(who) + ": a row on a stage without decision or a component ≥ m");
+      const double fr = f.data()[i * qp.k + r];
+      qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
+      qp.f_scale = std::max(qp.f_scale, std::abs(fr));
+    }
+}
+
+// warm: a start was given (the cautious update also when the changes stop shrinking, as in the Python twin)
+Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
   const long nd = qp.nd, m = qp.m;
   thread_local Sweep sweep;
   sweep.prepare(qp);
   Outcome out;
   RowMat grad;
   std::vector<Set> seen;
-  Set next(nd, m);
+  Set next(nd, m), brk(nd, m);  // brk: each component's most broken row, −1 when none is broken
   std::vector<double> worst(m);
   char buf[200];
+  long fewest = nd * m + 1, frees = 0;  // frees: 0 while the full update runs
+  bool freed = false;
+  std::vector<std::pair<double, long>> negative;  // (λ, i·m + j) of the fixed components with λ < 0
+  auto was_seen = [&seen](const Set &s) {
+    for (const Set &t : seen)
+      if (t == s) return true;
+    return false;
+  };
   for (int it = 1; it <= max_iter; ++it) {
     sweep.run(fixed, out.z, out.v);
     const double scale = std::max(multipliers(qp, fixed, out.z, out.v, out.lam, grad), 1e-300);
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;
     double broken = 0.0;
+    bool any_broken = false;
     for (long i = 0; i < nd; ++i) {  // the next set (_update)
       std::fill(worst.begin(), worst.end(), 0.0);
-      for (long j = 0; j < m; ++j) next(i, j) = -1;
+      for (long j = 0; j < m; ++j) brk(i, j) = -1;
       for (const Row &row : qp.rows[i]) {
         double Fx = row.sign * out.v[i](row.j);
         if (row.fz) Fx += qp.Fz[i].row(row.r).dot(out.z[i]);
@@ -267,11 +326,14 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
         broken = std::max(broken, gap);
         if (gap - tol_f > worst[row.j]) {
           worst[row.j] = gap - tol_f;
-          next(i, row.j) = row.r;
+          brk(i, row.j) = row.r;
         }
       }
-      for (long j = 0; j < m; ++j)
-        if (next(i, j) < 0 && fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) next(i, j) = fixed(i, j);
+      for (long j = 0; j < m; ++j) {
+        any_broken = any_broken || brk(i, j) >= 0;
+        next(i, j) = brk(i, j) >= 0 ? brk(i, j)
+                     : (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) ? fixed(i, j) : -1;
+      }
     }
     out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / scale,
                              grad.size() ? grad.cwiseAbs().maxCoeff() / scale : 0.0});
@@ -286,22 +348,140 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter) {
       }
       return out;
     }
-    for (const Set &s : seen)
-      if (s == next) {
+    // the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
+    // then the cautious one: one component freed per sweep, twice as many after frees that broke no
+    // row, half as many after frees that did
+    const long n_changed = long((next.array() != fixed.array()).count());
+    if (frees == 0 && ((warm && n_changed >= fewest) || was_seen(next))) frees = 1;
+    fewest = std::min(fewest, n_changed);
+    if (frees > 0) {
+      if (freed) frees = any_broken ? std::max(1L, frees / 2) : 2 * frees;
+      if (any_broken) {  // the broken components fixed, the others kept
+        for (long i = 0; i < nd; ++i)
+          for (long j = 0; j < m; ++j) next(i, j) = brk(i, j) >= 0 ? brk(i, j) : fixed(i, j);
+      } else {  // the `frees` most negative multipliers' components freed
+        next = fixed;
+        negative.clear();
+        for (long i = 0; i < nd; ++i)
+          for (long j = 0; j < m; ++j)
+            if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < -tol_l) negative.push_back({out.lam(i, fixed(i, j)), i * m + j});
+        std::stable_sort(negative.begin(), negative.end(),
+                         [](const auto &a, const auto &b) { return a.first < b.first; });
+        for (size_t a = 0; a < negative.size() && long(a) < frees; ++a) next(negative[a].second / m, negative[a].second % m) = -1;
+      }
+      freed = !any_broken;
+      if (was_seen(next)) {
         out.fixed = fixed;
-        out.message = "stage-wise active set: the active set cycles after " + std::to_string(it) + " sweeps";
+        out.ok = out.residual <= ACCEPT;  // _unsettled: the last sweep accepted when its KKT conditions hold
+        if (!out.ok) out.message = "stage-wise active set: the active set cycles after " + std::to_string(it) + " sweeps";
         return out;
       }
+    }
     seen.push_back(fixed);
+    out.fixed = fixed;  // the set of the last sweep
     fixed = next;
   }
-  out.fixed = fixed;
-  std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", max_iter,
-                out.residual);
-  out.message = buf;
+  out.ok = out.residual <= ACCEPT;
+  if (!out.ok) {
+    std::snprintf(buf, sizeof buf, "stage-wise active set: not converged in %d sweeps (KKT residual %.3g)", max_iter,
+                  out.residual);
+    out.message = buf;
+  }
   return out;
 }
 
+
+// The controller's torque/Δu-limited problem of a linear form (0 absolute, 1 incremental, 2 delayed)
+// in one call per step: the stage models (stage_model.hpp) and the criterion's linear terms built
+// here from the step's (A_d, B_d, c_d, x0, u0, targets), the rows (Fz, f, comp, sign: the controller's
+// StageQP template, the same every step) kept from construction, then solve_active_set and J.
+class RiccatiActive {
+ public:
+  RiccatiActive(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form, In3 Fz, In2 f,
+                InI comp, In2 sign)
+      : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
+    if (form < 0 || form > 2) throw std::invalid_argument("RiccatiActive: form must be 0..2 (a linear form)");
+    if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("RiccatiActive: bad horizons");
+    if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("RiccatiActive: weights");
+    nz = stage_model::state_size(form, n, m, N, Nu);
+    const long k = long(f.shape(1));
+    if (long(Fz.shape(0)) != N || long(Fz.shape(1)) != k || long(Fz.shape(2)) != nz || long(f.shape(0)) != N ||
+        long(comp.shape(0)) != N || long(comp.shape(1)) != k || long(sign.shape(0)) != N ||
+        long(sign.shape(1)) != k)
+      throw std::invalid_argument("RiccatiActive: rows Fz (N, k, nz), f, comp, sign (N, k)");
+    C_ = C;
+    Wy_ = Wy;
+    Wu_ = Wu;
+    Mat Cz = Mat::Zero(p, nz);
+    Cz.leftCols(n) = C;
+    CQ2_ = 2.0 * Cz.transpose() * (Wy.transpose() * Wy);
+    Q2_ = CQ2_ * Cz;
+    zero_ = RowMat::Zero(nz, nz);
+    Ab_.assign(N, RowMat::Zero(nz, nz));
+    Bb_.assign(N, RowMat::Zero(nz, m));
+    cb_ = RowMat::Zero(N, nz);
+    q_ = RowMat::Zero(N + 1, nz);
+    Fz_ = Eigen::Map<const RowMat>(Fz.data(), N * k, nz);
+    qp_.N = N;
+    qp_.nz = nz;
+    qp_.m = m;
+    qp_.nd = Nu;
+    qp_.k = k;
+    for (long i = 0; i < N; ++i) {
+      qp_.A.emplace_back(Ab_[i].data(), nz, nz);
+      qp_.B.emplace_back(Bb_[i].data(), nz, m);
+      qp_.Fz.emplace_back(Fz_.data() + i * k * nz, k, nz);
+      qp_.c.emplace_back(cb_.data() + i * nz, nz);
+    }
+    for (long i = 0; i <= N; ++i) {
+      qp_.Q.emplace_back(i > No ? Q2_.data() : zero_.data(), nz, nz);  // Q2_ symmetric: either layout
+      qp_.q.emplace_back(q_.data() + i * nz, nz);
+    }
+    qp_.R = 2.0 * Wu.transpose() * Wu;
+    qp_.z0 = Vec::Zero(nz);
+    read_rows(qp_, comp, sign, f, "RiccatiActive");
+  }
+
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m), r (N − No, p), start
+  // (Nu, m) or none → the Outcome (v, z, λ, set) and J of the criterion (5)
+  Outcome solve(const double *A, long nA, const double *B, long nB, const double *c, long nc, const double *x0,
+                const double *u0, const double *r, const int64_t *start, int max_iter, double &J) {
+    for (long i = 0; i < N; ++i)
+      stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
+                        c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+    qp_.z0.head(n) = VMap(x0, n);
+    if (form != 0) qp_.z0.tail(m) = VMap(u0, m);
+    Eigen::Map<const RowMat> W(r, N - No, p);
+    q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
+    Set fixed = Set::Constant(Nu, m, -1);
+    if (start) {
+      fixed = Eigen::Map<const Set>(start, Nu, m);
+      sanitize(qp_, fixed);
+    }
+    Outcome out = solve_active_set(qp_, fixed, max_iter, start != nullptr);
+    J = 0.0;
+    for (long i = 0; i < Nu; ++i) J += (Wu_ * out.v[i]).squaredNorm();
+    for (long i = No + 1; i <= N; ++i) J += (Wy_ * (C_ * out.z[i].head(n) - W.row(i - No - 1).transpose())).squaredNorm();
+    return out;
+  }
+
+  long n, m, p, N, No, Nu, nz;
+  int form;
+
+ private:
+  QP qp_;
+  Mat C_, Wy_, Wu_, CQ2_;
+  RowMat Q2_, zero_, cb_, q_, Fz_;
+  std::vector<RowMat> Ab_, Bb_;
+};
+
+// (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
+nb::tuple outcome_tuple(const QP &qp, const Outcome &res) {
+  RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
+  for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.v[i].transpose();
+  for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.z[i].transpose();
+  return nb::make_tuple(vout, zout, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+}
 }  // namespace
 
 void bind_stagewise_active(nb::module_ &m) {
@@ -311,20 +491,7 @@ void bind_stagewise_active(nb::module_ &m) {
          std::optional<InI> start, int max_iter) {
         QP qp;
         stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_active");
-        if (long(comp.shape(0)) != qp.N || long(comp.shape(1)) != qp.k || long(sign.shape(0)) != qp.N ||
-            long(sign.shape(1)) != qp.k)
-          throw std::invalid_argument("stagewise_active: inconsistent stage shapes");
-        qp.rows.resize(qp.nd);
-        for (long i = 0; i < qp.N; ++i)
-          for (long r = 0; r < qp.k; ++r) {
-            const long j = long(comp.data()[i * qp.k + r]);
-            if (j < 0) continue;
-            if (i >= qp.nd || j >= qp.m)
-              throw std::invalid_argument("stagewise_active: a row on a stage without decision or a component ≥ m");
-            const double fr = f.data()[i * qp.k + r];
-            qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
-            qp.f_scale = std::max(qp.f_scale, std::abs(fr));
-          }
+        read_rows(qp, comp, sign, f, "stagewise_active");
         Set fixed = Set::Constant(qp.nd, qp.m, -1);
         if (start) {
           if (long(start->shape(0)) != qp.nd || long(start->shape(1)) != qp.m)
@@ -333,11 +500,7 @@ void bind_stagewise_active(nb::module_ &m) {
           sanitize(qp, fixed);
         }
         if (max_iter < 1) throw std::invalid_argument("stagewise_active: max_iter must be ≥ 1");
-        Outcome res = solve_active_set(qp, fixed, max_iter);
-        RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
-        for (long i = 0; i < qp.nd; ++i) vout.row(i) = res.v[i].transpose();
-        for (long i = 0; i <= qp.N; ++i) zout.row(i) = res.z[i].transpose();
-        return nb::make_tuple(vout, zout, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+        return outcome_tuple(qp, solve_active_set(qp, fixed, max_iter, bool(start)));
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"),
@@ -345,5 +508,33 @@ void bind_stagewise_active(nb::module_ &m) {
       "(v, z, λ, fixed, iterations, ok, residual, message): solvers.stagewise_active.solve_active_set compiled "
       "(see that module); comp and sign: its InputRowMap; start (n_decide, m) int64 or None; max_iter: its "
       "AS_MAX_ITER (cold) or AS_WARM_MAX_ITER (from a start)");
+
+  nb::class_<RiccatiActive>(m, "RiccatiActive",
+                            "the torque/Δu-limited problem of a linear form, one call per step (see gpc/stagewise.py)")
+      .def(nb::init<const Mat &, const Mat &, const Mat &, long, long, long, int, In3, In2, InI, In2>(), nb::arg("C"),
+           nb::arg("Wy"), nb::arg("Wu"), nb::arg("N"), nb::arg("No"), nb::arg("Nu"), nb::arg("form"), nb::arg("Fz"),
+           nb::arg("f"), nb::arg("comp"), nb::arg("sign"))
+      .def(
+          "solve",
+          [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
+             In1 u0, In2 r, std::optional<InI> start, int max_iter) {
+            const long m = self.m;
+            const stage_model::StepShape shape = stage_model::check_step(
+                "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
+            if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
+              throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
+            if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
+            double J = 0.0;
+            const Outcome res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
+                                           shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
+                                           max_iter, J);
+            RowMat vout(self.Nu, m);
+            for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
+            return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
+          },
+          nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30,
+          "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
+          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None");
 }
 }  // namespace pgpc

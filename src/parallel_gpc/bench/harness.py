@@ -39,7 +39,6 @@ import numpy as np
 from scipy.linalg import lapack
 
 from ..gpc import GPCController, Horizons, Prediction, condense, SCurve, path_for, Weights, build_problem
-from ..gpc.riccati import stage_models
 from ..gpc.stagewise import StagewiseSolver
 from ..model import cached_identity, ReducedModel, ConstrainedPlant, ParallelRobot
 from ..limits import Limits
@@ -123,8 +122,8 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
     # the same problem stage by stage, no condensing: the controller's limited `riccati` path (the
     # active set of Riccati sweeps on the torque rows), warm-started from its last set like a controller
     Wy, Wu = W.blocks(robot.n_y, m)
-    stagewise_ltv = StagewiseSolver(Wy, Wu, H, "absolute", limits.for_drives(m, robot.n_y), Ts)
     C = robot_C(robot)  # built once: not part of any timed solve
+    stagewise_ltv = StagewiseSolver(Wy, Wu, C, H, "absolute", limits.for_drives(m, robot.n_y), Ts)
     peers = []
     for s in cfg.qpmpc_solvers:
         try:
@@ -178,8 +177,7 @@ def _bench_robot_N(run: BenchRun, robot: ParallelRobot, N: int, stretches, ref: 
                     if timed:
                         log_solve(run.entry("qpmpc", name, N, mname), dt, res.ok, res.v, v_ref_ltv)
                 t0 = time.perf_counter()
-                models = stage_models("absolute", A_seq, B_seq, c_seq, C, X, None, H)
-                res, _ = stagewise_ltv.solve(models, w.reshape(H.n_rows, robot.n_y), C @ X,
+                res, _ = stagewise_ltv.solve((A_seq, B_seq, c_seq, X, None), w.reshape(H.n_rows, robot.n_y), C @ X,
                                              warm=k > 0)
                 dt = time.perf_counter() - t0
                 if timed:

@@ -35,53 +35,10 @@ from ..model import compiled_part, cached_identity
 from ..solvers import SolveResult, lq_tracking
 from ..validation import read_only
 from .prediction import Horizons, Prediction, cumulative_map
+from .stages import FORM_CODES, stage_models
 from .stagewise import StagewiseSolver
 
 __all__ = ["RiccatiPath", "RiccatiSolver", "stage_models", "FORM_CODES"]
-
-#: form codes of the compiled ``_native.Riccati``
-FORM_CODES = {"absolute": 0, "incremental": 1, "incremental-delayed": 2, "nonlinear": 3}
-
-
-def stage_models(form: str, A, B, c, C, x0, u0, horizons: Horizons):
-    """The stage models of the module docstring (the Python twin of ``Riccati::stage`` in C++).
-
-    Args:
-        form: one of :data:`FORM_CODES`.
-        A: (n, n) or (N, n, n); B: (n, m) or (N, n, m); c: (n,), (N, n) or None (nonlinear: ignored).
-        C: (p, n) output matrix. x0: (n,) state (nonlinear: ignored, δx = 0).
-        u0: (m,) the input in the state (incremental: u(k−1); delayed: u(k); otherwise ignored).
-        horizons: N, No, Nu.
-
-    Returns:
-        (Ā (N, nz, nz), B̄ (N, nz, m), c̄ (N, nz), C̄ (p, nz), z0 (nz,)).
-    """
-    N, Nu = horizons.N, horizons.Nu
-    C = np.asarray(C, float)
-    n = C.shape[1]
-    A = np.broadcast_to(np.asarray(A, float), (N, n, n))
-    B = np.asarray(B, float)
-    m = B.shape[-1]
-    B = np.broadcast_to(B, (N, n, m))
-    c = np.zeros((N, n)) if c is None or form == "nonlinear" else np.broadcast_to(np.asarray(c, float), (N, n))
-    if form == "absolute" and Nu == N:
-        return A.copy(), B.copy(), c.copy(), C, np.asarray(x0, float).copy()
-    nz = n + m
-    Ab, Bb, cb = np.zeros((N, nz, nz)), np.zeros((N, nz, m)), np.zeros((N, nz))
-    Ab[:, :n, :n], cb[:, :n] = A, c
-    held = np.arange(N) >= Nu if form == "absolute" else np.ones(N, bool)
-    Ab[held, :n, n:] = B[held]
-    Ab[held, n:, n:] = np.eye(m)
-    if form != "incremental-delayed":
-        Bb[:, :n] = B
-    Bb[:, n:] = np.eye(m)
-    z0 = np.zeros(nz)
-    if form != "nonlinear":
-        z0[:n] = x0
-    if form in ("incremental", "incremental-delayed"):
-        z0[n:] = u0
-    return Ab, Bb, cb, np.hstack([C, np.zeros((C.shape[0], m))]), z0
-
 
 class RiccatiSolver:
     """Riccati solve of one controller's unconstrained problem (compiled when available).
@@ -176,7 +133,7 @@ class RiccatiPath:
         self.solver = RiccatiSolver(Wy, Wu, C, criterion.horizons, form, native)
         self.form, self.horizons, self.m = form, criterion.horizons, criterion.n_inputs
         self.constrained = None if limits is None or not limits.needs_qp else StagewiseSolver(
-            Wy, Wu, criterion.horizons, form, limits, Ts, native)
+            Wy, Wu, C, criterion.horizons, form, limits, Ts, native)
         self.report = None
         self._u_sim = None
         self._extra = {}
@@ -205,8 +162,7 @@ class RiccatiPath:
         from its last solution when ``warm`` (the controller's next step)."""
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
-        models = stage_models(self.form, A, B, c, self.solver.C, x0, u0, self.horizons)
-        result, self.report = self.constrained.solve(models, r, warm=warm, **self._extra)
+        result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, **self._extra)
         return result
 
     def input_map(self, ctl, stages: tuple) -> Prediction:

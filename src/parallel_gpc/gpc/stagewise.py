@@ -1,6 +1,6 @@
 """The controller's constrained problems solved stage-wise (``solver="riccati"`` with limits).
 
-The same stage models as the unconstrained Riccati path (:func:`~parallel_gpc.gpc.riccati.stage_models`:
+The same stage models as the unconstrained Riccati path (:func:`~parallel_gpc.gpc.stages.stage_models`:
 z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, ŷ(i) = C̄ z(i) [+ ŷ_sim(i), nonlinear]) and the same criterion
 (5), Φ = J + const: Q_i = 2 C̄ᵀ Qyᵀ Qy C̄ on the penalized steps i = No+1..N, R = 2 Quᵀ Qu. The
 limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on (work linear in N). A problem
@@ -45,9 +45,11 @@ from ..model import compiled_part
 from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
                        StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
                        solve_stage_qp)
+from ..validation import read_only
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
+from .stages import FORM_CODES, stage_models
 
 __all__ = ["StagewiseSolver", "stage_problem", "tracking_gradient", "STAGEWISE_KINDS"]
 
@@ -77,7 +79,7 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     (the definitions the condensed layout uses) placed on the stages they act on.
 
     Args:
-        form: the controller's form. Ab, Bb, cb, Cz, z0: :func:`~parallel_gpc.gpc.riccati.stage_models`.
+        form: the controller's form. Ab, Bb, cb, Cz, z0: :func:`~parallel_gpc.gpc.stages.stage_models`.
         r: (N − No, p) targets (nonlinear: w − ŷ_sim). Wy (p, p), Wu (m, m): square-root weights.
         horizons: N, No, Nu. limits: sized to the drives and outputs, input kinds tightened by the
             controller's margin. Ts: sample time (s). y_now: (p,) measured output y(k) (m, rad).
@@ -164,12 +166,18 @@ class StagewiseSolver:
     """Stage-wise solve of one controller's constrained problem (active set or interior point).
 
     Args:
-        Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). horizons: N, No, Nu.
-        form: the controller's form. limits: sized to the drives and outputs (input kinds
-            tightened by the controller's margin). Ts: sample time (s).
-        native: None = the compiled ``_native.stagewise_active`` and ``_native.stagewise_ipm`` when
-            available, False = the Python references :func:`~parallel_gpc.solvers.solve_active_set`
-            and :func:`~parallel_gpc.solvers.solve_stage_qp`, True = compiled or raise.
+        Wy: (p, p) and Wu: (m, m) square-root weights (Wu nonsingular). C: (p, n) the model's output
+            matrix. horizons: N, No, Nu. form: the controller's form. limits: sized to the drives
+            and outputs (input kinds tightened by the controller's margin). Ts: sample time (s).
+        native: None = the compiled ``_native.stagewise_active``, ``_native.RiccatiActive`` and
+            ``_native.stagewise_ipm`` when available, False = the Python references
+            :func:`~parallel_gpc.solvers.solve_active_set` and :func:`~parallel_gpc.solvers.solve_stage_qp`,
+            True = compiled or raise.
+
+    A linear form's problem of input rows alone (torque, Δu) is solved in ONE compiled call per step
+    (``_native.RiccatiActive``: the stage models, the criterion's linear terms, the active set and J
+    built and solved without a :class:`~parallel_gpc.solvers.StageQP`); the problem is formed in
+    Python only when the interior point takes over.
 
     Attributes:
         method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
@@ -179,13 +187,17 @@ class StagewiseSolver:
 
     name = "riccati"
 
-    def __init__(self, Wy, Wu, horizons: Horizons, form: str, limits: Limits, Ts: float,
+    def __init__(self, Wy, Wu, C, horizons: Horizons, form: str, limits: Limits, Ts: float,
                  native: bool | None = None):
         self.Wy, self.Wu = np.asarray(Wy, float), np.asarray(Wu, float)
+        self.C = np.ascontiguousarray(C, dtype=float)
         self.horizons, self.form, self.limits, self.Ts = horizons, form, limits, Ts
         self._compiled = compiled_part(native, "stagewise_ipm", "the compiled stage-wise interior point")
         self._compiled_active = compiled_part(native, "stagewise_active", "the compiled stage-wise active set")
+        self._compiled_step = compiled_part(native, "RiccatiActive", "the compiled limited step")
         self.native = self._compiled is not None and self._compiled_active is not None
+        self._step = None  # the compiled RiccatiActive of a linear form's input rows (built on the first step)
+        self._zero_u = read_only(np.zeros(self.Wu.shape[0]))
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
         # the first step's problem when only its models and targets change from step to step (input rows
@@ -193,6 +205,7 @@ class StagewiseSolver:
         self._template: tuple | None = None
         self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
         self.method, self.iterations = "", (0, 0)
+        self._unsettled: tuple | None = None  # (message, iterations) of a compiled step whose set did not settle
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
     def _start(self, qp: StageQP, last: StageQPSolution | None) -> StageStart | None:
@@ -208,7 +221,7 @@ class StagewiseSolver:
         def shifted(a):
             return np.concatenate([a[1:], a[-1:]])
 
-        return StageStart(v, shifted(last.lam), shifted(last.s))
+        return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
@@ -253,12 +266,38 @@ class StagewiseSolver:
                                  "the hard limits cannot all hold (infeasible)")
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
-    def solve(self, stage_models: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
+    def _solve_step(self, step: tuple, r, warm: bool, t0: float) -> SolveResult | None:
+        """The compiled limited step of a linear form (``_native.RiccatiActive``): its SolveResult, or
+        None when the active set did not settle (the caller hands the problem to the interior point;
+        the last solution, kept for its warm start, is left in place)."""
+        A, B, c, x0, u0 = step
+        H, n, m = self.horizons, self.C.shape[1], self.Wu.shape[0]
+        start = shift_active_set(self._fixed) if warm else None
+        try:
+            v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
+                np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
+                np.zeros(0) if c is None else np.asarray(c, float).reshape(-1), x0,
+                self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
+        except RuntimeError as exc:
+            self._last, self._fixed = None, None
+            return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
+                               time.perf_counter() - t0, False, str(exc))
+        self.iterations = (iterations, 0)
+        if not ok:
+            self._unsettled = (message, self.iterations)
+            return None
+        self.method, self._fixed = "active-set", fixed
+        self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
+        return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
+                           bool((fixed >= 0).any()), "")
+
+    def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
         """(the plan v (Nu·m,) as a SolveResult, what the state limits did or None without them).
 
         Args:
-            stage_models: (Ā, B̄, c̄, C̄, z0) of :func:`~parallel_gpc.gpc.riccati.stage_models`.
+            step: (A, B, c, x0, u0) of :meth:`~parallel_gpc.gpc.riccati.RiccatiSolver.solve` (the
+                arguments of :func:`~parallel_gpc.gpc.stages.stage_models`).
             r, y_now, y_sim, u_sim, u_prev: as in :func:`stage_problem`.
             warm: start from the last solution shifted by one stage (a controller's next step),
                 else from the unconstrained plan.
@@ -268,8 +307,13 @@ class StagewiseSolver:
             that cannot all hold: the message names the row) or ``failed``.
         """
         t0 = time.perf_counter()
-        Ab, Bb, cb, Cz, z0 = stage_models
         H, m = self.horizons, self.Wu.shape[0]
+        if self._step is not None:
+            result = self._solve_step(step, r, warm, t0)
+            if result is not None:
+                return result, None
+        models = stage_models(self.form, *step[:3], self.C, *step[3:], H)
+        Ab, Bb, cb, Cz, z0 = models
         if self._template is not None:
             template, kinds, CQ = self._template
             qp = replace(template, A=Ab, B=Bb, c=cb, z0=z0, q=tracking_gradient(CQ, r, H.N, H.No))
@@ -278,12 +322,23 @@ class StagewiseSolver:
                                       y_now, y_sim, u_sim, u_prev, self._output_rows)
             if self.form != "nonlinear" and not self._output_rows:
                 self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
+                rows = self._input_rows(qp)
+                if rows is not None and self._compiled_step is not None and self._compiled_active is not None:
+                    self._step = self._compiled_step(
+                        self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
+                        np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+                    result = self._solve_step(step, r, warm, t0)
+                    if result is not None:
+                        return result, None
         rows = self._input_rows(qp)
         fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
         last, self._last, self._fixed = self._last if warm else None, None, None
         try:
             sol, self.method, self.iterations = None, "interior-point", (0, 0)
-            if rows is not None:
+            if self._unsettled is not None:  # the compiled step's set did not settle: straight to the interior point
+                self.method, fell_back, self.iterations = "interior-point after active set", *self._unsettled
+                self._unsettled = None
+            elif rows is not None:
                 sol = self._active(qp, rows, fixed_start)
                 self.iterations = (sol.iterations, 0)
                 if sol.status == "optimal":

@@ -11,22 +11,35 @@ An active row fixes its component, v_j(i) = σ_r (f_r − Fz_r z(i)): affine in 
 problem with a fixed active set is again an LQ problem — with state–input cross terms and
 fewer free inputs — solved by ONE Riccati sweep (:func:`_sweep`: v = E_i z + e_i on the fixed
 components, the free ones v_F = K_i z + k_i). The multipliers of the active rows follow from
-the costates in one backward pass (:func:`_multipliers`): λ_r = −σ_r ∂L/∂v_j(i).
+the costates in one backward pass (:func:`~parallel_gpc.solvers.stagewise_ipm.costates` with the
+set): λ_r = −σ_r ∂L/∂v_j(i).
 
 The active set is updated as a primal-dual active set (Hintermüller–Ito–Kunisch): a component
 stays fixed while its multiplier is ≥ 0 and no other row on it is broken; a free component whose
 rows are broken is fixed by its most broken row; a fixed one whose multiplier turned negative is
-freed. The iterations stop when the set repeats its predecessor — the KKT conditions (primal
+freed. The iterations stop when that update would keep the set — the KKT conditions (primal
 feasibility, λ ≥ 0, stationarity of the free components, complementarity by construction) are
 then verified, not trusted — or when a set comes back (a cycle) or the cap is reached: status
-``"unconverged"``, for the caller to hand the problem to the interior point. A start (the
-previous step's set shifted by one stage) saves the iterations the changes of the set cost.
+``"unconverged"``, for the caller to hand the problem to the interior point.
+
+The full update changes every component at once; with most inputs on a limit (planar_4rrr,
+absolute, N = 160: 637 of 640) it swings without settling (the few free inputs pass far beyond
+their bounds between sweeps: 3 changes, then 30, 61, 34, … on a warm start). A *cautious* update
+then takes over for the rest of the solve: the components whose rows are broken are fixed, every
+other one kept; only when no row is broken are components with negative multipliers freed, the
+most negative first — one on the first such sweep, twice as many after frees that broke no row,
+half as many after frees that did (a primal active set drops one row per iteration; freeing all
+at once is the full update's swing). It takes over once the full update proposes a set seen
+before or — from a start — no fewer changes than on the sweep before (N = 160 warm steps then
+settle in 1–7 sweeps instead of none in 8). Not from a cold start: there the full update's
+changes shrink unevenly on the way (N = 80, most inputs limited: 10–17 sweeps), the cautious one
+would pay for each wrongly fixed row (over 30 sweeps). A set that still does not settle is
+accepted when the last sweep's KKT residual is within :data:`AS_ACCEPT` (multipliers at 0
+toggling), else reported unconverged.
 
 Not every input-row problem has an optimal set of one row per component: torque and Δu rows of
 the incremental forms binding together on one component pin the held input (a row on the state),
-and the set then cycles. With most inputs on a limit (planar_4rrr, absolute, N = 160: ~600 of 640)
-the full-step update of the set does not settle either (the few free inputs swing far past their
-bounds between sweeps). Both are reported unconverged.
+and the set then cycles: reported unconverged.
 """
 
 from __future__ import annotations
@@ -37,20 +50,20 @@ import numpy as np
 import scipy.linalg as sla
 
 from ..errors import SolverError
-from .stagewise_ipm import StageQP, StageQPSolution
+from .stagewise_ipm import StageQP, StageQPSolution, costates
 
 __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_set", "active_set_of", "solve_active_set",
            "AS_MAX_ITER", "AS_WARM_MAX_ITER", "AS_TOL", "AS_ACCEPT"]
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
-#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr), a warm
-#: one 1.5–3; at N = 160 with ~600 of 640 inputs on their limits the set does not settle from a cold
-#: start (80 sweeps tried): the interior point solves that step and its active rows start the next.
+#: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr); at
+#: N = 160 with 637 of 640 inputs on their limits it does not settle in 200: the interior point solves
+#: that first step and its active rows start the next.
 AS_MAX_ITER = 30
-#: the cap from a start (the previous step's set shifted): a good start settles in 1–3 sweeps (mean
-#: 1.5–2.5 up to N = 80); one that has not by this many goes to the interior point without the
-#: full cap's cost (absolute N = 160: 30 sweeps, then the interior point, on 20 of 24 steps).
-AS_WARM_MAX_ITER = 8
+#: the cap from a start (the previous step's set shifted): a start settles in 1–12 sweeps (mean 1.5–3.7 up
+#: to N = 80, ~4.5 at N = 160, planar_4rrr; 3–10 on the random problems of the tests); one that has not
+#: by this many goes to the interior point without the full cap's cost.
+AS_WARM_MAX_ITER = 12
 #: the set's tolerance: a row broken by more than AS_TOL × the largest bound, or a multiplier below
 #: −AS_TOL × the gradient's scale, changes the active set (the settled set meets both).
 AS_TOL = 1e-10
@@ -167,44 +180,14 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     return z, v
 
 
-def _multipliers(qp: StageQP, rows: InputRowMap, fixed: np.ndarray, z, v):
-    """One backward pass, g = R v + S z + Bᵀ ν(i+1), λ_r = −σ_r g_j on the active rows,
-    ν(i) = Q z + q + Sᵀ v + Aᵀ ν(i+1) + Fzᵀ λ.
-
-    Returns:
-        (λ (N, k), 0 off the active rows; ν (N + 1, nz), ν(0) = 0; the free components' g
-        (n_decide, m), 0 on the fixed ones: zero at the optimum; the gradient's scale, the largest
-        entry of R v and Bᵀ ν(i+1)).
-    """
-    N, nd = qp.A.shape[0], qp.n_decide
-    lam = np.zeros(qp.f.shape)
-    nu = np.zeros_like(z)
-    grad = np.zeros_like(v)
-    scale = 0.0
-    nu[N] = qp.Q[N] @ z[N] + qp.q[N]
-    for i in range(N - 1, -1, -1):
-        nxt = qp.A[i].T @ nu[i + 1]
-        if i < nd:
-            Rv, Bn = qp.R @ v[i], qp.B[i].T @ nu[i + 1]
-            scale = max(scale, float(np.max(np.abs(Rv))), float(np.max(np.abs(Bn))))
-            g = Rv + Bn
-            if qp.S is not None:
-                g += qp.S @ z[i]
-                nxt += qp.S.T @ v[i]
-            fix = fixed[i] >= 0
-            r = fixed[i][fix]
-            lam[i, r] = -rows.sign[i, r] * g[fix]
-            grad[i] = np.where(fix, 0.0, g)
-            nxt += qp.Fz[i, r].T @ lam[i, r]
-        if i > 0:
-            nu[i] = qp.Q[i] @ z[i] + qp.q[i] + nxt
-    return lam, nu, grad, scale
-
-
-def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -> np.ndarray:
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, frees: int | None = None
+            ) -> np.ndarray:
     """The next active set (n_decide, m): per component, its most broken row if one is broken,
     else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
-    how far each row is broken beyond the tolerance (≤ 0: held)."""
+    how far each row is broken beyond the tolerance (≤ 0: held). ``frees`` (the cautious update):
+    the components with a broken row fixed by it, every other one as it is; only when no row is
+    broken, at most ``frees`` of the components whose multiplier is below −tol_lam freed (the most
+    negative ones)."""
     nd, m = fixed.shape
     comp = rows.comp[:nd]
     on = comp[:, None, :] == np.arange(m)[None, :, None]  # (nd, m, k): row r acts on component j
@@ -214,7 +197,14 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float) -
     held = fixed >= 0
     lam_fixed = np.where(held, np.take_along_axis(lam[:nd], np.maximum(fixed, 0), axis=1), 0.0)
     keep = held & (lam_fixed >= -tol_lam)
-    return np.where(is_broken, worst, np.where(keep, fixed, -1))
+    if frees is None:
+        return np.where(is_broken, worst, np.where(keep, fixed, -1))
+    if is_broken.any():
+        return np.where(is_broken, worst, fixed)
+    new = fixed.copy()
+    negative = np.flatnonzero(held & ~keep)
+    new.flat[negative[np.argsort(lam_fixed.flat[negative], kind="stable")[:frees]]] = -1
+    return new
 
 
 def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
@@ -272,10 +262,14 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     if max_iter is None:
         max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
     seen = set()
+    fewest, frees, freed = nd * m + 1, None, False  # frees: None while the full update runs
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
-        lam, nu, grad, scale = _multipliers(qp, rows, fixed, z, v)
-        scale = max(scale, 1e-300)
+        lam = np.zeros(qp.f.shape)
+        nu, grad = costates(qp, z, v, lam, active=(rows.comp, rows.sign, fixed))
+        # the gradient's scale: the largest entry of R v and Bᵀ ν(i+1) (they cancel at the optimum)
+        scale = max(float(np.max(np.abs(v @ qp.R.T), initial=0.0)),
+                    float(np.max(np.abs(np.einsum("imk,im->ik", qp.B[:nd], nu[1:nd + 1])), initial=0.0)), 1e-300)
         Fx = np.einsum("ikn,in->ik", qp.Fz, z[:N])
         Fx[:nd] += np.einsum("ikm,im->ik", qp.Fv[:nd], v)
         gap = np.where(used, Fx - f, -np.inf)
@@ -287,12 +281,32 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
             message = "" if status == "optimal" else (
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
             return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, status, residual, message, fixed)
-        key = new.tobytes()
-        if key in seen:
-            return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, it, "unconverged", residual,
-                                     f"stage-wise active set: the active set cycles after {it} sweeps", fixed)
+        # the full update while it proposes no set seen before and (from a start) fewer changes each sweep,
+        # then the cautious one: one component freed per sweep, twice as many after frees that broke no
+        # row, half as many after frees that did
+        n_changed = int(np.count_nonzero(new != fixed))
+        if frees is None and ((start is not None and n_changed >= fewest) or new.tobytes() in seen):
+            frees = 1
+        fewest = min(fewest, n_changed)
+        if frees is not None:
+            broken = gap[:nd] - tol * f_scale
+            any_broken = bool(np.any(broken > 0.0))
+            if freed:
+                frees = max(1, frees // 2) if any_broken else 2 * frees
+            new, freed = _update(rows, fixed, lam, broken, tol * scale, frees), not any_broken
+            if new.tobytes() in seen:
+                return _unsettled(v, z, lam, nu, it, residual, fixed,
+                                  f"stage-wise active set: the active set cycles after {it} sweeps")
         seen.add(fixed.tobytes())
-        fixed = new
-    return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, nu, max_iter, "unconverged", residual,
-                             f"stage-wise active set: not converged in {max_iter} sweeps (KKT residual {residual:.3g})",
-                             fixed)
+        swept, fixed = fixed, new
+    return _unsettled(v, z, lam, nu, max_iter, residual, swept,
+                      f"stage-wise active set: not converged in {max_iter} sweeps (KKT residual {residual:.3g})")
+
+
+def _unsettled(v, z, lam, nu, iterations: int, residual: float, fixed, message: str) -> ActiveSetSolution:
+    """The last sweep's solution (of the set ``fixed``) when the set did not settle: accepted all the
+    same when its KKT residual is at most :data:`AS_ACCEPT` (rows whose multipliers hover at 0 toggling
+    in and out), else ``"unconverged"`` with ``message``."""
+    ok = residual <= AS_ACCEPT
+    return ActiveSetSolution(v, z, np.zeros(lam.shape), lam, nu, iterations, "optimal" if ok else "unconverged",
+                             residual, "" if ok else message, fixed)

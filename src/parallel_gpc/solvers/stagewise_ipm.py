@@ -257,11 +257,19 @@ def _rows_transpose(qp: StageQP, y: np.ndarray):
     return gz, np.einsum("ikm,ik->im", qp.Fv[:nd], y[:nd])
 
 
-def costates(qp: StageQP, z, v, lam, linear: bool = True) -> tuple[np.ndarray, np.ndarray]:
+def costates(qp: StageQP, z, v, lam, linear: bool = True, active: tuple | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
     """The costates ν that make the Lagrangian stationary in z(1..N) (a backward recursion,
     ν_N = Q_N z_N + q_N, ν_i = Q_i z_i + q_i + A_iᵀ ν_{i+1} + F_{z,i}ᵀ λ_i) and the remaining
     gradient in v, R v(i) + B_iᵀ ν_{i+1} + F_{v,i}ᵀ λ_i, (n_decide, m): zero at the optimum.
     ``linear=False``: without q (the change of both along a step (dz, dv, dλ)).
+
+    ``active`` = (comp (N, k), sign (N, k), fixed (n_decide, m)): the active set of
+    :mod:`~parallel_gpc.solvers.stagewise_active` (rows σ_r v_j + Fz_r z ≤ f_r, ``fixed[i, j]`` the row
+    fixing component j of v(i) or −1): the multipliers of those rows are not given but solved for in
+    the recursion, stage by stage (the row's component of the v-gradient vanishes: λ_r = −σ_r g_j,
+    g = R v + S z + Bᵀ ν_{i+1}) and written into ``lam`` (zero on entry); the v-gradient is then zero
+    on the fixed components.
 
     Returns:
         (ν (N + 1, nz) with ν_0 = 0, the v-gradient (n_decide, m)).
@@ -273,13 +281,27 @@ def costates(qp: StageQP, z, v, lam, linear: bool = True) -> tuple[np.ndarray, n
         g += qp.q
     if qp.S is not None:
         g[:nd] += v @ qp.S
-    nu = np.zeros_like(z)
-    nu[N] = g[N]
-    for i in range(N - 1, 0, -1):
-        nu[i] = g[i] + qp.A[i].T @ nu[i + 1]
-    rv = v @ qp.R.T + gv + np.einsum("imk,im->ik", qp.B[:nd], nu[1:nd + 1])
+    rv = v @ qp.R.T + gv
     if qp.S is not None:
         rv += z[:nd] @ qp.S.T
+    nu = np.zeros_like(z)
+    nu[N] = g[N]
+    if active is None:
+        for i in range(N - 1, 0, -1):
+            nu[i] = g[i] + qp.A[i].T @ nu[i + 1]
+    else:
+        comp, sign, fixed = active
+        for i in range(N - 1, -1, -1):
+            nxt = qp.A[i].T @ nu[i + 1]
+            if i < nd:
+                fix = fixed[i] >= 0
+                r = fixed[i][fix]
+                lam[i, r] = -sign[i, r] * (rv[i, fix] + qp.B[i][:, fix].T @ nu[i + 1])
+                nxt += qp.Fz[i, r].T @ lam[i, r]
+            if i > 0:
+                nu[i] = g[i] + nxt
+        rv += _rows_transpose(qp, lam)[1]  # the fixed components' gradient: zero by construction
+    rv += np.einsum("imk,im->ik", qp.B[:nd], nu[1:nd + 1])
     return nu, rv
 
 
