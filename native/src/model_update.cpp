@@ -44,11 +44,11 @@ void ModelUpdate::reset() {
 }
 
 void ModelUpdate::bias_rows(const Vec &v) {
-  kin.jacobian_rate(q_, v, dPhi_);
+  inertia_terms(v);  // M_, g_, DT_ = ∂h/∂v T; the Coriolis pass leaves the joint Jacobians' rates at (q, v)
+  kin.jacobian_rate(q_, v, dPhi_, christoffel_);
   // ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ), γ bilinear in v: ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i)
   // (the small products coefficient-wise: Eigen's blocked GEMM costs more than it saves here)
   W_.noalias() = pinv_.lazyProduct(dPhi_.lazyProduct(T_));
-  inertia_terms(v);  // M_, g_, DT_ = ∂h/∂v T
   if (!cfg.bias_symmetric) {
     W2_.resize(kin.rows, n_y);
     for (Index i = 0; i < n_y; ++i) {

@@ -62,8 +62,10 @@ class Kinematics {
   Kinematics &operator=(const Kinematics &) = delete;
   // Ψ(q) + [0; y] and ∂Ψ/∂v (ClosureMixin._eval); fills res_, jac_
   void eval(const Vec &q);
-  // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv)
-  void jacobian_rate(const Vec &q, const Vec &v, Mat &out);
+  // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv); fresh: data already holds the
+  // joint placements, Jacobians and their rates at (q, v) (computeJointJacobiansTimeVariation's
+  // oMi, v, ov, J, dJ, which computeCoriolisMatrix leaves too, by the same formulas)
+  void jacobian_rate(const Vec &q, const Vec &v, Mat &out, bool fresh = false);
   // ∂h/∂v · T by RNEA polarization (UniversalJoints.bias_derivative)
   void universal_bias_derivative(const Vec &q, const Vec &v, const Mat &T, Mat &out);
   Vec integrate(const Vec &q, const Vec &dv) const;
