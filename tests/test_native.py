@@ -104,6 +104,30 @@ def test_simulate_factorized_matches_python(robot):
                 _assert_close(a, b, f"simulate {name} (shift {shift})")
 
 
+@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups", "ups_universal", "rps_spherical"])
+def test_velocity_block_is_half_the_derivative_of_the_reference_acceleration(name, tmp_path):
+    """−M_r⁻¹ C_r(ẏ) of the compiled update (∂h/∂v · T from Pinocchio's Coriolis matrix when every joint
+    has one degree of freedom, else from RNEA derivatives, or by polarization for universal joints)
+    against an oracle that never differentiates: at fixed y the drive-free
+    acceleration of the Python reference (RNEA values, no RNEA derivatives) is a(ẏ) = g-part + Q(ẏ, ẏ)
+    with Q symmetric bilinear, and the factorization's block is Q(ẏ, ·): A₂₂(ẏ) w = (a(ẏ + w) − a(ẏ − w)) / 4,
+    exactly (no step error)."""
+    robot = ParallelRobot.load(name) if name in EMBEDDED else _special(name, tmp_path)
+    py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)
+    ny, u0 = robot.n_y, np.zeros(robot.n_u)
+    rng = np.random.default_rng(11)
+    for X in _trajectory(robot, 4):
+        block = cc.factorize(X)[0][ny:, ny:]
+        W = rng.uniform(-1, 1, (ny, ny))
+        for j in range(ny):
+            up, down = X.copy(), X.copy()
+            up[ny:] += W[:, j]
+            down[ny:] -= W[:, j]
+            expected = (py.acceleration(up, u0) - py.acceleration(down, u0)) / 4
+            err = np.linalg.norm(block @ W[:, j] - expected)
+            assert err <= 1e-10 * np.linalg.norm(expected), (name, j, err, np.linalg.norm(expected))
+
+
 def test_failure_paths_raise_the_python_errors():
     robot = ParallelRobot.load("planar_3rrr")
     py, cc = ReducedModel(robot, native=False), ReducedModel(robot, native=True)

@@ -193,6 +193,13 @@ void ModelUpdate::kinematics(const Vec &y, const Warm *base) {
     if (!ok) fallback(y);
   }
   q_last = q_;
-  warm_ = Warm{q_, y, T_, pinv_, false, Mat(), Vec()};
+  // into the previous warm start's storage (same sizes: no allocation); its factorization is stale
+  if (!warm_) warm_.emplace();
+  Warm &w = *warm_;
+  w.q = q_;
+  w.y = y;
+  w.T = T_;
+  w.pinv = pinv_;
+  w.has_w = w.has_z = false;
 }
 }  // namespace pgpc

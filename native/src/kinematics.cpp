@@ -151,9 +151,9 @@ void Kinematics::frame_rate(long frame, const Vec &v, Mat6x &dJ) {
   }
 }
 
-void Kinematics::jacobian_rate(const Vec &q, const Vec &v, Mat &out) {
+void Kinematics::jacobian_rate(const Vec &q, const Vec &v, Mat &out, bool fresh) {
   out.resize(rows, model.nv);
-  pinocchio::computeJointJacobiansTimeVariation(model, data, q, v);
+  if (!fresh) pinocchio::computeJointJacobiansTimeVariation(model, data, q, v);
   if (!cfg.universal.empty()) place_frames();
   for (size_t k = 0; k < cfg.closure_frames.size(); ++k) {
     frame_rate(cfg.closure_frames[k][0], v, Ja_[k]);

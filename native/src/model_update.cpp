@@ -13,7 +13,6 @@
 
 #include "bindings.hpp"
 #include "model_io.hpp"
-#include "pinocchio/algorithm/rnea-derivatives.hpp"
 #include "pinocchio/algorithm/rnea.hpp"
 
 namespace pgpc {
@@ -35,6 +34,7 @@ ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::obj
   aug_.setZero(n_x, n_aug);
   aug_.block(0, n_y, n_y, n_y).setIdentity();
   expm_.set_table(cfg.degree_norms);
+  christoffel_ = christoffel_coriolis(kin.model);
 }
 
 void ModelUpdate::reset() {
@@ -43,50 +43,44 @@ void ModelUpdate::reset() {
   sim_warm_.clear();
 }
 
-void ModelUpdate::bias_rows(const Vec &v, Mat &K) {
-  kin.jacobian_rate(q_, v, dPhi_);
+void ModelUpdate::bias_rows(const Vec &v) {
+  inertia_terms(v);  // M_, g_, DT_ = ∂h/∂v T; the Coriolis pass leaves the joint Jacobians' rates at (q, v)
+  kin.jacobian_rate(q_, v, dPhi_, christoffel_);
   // ℓ_z(ẏ) = −Φ_z⁺ γ(T ẏ), γ bilinear in v: ∂ℓ_z/∂ẏ = −Φ_z⁺ (Φ̇_q(v) T + [Φ̇_q(T e_i) v]_i)
-  W_.noalias() = pinv_ * (dPhi_ * T_);
-  auto &model = kin.model;
-  auto &data = kin.data;
-  pinocchio::computeRNEADerivatives(model, data, q_, v, zero_v_);  // data.dtau_dv = ∂h/∂v, data.M
-  M_ = data.M;
-  M_.triangularView<Eigen::StrictlyLower>() = M_.transpose().triangularView<Eigen::StrictlyLower>();
-  if (!cfg.universal.empty())
-    kin.universal_bias_derivative(q_, v, T_, DT_);
-  else
-    DT_.noalias() = data.dtau_dv * T_;
-  Mat Mz(nv, n_z);
-  for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
-  if (cfg.bias_symmetric) {
-    K.noalias() = Mz * W_;
-  } else {
+  // (the small products coefficient-wise: Eigen's blocked GEMM costs more than it saves here)
+  W_.noalias() = pinv_.lazyProduct(dPhi_.lazyProduct(T_));
+  if (!cfg.bias_symmetric) {
     W2_.resize(kin.rows, n_y);
     for (Index i = 0; i < n_y; ++i) {
       kin.jacobian_rate(q_, T_.col(i), col_);
-      W2_.col(i) = col_ * v;
+      W2_.col(i).noalias() = col_ * v;
     }
-    K.noalias() = Mz * (0.5 * (W_ + pinv_ * W2_));
+    W2_ = (0.5 * (W_ + pinv_ * W2_)).eval();  // n_z × n_y from rows × n_y: a temporary
   }
-  K -= 0.5 * DT_;
+  const Mat &Wb = cfg.bias_symmetric ? W_ : W2_;
+  // K = M_z W̄ − ½ D T, M_z = M's dependent columns: one rank-1 update per column (no copy of M_z)
+  K_ = -0.5 * DT_;
+  for (Index i = 0; i < n_z; ++i) K_.noalias() += M_.col(cfg.z_idx[i]) * Wb.row(i);
 }
 
-Mat ModelUpdate::solve_reduced(const Mat &A, const Mat &B) {
-  Eigen::LLT<Mat> llt(A);
-  if (llt.info() == Eigen::Success) return llt.solve(B);
-  return nb::cast<Mat>(handler_.attr("spd_solve")(A, B));  // not numerically SPD: the Python solve (LU, or LinAlgError)
+void ModelUpdate::solve_reduced(const Eigen::Ref<const Mat> &A, const Eigen::Ref<const Mat> &B, Mat &out) {
+  llt_.compute(A);
+  if (llt_.info() == Eigen::Success) {
+    out = llt_.solve(B);
+    return;
+  }
+  // not numerically SPD: the Python solve (LU, or LinAlgError)
+  out = nb::cast<Mat>(handler_.attr("spd_solve")(Mat(A), Mat(B)));
 }
 
 const Mat &ModelUpdate::factor_here(const Vec &yd) {
-  Mat K;
-  bias_rows(T_ * yd, K);
-  g_ = pinocchio::computeGeneralizedGravity(kin.model, kin.data, q_);
+  bias_rows(T_ * yd);
   // [M T | M_z W − ½ D T | Sᵀ | −g]; one product with Tᵀ gives [M_r | −C_r | B_r | −g_r]
-  rhs_.leftCols(n_y).noalias() = M_ * T_;
-  rhs_.middleCols(n_y, n_y) = K;
+  rhs_.leftCols(n_y).noalias() = M_.lazyProduct(T_);
+  rhs_.middleCols(n_y, n_y) = K_;
   rhs_.col(rhs_.cols() - 1) = -g_;
-  red_.noalias() = T_.transpose() * rhs_;
-  Z_ = solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y));
+  red_.noalias() = T_.transpose().lazyProduct(rhs_);
+  solve_reduced(red_.leftCols(n_y), red_.rightCols(red_.cols() - n_y), Z_);
   return Z_;
 }
 
@@ -159,7 +153,7 @@ const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates)
     rhs.middleCols(j * ny, ny).noalias() = Mz * Wb;
     rhs.middleCols(j * ny, ny) -= 0.5 * P.middleCols(j * ny, ny);
   }
-  rates = solve_reduced(red_.leftCols(ny), T_.transpose() * rhs);
+  solve_reduced(red_.leftCols(ny), T_.transpose() * rhs, rates);
   return Z_;
 }
 
@@ -178,8 +172,9 @@ void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, co
                            double *Xs) {
   Eigen::Map<RowMat> X(Xs, K + 1, n_x);
   X.row(0) = X0.transpose();
-  std::vector<Warm> next;
-  next.reserve(K);
+  // the warm starts of this run go into the storage of the run before last (copy-assigned at equal
+  // sizes: no allocation), then the two swap
+  sim_next_.resize(K);
   Vec x(n_x), xu(n_aug);
   xu[n_aug - 1] = 1.0;
   for (long i = 0; i < K; ++i) {
@@ -191,14 +186,14 @@ void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, co
       if (dy.dot(dy) < 1e-8) base = &sim_warm_[i + 1];
     }
     zoh(factor_rows(x, base), Ts);
-    next.push_back(*warm_);
+    sim_next_[i] = *warm_;
     Eigen::Map<RowMat>(Es + i * n_x * n_aug, n_x, n_aug) = E_;
     xu.head(n_x) = x;
     xu.segment(n_x, n_u) = Eigen::Map<const Vec>(u + i * n_u, n_u);
     X.row(i + 1) = (E_ * xu).transpose();
     if (offset != nullptr) X.row(i + 1) += offset->transpose();
   }
-  sim_warm_ = std::move(next);
+  sim_warm_.swap(sim_next_);
 }
 
 namespace {

@@ -9,6 +9,7 @@
 #include <string>
 #include <vector>
 
+#include <Eigen/Cholesky>
 #include <Eigen/Core>
 #include <nanobind/nanobind.h>
 
@@ -61,8 +62,10 @@ class Kinematics {
   Kinematics &operator=(const Kinematics &) = delete;
   // Ψ(q) + [0; y] and ∂Ψ/∂v (ClosureMixin._eval); fills res_, jac_
   void eval(const Vec &q);
-  // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv)
-  void jacobian_rate(const Vec &q, const Vec &v, Mat &out);
+  // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv); fresh: data already holds the
+  // joint placements, Jacobians and their rates at (q, v) (computeJointJacobiansTimeVariation's
+  // oMi, v, ov, J, dJ, which computeCoriolisMatrix leaves too, by the same formulas)
+  void jacobian_rate(const Vec &q, const Vec &v, Mat &out, bool fresh = false);
   // ∂h/∂v · T by RNEA polarization (UniversalJoints.bias_derivative)
   void universal_bias_derivative(const Vec &q, const Vec &v, const Mat &T, Mat &out);
   Vec integrate(const Vec &q, const Vec &dv) const;
@@ -136,18 +139,26 @@ class ModelUpdate {
   void step(Vec &q, const Vec &dz) const;  // ClosureMixin._step
   void fallback(const Vec &y);             // the validated Python path (raises the package errors)
   void zoh(const Mat &Z, double Ts);       // exp of the augmented ZOH matrix, top rows into E_
-  // ReducedModel._bias_rows at q_, T_, pinv_ and v = T ẏ: K (nv × n_y) = M_z W − ½ ∂h/∂v T with
-  // Tᵀ K = −C_r(ẏ); sets W_ (the Newton predictor's curvature, unaveraged) and M_ (full)
-  void bias_rows(const Vec &v, Mat &K);
-  Mat solve_reduced(const Mat &A, const Mat &B);  // A⁻¹ B, A = M_r (LLT, else the Python solve)
+  // ReducedModel._bias_rows at q_, T_, pinv_ and v = T ẏ: K_ (nv × n_y) = M_z W − ½ ∂h/∂v T with
+  // Tᵀ K = −C_r(ẏ); sets W_ (the Newton predictor's curvature, unaveraged), M_ (full) and g_
+  void bias_rows(const Vec &v);
+  // M_ (full), the gravity torques g_ and ∂h/∂v · T_ into DT_ at (q_, v) (bias_terms.cpp): one pass of
+  // Pinocchio's Coriolis matrix algorithm when christoffel_, else RNEA derivatives
+  void inertia_terms(const Vec &v);
+  // every joint has one degree of freedom: Pinocchio's C(q, v) is Christoffel-consistent (bias_terms.cpp)
+  static bool christoffel_coriolis(const pinocchio::Model &model);
+  // A⁻¹ B into out, A = M_r (LLT, else the Python solve)
+  void solve_reduced(const Eigen::Ref<const Mat> &A, const Eigen::Ref<const Mat> &B, Mat &out);
   const Mat &factor_here(const Vec &yd);          // Z_ at q_, T_, pinv_ and ẏ (sets W_)
 
   nb::object handler_;
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
   Vec q_, zero_v_, g_;
+  bool christoffel_ = false;  // christoffel_coriolis(kin.model), decided once
   std::vector<Mat> rate_dPhi_;  // Φ̇_q(T e_i), i < n_y (factor_rates)
-  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_;
+  Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, K_;
+  Eigen::LLT<Mat> llt_;
   Mat aug_, E_;
   TopRowsExpm expm_;
 };
