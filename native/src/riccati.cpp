@@ -59,32 +59,33 @@ class Riccati {
     for (long i = N - 1; i >= 0; --i) {
       const Mat &Ai = Abar_[i];
       right_A(P, i, PA_);  // P Ā_i, with Ā_i's structure
-      s_.noalias() = P * cbar_[i];
+      s_.noalias() = P.lazyProduct(cbar_[i]);
       s_ -= q;
       if (i < Nu) {
         const Mat &Bi = Bbar_[i];
-        BPA_.noalias() = Bi.transpose() * PA_;
-        PB_.noalias() = P * Bi;
+        BPA_.noalias() = Bi.transpose().lazyProduct(PA_);
+        PB_.noalias() = P.lazyProduct(Bi);
         H_ = R_;
-        H_.noalias() += Bi.transpose() * PB_;
+        H_.noalias() += Bi.transpose().lazyProduct(PB_);
         llt_.compute(H_);
         if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
         K_[i] = llt_.solve(BPA_);
-        g_.noalias() = Bi.transpose() * s_;
+        g_.noalias() = Bi.transpose().lazyProduct(s_);
         k_[i] = llt_.solve(g_);
         left_AT(PA_, i, P);
-        P.noalias() -= BPA_.transpose() * K_[i];
-        q.noalias() = BPA_.transpose() * k_[i];
-        q.noalias() -= Ai.transpose() * s_;
+        P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
+        q.noalias() = BPA_.transpose().lazyProduct(k_[i]);
+        q.noalias() -= Ai.transpose().lazyProduct(s_);
       } else {
         left_AT(PA_, i, P);
-        q.noalias() = -(Ai.transpose() * s_);
+        q.noalias() = -(Ai.transpose().lazyProduct(s_));
       }
       T_ = P.transpose();
-      P = 0.5 * (P + T_);
+      P += T_;
+      P *= 0.5;
       if (i > No) {
         P += CQC_;
-        q.noalias() += CQ_ * W.row(i - No - 1).transpose();
+        q.noalias() += CQ_.lazyProduct(W.row(i - No - 1).transpose());
       }
     }
     z_.setZero(nz);
@@ -126,16 +127,16 @@ class Riccati {
     const Mat &A = An_[i], &B = Bn_[i];
     const int k = kind(i);
     if (k == 0) {
-      out.noalias() = P * A;
+      out.noalias() = P.lazyProduct(A);
       return;
     }
-    out.leftCols(n).noalias() = P.leftCols(n) * A;
+    out.leftCols(n).noalias() = P.leftCols(n).lazyProduct(A);
     if (k == 2) {
       out.rightCols(m).setZero();
       return;
     }
     out.rightCols(m) = P.rightCols(m);
-    out.rightCols(m).noalias() += P.leftCols(n) * B;
+    out.rightCols(m).noalias() += P.leftCols(n).lazyProduct(B);
   }
 
   // out = Ā_iᵀ Y (nz × nz), likewise
@@ -143,16 +144,16 @@ class Riccati {
     const Mat &A = An_[i], &B = Bn_[i];
     const int k = kind(i);
     if (k == 0) {
-      out.noalias() = A.transpose() * Y;
+      out.noalias() = A.transpose().lazyProduct(Y);
       return;
     }
-    out.topRows(n).noalias() = A.transpose() * Y.topRows(n);
+    out.topRows(n).noalias() = A.transpose().lazyProduct(Y.topRows(n));
     if (k == 2) {
       out.bottomRows(m).setZero();
       return;
     }
     out.bottomRows(m) = Y.bottomRows(m);
-    out.bottomRows(m).noalias() += B.transpose() * Y.topRows(n);
+    out.bottomRows(m).noalias() += B.transpose().lazyProduct(Y.topRows(n));
   }
 
   void stage(long i, const double *A, const double *B, const double *c) {

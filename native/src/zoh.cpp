@@ -36,7 +36,7 @@ void taylor_top(const Mat &A, Index K, const std::vector<double> &inv_fact, Mat 
   P = A;
   F += P;
   for (Index k = 2; k <= K; ++k) {
-    Pn.noalias() = P.leftCols(m) * A;
+    Pn.noalias() = P.leftCols(m).lazyProduct(A);
     P.swap(Pn);
     F += inv_fact[k] * P;
   }
@@ -46,7 +46,7 @@ void taylor_top(const Mat &A, Index K, const std::vector<double> &inv_fact, Mat 
 void square_top(Mat &E, int s, Mat &E2) {
   const Index m = E.rows(), n = E.cols();
   for (int i = 0; i < s; ++i) {
-    E2.noalias() = E.leftCols(m) * E;
+    E2.noalias() = E.leftCols(m).lazyProduct(E);
     E2.rightCols(n - m) += E.rightCols(n - m);
     E.swap(E2);
   }
