@@ -163,7 +163,9 @@ class GPCController:
     horizons = property(lambda self: self._settings.horizons, doc="Horizons N, No, Nu.")
     weights = property(lambda self: self._settings.weights, doc="Square-root weights Qy, Qu.")
     form = property(lambda self: self._settings.form, doc="Prediction form.")
-    solver = property(lambda self: self._settings.solver, doc="Back-end name.")
+    solver = property(lambda self: self._settings.step_solver,
+                      doc="What solves the steps (:attr:`~parallel_gpc.gpc.GPCSettings.step_solver`): the back end's "
+                          "name, or ``\"riccati\"`` when the nonlinear iterations take the Riccati recursion.")
     disturbance_gain = property(lambda self: self._settings.disturbance_gain, doc="α of the disturbance estimate.")
     max_condition = property(lambda self: self._settings.max_condition, doc="Largest accepted cond(input gain).")
 
