@@ -2,8 +2,10 @@
 visible fallback (the unconstrained QR solution projected on the limits).
 
 A solution is applied only if its first move keeps |u(k)| ≤ τ and |Δu(k)| ≤ δ within
-:data:`APPLIED_LIMIT_RTOL`; a failed, infeasible or limit-breaking solve is replaced by
-:func:`project_on_limits`, whose result is marked ``fallback`` — never silent.
+:data:`APPLIED_LIMIT_RTOL`, verified once: by :func:`limit_violation`, or — a stage-wise active
+set's plan — by the solver's own KKT verification when the row excess it bounds is within
+:func:`limit_gap` of the tightened limits; a failed, infeasible or limit-breaking solve is
+replaced by :func:`project_on_limits`, whose result is marked ``fallback`` — never silent.
 """
 
 from __future__ import annotations
