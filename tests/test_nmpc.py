@@ -6,6 +6,7 @@ time budget and the settings' checks."""
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -338,6 +339,8 @@ def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name):
     ctrl, fast = _step(model, X, plan, target, 10, 50, tolerance=1e-10)
     _, condensed = _step(ReducedModel(model.robot), X, plan, target, 10, 50, tolerance=1e-10, solver="qr")
     assert ctrl._nmpc.riccati is not None and fast.result.solver == "riccati" and condensed.result.solver == "qr"
+    assert ctrl.solver == ctrl.settings.step_solver == "riccati"  # what the steps report, not the condensed back end
+    assert ctrl.settings.solver != "riccati"  # the condensed back end of a limit-breaking minimizer
     assert fast.residual <= 1e-6 and condensed.residual <= 1e-6 and not fast.fallback  # (rounding-limited stop)
     np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
     np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
@@ -362,6 +365,17 @@ def test_riccati_steps_only_where_they_give_the_condensed_minimizer(kw, robot4):
     settings = dict(form="nonlinear", iterations=5, weights=Weights(QY, QU)) | kw
     ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), settings.pop("weights"), **settings)
     assert ctrl._nmpc.riccati is None
+    assert ctrl.solver == ctrl.settings.step_solver == ctrl.settings.solver != "riccati"  # the back end solves them
+
+
+def test_the_reported_solver_follows_the_iterations_settings():
+    """``step_solver`` is derived from the settings (not a constructor argument) and chosen again by a
+    changed copy: the iterated default says ``riccati``, the paper's single step its own default."""
+    iterated = GPCSettings(TS, Horizons(10), Weights(QY, QU), form="nonlinear", iterations=5)
+    assert iterated.step_solver == "riccati" and iterated.solver != "riccati"
+    single = replace(iterated, iterations=1)
+    assert single.step_solver == single.solver
+    assert replace(iterated, solver="qr").step_solver == "qr"
 
 
 def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4):

@@ -163,15 +163,22 @@ def test_a_failed_default_stagewise_step_is_replaced_visibly(monkeypatch, limite
 
 
 def test_a_stagewise_plan_beyond_the_torque_limit_is_never_applied(monkeypatch):
-    """A stage-wise result that says "optimal" but whose first move breaks |u| ≤ τ is treated as a
-    failed solve: the condensed default replaces it, the message says why."""
+    """A stage-wise result that says "optimal" but whose first move breaks |u| ≤ τ, and whose rows its
+    solver did not verify within the limits' gap (``excess`` inf: an interior point's, or a plan other
+    than the one the active set verified), is treated as a failed solve: the condensed default replaces
+    it, the message says why."""
     N = STAGEWISE_LIMITED_MIN_N
     model = DiscreteLinearModel(A, B, np.eye(4), Ts=0.1)
     ctl = GPCController.build(model, 0.1, Horizons(N), Weights(1.0, 0.1), limits=Limits(torque=0.05))
     X, w = np.array([0.1, 0.0, -0.2, 0.05]), np.zeros((N, 4))
     good = ctl._riccati.solve(*ctl._riccati.stages(ctl, X, w))
     assert good.ok
-    monkeypatch.setattr(ctl._riccati, "solve", lambda *args, **kwargs: replace(good, v=good.v + 1.0))
+
+    def beyond(*args, **kwargs):
+        ctl._riccati.constrained.excess = np.inf  # not the plan its solver verified
+        return replace(good, v=good.v + 1.0)
+
+    monkeypatch.setattr(ctl._riccati, "solve", beyond)
     info = ctl.step(X, w)
     assert not info.fallback and info.result.solver == DEFAULT_BOX_SOLVER
     assert "but |u[" in info.result.message and "> torque limit" in info.result.message

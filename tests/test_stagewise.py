@@ -5,6 +5,7 @@ that condensed problem computed here, a dense QP of a random stage problem, and 
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -14,6 +15,7 @@ from scipy.optimize import nnls
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
+from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
@@ -709,3 +711,90 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     assert x_ref is not None
     v_ref = x_ref[:full.n_decision]
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
+
+
+def _row_excess(ctl: GPCController, form: str, v, base) -> float:
+    """The largest excess (N·m) of the plan v's torque and Δu rows over the QP's (tightened) limits,
+    recomputed here from the inputs: u(i) = v(i) (absolute) or base + Σ_{l ≤ i} v(l), Δu(i) = v(i)."""
+    lim, m = ctl._qp_limits, ctl.n_u
+    V = np.asarray(v).reshape(-1, m)
+    U = V if form == "absolute" else base + np.cumsum(V, axis=0)
+    excess = [np.max(np.abs(U) - lim.torque)] if lim.torque is not None else []
+    if lim.du is not None:
+        excess.append(np.max(np.abs(V) - lim.du))
+    return float(max(excess))
+
+
+@pytest.mark.parametrize("native", [False, True], ids=["python", "compiled"])
+@pytest.mark.parametrize("case", list(INPUT_CASES))
+@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
+def test_the_active_sets_verified_excess_keeps_the_true_limits(form, case, native):
+    """What lets the controller skip its own first-move check of a limited stage-wise step: the active
+    set's verified row excess (its KKT residual × the largest bound) bounds every row's excess
+    recomputed here from the plan, is within the gap between the QP's tightened limits and the true
+    ones on every warm step, and the controller's check (:func:`limit_violation`) then indeed finds
+    nothing."""
+    if native and not (HAS_COMPILED_STEP and HAS_COMPILED):
+        pytest.skip("the compiled core has no RiccatiActive")
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES)
+    path = RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
+    gap = limit_gap(ctl._limits, ctl._qp_limits)
+    assert 0.0 < gap < np.inf
+    rng = np.random.default_rng(5)
+    binding = 0
+    for k in range(5):
+        stages = ctl._riccati.stages(ctl, X, w)
+        path._extra = ctl._riccati._extra
+        result = path.solve(*stages, warm=k > 0)
+        assert result.status == "optimal" and path.constrained.method == "active-set", result.message
+        scale = float(np.max(np.abs(ctl._qp_limits.torque if ctl._qp_limits.torque is not None else ctl._qp_limits.du)))
+        assert _row_excess(ctl, form, result.v, stages[4]) <= path.excess + 1e-13 * scale
+        assert path.excess <= gap  # certified: the controller does not check it again
+        assert limit_violation(path.input_map(ctl, stages), result.v, form, ctl.u_prev, ctl._limits) == ""
+        binding += result.active_limits
+        X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
+    assert binding  # the limits bind: the certificate is about rows that matter
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("case", list(INPUT_CASES))
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_the_compiled_steps_residual_bounds_the_broken_rows(form, case):
+    """The bound the certificate rests on, where rows are broken: one sweep of the compiled limited step
+    from a cold start (the unconstrained plan: rows broken) reports a KKT residual whose product with the
+    largest bound is at least the largest row excess recomputed here."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES)
+    ctl.step(X, w)  # builds the compiled step
+    sw = ctl._riccati.constrained
+    assert sw._step is not None
+    A, B, c, x0, u0, r = ctl._riccati.stages(ctl, X, w)
+    n, m = ctl.n_x, ctl.n_u
+    v, _, _, _, _, ok, residual, _ = sw._step.solve(
+        np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), np.asarray(c, float).reshape(-1),
+        X, np.zeros(m) if u0 is None else u0, r, None, 1)
+    excess = _row_excess(ctl, form, v, u0)
+    assert excess > 0.0 and not ok  # one sweep leaves rows broken
+    assert excess <= residual * sw._f_scale * (1.0 + 1e-12)
+
+
+@pytest.mark.parametrize("claimed", [np.inf, 1e3], ids=["unverified", "residual-too-large"])
+def test_a_stagewise_plan_the_solver_did_not_verify_is_checked_by_the_controller(claimed, monkeypatch):
+    """One verification, never none: a stage-wise plan whose first move breaks the torque limit and
+    whose solver did not verify its rows within the limits' gap (an interior point's: inf; a residual
+    too large) is caught by the controller's check and replaced by the condensed default, visibly."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "absolute", "torque", cases=INPUT_CASES)
+    path = ctl._riccati
+    solve = path.solve
+
+    def beyond(*args, **kwargs):
+        result = solve(*args, **kwargs)
+        path.constrained.excess = claimed * ctl._limit_gap
+        return replace(result, v=3.0 * result.v)  # the first move beyond ±τ
+
+    monkeypatch.setattr(path, "solve", beyond)
+    info = ctl.step(X, w)
+    assert info.replaced and "torque limit" in info.result.message and info.result.ok
+    assert np.all(np.abs(info.u) <= ctl._limits.torque)

@@ -34,7 +34,7 @@ from ..limits import Limits
 from .constraints import (STATE_TOL, ConstraintReport, DriveKinematics, constrain, hard_violation, report, split,
                           stage_constraints, terminal_rows)
 from .criterion import Criterion
-from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_violation, project_on_limits
+from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_gap, limit_violation, project_on_limits
 from .nmpc import IterationReport, NMPCIterations, riccati_steps
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
 from .protocol import ControlModel, check_conditioning, conditioning_rule
@@ -142,6 +142,7 @@ class GPCController:
         self._drives = DriveKinematics.needed(self.model, limits)
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
+        self._limit_gap = limit_gap(limits, self._qp_limits)  # a verified row excess within it keeps the limits
         self._riccati = None if settings.solver != "riccati" else RiccatiPath(
             criterion, self.model.C, settings.form, limits=self._qp_limits, Ts=settings.Ts)
         if self._backend_name != settings.solver:  # a new back end (the same one kept across limit changes)
@@ -163,7 +164,9 @@ class GPCController:
     horizons = property(lambda self: self._settings.horizons, doc="Horizons N, No, Nu.")
     weights = property(lambda self: self._settings.weights, doc="Square-root weights Qy, Qu.")
     form = property(lambda self: self._settings.form, doc="Prediction form.")
-    solver = property(lambda self: self._settings.solver, doc="Back-end name.")
+    solver = property(lambda self: self._settings.step_solver,
+                      doc="What solves the steps (:attr:`~parallel_gpc.gpc.GPCSettings.step_solver`): the back end's "
+                          "name, or ``\"riccati\"`` when the nonlinear iterations take the Riccati recursion.")
     disturbance_gain = property(lambda self: self._settings.disturbance_gain, doc="α of the disturbance estimate.")
     max_condition = property(lambda self: self._settings.max_condition, doc="Largest accepted cond(input gain).")
 
@@ -335,7 +338,8 @@ class GPCController:
         result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
         if result is not None and result.ok:  # checked here: one beyond the limits is replaced like a failed one
             pred = self._riccati.input_map(self, stages)
-            result = self._within_limits(pred, result)
+            if not self._riccati.excess <= self._limit_gap:  # not already verified by the solver (active set's KKT)
+                result = self._within_limits(pred, result)
         staged = result is not None and result.ok
         if staged:
             t2, constraint_report = t1, self._riccati.report
@@ -379,7 +383,8 @@ class GPCController:
             # without it when that respects the torque limit — the same X̂(k+1)
             u_seq[0] = self._applicable(self._base(u_seq[0]), u_seq[0])
         u = u_seq[0].copy()
-        check_applied(u, self._limits.torque)
+        if fallback or u_now is not None:  # a solved first move was verified above (within_limits or the solver)
+            check_applied(u, self._limits.torque)  # the projected fallback; u(k) decided at k−1 (or restored)
         N = self.horizons.N
         self.plan = u_seq if len(u_seq) == N else np.vstack([u_seq, np.repeat(u_seq[-1:], N - len(u_seq), axis=0)])
         self._v_prev = result.v

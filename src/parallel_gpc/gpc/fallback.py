@@ -2,8 +2,10 @@
 visible fallback (the unconstrained QR solution projected on the limits).
 
 A solution is applied only if its first move keeps |u(k)| ≤ τ and |Δu(k)| ≤ δ within
-:data:`APPLIED_LIMIT_RTOL`; a failed, infeasible or limit-breaking solve is replaced by
-:func:`project_on_limits`, whose result is marked ``fallback`` — never silent.
+:data:`APPLIED_LIMIT_RTOL`, verified once: by :func:`limit_violation`, or — a stage-wise active
+set's plan — by the solver's own KKT verification when the row excess it bounds is within
+:func:`limit_gap` of the tightened limits; a failed, infeasible or limit-breaking solve is
+replaced by :func:`project_on_limits`, whose result is marked ``fallback`` — never silent.
 """
 
 from __future__ import annotations
@@ -15,7 +17,7 @@ from ..limits import Limits
 from ..solvers import SolveResult, qr_least_squares
 from .prediction import Prediction
 
-__all__ = ["LIMIT_MARGIN", "APPLIED_LIMIT_RTOL", "limit_violation", "check_applied", "project_on_limits"]
+__all__ = ["LIMIT_MARGIN", "APPLIED_LIMIT_RTOL", "limit_gap", "limit_violation", "check_applied", "project_on_limits"]
 
 #: the QP is given limits tightened by this relative margin (``limits.scaled(1 − LIMIT_MARGIN)``) so that a solution within the
 #: solver's tolerance never exceeds the true limit (|u| ≤ τ exactly, nothing clipped later).
@@ -23,6 +25,21 @@ LIMIT_MARGIN = 1e-6
 #: every applied input is verified: a solution whose first move exceeds a limit by more than this
 #: relative tolerance (|u| > τ·(1 + 1e-9)) counts as a failed solve and the step falls back visibly.
 APPLIED_LIMIT_RTOL = 1e-9
+
+
+def limit_gap(limits: Limits, qp_limits: Limits) -> float:
+    """The least distance (N·m) between the QP's tightened input limits and the true ones, over the
+    torque and Δu limits of every drive (inf without either): a solver that verified every row of its
+    solution within this of the QP's bounds (the stage-wise active set's KKT residual) has verified
+    that the first move keeps the true limits — :func:`limit_violation` would find nothing.
+
+    Args:
+        limits: the controller's limits, sized to the m drives. qp_limits: the same tightened
+            (``limits.scaled(1 − LIMIT_MARGIN)``).
+    """
+    gaps = [np.min(np.asarray(true) - np.asarray(tight)) for true, tight in
+            ((limits.torque, qp_limits.torque), (limits.du, qp_limits.du)) if true is not None]
+    return float(min(gaps)) if gaps else np.inf
 
 
 def limit_violation(pred: Prediction, v: np.ndarray, form: str, u_prev: np.ndarray, limits: Limits) -> str:

@@ -64,7 +64,7 @@ from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKine
 from .criterion import Criterion
 from .prediction import Prediction, deviation_gain
 from .riccati import RiccatiSolver
-from .settings import RICCATI_QU_MARGIN, GPCSettings, stagewise_obstacle, weight_margin
+from .settings import GPCSettings, iterations_by_riccati
 
 __all__ = ["NMPCIterations", "IterationReport", "riccati_steps", "ARMIJO", "BACKTRACKS"]
 
@@ -83,20 +83,16 @@ ROUNDING = 1e-12
 
 def riccati_steps(settings: GPCSettings, criterion: Criterion, C: np.ndarray) -> RiccatiSolver | None:
     """The Riccati recursion that solves every Gauss–Newton step of the iterations, the paper's
-    included (:meth:`NMPCIterations.riccati_step`), or None. It gives the condensed subproblem's minimizer whenever the paper's single step of
-    these settings would take the stage-wise path (:func:`~parallel_gpc.gpc.settings.stagewise_obstacle`
-    of ``iterations=1`` empty: no terminal equality or weight, no drive limit; Qu nonsingular with
-    :data:`~parallel_gpc.gpc.settings.RICCATI_QU_MARGIN`), no state limit is set (their rows move
-    with every linearization) and the back end is the default (an explicit back end solves every
-    step). A minimizer that breaks an input limit goes to the condensed problem.
+    included (:meth:`NMPCIterations.riccati_step`), or None: where
+    :func:`~parallel_gpc.gpc.settings.iterations_by_riccati` says it gives the condensed subproblem's
+    minimizer (then ``settings.step_solver`` is ``"riccati"``). A minimizer that breaks an input
+    limit goes to the condensed problem.
 
     Args:
         settings: the controller's settings (iterations > 1). criterion: its criterion.
         C: (p, n_x) output matrix of the model.
     """
-    if (settings.iterations == 1 or not settings.solver_is_default or settings.limits.has_state_limits
-            or stagewise_obstacle(replace(settings, iterations=1))
-            or weight_margin(settings.weights, settings.Ts) < RICCATI_QU_MARGIN):
+    if not iterations_by_riccati(settings):
         return None
     Wy, Wu = criterion.weights.blocks(criterion.n_outputs, criterion.n_inputs)
     return RiccatiSolver(Wy, Wu, C, criterion.horizons, "nonlinear")

@@ -165,6 +165,13 @@ class RiccatiPath:
         result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, **self._extra)
         return result
 
+    @property
+    def excess(self) -> float:
+        """How far the last constrained solution's limit rows may exceed the bounds it was given, as
+        its solver verified (:attr:`~parallel_gpc.gpc.stagewise.StagewiseSolver.excess`, N·m); inf
+        when unverified or without limits."""
+        return np.inf if self.constrained is None else self.constrained.excess
+
     def input_map(self, ctl, stages: tuple) -> Prediction:
         """A :class:`~parallel_gpc.gpc.prediction.Prediction` carrying only the input map of the
         form (f and G are empty: nothing was condensed)."""

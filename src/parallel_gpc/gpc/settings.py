@@ -3,7 +3,7 @@ between steps (a frozen :class:`ControllerState` snapshot)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -107,6 +107,11 @@ class GPCSettings:
         solver_is_default: True when ``solver`` was left unset and :func:`default_solver` chose
             it (not a constructor argument; a changed copy, ``dataclasses.replace(settings,
             limits=...)`` with ``solver=None``, chooses again).
+        step_solver: what solves the control steps (not a constructor argument): ``"riccati"``
+            when the nonlinear form's Gauss–Newton iterations take the Riccati recursion
+            (:func:`iterations_by_riccati`; ``solver`` then names the condensed back end a step
+            whose minimizer breaks an input limit goes to), otherwise ``solver``. The controller
+            reports it as its ``solver``.
 
     Raises:
         InvalidParameterError: bad Ts, form, horizons, weights or limits type, solver/limits
@@ -126,6 +131,7 @@ class GPCSettings:
     time_budget: float | None = None
     terminal: str | None = None
     solver_is_default: bool = field(default=False, init=False)
+    step_solver: str = field(default="", init=False)
 
     def __post_init__(self):
         def put(name, value):
@@ -155,6 +161,21 @@ class GPCSettings:
         put("tolerance", positive("tolerance", self.tolerance))
         if self.time_budget is not None:
             put("time_budget", positive("time_budget", self.time_budget, " s"))
+        put("step_solver", "riccati" if iterations_by_riccati(self) else self.solver)
+
+
+def iterations_by_riccati(settings: "GPCSettings") -> bool:
+    """True when every Gauss–Newton step of the nonlinear form's iterations (iterations > 1), the
+    paper's included, is solved by the Riccati recursion on its stage models
+    (:func:`~parallel_gpc.gpc.nmpc.riccati_steps`): the recursion gives the condensed subproblem's
+    minimizer whenever the paper's single step of these settings would take the stage-wise path
+    (:func:`stagewise_obstacle` of ``iterations=1`` empty: no terminal equality or weight, no drive
+    limit; Qu nonsingular with :data:`RICCATI_QU_MARGIN`), no state limit is set (their rows move
+    with every linearization) and the back end is the default (an explicit back end solves every
+    step). The one owner of that rule."""
+    return (settings.iterations > 1 and settings.solver_is_default and not settings.limits.has_state_limits
+            and not stagewise_obstacle(replace(settings, iterations=1))
+            and weight_margin(settings.weights, settings.Ts) >= RICCATI_QU_MARGIN)
 
 
 def check_iterations(settings: "GPCSettings") -> None:

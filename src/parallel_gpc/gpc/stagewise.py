@@ -162,6 +162,12 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     return qp, kinds
 
 
+def _bound_scale(f: np.ndarray) -> float:
+    """The largest |bound| of the used (finite) rows f (N, k), at least 1e-12: the scale of the active
+    set's row excess in its KKT residual."""
+    return max(float(np.max(np.abs(f[np.isfinite(f)]), initial=0.0)), 1e-12)
+
+
 class StagewiseSolver:
     """Stage-wise solve of one controller's constrained problem (active set or interior point).
 
@@ -183,6 +189,10 @@ class StagewiseSolver:
         method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
             than input rows) or ``"interior-point after active set"`` (the set did not settle).
         iterations: the last solve's (active-set sweeps, interior-point iterations), 0 when unused.
+        excess: how far the last solution's rows may exceed their bounds, in the rows' units (N·m for
+            torque and Δu rows), as the active set's own KKT verification bounds it (residual × the
+            largest bound: the residual is at least the largest excess over the largest bound);
+            inf when it did not verify it (the interior point, a failed solve): the caller checks.
     """
 
     name = "riccati"
@@ -204,7 +214,8 @@ class StagewiseSolver:
         # of the linear forms: Q, the rows and their bounds are the limits' and the weights'), and its kinds
         self._template: tuple | None = None
         self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
-        self.method, self.iterations = "", (0, 0)
+        self.method, self.iterations, self.excess = "", (0, 0), np.inf
+        self._f_scale = 0.0  # the compiled step's largest bound (its rows' are fixed: the limits')
         self._unsettled: tuple | None = None  # (message, iterations) of a compiled step whose set did not settle
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
@@ -273,6 +284,7 @@ class StagewiseSolver:
         A, B, c, x0, u0 = step
         H, n, m = self.horizons, self.C.shape[1], self.Wu.shape[0]
         start = shift_active_set(self._fixed) if warm else None
+        self.excess = np.inf
         try:
             v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
                 np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
@@ -286,10 +298,10 @@ class StagewiseSolver:
         if not ok:
             self._unsettled = (message, self.iterations)
             return None
-        self.method, self._fixed = "active-set", fixed
+        self.method, self._fixed, self.excess = "active-set", fixed, residual * self._f_scale
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
-                           bool((fixed >= 0).any()), "")
+                           bool(fixed.max(initial=-1) >= 0), "")
 
     def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
@@ -308,6 +320,7 @@ class StagewiseSolver:
         """
         t0 = time.perf_counter()
         H, m = self.horizons, self.Wu.shape[0]
+        self.excess = np.inf
         if self._step is not None:
             result = self._solve_step(step, r, warm, t0)
             if result is not None:
@@ -324,6 +337,7 @@ class StagewiseSolver:
                 self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
                 rows = self._input_rows(qp)
                 if rows is not None and self._compiled_step is not None and self._compiled_active is not None:
+                    self._f_scale = _bound_scale(qp.f)
                     self._step = self._compiled_step(
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
                         np.ascontiguousarray(rows.comp, np.int64), rows.sign)
@@ -359,6 +373,7 @@ class StagewiseSolver:
         e = (np.asarray(r, float) - sol.z[H.No + 1:] @ Cz.T) @ self.Wy.T
         J = float(np.sum(e * e) + np.sum((sol.v @ self.Wu.T) ** 2))
         if self.method == "active-set":  # input rows only (no state report), their KKT conditions verified
+            self.excess = sol.residual * _bound_scale(qp.f)
             return SolveResult(v, J, "optimal", self.name, sol.iterations, time.perf_counter() - t0,
                                bool((sol.fixed >= 0).any()), ""), None
         used = np.isfinite(qp.f)
