@@ -47,6 +47,25 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
 
 using VMap = Eigen::Map<const Vec>;
 
+// X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs: plain substitution
+// (Eigen's triangular solve packs its operands for a blocked product, slower at these sizes)
+template <class M>
+void neg_chol_solve(const Mat &L, M &X) {
+  const long n = L.rows();
+  for (long c = 0; c < X.cols(); ++c) {
+    for (long a = 0; a < n; ++a) {
+      double t = X(a, c);
+      for (long b = 0; b < a; ++b) t -= L(a, b) * X(b, c);
+      X(a, c) = t / L(a, a);
+    }
+    for (long a = n - 1; a >= 0; --a) {  // the solved entries below a are already negated
+      double t = X(a, c);
+      for (long b = a + 1; b < n; ++b) t += L(b, a) * X(b, c);
+      X(a, c) = -t / L(a, a);
+    }
+  }
+}
+
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
   std::vector<CMap> A, B, Q, Fz;
@@ -182,10 +201,10 @@ struct Sweep {
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          K[i] = llt.solve(Hwz);
-          K[i] *= -1.0;
-          k[i] = llt.solve(gw);
-          k[i] *= -1.0;
+          K[i] = Hwz;
+          neg_chol_solve(llt.matrixLLT(), K[i]);
+          k[i] = gw;
+          neg_chol_solve(llt.matrixLLT(), k[i]);
           Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
           lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
         }
