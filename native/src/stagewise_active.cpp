@@ -47,21 +47,22 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
 
 using VMap = Eigen::Map<const Vec>;
 
-// X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs: plain substitution
-// (Eigen's triangular solve packs its operands for a blocked product, slower at these sizes)
+// X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs and the
+// reciprocals of its diagonal d: plain substitution (Eigen's triangular solve packs its operands for a
+// blocked product, slower at these sizes)
 template <class M>
-void neg_chol_solve(const Mat &L, M &X) {
+void neg_chol_solve(const Mat &L, const Vec &d, M &X) {
   const long n = L.rows();
   for (long c = 0; c < X.cols(); ++c) {
     for (long a = 0; a < n; ++a) {
       double t = X(a, c);
       for (long b = 0; b < a; ++b) t -= L(a, b) * X(b, c);
-      X(a, c) = t / L(a, a);
+      X(a, c) = t * d(a);
     }
     for (long a = n - 1; a >= 0; --a) {  // the solved entries below a are already negated
       double t = X(a, c);
       for (long b = a + 1; b < n; ++b) t += L(b, a) * X(b, c);
-      X(a, c) = -t / L(a, a);
+      X(a, c) = -t * d(a);
     }
   }
 }
@@ -71,6 +72,7 @@ struct QP {  // views of the caller's arrays (no copy)
   std::vector<CMap> A, B, Q, Fz;
   std::vector<VMap> c, q;
   std::vector<std::vector<Row>> rows;  // per decision stage
+  std::vector<long> row_comp;          // (nd, k): the component of a used row, −1 for the others
   Vec z0;
   Mat R;
   double f_scale = 1e-12;
@@ -89,7 +91,7 @@ struct Sweep {
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
   Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
-  Vec p, lin, w, gv, gw, vf;
+  Vec p, lin, w, gv, gw, vf, dinv;
   Eigen::LLT<Mat> llt;
 
   // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
@@ -201,10 +203,11 @@ struct Sweep {
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
+          dinv = llt.matrixLLT().diagonal().cwiseInverse();
           K[i] = Hwz;
-          neg_chol_solve(llt.matrixLLT(), K[i]);
+          neg_chol_solve(llt.matrixLLT(), dinv, K[i]);
           k[i] = gw;
-          neg_chol_solve(llt.matrixLLT(), k[i]);
+          neg_chol_solve(llt.matrixLLT(), dinv, k[i]);
           Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
           lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
         }
@@ -304,10 +307,8 @@ struct Workspace {
 void sanitize(const QP &qp, Set &fixed) {
   for (long i = 0; i < qp.nd; ++i)
     for (long j = 0; j < qp.m; ++j) {
-      if (fixed(i, j) < 0) continue;
-      bool found = false;
-      for (const Row &row : qp.rows[i]) found = found || (row.r == fixed(i, j) && row.j == j);
-      if (!found) fixed(i, j) = -1;
+      const int64_t r = fixed(i, j);
+      if (r >= 0 && (r >= qp.k || qp.row_comp[i * qp.k + r] != j)) fixed(i, j) = -1;
     }
 }
 
@@ -317,6 +318,7 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
       long(sign.shape(1)) != qp.k)
     throw std::invalid_argument(std::string(who) + ": inconsistent stage shapes");
   qp.rows.assign(qp.nd, {});
+  qp.row_comp.assign(qp.nd * qp.k, -1);
   for (long i = 0; i < qp.N; ++i)
     for (long r = 0; r < qp.k; ++r) {
       const long j = long(comp.data()[i * qp.k + r]);
@@ -325,6 +327,7 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
         throw std::invalid_argument(std::string(who) + ": a row on a stage without decision or a component ≥ m");
       const double fr = f.data()[i * qp.k + r];
       qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
+      qp.row_comp[i * qp.k + r] = j;
       qp.f_scale = std::max(qp.f_scale, std::abs(fr));
     }
 }
