@@ -17,6 +17,7 @@ from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
+from parallel_gpc.gpc.stages import FORM_CODES
 from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
@@ -777,6 +778,47 @@ def test_the_compiled_steps_residual_bounds_the_broken_rows(form, case):
     excess = _row_excess(ctl, form, v, u0)
     assert excess > 0.0 and not ok  # one sweep leaves rows broken
     assert excess <= residual * sw._f_scale * (1.0 + 1e-12)
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_a_reused_compiled_step_answers_as_a_fresh_one(form):
+    """The compiled limited step keeps its workspace from call to call (a controller's steps allocate
+    nothing once the first has sized it); nothing it carries may leak into the next answer. One
+    RiccatiActive through cold calls, warm ones from the last set, one-sweep calls that do not settle,
+    and calls with and without c, at moving states, answers each as a freshly built one: the same set,
+    sweeps and status, plan, multipliers and J ≤ 1e-12 relative."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, form, "torque", cases=INPUT_CASES)
+    ctl.step(X, w)  # builds the compiled step
+    sw, H, n, m = ctl._riccati.constrained, ctl.horizons, ctl.n_x, ctl.n_u
+    qp = sw._template[0]
+    rows = sw._input_rows(qp)
+
+    def fresh():
+        return native_module().RiccatiActive(sw.C, sw.Wy, sw.Wu, H.N, H.No, H.Nu, FORM_CODES[form], qp.Fz, qp.f,
+                                             np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+
+    reused, rng, last, unsettled, binding = fresh(), np.random.default_rng(11), None, 0, 0
+    for k in range(4):
+        A, B, c, x0, u0, r = ctl._riccati.stages(ctl, X, w)
+        c = np.asarray(c, float).reshape(-1) + 1e-3 * rng.standard_normal(np.size(c))  # c ≠ 0 (a disturbance)
+        args = [np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), c, x0,
+                np.zeros(m) if u0 is None else u0, r]
+        no_c = args[:2] + [np.zeros(0)] + args[3:]
+        for call_args, start, cap in [(args, None, 30), (args, last, 12), (args, None, 1), (no_c, last, 12)]:
+            got, want = reused.solve(*call_args, start, cap), fresh().solve(*call_args, start, cap)
+            v, J, lam, fixed, iterations, ok, residual, message = got
+            assert (np.array_equal(fixed, want[3]), iterations, ok, message) == (True, *want[4:6], want[7])
+            assert np.abs(v - want[0]).max() <= 1e-12 * np.abs(want[0]).max()
+            assert np.abs(lam - want[2]).max() <= 1e-12 * max(np.abs(want[2]).max(), 1.0)
+            assert J == pytest.approx(want[1], rel=1e-12) and residual == pytest.approx(want[6], rel=1e-9, abs=1e-15)
+            unsettled += not ok
+            binding += int((fixed >= 0).any())
+            if ok and call_args is args:
+                last = fixed
+        X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
+    assert unsettled and binding  # the calls cover sets that bind and sweeps that stop unsettled
 
 
 @pytest.mark.parametrize("claimed", [np.inf, 1e3], ids=["unverified", "residual-too-large"])

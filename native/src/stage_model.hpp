@@ -42,16 +42,16 @@ struct StepShape {
 // `c_required`), x0 (n), u0 (m), r (N − No, p)) checked (`who` names the caller in the error)
 inline StepShape check_step(const char *who, long n, long m, long p, long N, long No, const In2 &A, const In2 &B,
                             long c_size, bool c_required, const In1 &x0, const In1 &u0, const In2 &r) {
-  const std::string name(who);
-  if (A.shape(0) % size_t(n) != 0 || B.shape(0) % size_t(n) != 0)
-    throw std::invalid_argument(name + ": bad rows of A or B");
+  // the message built only when a check fails (a string per call otherwise)
+  auto fail = [who](const char *what) { throw std::invalid_argument(std::string(who) + what); };
+  if (A.shape(0) % size_t(n) != 0 || B.shape(0) % size_t(n) != 0) fail(": bad rows of A or B");
   const long nA = long(A.shape(0)) / n, nB = long(B.shape(0)) / n;
   if (A.shape(1) != size_t(n) || B.shape(1) != size_t(m) || (nA != 1 && nA != N) || (nB != 1 && nB != N))
-    throw std::invalid_argument(name + ": A must be (n or N·n, n), B (n or N·n, m)");
+    fail(": A must be (n or N·n, n), B (n or N·n, m)");
   if (c_size != n && c_size != N * n && (c_required || c_size != 0))
-    throw std::invalid_argument(name + (c_required ? ": c must have n or N·n entries" : ": c must have 0, n or N·n entries"));
+    fail(c_required ? ": c must have n or N·n entries" : ": c must have 0, n or N·n entries");
   if (x0.shape(0) != size_t(n) || u0.shape(0) != size_t(m) || r.shape(0) != size_t(N - No) || r.shape(1) != size_t(p))
-    throw std::invalid_argument(name + ": x0 (n,), u0 (m,), r (N − No, p)");
+    fail(": x0 (n,), u0 (m,), r (N − No, p)");
   return {nA, nB, c_size == 0 ? 0 : c_size == n ? 1 : N};
 }
 }  // namespace pgpc::stage_model

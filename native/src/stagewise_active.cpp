@@ -5,9 +5,10 @@
 // Hintermüller–Ito–Kunisch update of the set or, once that stops shrinking, the cautious one,
 // stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
 // reference; this file follows it function by function (same names). One workspace serves every
-// sweep of a solve. Two entry points: `stagewise_active` (any StageQP of input rows) and the class
-// `RiccatiActive` (a linear form's limited step in one call: its stage models and criterion built
-// here, gpc/stagewise.py).
+// sweep of a solve and is kept from solve to solve (a controller's steps allocate nothing once the
+// first has sized it). Two entry points: `stagewise_active` (any StageQP of input rows; one workspace
+// per thread) and the class `RiccatiActive` (a linear form's limited step in one call: its stage
+// models and criterion built here, gpc/stagewise.py; its own workspace).
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
@@ -46,18 +47,39 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
 
 using VMap = Eigen::Map<const Vec>;
 
+// X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs and the
+// reciprocals of its diagonal d: plain substitution (Eigen's triangular solve packs its operands for a
+// blocked product, slower at these sizes)
+template <class M>
+void neg_chol_solve(const Mat &L, const Vec &d, M &X) {
+  const long n = L.rows();
+  for (long c = 0; c < X.cols(); ++c) {
+    for (long a = 0; a < n; ++a) {
+      double t = X(a, c);
+      for (long b = 0; b < a; ++b) t -= L(a, b) * X(b, c);
+      X(a, c) = t * d(a);
+    }
+    for (long a = n - 1; a >= 0; --a) {  // the solved entries below a are already negated
+      double t = X(a, c);
+      for (long b = a + 1; b < n; ++b) t += L(b, a) * X(b, c);
+      X(a, c) = -t * d(a);
+    }
+  }
+}
+
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
   std::vector<CMap> A, B, Q, Fz;
   std::vector<VMap> c, q;
   std::vector<std::vector<Row>> rows;  // per decision stage
+  std::vector<long> row_comp;          // (nd, k): the component of a used row, −1 for the others
   Vec z0;
   Mat R;
   double f_scale = 1e-12;
 };
 
 // The Riccati sweep of a fixed set (_sweep in the Python twin), its buffers kept from sweep to sweep
-// (one per thread, kept from call to call: a controller's solves of one size allocate nothing here)
+// and from solve to solve (part of a Workspace)
 struct Sweep {
   const QP *qpp = nullptr;
   std::vector<Mat> K, E;
@@ -69,7 +91,7 @@ struct Sweep {
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
   Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
-  Vec p, lin, w, gv, gw, vf;
+  Vec p, lin, w, gv, gw, vf, dinv;
   Eigen::LLT<Mat> llt;
 
   // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
@@ -181,10 +203,11 @@ struct Sweep {
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          K[i] = llt.solve(Hwz);
-          K[i] *= -1.0;
-          k[i] = llt.solve(gw);
-          k[i] *= -1.0;
+          dinv = llt.matrixLLT().diagonal().cwiseInverse();
+          K[i] = Hwz;
+          neg_chol_solve(llt.matrixLLT(), dinv, K[i]);
+          k[i] = gw;
+          neg_chol_solve(llt.matrixLLT(), dinv, k[i]);
           Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
           lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
         }
@@ -219,12 +242,17 @@ struct Sweep {
 
 // λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (costates with the active set, in
 // solvers/stagewise_ipm.py)
-double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad) {
+struct Costates {  // the buffers of multipliers()
+  Vec nu, nxt, g, Rv;
+};
+
+double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
+                   Costates &buf) {
   const long N = qp.N, nd = qp.nd;
   lam.setZero(N, qp.k);
   grad.setZero(nd, qp.m);
   double scale = 0.0;
-  thread_local Vec nu, nxt, g, Rv;  // storage kept from call to call
+  Vec &nu = buf.nu, &nxt = buf.nxt, &g = buf.g, &Rv = buf.Rv;
   nu.noalias() = qp.Q[N] * z[N];
   nu += qp.q[N];
   for (long i = N - 1; i >= 0; --i) {
@@ -262,14 +290,25 @@ struct Outcome {
   std::string message;
 };
 
+// everything a solve writes, kept from solve to solve (sized by the first solve of a problem size)
+struct Workspace {
+  Sweep sweep;
+  Costates costates;
+  Outcome out;
+  RowMat grad;
+  Set fixed, next, brk;  // the set of a sweep (the start on entry), the next one, each component's most broken row
+  std::vector<Set> seen;  // the sets swept so far: the first n_seen entries
+  size_t n_seen = 0;
+  std::vector<double> worst;
+  std::vector<std::pair<double, long>> negative;  // (λ, i·m + j) of the fixed components with λ < 0
+};
+
 // a start's entries that name no used row on their component: free (as in the Python twin)
 void sanitize(const QP &qp, Set &fixed) {
   for (long i = 0; i < qp.nd; ++i)
     for (long j = 0; j < qp.m; ++j) {
-      if (fixed(i, j) < 0) continue;
-      bool found = false;
-      for (const Row &row : qp.rows[i]) found = found || (row.r == fixed(i, j) && row.j == j);
-      if (!found) fixed(i, j) = -1;
+      const int64_t r = fixed(i, j);
+      if (r >= 0 && (r >= qp.k || qp.row_comp[i * qp.k + r] != j)) fixed(i, j) = -1;
     }
 }
 
@@ -279,6 +318,7 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
       long(sign.shape(1)) != qp.k)
     throw std::invalid_argument(std::string(who) + ": inconsistent stage shapes");
   qp.rows.assign(qp.nd, {});
+  qp.row_comp.assign(qp.nd * qp.k, -1);
   for (long i = 0; i < qp.N; ++i)
     for (long r = 0; r < qp.k; ++r) {
       const long j = long(comp.data()[i * qp.k + r]);
@@ -287,32 +327,43 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
         throw std::invalid_argument(std::string(who) + ": a row on a stage without decision or a component ≥ m");
       const double fr = f.data()[i * qp.k + r];
       qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
+      qp.row_comp[i * qp.k + r] = j;
       qp.f_scale = std::max(qp.f_scale, std::abs(fr));
     }
 }
 
-// warm: a start was given (the cautious update also when the changes stop shrinking, as in the Python twin)
-Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
+// from the start ws.fixed (nd, m); warm: a start was given (the cautious update also when the changes
+// stop shrinking, as in the Python twin). The outcome is ws.out.
+const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool warm) {
   const long nd = qp.nd, m = qp.m;
-  thread_local Sweep sweep;
+  Sweep &sweep = ws.sweep;
   sweep.prepare(qp);
-  Outcome out;
-  RowMat grad;
-  std::vector<Set> seen;
-  Set next(nd, m), brk(nd, m);  // brk: each component's most broken row, −1 when none is broken
-  std::vector<double> worst(m);
+  Outcome &out = ws.out;
+  out.iterations = 0;
+  out.ok = false;
+  out.residual = 0.0;
+  out.message.clear();
+  RowMat &grad = ws.grad;
+  Set &fixed = ws.fixed, &next = ws.next, &brk = ws.brk;
+  next.resize(nd, m);
+  brk.resize(nd, m);  // −1 where no row of the component is broken
+  std::vector<double> &worst = ws.worst;
+  worst.resize(m);
+  std::vector<std::pair<double, long>> &negative = ws.negative;
+  std::vector<Set> &seen = ws.seen;
+  ws.n_seen = 0;
   char buf[200];
   long fewest = nd * m + 1, frees = 0;  // frees: 0 while the full update runs
   bool freed = false;
-  std::vector<std::pair<double, long>> negative;  // (λ, i·m + j) of the fixed components with λ < 0
-  auto was_seen = [&seen](const Set &s) {
-    for (const Set &t : seen)
-      if (t == s) return true;
+  auto was_seen = [&ws](const Set &s) {
+    for (size_t a = 0; a < ws.n_seen; ++a)
+      if (ws.seen[a] == s) return true;
     return false;
   };
   for (int it = 1; it <= max_iter; ++it) {
     sweep.run(fixed, out.z, out.v);
-    const double scale = std::max(multipliers(qp, fixed, out.z, out.v, out.lam, grad), 1e-300);
+    const double scale =
+        std::max(multipliers(qp, fixed, out.z, out.v, out.lam, grad, ws.costates), 1e-300);
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;
     double broken = 0.0;
     bool any_broken = false;
@@ -377,9 +428,10 @@ Outcome solve_active_set(const QP &qp, Set fixed, int max_iter, bool warm) {
         return out;
       }
     }
-    seen.push_back(fixed);
+    if (ws.n_seen < seen.size()) seen[ws.n_seen] = fixed; else seen.push_back(fixed);
+    ++ws.n_seen;
     out.fixed = fixed;  // the set of the last sweep
-    fixed = next;
+    fixed.swap(next);  // next is overwritten before it is read again
   }
   out.ok = out.residual <= ACCEPT;
   if (!out.ok) {
@@ -443,9 +495,11 @@ class RiccatiActive {
   }
 
   // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m), r (N − No, p), start
-  // (Nu, m) or none → the Outcome (v, z, λ, set) and J of the criterion (5)
-  Outcome solve(const double *A, long nA, const double *B, long nB, const double *c, long nc, const double *x0,
-                const double *u0, const double *r, const int64_t *start, int max_iter, double &J) {
+  // (Nu, m) or none → the Outcome (v, z, λ, set; valid until the next solve) and J of the criterion (5)
+  const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
+                       const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
+                       double &J) {
+    if (!c) cb_.setZero();  // fill leaves c̄ as it is: not the last step's
     for (long i = 0; i < N; ++i)
       stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
                         c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
@@ -453,15 +507,25 @@ class RiccatiActive {
     if (form != 0) qp_.z0.tail(m) = VMap(u0, m);
     Eigen::Map<const RowMat> W(r, N - No, p);
     q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
-    Set fixed = Set::Constant(Nu, m, -1);
+    Set &fixed = ws_.fixed;
     if (start) {
       fixed = Eigen::Map<const Set>(start, Nu, m);
       sanitize(qp_, fixed);
+    } else {
+      fixed.setConstant(Nu, m, -1);
     }
-    Outcome out = solve_active_set(qp_, fixed, max_iter, start != nullptr);
+    const Outcome &out = solve_active_set(qp_, ws_, max_iter, start != nullptr);
     J = 0.0;
-    for (long i = 0; i < Nu; ++i) J += (Wu_ * out.v[i]).squaredNorm();
-    for (long i = No + 1; i <= N; ++i) J += (Wy_ * (C_ * out.z[i].head(n) - W.row(i - No - 1).transpose())).squaredNorm();
+    for (long i = 0; i < Nu; ++i) {
+      wu_.noalias() = Wu_.lazyProduct(out.v[i]);
+      J += wu_.squaredNorm();
+    }
+    for (long i = No + 1; i <= N; ++i) {
+      y_.noalias() = C_.lazyProduct(out.z[i].head(n));
+      y_ -= W.row(i - No - 1).transpose();
+      wy_.noalias() = Wy_.lazyProduct(y_);
+      J += wy_.squaredNorm();
+    }
     return out;
   }
 
@@ -473,6 +537,8 @@ class RiccatiActive {
   Mat C_, Wy_, Wu_, CQ2_;
   RowMat Q2_, zero_, cb_, q_, Fz_;
   std::vector<RowMat> Ab_, Bb_;
+  Workspace ws_;
+  Vec wu_, y_, wy_;  // J's terms
 };
 
 // (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
@@ -492,15 +558,18 @@ void bind_stagewise_active(nb::module_ &m) {
         QP qp;
         stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_active");
         read_rows(qp, comp, sign, f, "stagewise_active");
-        Set fixed = Set::Constant(qp.nd, qp.m, -1);
+        thread_local Workspace ws;  // one per thread, kept from call to call
+        Set &fixed = ws.fixed;
         if (start) {
           if (long(start->shape(0)) != qp.nd || long(start->shape(1)) != qp.m)
             throw std::invalid_argument("stagewise_active: the start must be (n_decide, m)");
           fixed = Eigen::Map<const Set>(start->data(), qp.nd, qp.m);
           sanitize(qp, fixed);
+        } else {
+          fixed.setConstant(qp.nd, qp.m, -1);
         }
         if (max_iter < 1) throw std::invalid_argument("stagewise_active: max_iter must be ≥ 1");
-        return outcome_tuple(qp, solve_active_set(qp, fixed, max_iter, bool(start)));
+        return outcome_tuple(qp, solve_active_set(qp, ws, max_iter, bool(start)));
       },
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"),
@@ -525,7 +594,7 @@ void bind_stagewise_active(nb::module_ &m) {
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             double J = 0.0;
-            const Outcome res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
+            const Outcome &res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
                                            shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
                                            max_iter, J);
             RowMat vout(self.Nu, m);
