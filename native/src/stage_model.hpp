@@ -14,13 +14,16 @@ namespace pgpc::stage_model {
 inline long state_size(int form, long n, long m, long N, long Nu) { return (form == 0 && Nu == N) ? n : n + m; }
 
 // Ā_i (nz × nz), B̄_i (nz × m) and c̄_i (nz) of stage i from the row-major A (n × n), B (n × m) and
-// c (n, or nullptr: c̄ left as it is); Ā_i, B̄_i and c̄_i may be matrices, maps or blocks
+// c (n, or nullptr: c̄_i = 0; the deviation form has none); Ā_i, B̄_i and c̄_i may be matrices, maps or
+// blocks, reused from step to step (c̄_i written whole: nothing of the last step's c is kept; Ā_i's
+// bottom-left block is never written and must start at zero)
 template <class MA, class MB, class VC>
 void fill(int form, long n, long m, long Nu, long i, const double *A, const double *B, const double *c, MA &&Ai,
           MB &&Bi, VC &&ci) {
   using RM = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   using CM = Eigen::Map<const RM>;
   Ai.topLeftCorner(n, n) = CM(A, n, n);
+  ci.setZero();
   if (c && form != 3) ci.head(n) = Eigen::Map<const Eigen::VectorXd>(c, n);
   if (Ai.rows() == n) {
     Bi = CM(B, n, m);

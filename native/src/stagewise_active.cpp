@@ -499,7 +499,6 @@ class RiccatiActive {
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
                        const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
                        double &J) {
-    if (!c) cb_.setZero();  // fill leaves c̄ as it is: not the last step's
     for (long i = 0; i < N; ++i)
       stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
                         c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
