@@ -174,8 +174,7 @@ def iterations_by_riccati(settings: "GPCSettings") -> bool:
     with every linearization) and the back end is the default (an explicit back end solves every
     step). The one owner of that rule."""
     return (settings.iterations > 1 and settings.solver_is_default and not settings.limits.has_state_limits
-            and not stagewise_obstacle(replace(settings, iterations=1))
-            and weight_margin(settings.weights, settings.Ts) >= RICCATI_QU_MARGIN)
+            and stagewise_exact(replace(settings, iterations=1)))
 
 
 def check_iterations(settings: "GPCSettings") -> None:
@@ -233,6 +232,13 @@ def stagewise_obstacle(settings: "GPCSettings") -> str:
     return ""
 
 
+def stagewise_exact(settings: "GPCSettings") -> bool:
+    """True when the Riccati path gives these settings' condensed minimizer to rounding: no
+    :func:`stagewise_obstacle` and :func:`weight_margin` ≥ :data:`RICCATI_QU_MARGIN` (Qu
+    nonsingular with margin). Asked by :func:`default_solver` and :func:`iterations_by_riccati`."""
+    return not stagewise_obstacle(settings) and weight_margin(settings.weights, settings.Ts) >= RICCATI_QU_MARGIN
+
+
 def weight_margin(weights: Weights, Ts: float) -> float:
     """σ_min(Qu) / (σ_max(Qy)·Ts²) (1/s², compared with :data:`RICCATI_QU_MARGIN`); inf when Qy = 0."""
     def singular_values(w):
@@ -280,8 +286,7 @@ def default_solver(settings: "GPCSettings") -> str:
     inputs_only = not limits.has_state_limits
     if (not limits.needs_qp or (inputs_only and settings.form in STAGEWISE_LIMITED_FORMS
                                 and H.N >= STAGEWISE_LIMITED_MIN_N)) \
-            and not stagewise_obstacle(settings) and weight_margin(settings.weights, settings.Ts) >= RICCATI_QU_MARGIN \
-            and stagewise_compiled(limits.needs_qp):
+            and stagewise_exact(settings) and stagewise_compiled(limits.needs_qp):
         return "riccati"
     return condensed_default(settings.form, limits, settings.terminal)
 
