@@ -277,12 +277,18 @@ class StagewiseSolver:
                                  "the hard limits cannot all hold (infeasible)")
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
+    def _failed(self, t0: float, message: str) -> SolveResult:
+        """A failed solve's result: a NaN plan (Nu·m,), J = inf, the reason; t0: its start (perf_counter)."""
+        n_v = self.horizons.Nu * self.Wu.shape[0]
+        return SolveResult(np.full(n_v, np.nan), np.inf, "failed", self.name, None, time.perf_counter() - t0, False,
+                           message)
+
     def _solve_step(self, step: tuple, r, warm: bool, t0: float) -> SolveResult | None:
         """The compiled limited step of a linear form (``_native.RiccatiActive``): its SolveResult, or
         None when the active set did not settle (the caller hands the problem to the interior point;
         the last solution, kept for its warm start, is left in place)."""
         A, B, c, x0, u0 = step
-        H, n, m = self.horizons, self.C.shape[1], self.Wu.shape[0]
+        n, m = self.C.shape[1], self.Wu.shape[0]
         start = shift_active_set(self._fixed) if warm else None
         self.excess = np.inf
         try:
@@ -292,8 +298,7 @@ class StagewiseSolver:
                 self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
         except RuntimeError as exc:
             self._last, self._fixed = None, None
-            return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
-                               time.perf_counter() - t0, False, str(exc))
+            return self._failed(t0, str(exc))
         self.iterations = (iterations, 0)
         if not ok:
             self._unsettled = (message, self.iterations)
@@ -319,7 +324,7 @@ class StagewiseSolver:
             that cannot all hold: the message names the row) or ``failed``.
         """
         t0 = time.perf_counter()
-        H, m = self.horizons, self.Wu.shape[0]
+        H = self.horizons
         self.excess = np.inf
         if self._step is not None:
             result = self._solve_step(step, r, warm, t0)
@@ -365,8 +370,7 @@ class StagewiseSolver:
                 if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
                     self._fixed = active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
-            return SolveResult(np.full(H.Nu * m, np.nan), np.inf, "failed", self.name, None,
-                               time.perf_counter() - t0, False, str(exc)), None
+            return self._failed(t0, str(exc)), None
         if sol.status == "optimal":
             self._last = sol
         v = sol.v.reshape(-1)
