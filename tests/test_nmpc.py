@@ -13,6 +13,7 @@ import pytest
 
 from parallel_gpc import ControllerState, GPCController, GPCSettings, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError
+from parallel_gpc.gpc import settings as settings_module
 from parallel_gpc.gpc.controller import LIMIT_MARGIN
 from parallel_gpc.limits import Limits
 
@@ -330,8 +331,16 @@ def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
     assert np.abs(u).max() <= bound and not info.fallback and info.iterations >= 1
 
 
+@pytest.fixture
+def compiled_stagewise(monkeypatch):
+    """The rule with the compiled recursion present, also under PARALLEL_GPC_NATIVE=0 (the steps then
+    run the Python reference recursion):
+    :func:`test_without_the_compiled_core_the_steps_go_to_the_condensed_back_end` covers its absence."""
+    monkeypatch.setattr(settings_module, "stagewise_compiled", lambda limited: True)
+
+
 @pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
-def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name):
+def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name, compiled_stagewise):
     """The steps by the Riccati recursion (the default without state limits, Qu nonsingular: the
     paper's and the exact ones) and by the condensed QR back end (an explicit solver) reach the
     same plan."""
@@ -346,7 +355,7 @@ def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name):
     np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
 
 
-def test_riccati_steps_leave_a_binding_torque_limit_to_the_condensed_problem(robot4):
+def test_riccati_steps_leave_a_binding_torque_limit_to_the_condensed_problem(robot4, compiled_stagewise):
     model, X, plan, target = _case("planar_4rrr")
     _, free = _step(model, X, plan, target, 10, 50)
     u_free = np.vstack([plan[1:10], plan[9:10]]) + np.cumsum(free.result.v.reshape(10, -1), axis=0)
@@ -368,7 +377,16 @@ def test_riccati_steps_only_where_they_give_the_condensed_minimizer(kw, robot4):
     assert ctrl.solver == ctrl.settings.step_solver == ctrl.settings.solver != "riccati"  # the back end solves them
 
 
-def test_the_reported_solver_follows_the_iterations_settings():
+def test_without_the_compiled_core_the_steps_go_to_the_condensed_back_end(monkeypatch, robot4):
+    """No compiled recursion (not built, PARALLEL_GPC_NATIVE=0): the Python one is slower than the
+    condensed QR, so every step goes to the controller's back end, and the settings say so."""
+    monkeypatch.setattr(settings_module, "stagewise_compiled", lambda limited: False)
+    ctrl = GPCController.build(ReducedModel(robot4), TS, Horizons(10), Weights(QY, QU), form="nonlinear", iterations=5)
+    assert ctrl._nmpc.riccati is None
+    assert ctrl.solver == ctrl.settings.step_solver == ctrl.settings.solver != "riccati"
+
+
+def test_the_reported_solver_follows_the_iterations_settings(compiled_stagewise):
     """``step_solver`` is derived from the settings (not a constructor argument) and chosen again by a
     changed copy: the iterated default says ``riccati``, the paper's single step its own default."""
     iterated = GPCSettings(TS, Horizons(10), Weights(QY, QU), form="nonlinear", iterations=5)
@@ -378,7 +396,7 @@ def test_the_reported_solver_follows_the_iterations_settings():
     assert replace(iterated, solver="qr").step_solver == "qr"
 
 
-def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4):
+def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4, compiled_stagewise):
     """No > 0 and Nu < N: the recursion's stage models hold Δu = 0 after Nu and skip the first No
     outputs like the condensed problem."""
     _, X, plan, target = _case("planar_4rrr")

@@ -171,10 +171,11 @@ def iterations_by_riccati(settings: "GPCSettings") -> bool:
     minimizer whenever the paper's single step of these settings would take the stage-wise path
     (:func:`stagewise_obstacle` of ``iterations=1`` empty: no terminal equality or weight, no drive
     limit; Qu nonsingular with :data:`RICCATI_QU_MARGIN`), no state limit is set (their rows move
-    with every linearization) and the back end is the default (an explicit back end solves every
-    step). The one owner of that rule."""
+    with every linearization), the back end is the default (an explicit back end solves every
+    step) and the compiled recursion is there (:func:`stagewise_compiled`: the pure-Python one is
+    slower than the condensed QR). The one owner of that rule."""
     return (settings.iterations > 1 and settings.solver_is_default and not settings.limits.has_state_limits
-            and stagewise_exact(replace(settings, iterations=1)))
+            and stagewise_exact(replace(settings, iterations=1)) and stagewise_compiled(False))
 
 
 def check_iterations(settings: "GPCSettings") -> None:
