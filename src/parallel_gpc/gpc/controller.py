@@ -286,12 +286,18 @@ class GPCController:
         if alpha > 0.0 and self._x_next is not None:
             self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
-    def presimulate(self, X: np.ndarray):
-        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
+    def presimulate(self, X: np.ndarray, simulate=None):
+        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10).
+
+        ``simulate``: what runs it, with the signature and results of the model's
+        ``simulate_factorized`` (the default); the Riccati path's compiled step passes one that
+        plans along the trajectory in the same call (:meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`).
+        """
         C = self.model.C
         u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
-        A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
+        simulate = self.model.simulate_factorized if simulate is None else simulate
+        A_seq, B_seq, c_seq, X_sim = simulate(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
         self._null = False

@@ -1,0 +1,58 @@
+// The nonlinear form's unconstrained step in one call (gpc/riccati.py, RiccatiSolver.presimulated):
+// the compiled pre-simulation (10) of a ModelUpdate (model_update.cpp), then the Riccati recursion of
+// the deviation model along it (riccati.cpp, form 3) with the targets w − ŷ_sim formed in place. The
+// Python path (simulate_factorized, then Riccati.solve or lq_tracking) is the reference.
+#include <limits>
+#include <optional>
+#include <stdexcept>
+#include <string>
+
+#include <nanobind/eigen/dense.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
+#include <nanobind/stl/string.h>
+
+#include "bindings.hpp"
+#include "model_update.hpp"
+#include "riccati.hpp"
+
+namespace pgpc {
+namespace {
+// (E (N, n_x, n_aug), X (N + 1, n_x), v (Nu·m), J, message): the pre-simulation from X0 along u_seq
+// (N, n_u) with the offset, and the plan of the deviation model along it; a failed recursion (R + BᵀPB
+// not positive definite, v not finite) gives v = NaN, J = inf and its message, the pre-simulation kept
+nb::tuple riccati_presimulated(Riccati &ric, ModelUpdate &update, const Vec &X0, In2 u, double Ts,
+                               std::optional<Vec> offset, In2 w) {
+  const long N = ric.N, n = ric.n, m = ric.m;
+  if (ric.form != 3) throw std::invalid_argument("riccati_presimulated: the Riccati solve must be of the deviation form (3)");
+  if (update.n_x != n || update.n_u != m) throw std::invalid_argument("riccati_presimulated: the model's n_x, n_u differ from the Riccati solve's");
+  if (X0.size() != n || u.shape(0) != size_t(N) || u.shape(1) != size_t(m))
+    throw std::invalid_argument("riccati_presimulated: X0 must be (n_x,) and u_seq (N, n_u)");
+  if (offset && offset->size() != n) throw std::invalid_argument("riccati_presimulated: offset must be (n_x,)");
+  if (w.shape(0) != size_t(N - ric.No) || w.shape(1) != size_t(ric.p))
+    throw std::invalid_argument("riccati_presimulated: w must be (N − No, p)");
+  double *Es, *Xs, *v;
+  auto E = owned_array({size_t(N), size_t(n), size_t(update.n_aug)}, &Es);
+  auto X = owned_array({size_t(N + 1), size_t(n)}, &Xs);
+  auto V = owned_array({size_t(ric.Nu * m)}, &v);
+  update.simulate(X0, u.data(), N, Ts, offset ? &*offset : nullptr, Es, Xs);  // its errors propagate
+  double J;
+  std::string message;
+  try {
+    J = ric.solve_deviation(Es, update.n_aug, Xs, w.data(), v);
+  } catch (const std::runtime_error &exc) {
+    message = exc.what();
+    J = std::numeric_limits<double>::infinity();
+    for (long i = 0; i < ric.Nu * m; ++i) v[i] = std::numeric_limits<double>::quiet_NaN();
+  }
+  return nb::make_tuple(E, X, V, J, message);
+}
+}  // namespace
+
+void bind_riccati_presimulated(nb::module_ &m) {
+  m.def("riccati_presimulated", &riccati_presimulated, nb::arg("riccati"), nb::arg("update"), nb::arg("X0"),
+        nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(), nb::arg("w"),
+        "(E (N, n_x, n_aug), X (N + 1, n_x), v (Nu·m,), J, message) of a deviation-form Riccati and a ModelUpdate: "
+        "the pre-simulation (10) and its plan in one call (see gpc/riccati.py)");
+}
+}  // namespace pgpc
