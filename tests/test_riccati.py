@@ -15,6 +15,7 @@ from parallel_gpc.limits import Limits
 from parallel_gpc import ConstrainedPlant, DiscreteLinearModel, GPCController, Horizons, ParallelRobot, ReducedModel
 from parallel_gpc import SCurve, Weights
 from parallel_gpc.errors import InvalidParameterError, SolverNotFoundError
+from parallel_gpc.gpc.redundancy import null_basis
 from parallel_gpc.gpc.riccati import RiccatiPath, RiccatiSolver
 from parallel_gpc.model.native import native_module
 from parallel_gpc.solvers import QRSolver, make_solver
@@ -181,6 +182,13 @@ def test_fused_nonlinear_step_is_the_two_call_path(robot):
         assert path._planned is not None and path._planned[0] is stages[0]  # planned in the pre-simulation's call
         fused = path.solve(*stages)
         assert path._planned is None and fused.ok
+        pred = path.input_map(ctl, stages)  # the inputs and null(B_d(X)) of the same call
+        np.testing.assert_allclose(path.planned_inputs.reshape(-1), pred.u_base + pred.u_map @ fused.v, rtol=0,
+                                   atol=1e-12 * np.abs(pred.u_base).max())
+        basis = null_basis(stages[1][0], native=False)
+        assert (ctl._null is None) == (basis is None)
+        if basis is not None:  # the same subspace (the rows may differ by sign or a rotation)
+            np.testing.assert_allclose(ctl._null.T @ ctl._null, basis.T @ basis, rtol=0, atol=1e-10)
         A_seq, B_seq, c_seq, X_seq = model.simulate_factorized(X, np.concatenate((ctl.plan[1:], ctl.plan[-1:])), TS,
                                                                 ctl.disturbance)
         np.testing.assert_allclose(stages[0], A_seq, rtol=0, atol=1e-9 * np.abs(A_seq).max())
@@ -203,7 +211,7 @@ def test_fused_nonlinear_step_failure_keeps_the_presimulation():
     X, u = np.concatenate([robot.home_pose, np.zeros(robot.n_y)]), np.zeros((10, robot.n_u))
     w = np.tile(robot.home_pose, (10, 1))
     w[3, 0] = np.inf  # a target the recursion cannot meet with a finite plan
-    (A_seq, B_seq, c_seq, X_seq), result = solver.presimulated(model.compiled_update, X, u, TS, None, w)
+    (A_seq, B_seq, c_seq, X_seq), result, _, _ = solver.presimulated(model.compiled_update, X, u, TS, None, w)
     assert result.status == "failed" and not result.ok and "not finite" in result.message
     assert np.isnan(result.v).all() and result.v.shape == (10 * robot.n_u,)
     reference = model.simulate_factorized(X, u, TS)

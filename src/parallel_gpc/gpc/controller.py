@@ -291,16 +291,20 @@ class GPCController:
 
         ``simulate``: what runs it, with the signature and results of the model's
         ``simulate_factorized`` (the default); the Riccati path's compiled step passes one that
-        plans along the trajectory in the same call (:meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`).
+        plans along the trajectory in the same call (:meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`)
+        and gives null(B_d(X)) as a fifth result (:func:`~parallel_gpc.gpc.redundancy.null_basis`;
+        False: not computed).
         """
         C = self.model.C
         u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
-        simulate = self.model.simulate_factorized if simulate is None else simulate
-        A_seq, B_seq, c_seq, X_sim = simulate(X, u_sim, self.Ts, self.disturbance)
+        if simulate is None:
+            (A_seq, B_seq, c_seq, X_sim), null = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance), False
+        else:
+            A_seq, B_seq, c_seq, X_sim, null = simulate(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
-        self._null = False
+        self._null = null  # null(B_d) of this step (False: computed on first use)
         return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
     # ------------------------------------------------------------------ step
@@ -378,7 +382,9 @@ class GPCController:
         if fallback:
             result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
         t3 = time.perf_counter()
-        if pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
+        if staged and self._riccati.planned_inputs is not None:  # the fused nonlinear step computed them
+            u_seq = self._riccati.planned_inputs
+        elif pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
         else:
             u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)

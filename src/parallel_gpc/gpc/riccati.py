@@ -40,6 +40,7 @@ from ..model import compiled_part, cached_identity
 from ..solvers import SolveResult, lq_tracking
 from ..validation import read_only
 from .prediction import Horizons, Prediction, cumulative_map
+from .redundancy import NULL_RTOL
 from .stages import FORM_CODES, stage_models
 from .stagewise import StagewiseSolver
 
@@ -133,15 +134,20 @@ class RiccatiSolver:
             w: (N − No, p) reference rows (m and rad).
 
         Returns:
-            ((A_seq (N, n, n), B_seq (N, n, m), c_seq (N, n), X_seq (N + 1, n)) as
-            ``simulate_factorized``, the :meth:`solve` SolveResult of the deviation model).
+            (sim, result, inputs, null): sim = (A_seq (N, n, n), B_seq (N, n, m), c_seq (N, n),
+            X_seq (N + 1, n)) as ``simulate_factorized``; the :meth:`solve` SolveResult of the
+            deviation model; inputs (N, m) = u_seq + the cumulative Δu of the plan (N·m); null the
+            :func:`~parallel_gpc.gpc.redundancy.null_basis` of B_seq[0] (None at full column rank,
+            False when not computed: B_seq[0] not finite).
         """
         t0 = time.perf_counter()
-        E, X_seq, v, J, message = self._presimulated(self._compiled, update, X0, u_seq, Ts, offset, w)
+        E, X_seq, v, J, message, inputs, null = self._presimulated(self._compiled, update, X0, u_seq, Ts, offset, w,
+                                                                   NULL_RTOL)
         n, m = self.C.shape[1], self.Wu.shape[0]
         sim = (E[:, :, :n], E[:, :, n:n + m], E[:, :, -1], X_seq)
         status = "failed" if message else "unconstrained"
-        return sim, SolveResult(v, J, status, self.name, None, time.perf_counter() - t0, False, message)
+        null = False if null is None else null if null.shape[0] else None
+        return sim, SolveResult(v, J, status, self.name, None, time.perf_counter() - t0, False, message), inputs, null
 
 
 class RiccatiPath:
@@ -158,6 +164,8 @@ class RiccatiPath:
 
     Attributes:
         report: what the state limits did in the last constrained solve (None without them).
+        planned_inputs: (N, m) inputs u = u_base + u_map v of the last :meth:`solve` when the
+            fused nonlinear step computed them (N·m), else None.
 
     Raises:
         InvalidParameterError: Qu singular (see :class:`RiccatiSolver`).
@@ -178,7 +186,8 @@ class RiccatiPath:
         self._u_map = cached_identity(H.Nu * m) if form == "absolute" else cumulative_map(
             H.N if form == "nonlinear" else H.Nu, H.Nu, m)
         self._zero_base = read_only(np.zeros(H.Nu * m))
-        self._planned = None  # (A_seq, SolveResult) of the last fused nonlinear step, taken by solve()
+        self._planned = None  # (A_seq, SolveResult, inputs) of the last fused nonlinear step, taken by solve()
+        self.planned_inputs = None
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
@@ -200,17 +209,18 @@ class RiccatiPath:
         """A pre-simulation for :meth:`GPCController.presimulate` that also plans along it
         (:meth:`RiccatiSolver.presimulated`); the plan waits for :meth:`solve` of these stages."""
         def simulate(X0, u_seq, Ts, offset):
-            sim, result = self.solver.presimulated(update, X0, u_seq, Ts, offset, w)
-            self._planned = (sim[0], result)
-            return sim
+            sim, result, inputs, null = self.solver.presimulated(update, X0, u_seq, Ts, offset, w)
+            self._planned = (sim[0], result, inputs)
+            return (*sim, null)
         return simulate
 
     def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
         from its last solution when ``warm`` (the controller's next step)."""
-        planned, self._planned = self._planned, None
+        planned, self._planned, self.planned_inputs = self._planned, None, None
         if planned is not None and planned[0] is A:  # the fused step planned these stages already
+            self.planned_inputs = planned[2]
             return planned[1]
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
