@@ -116,7 +116,6 @@ class RiccatiSolver:
                                False, str(exc))
         return SolveResult(v, J, "unconstrained", self.name, None, time.perf_counter() - t0, False, "")
 
-
     @property
     def fuses_presimulation(self) -> bool:
         """True when :meth:`presimulated` is available (the nonlinear form, compiled)."""
@@ -217,7 +216,8 @@ class RiccatiPath:
     def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
-        from its last solution when ``warm`` (the controller's next step)."""
+        from its last solution when ``warm`` (the controller's next step); the stages of a fused
+        nonlinear step (:meth:`stages`) were solved in its call already (:attr:`planned_inputs` set)."""
         planned, self._planned, self.planned_inputs = self._planned, None, None
         if planned is not None and planned[0] is A:  # the fused step planned these stages already
             self.planned_inputs = planned[2]
