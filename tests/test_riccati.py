@@ -170,7 +170,8 @@ def test_fused_nonlinear_step_is_the_two_call_path(robot):
     the model's simulate_factorized, then the compiled Riccati solve and the Python lq_tracking."""
     model = ReducedModel(robot)
     rng = np.random.default_rng(5)
-    X = np.concatenate([robot.home_pose + 0.002 * rng.standard_normal(robot.n_y), 0.05 * rng.standard_normal(robot.n_y)])
+    X = np.concatenate([robot.home_pose + 0.002 * rng.standard_normal(robot.n_y),
+                        0.05 * rng.standard_normal(robot.n_y)])
     for N, No, Nu, Qy, Qu in CASES:
         ctl = GPCController.build(model, TS, Horizons(N, No, Nu), _weights(robot, Qy, Qu), form="nonlinear")
         ctl.plan = rng.standard_normal((N, robot.n_u))
@@ -183,7 +184,7 @@ def test_fused_nonlinear_step_is_the_two_call_path(robot):
         fused = path.solve(*stages)
         assert path._planned is None and fused.ok
         pred = path.input_map(ctl, stages)  # the inputs and null(B_d(X)) of the same call
-        np.testing.assert_allclose(path.planned_inputs.reshape(-1), pred.u_base + pred.u_map @ fused.v, rtol=0,
+        np.testing.assert_allclose(path.planned_inputs(fused).reshape(-1), pred.u_base + pred.u_map @ fused.v, rtol=0,
                                    atol=1e-12 * np.abs(pred.u_base).max())
         basis = null_basis(stages[1][0], native=False)
         assert (ctl._null is None) == (basis is None)

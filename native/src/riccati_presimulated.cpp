@@ -26,8 +26,10 @@ namespace {
 nb::tuple riccati_presimulated(Riccati &ric, ModelUpdate &update, const Vec &X0, In2 u, double Ts,
                                std::optional<Vec> offset, In2 w, double null_rtol) {
   const long N = ric.N, n = ric.n, m = ric.m;
-  if (ric.form != 3) throw std::invalid_argument("riccati_presimulated: the Riccati solve must be of the deviation form (3)");
-  if (update.n_x != n || update.n_u != m) throw std::invalid_argument("riccati_presimulated: the model's n_x, n_u differ from the Riccati solve's");
+  if (ric.form != 3)
+    throw std::invalid_argument("riccati_presimulated: the Riccati solve must be of the deviation form (3)");
+  if (update.n_x != n || update.n_u != m)
+    throw std::invalid_argument("riccati_presimulated: the model's n_x, n_u differ from the Riccati solve's");
   if (X0.size() != n || u.shape(0) != size_t(N) || u.shape(1) != size_t(m))
     throw std::invalid_argument("riccati_presimulated: X0 must be (n_x,) and u_seq (N, n_u)");
   if (offset && offset->size() != n) throw std::invalid_argument("riccati_presimulated: offset must be (n_x,)");
@@ -73,6 +75,7 @@ void bind_riccati_presimulated(nb::module_ &m) {
         nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(), nb::arg("w"),
         nb::arg("null_rtol"),
         "(E (N, n_x, n_aug), X (N + 1, n_x), v (Nu·m,), J, message, U (N, n_u), null(B_d(X0)) rows or None) of a "
-        "deviation-form Riccati and a ModelUpdate: the pre-simulation (10) and its plan in one call (see gpc/riccati.py)");
+        "deviation-form Riccati and a ModelUpdate: the pre-simulation (10) and its plan in one call "
+        "(see gpc/riccati.py)");
 }
 }  // namespace pgpc

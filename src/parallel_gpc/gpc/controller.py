@@ -299,7 +299,8 @@ class GPCController:
         u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
         if simulate is None:
-            (A_seq, B_seq, c_seq, X_sim), null = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance), False
+            A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
+            null = False
         else:
             A_seq, B_seq, c_seq, X_sim, null = simulate(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
@@ -382,8 +383,9 @@ class GPCController:
         if fallback:
             result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
         t3 = time.perf_counter()
-        if staged and self._riccati.planned_inputs is not None:  # the fused nonlinear step computed them
-            u_seq = self._riccati.planned_inputs
+        planned = None if self._riccati is None else self._riccati.planned_inputs(result)
+        if planned is not None:  # the fused nonlinear step's, computed in its call
+            u_seq = planned
         elif pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
         else:

@@ -163,8 +163,6 @@ class RiccatiPath:
 
     Attributes:
         report: what the state limits did in the last constrained solve (None without them).
-        planned_inputs: (N, m) inputs u = u_base + u_map v of the last :meth:`solve` when the
-            fused nonlinear step computed them (N·m), else None.
 
     Raises:
         InvalidParameterError: Qu singular (see :class:`RiccatiSolver`).
@@ -186,7 +184,7 @@ class RiccatiPath:
             H.N if form == "nonlinear" else H.Nu, H.Nu, m)
         self._zero_base = read_only(np.zeros(H.Nu * m))
         self._planned = None  # (A_seq, SolveResult, inputs) of the last fused nonlinear step, taken by solve()
-        self.planned_inputs = None
+        self._solved = (None, None)  # (SolveResult, inputs) that solve() returned from it
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
@@ -217,15 +215,21 @@ class RiccatiPath:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
         from its last solution when ``warm`` (the controller's next step); the stages of a fused
-        nonlinear step (:meth:`stages`) were solved in its call already (:attr:`planned_inputs` set)."""
-        planned, self._planned, self.planned_inputs = self._planned, None, None
+        nonlinear step (:meth:`stages`) were solved in its call already (:meth:`planned_inputs`)."""
+        planned, self._planned, self._solved = self._planned, None, (None, None)
         if planned is not None and planned[0] is A:  # the fused step planned these stages already
-            self.planned_inputs = planned[2]
+            self._solved = planned[1:]
             return planned[1]
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
         result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, **self._extra)
         return result
+
+    def planned_inputs(self, result: SolveResult) -> np.ndarray | None:
+        """(N, m) inputs u = u_base + u_map v of ``result`` (N·m) when it is the fused nonlinear
+        step's (:meth:`solve`, which computed them in its call), else None."""
+        solved, inputs = self._solved
+        return inputs if result is solved else None
 
     @property
     def excess(self) -> float:
