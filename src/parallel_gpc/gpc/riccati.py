@@ -80,9 +80,9 @@ class RiccatiSolver:
             H = horizons
             self._compiled = Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
         self.native = self._compiled is not None
-        # the nonlinear form's pre-simulation and recursion in one call (a core without it: two)
+        # the nonlinear form's pre-simulation and recursion in one call (a core without it: two calls)
         self._presimulated = None if self._compiled is None or form != "nonlinear" else compiled_part(
-            native, "riccati_presimulated", "the compiled nonlinear step")
+            None, "riccati_presimulated", "the compiled nonlinear step")
         m = Wu.shape[0]
         self._zero_c, self._zero_u = read_only(np.zeros(self.C.shape[1])), read_only(np.zeros(m))  # per controller
 
