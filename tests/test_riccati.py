@@ -15,6 +15,7 @@ from parallel_gpc.limits import Limits
 from parallel_gpc import ConstrainedPlant, DiscreteLinearModel, GPCController, Horizons, ParallelRobot, ReducedModel
 from parallel_gpc import SCurve, Weights
 from parallel_gpc.errors import InvalidParameterError, SolverNotFoundError
+from parallel_gpc.gpc.redundancy import null_basis
 from parallel_gpc.gpc.riccati import RiccatiPath, RiccatiSolver
 from parallel_gpc.model.native import native_module
 from parallel_gpc.solvers import QRSolver, make_solver
@@ -158,3 +159,66 @@ def test_a_failed_riccati_solve_is_replaced_by_qr_visibly(monkeypatch):
     info, expected = ctl.step(X, w), qr.step(X, w)
     assert info.result.solver == "qr" and "riccati failed (R + BᵀPB is not positive definite)" in info.result.message
     np.testing.assert_allclose(info.u, expected.u, rtol=1e-12)
+
+
+HAS_FUSED = HAS_COMPILED and hasattr(native_module(), "riccati_presimulated")
+
+
+@pytest.mark.skipif(not HAS_FUSED, reason="the compiled core has no riccati_presimulated")
+def test_fused_nonlinear_step_is_the_two_call_path(robot):
+    """The nonlinear form's one compiled call (pre-simulation + recursion) against its references:
+    the model's simulate_factorized, then the compiled Riccati solve and the Python lq_tracking."""
+    model = ReducedModel(robot)
+    rng = np.random.default_rng(5)
+    X = np.concatenate([robot.home_pose + 0.002 * rng.standard_normal(robot.n_y),
+                        0.05 * rng.standard_normal(robot.n_y)])
+    for N, No, Nu, Qy, Qu in CASES:
+        ctl = GPCController.build(model, TS, Horizons(N, No, Nu), _weights(robot, Qy, Qu), form="nonlinear")
+        ctl.plan = rng.standard_normal((N, robot.n_u))
+        ctl.disturbance = 1e-4 * rng.standard_normal(model.n_x)
+        w = robot.home_pose + 0.005 * rng.standard_normal((N - No, robot.n_y))
+        path = RiccatiPath(ctl._criterion, model.C, "nonlinear", native=True)
+        assert path.solver.fuses_presimulation
+        stages = path.stages(ctl, X, w)
+        assert path._planned is not None and path._planned[0] is stages[0]  # planned in the pre-simulation's call
+        fused = path.solve(*stages)
+        assert path._planned is None and fused.ok
+        pred = path.input_map(ctl, stages)  # the inputs and null(B_d(X)) of the same call
+        np.testing.assert_allclose(path.planned_inputs(fused).reshape(-1), pred.u_base + pred.u_map @ fused.v, rtol=0,
+                                   atol=1e-12 * np.abs(pred.u_base).max())
+        basis = null_basis(stages[1][0], native=False)
+        assert (ctl._null is None) == (basis is None)
+        if basis is not None:  # the same subspace (the rows may differ by sign or a rotation)
+            np.testing.assert_allclose(ctl._null.T @ ctl._null, basis.T @ basis, rtol=0, atol=1e-10)
+        A_seq, B_seq, c_seq, X_seq = model.simulate_factorized(X, np.concatenate((ctl.plan[1:], ctl.plan[-1:])), TS,
+                                                                ctl.disturbance)
+        np.testing.assert_allclose(stages[0], A_seq, rtol=0, atol=1e-9 * np.abs(A_seq).max())
+        np.testing.assert_allclose(stages[1], B_seq, rtol=0, atol=1e-9 * np.abs(B_seq).max())
+        for native in (True, False):  # the same stages, solved by the two-call paths
+            reference = RiccatiSolver(*ctl._criterion.weights.blocks(robot.n_y, robot.n_u), model.C, ctl.horizons,
+                                      "nonlinear", native=native).solve(*stages)
+            err = np.linalg.norm(fused.v - reference.v) / np.linalg.norm(reference.v)
+            assert err <= 1e-9, (N, No, Nu, native, err)
+            assert fused.cost == pytest.approx(reference.cost, rel=1e-9)
+
+
+@pytest.mark.skipif(not HAS_FUSED, reason="the compiled core has no riccati_presimulated")
+def test_fused_nonlinear_step_failure_keeps_the_presimulation():
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    H = Horizons(10)
+    Wy, Wu = Weights(1.0, 1e-5).blocks(robot.n_y, robot.n_u)
+    solver = RiccatiSolver(Wy, Wu, model.C, H, "nonlinear", native=True)
+    X, u = np.concatenate([robot.home_pose, np.zeros(robot.n_y)]), np.zeros((10, robot.n_u))
+    w = np.tile(robot.home_pose, (10, 1))
+    w[3, 0] = np.inf  # a target the recursion cannot meet with a finite plan
+    (A_seq, B_seq, c_seq, X_seq), result, _, _ = solver.presimulated(model.compiled_update, X, u, TS, None, w)
+    assert result.status == "failed" and not result.ok and "not finite" in result.message
+    assert np.isnan(result.v).all() and result.v.shape == (10 * robot.n_u,)
+    reference = model.simulate_factorized(X, u, TS)
+    np.testing.assert_allclose(X_seq, reference[3], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(A_seq, reference[0], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="w must be"):
+        solver.presimulated(model.compiled_update, X, u, TS, None, w[1:])
+    absolute = RiccatiSolver(Wy, Wu, model.C, H, "absolute", native=True)
+    assert not absolute.fuses_presimulation

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <initializer_list>
 #include <nanobind/ndarray.h>
 
 namespace pgpc {
@@ -26,4 +27,14 @@ using Out1 = Out<1>;
 using Out2 = Out<2>;
 // a read-only float64 array of any shape (nanobind converts another dtype or layout)
 using Floats = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+
+// a new NumPy float64 array of `shape` owning its buffer, written through *data
+inline nb::ndarray<nb::numpy, double> owned_array(std::initializer_list<size_t> shape, double **data) {
+  size_t size = 1;
+  for (size_t s : shape) size *= s;
+  double *buf = new double[size > 0 ? size : 1];
+  nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
+  *data = buf;
+  return nb::ndarray<nb::numpy, double>(buf, shape.size(), shape.begin(), owner);
+}
 }  // namespace pgpc

@@ -11,12 +11,10 @@
 #include <stdexcept>
 
 #include "bindings.hpp"
+#include "input_svd.hpp"
 
 namespace pgpc {
 namespace {
-using Mat = Eigen::MatrixXd;
-using Vec = Eigen::VectorXd;
-using Index = Eigen::Index;
 // any float64 2-D array, strided views included (a slice of the pre-simulation's stack): read in
 // place, no conversion to a column-major copy (which costs more than the SVD at these sizes)
 using In2 = nb::ndarray<const double, nb::ndim<2>, nb::device::cpu>;
@@ -40,20 +38,8 @@ double condition_number(const In2 &array) {
   return std::isfinite(cond) ? cond : inf;
 }
 
-// (m − rank, m) orthonormal rows spanning null(B) of an (n, m) B (rank: singular values above
-// rtol·σ_max), an empty (0, m) at full column rank; B not finite: std::domain_error (ValueError)
-Mat null_basis(const In2 &array, double rtol) {
-  const Strided B = view(array);
-  const Index m = B.cols();
-  if (!B.allFinite()) throw std::domain_error("null_basis: B contains NaN or inf");
-  if (B.size() == 0) return Mat::Identity(m, m);
-  Eigen::JacobiSVD<Mat> svd(B, Eigen::ComputeFullV);
-  const Vec &s = svd.singularValues();
-  Index rank = 0;
-  if (s[0] > 0.0)
-    for (Index i = 0; i < s.size(); ++i) rank += s[i] > rtol * s[0] ? 1 : 0;
-  return svd.matrixV().rightCols(m - rank).transpose();
-}
+// null_rows (input_svd.hpp) of an array, read in place
+Mat null_basis(const In2 &array, double rtol) { return null_rows(view(array), rtol); }
 }  // namespace
 
 void bind_input_svd(nb::module_ &m) {

@@ -9,6 +9,7 @@ NB_MODULE(_native, m) {
   pgpc::bind_stage_jacobian(m);
   pgpc::bind_plant(m);
   pgpc::bind_riccati(m);
+  pgpc::bind_riccati_presimulated(m);
   pgpc::bind_stagewise_ipm(m);
   pgpc::bind_stagewise_active(m);
   pgpc::bind_kalman(m);

@@ -286,15 +286,26 @@ class GPCController:
         if alpha > 0.0 and self._x_next is not None:
             self.disturbance = self.disturbance + alpha * (X - self._x_next)
 
-    def presimulate(self, X: np.ndarray):
-        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10)."""
+    def presimulate(self, X: np.ndarray, simulate=None):
+        """(A_seq, B_seq, C, y_sim, u_sim) of the nonlinear form's pre-simulation (10).
+
+        ``simulate``: what runs it, with the signature and results of the model's
+        ``simulate_factorized`` (the default); the Riccati path's compiled step passes one that
+        plans along the trajectory in the same call (:meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`)
+        and gives null(B_d(X)) as a fifth result (:func:`~parallel_gpc.gpc.redundancy.null_basis`;
+        False: not computed).
+        """
         C = self.model.C
         u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)
         # X_sim(i+1) = A_d(X_sim(i)) X_sim(i) + B_d(X_sim(i)) u_sim(i) + c_d(X_sim(i)) + d
-        A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
+        if simulate is None:
+            A_seq, B_seq, c_seq, X_sim = self.model.simulate_factorized(X, u_sim, self.Ts, self.disturbance)
+            null = False
+        else:
+            A_seq, B_seq, c_seq, X_sim, null = simulate(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
-        self._null = False
+        self._null = null  # null(B_d) of this step (False: computed on first use)
         return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
 
     # ------------------------------------------------------------------ step
@@ -372,7 +383,10 @@ class GPCController:
         if fallback:
             result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
         t3 = time.perf_counter()
-        if pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
+        planned = None if self._riccati is None else self._riccati.planned_inputs(result)
+        if planned is not None:  # the fused nonlinear step's, computed in its call
+            u_seq = planned
+        elif pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
         else:
             u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)

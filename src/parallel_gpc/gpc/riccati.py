@@ -16,6 +16,11 @@ Stage models z(i+1) = Ā_i z(i) + B̄_i v(i) + c̄_i, output ŷ = C̄ z, C̄ = [
 * nonlinear (10)–(12): the deviation model along the pre-simulation, z = [δx; δu] from 0,
   Ā_i = [[A_i, B_i], [0, I]], B̄_i = [B_i; I], no affine term, targets w − ŷ_sim.
 
+Compiled, the nonlinear form's unconstrained step is one call: the model update's pre-simulation,
+the deviation stages and the recursion (``_native.riccati_presimulated``,
+:meth:`RiccatiSolver.presimulated`); the model's ``simulate_factorized`` followed by
+:meth:`RiccatiSolver.solve` (compiled or :func:`~parallel_gpc.solvers.riccati.lq_tracking`) is its reference.
+
 The minimizer equals the QR back end's whenever it is unique: Qu nonsingular (R = QuᵀQu ≻ 0).
 With limits (torque, Δu, output box and velocity) the same stage models feed the stage-wise
 active set (input limits) or interior point of :mod:`parallel_gpc.gpc.stagewise`. Not covered (a clear
@@ -35,6 +40,7 @@ from ..model import compiled_part, cached_identity
 from ..solvers import SolveResult, lq_tracking
 from ..validation import read_only
 from .prediction import Horizons, Prediction, cumulative_map
+from .redundancy import NULL_RTOL
 from .stages import FORM_CODES, stage_models
 from .stagewise import StagewiseSolver
 
@@ -74,6 +80,9 @@ class RiccatiSolver:
             H = horizons
             self._compiled = Riccati(self.C, self.Wy, Wu, H.N, H.No, H.Nu, FORM_CODES[form])
         self.native = self._compiled is not None
+        # the nonlinear form's pre-simulation and recursion in one call (a core without it: two calls)
+        self._presimulated = None if self._compiled is None or form != "nonlinear" else compiled_part(
+            None, "riccati_presimulated", "the compiled nonlinear step")
         m = Wu.shape[0]
         self._zero_c, self._zero_u = read_only(np.zeros(self.C.shape[1])), read_only(np.zeros(m))  # per controller
 
@@ -106,6 +115,38 @@ class RiccatiSolver:
             return SolveResult(np.full(n_v, np.nan), np.inf, "failed", self.name, None, time.perf_counter() - t0,
                                False, str(exc))
         return SolveResult(v, J, "unconstrained", self.name, None, time.perf_counter() - t0, False, "")
+
+    @property
+    def fuses_presimulation(self) -> bool:
+        """True when :meth:`presimulated` is available (the nonlinear form, compiled)."""
+        return self._presimulated is not None
+
+    def presimulated(self, update, X0, u_seq, Ts: float, offset, w) -> tuple:
+        """The nonlinear form's pre-simulation (10) and the plan along it in one compiled call
+        (``_native.riccati_presimulated``): the model's ``simulate_factorized``, then :meth:`solve`
+        with r = w − ŷ_sim, which stay the reference.
+
+        Args:
+            update: the model's compiled model update (``ReducedModel.compiled_update``).
+            X0: (n,) state; u_seq: (N, m) inputs of the pre-simulation (N·m); Ts: sample time (s);
+                offset: (n,) added to every step (the disturbance estimate) or None.
+            w: (N − No, p) reference rows (m and rad).
+
+        Returns:
+            (sim, result, inputs, null): sim = (A_seq (N, n, n), B_seq (N, n, m), c_seq (N, n),
+            X_seq (N + 1, n)) as ``simulate_factorized``; the :meth:`solve` SolveResult of the
+            deviation model; inputs (N, m) = u_seq + the cumulative Δu of the plan (N·m); null the
+            :func:`~parallel_gpc.gpc.redundancy.null_basis` of B_seq[0] (None at full column rank,
+            False when not computed: B_seq[0] not finite).
+        """
+        t0 = time.perf_counter()
+        E, X_seq, v, J, message, inputs, null = self._presimulated(self._compiled, update, X0, u_seq, Ts, offset, w,
+                                                                   NULL_RTOL)
+        n, m = self.C.shape[1], self.Wu.shape[0]
+        sim = (E[:, :, :n], E[:, :, n:n + m], E[:, :, -1], X_seq)
+        status = "failed" if message else "unconstrained"
+        null = False if null is None else null if null.shape[0] else None
+        return sim, SolveResult(v, J, status, self.name, None, time.perf_counter() - t0, False, message), inputs, null
 
 
 class RiccatiPath:
@@ -142,12 +183,17 @@ class RiccatiPath:
         self._u_map = cached_identity(H.Nu * m) if form == "absolute" else cumulative_map(
             H.N if form == "nonlinear" else H.Nu, H.Nu, m)
         self._zero_base = read_only(np.zeros(H.Nu * m))
+        self._planned = None  # (A_seq, SolveResult, inputs) of the last fused nonlinear step, taken by solve()
+        self._solved = (None, None)  # (SolveResult, inputs) that solve() returned from it
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
         keeps the controller's one-step model (and, nonlinear, the pre-simulated inputs)."""
         if self.form == "nonlinear":
-            A_seq, B_seq, C, y_sim, self._u_sim = ctl.presimulate(X)
+            update = None if self.constrained is not None or not self.solver.fuses_presimulation else getattr(
+                ctl.model, "compiled_update", None)
+            simulate = None if update is None else self._fused(update, w)
+            A_seq, B_seq, C, y_sim, self._u_sim = ctl.presimulate(X, simulate)
             if self.constrained is not None:
                 self._extra = {"y_now": C @ X, "y_sim": y_sim, "u_sim": self._u_sim, "u_prev": ctl.u_prev}
             return A_seq, B_seq, None, X, None, w - y_sim[self.horizons.No:]
@@ -156,14 +202,34 @@ class RiccatiPath:
             self._extra = {"y_now": ctl.model.C @ X}
         return Ad, Bd, cd, X, base, w
 
+    def _fused(self, update, w):
+        """A pre-simulation for :meth:`GPCController.presimulate` that also plans along it
+        (:meth:`RiccatiSolver.presimulated`); the plan waits for :meth:`solve` of these stages."""
+        def simulate(X0, u_seq, Ts, offset):
+            sim, result, inputs, null = self.solver.presimulated(update, X0, u_seq, Ts, offset, w)
+            self._planned = (sim[0], result, inputs)
+            return (*sim, null)
+        return simulate
+
     def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
-        from its last solution when ``warm`` (the controller's next step)."""
+        from its last solution when ``warm`` (the controller's next step); the stages of a fused
+        nonlinear step (:meth:`stages`) were solved in its call already (:meth:`planned_inputs`)."""
+        planned, self._planned, self._solved = self._planned, None, (None, None)
+        if planned is not None and planned[0] is A:  # the fused step planned these stages already
+            self._solved = planned[1:]
+            return planned[1]
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
         result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, **self._extra)
         return result
+
+    def planned_inputs(self, result: SolveResult) -> np.ndarray | None:
+        """(N, m) inputs u = u_base + u_map v of ``result`` (N·m) when it is the fused nonlinear
+        step's (:meth:`solve`, which computed them in its call), else None."""
+        solved, inputs = self._solved
+        return inputs if result is solved else None
 
     @property
     def excess(self) -> float:

@@ -139,6 +139,13 @@ class ReducedModel:
             self._compiled = compiled_model_update(self.robot)
         return self._compiled
 
+    @property
+    def compiled_update(self):
+        """The compiled model update (``_native.ModelUpdate``) this model's pre-simulations run in, or
+        None on the Python reference path: a compiled caller passes it to fuse a pre-simulation with
+        its own work (the nonlinear form's Riccati step, :mod:`parallel_gpc.gpc.riccati`)."""
+        return self._native if self.native else None
+
     # -------------------------------------------------------------- kinematics
     def _kinematics(self, y: np.ndarray, base=None):
         """(q, T, Φ_z⁺) at platform pose y: warm-started assembly and velocity map.
