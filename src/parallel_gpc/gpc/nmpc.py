@@ -34,8 +34,10 @@ drive limits linearized at its poses) and solves the same least-squares/QP probl
 v, every limit of the problem included. Where the Riccati recursion gives that problem's minimizer
 (:func:`riccati_steps`: the default back end, no state limit, Qu nonsingular, no terminal weight)
 every step, the paper's included, is solved stage-wise on the linearization's stage models
-(:meth:`NMPCIterations.riccati_step`, no least-squares factorization); a minimizer beyond an
-input limit goes to the condensed problem and the back end. A
+(:meth:`NMPCIterations.riccati_step`, no least-squares factorization; the re-linearizations'
+targets and model decrease take G v by one pass of the deviation model,
+:func:`~parallel_gpc.gpc.prediction.deviation_response`, not G); a minimizer beyond an
+input limit goes to the condensed problem (G condensed) and the back end. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
