@@ -186,6 +186,24 @@ def test_stage_jacobians_from_a_later_stage_are_those_stages(native, robot4):
         model.stage_jacobians(traj, u, TS, start=6)
 
 
+
+@pytest.mark.parametrize("native", [None, False])
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_a_line_search_rollout_warm_started_at_the_same_stages_is_a_fresh_simulation(name, native):
+    """The rollouts of one step start where the last simulation did and visit nearly its states at
+    the same index (not one later, as the next step's pre-simulation does): warm-started there, a
+    trial's trajectory and stage maps equal those of a model without warm starts."""
+    model, X, plan, _ = _case(name)
+    model = ReducedModel(model.robot, native=native)
+    rng = np.random.default_rng(3)
+    model.simulate_factorized(X, plan, TS)  # the pre-simulation
+    for scale in (1e-3, 1e-1):  # a short and a long trial step of the line search
+        trial = plan + scale * rng.standard_normal(plan.shape)
+        got = model.simulate_factorized(X, trial, TS)
+        fresh = ReducedModel(model.robot, native=native).simulate_factorized(X, trial, TS)
+        for a, b in zip(got, fresh):
+            assert np.abs(a - b).max() <= 1e-10 * max(1.0, np.abs(b).max())
+
 @pytest.mark.parametrize("name,limits", [
     ("planar_4rrr", None),
     ("planar_4rrr", "torque"),

@@ -14,6 +14,7 @@ from parallel_gpc.gpc import (
     incremental_prediction,
     simulative_prediction,
 )
+from parallel_gpc.gpc.prediction import deviation_gain, deviation_response
 
 
 def _random_system(rng, n=4, m=3, p=2, N=None):
@@ -95,6 +96,24 @@ def test_compiled_deviation_condensing_equals_the_python_reference(N, No, Nu, mo
     np.testing.assert_allclose(fast.G, reference.G, rtol=1e-12, atol=1e-12 * np.max(np.abs(reference.G)))
     assert np.array_equal(fast.f, reference.f) and np.array_equal(fast.u_map, reference.u_map)
 
+
+
+@pytest.mark.parametrize("native", ["1", "0"])  # the compiled pass and its reference (deviation_gain(...) @ v)
+@pytest.mark.parametrize("N,No,Nu", [(20, 0, 20), (8, 2, 3), (6, 5, 1), (1, 0, 1)])
+def test_deviation_response_is_the_simulated_deviation(N, No, Nu, native, monkeypatch):
+    """G v without G: the deviation model's outputs for the inputs of v, against step-by-step
+    simulation of the deviation (from 0, δu = cumsum(Δu) held after Nu) and against G @ v."""
+    monkeypatch.setenv("PARALLEL_GPC_NATIVE", native)
+    rng = np.random.default_rng(17 * N + No + Nu)
+    A_seq, B_seq, _, C = _random_system(rng, n=6, m=4, p=3, N=N)
+    dv = rng.normal(size=(Nu, 4))
+    H = Horizons(N, No, Nu)
+    got = deviation_response(A_seq, B_seq, C, H, dv.reshape(-1))
+    du = np.cumsum(np.vstack([dv, np.zeros((N - Nu, 4))]), axis=0)
+    expected = _simulate(A_seq, B_seq, np.zeros(6), C, np.zeros(6), du)[No:].reshape(-1)
+    scale = np.max(np.abs(expected))
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(got, deviation_gain(A_seq, B_seq, C, H) @ dv.reshape(-1), rtol=0, atol=1e-12 * scale)
 
 def test_condense_matches_eq7_block_toeplitz_for_lti():
     rng = np.random.default_rng(11)

@@ -179,11 +179,13 @@ void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, co
   xu[n_aug - 1] = 1.0;
   for (long i = 0; i < K; ++i) {
     x = X.row(i).transpose();
-    // the previous pre-simulation visited nearly the same states one index later
+    // the previous simulation visited nearly the same states one index later (the last control step's
+    // pre-simulation) or at the same index (a rollout of the same step: the NMPC line search)
     const Warm *base = nullptr;
-    if (i + 1 < static_cast<long>(sim_warm_.size())) {
-      const Vec dy = x.head(n_y) - sim_warm_[i + 1].y;
-      if (dy.dot(dy) < 1e-8) base = &sim_warm_[i + 1];
+    double nearest = 1e-8;
+    for (long j = i; j <= i + 1 && j < static_cast<long>(sim_warm_.size()); ++j) {
+      const double d2 = (x.head(n_y) - sim_warm_[j].y).squaredNorm();
+      if (d2 < nearest) nearest = d2, base = &sim_warm_[j];
     }
     zoh(factor_rows(x, base), Ts);
     sim_next_[i] = *warm_;

@@ -33,23 +33,25 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
   Mat M_top = Mat::Zero(n, na), rates, E, dE;
   M_top.block(0, ny, ny, ny).diagonal().setConstant(Ts);
   std::vector<Mat> D(n, Mat::Zero(n, na));  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
-  Vec xi(na);
+  Vec xi(na), x(n), q, yd(ny);
   xi[na - 1] = 1.0;
+  Mat Zc, T;  // workspaces: assigned at equal sizes from the second stage on (no allocation)
   const std::vector<Warm> &sim = self.simulation_warm();  // usually at these very states
   for (long i = start; i < K; ++i) {
-    const Eigen::Map<const Vec> x(X.data() + i * n, n);
+    x = Eigen::Map<const Vec>(X.data() + i * n, n);
     const Warm *base = i < static_cast<long>(sim.size()) && sim[i].y == x.head(ny) ? &sim[i] : nullptr;
-    const Mat Zc = self.factor_rates(x, base, rates);
+    Zc = self.factor_rates(x, base, rates);
     M_top.bottomRightCorner(ny, na - ny) = Zc * Ts;
     for (long j = 0; j < ny; ++j) D[ny + j].block(ny, ny, ny, ny) = rates.middleCols(j * ny, ny) * Ts;
     // forward differences along the closures' tangent q + T e_j h (not assembled: the line has the
     // closures' first derivative; ReducedModel._factor_derivatives)
-    const Vec q = self.q_last, yd = x.tail(ny);  // X's assembly (factor_rates) and its velocity map
-    const Mat T = self.velocity_map();
+    q = self.q_last;  // X's assembly (factor_rates) and its velocity map
+    yd = x.tail(ny);
+    T = self.velocity_map();
     for (long j = 0; j < ny; ++j) {
       const double h = step * std::max(1.0, std::abs(x[j]));
-      D[j].bottomRightCorner(ny, na - ny) =
-          (self.factor_rows_at(self.kin.integrate(q, T.col(j) * h), yd) - Zc) * (Ts / h);
+      D[j].bottomRightCorner(ny, na - ny) = (self.factor_rows_at(self.kin.integrate(q, T.col(j) * h), yd) - Zc) *
+                                            (Ts / h);
     }
     xi.head(n) = x;
     xi.segment(n, m) = Eigen::Map<const Vec>(u.data() + i * m, m);

@@ -361,7 +361,7 @@ class GPCController:
             rows = self._stage_rows(pred, X, warm)
             full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
-            first = None if self._nmpc is None else self._nmpc.riccati_step(X, *self._presimulated, pred, w, full)
+            first = None if self._nmpc is None else self._nmpc.riccati_step(X, *self._presimulated, pred.f, w, full)
             result = first if first is not None else self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:
                 constraint_report = report(full, rows, result.v)
@@ -371,8 +371,8 @@ class GPCController:
                                      message=f"{result.status}, but a hard state limit is exceeded by {excess:.3g}")
             result, _ = split(full, result)
         iterations = IterationReport()
-        if self._nmpc is not None:  # iterated to the NMPC optimum (pred: the last linearization)
-            pred, result, iterations = self._nmpc.run(
+        if self._nmpc is not None:  # iterated to the NMPC optimum (pred: every linearization's input map)
+            result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
                 self._backend.solve, self.disturbance, t0, rows, None if staged else problem)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory

@@ -34,8 +34,10 @@ drive limits linearized at its poses) and solves the same least-squares/QP probl
 v, every limit of the problem included. Where the Riccati recursion gives that problem's minimizer
 (:func:`riccati_steps`: the default back end, no state limit, Qu nonsingular, no terminal weight)
 every step, the paper's included, is solved stage-wise on the linearization's stage models
-(:meth:`NMPCIterations.riccati_step`, no least-squares factorization); a minimizer beyond an
-input limit goes to the condensed problem and the back end. A
+(:meth:`NMPCIterations.riccati_step`, no least-squares factorization; the re-linearizations'
+targets and model decrease take G v by one pass of the deviation model,
+:func:`~parallel_gpc.gpc.prediction.deviation_response`, not G); a minimizer beyond an
+input limit goes to the condensed problem (G condensed) and the back end. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
@@ -53,6 +55,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from functools import partial
 
 import numpy as np
 
@@ -62,7 +65,7 @@ from ..solvers import LeastSquaresProblem, SolveResult
 from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
                           hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
-from .prediction import Prediction, deviation_gain
+from .prediction import Prediction, deviation_gain, deviation_response
 from .riccati import RiccatiSolver
 from .settings import GPCSettings, iterations_by_riccati
 
@@ -208,9 +211,9 @@ class NMPCIterations:
         0 when kept)."""
         return 0.0 if rows is None else hard_excess(rows, rows.G @ NO_DECISION)
 
-    def _model_merit(self, lin: Prediction, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
-        """J + penalty of the linearization ``lin`` (and its rows) at v."""
-        return self._cost(lin.f + lin.G @ v, w, v) + self._penalty(rows, v)
+    def _model_merit(self, y_lin: np.ndarray, rows: ConstraintRows | None, w: np.ndarray, v: np.ndarray) -> float:
+        """J + penalty of a linearization at v: its outputs y_lin (n_rows·p,) there (m, rad), its rows."""
+        return self._cost(y_lin, w, v) + self._penalty(rows, v)
 
     def _report(self, rows: ConstraintRows | None) -> ConstraintReport | None:
         """The state limits' report at a trajectory (its rows from :meth:`_true_rows`)."""
@@ -220,10 +223,11 @@ class NMPCIterations:
         return report_at(rows, rows.G @ NO_DECISION, s)
 
     # -------------------------------------------------------------- the iterations
-    def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, lin: Prediction, w: np.ndarray,
+    def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
                      bounds: LeastSquaresProblem) -> SolveResult | None:
-        """The Gauss–Newton subproblem of the linearization ``lin`` at X (n_x,) (stage models JX (N, n_x, n_x),
-        B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d) by the Riccati recursion,
+        """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
+        B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
+        m and rad) by the Riccati recursion,
         when :attr:`riccati` is set and its minimizer keeps the input limits of ``bounds`` (the
         step's problem: its limit rows are every iteration's); else None (the condensed problem
         then decides, every limit included). w: (n_rows, p) or (n_rows·p,) reference rows (m, rad).
@@ -231,7 +235,7 @@ class NMPCIterations:
         minimizer is unique: the recursion's and QR's agree to rounding."""
         if self.riccati is None:
             return None
-        targets = (np.reshape(w, -1) - lin.f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
+        targets = (np.reshape(w, -1) - f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
         new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
         if not new.ok or (bounds.constrained and not bounds.feasible(new.v)):
             return None
@@ -253,12 +257,12 @@ class NMPCIterations:
                 u = u_sim⁰ + u_map v in all of them), or None (built from the first linearization).
 
         Returns:
-            (prediction of the last linearization in the total v, its result with v the accepted
-            plan, :class:`IterationReport`).
+            (its result with v the accepted plan, :class:`IterationReport`). Every linearization maps
+            v to the inputs as ``pred`` does (u = u_sim⁰ + u_map v): ``pred`` stays the step's input map.
         """
         w = np.asarray(w, dtype=float).reshape(-1)
         if not result.ok:
-            return pred, result, IterationReport(stop="solve failed")
+            return result, IterationReport(stop="solve failed")
         H, C = self.criterion.horizons, self.model.C
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
@@ -266,7 +270,8 @@ class NMPCIterations:
         true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
         merit = self._cost(pred.f, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
-        lin, lin_rows = pred, rows  # the linearization that produced `result`, and its rows
+        # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows
+        y_lin, gain, lin_rows = pred.f, pred.G.__matmul__, rows
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
         while True:
@@ -279,7 +284,8 @@ class NMPCIterations:
                 if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
                     report.update(stop="converged", converged=True)
                     break
-            decrease = max(self._model_merit(lin, lin_rows, w, v) - self._model_merit(lin, lin_rows, w, v_new), 0.0)
+            decrease = max(self._model_merit(y_lin, lin_rows, w, v)
+                           - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
@@ -316,16 +322,23 @@ class NMPCIterations:
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
-            G = deviation_gain(JX, B_seq, C, H)
-            lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
-            if bounds is None and self.riccati is not None:
-                bounds = problem_of(lin)
+            y_lin, lin = y_rows, None  # ŷ(v + δ) ≈ y_rows + G δ along this plan's trajectory
+            result = None
+            if self.riccati is not None and bounds is not None and self.limits is None:  # G v alone, not G
+                gain = partial(deviation_response, JX, B_seq, C, H)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, bounds)
+            if result is None:  # G itself: the condensed subproblem (or its input limits' problem)
+                G = deviation_gain(JX, B_seq, C, H)
+                gain = G.__matmul__
+                lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
+                if bounds is None and self.riccati is not None:
+                    bounds = problem_of(lin)
+                    result = self.riccati_step(X, JX, B_seq, lin.f, w, bounds)
             try:  # the state limits linearized along this plan's trajectory (exact at v)
-                lin_rows = self._rows(lin, y_rows, y_now)
+                lin_rows = None if lin is None else self._rows(lin, y_rows, y_now)
             except MODEL_ERRORS:
                 report["stop"] = "jacobian failed"
                 break
-            result = self.riccati_step(X, JX, B_seq, lin, w, bounds)
             if result is None:  # the condensed subproblem with every limit, by the controller's back end
                 problem = constrain(problem_of(lin), lin_rows, self.limits)
                 warm = v if not problem.n_slack else np.concatenate([v, np.zeros(problem.n_slack)])
@@ -337,5 +350,5 @@ class NMPCIterations:
                     report["stop"] = "solve failed"
                     break
                 result, _ = split(problem, new)
-        return lin, replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
+        return replace(result, v=v.copy(), cost=merit), IterationReport(cost=merit, constraints=self._report(
             true_rows), **report)

@@ -329,6 +329,28 @@ def deviation_gain(A_seq, B_seq, C, horizons: Horizons) -> np.ndarray:
     return condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)[1]
 
 
+
+def deviation_response(A_seq, B_seq, C, horizons: Horizons, v) -> np.ndarray:
+    """G v of :func:`deviation_gain`'s G without forming G: the deviation model run once from
+    δX(0) = 0 with the inputs of v (work linear in N; the Gauss–Newton iterations' steps that the
+    Riccati recursion solves need no more of G).
+
+    Args:
+        A_seq: (N, n, n), B_seq: (N, n, m): the stage models. C: (p, n) output matrix.
+        horizons: N, No, Nu. v: (Nu·m,) increments [Δu(0) … Δu(Nu−1)] (N·m).
+
+    Returns:
+        ((N − No)·p,) G v on the penalized outputs (m, rad); ``deviation_gain(...) @ v`` is its
+        reference (``PARALLEL_GPC_NATIVE=0``).
+    """
+    compiled = native_module()
+    if compiled is not None and hasattr(compiled, "deviation_response"):
+        return compiled.deviation_response(np.ascontiguousarray(A_seq, dtype=float),
+                                           np.ascontiguousarray(B_seq, dtype=float),
+                                           np.ascontiguousarray(C, dtype=float), np.ascontiguousarray(v, dtype=float),
+                                           horizons.No, horizons.Nu)
+    return deviation_gain(A_seq, B_seq, C, horizons) @ v
+
 def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:
     """Incremental prediction with nonlinear simulative substitution, eq. (10)–(12).
 

@@ -484,18 +484,19 @@ class ReducedModel:
         xu = np.empty(n_aug)
         xu[-1] = 1.0
         d = None if offset is None else np.asarray(offset, dtype=float)
-        # Warm starts: the previous pre-simulation visited nearly the same states one index
-        # later (receding horizon); use that one when it is closer than the previous step.
+        # Warm starts: the previous simulation visited nearly the same states one index later
+        # (the last control step's pre-simulation, receding horizon) or at the same index (a
+        # rollout of the same step: the NMPC line search); use the nearer when it is closer than
+        # the previous step.
         prev = self._sim_warm
         warms = []
         for i in range(K):
             x = Xs[i]
-            base = None
-            if i + 1 < len(prev):
-                cand = prev[i + 1]
+            base, nearest = None, 1e-8
+            for cand in prev[i:i + 2]:
                 dy = x[:ny] - cand[1]
-                if dy @ dy < 1e-8:
-                    base = cand
+                if (d2 := dy @ dy) < nearest:
+                    base, nearest = cand, d2
             Z = self._factor_rows(x, base)
             warms.append(self._warm)
             np.multiply(Z, Ts, out=aug[i, ny:nx, ny:])
