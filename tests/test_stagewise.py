@@ -434,18 +434,17 @@ INPUT_CASES = {  # torque and Δu limits tight enough to bind on many stages
 @pytest.mark.parametrize("horizons", [dict(N=12), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
 @pytest.mark.parametrize("case", list(INPUT_CASES))
 @pytest.mark.parametrize("form", FORMS)
-@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups"])  # redundant drives; prismatic drives
+@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups", "delta_3rus"])  # redundant; prismatic; spatial
 def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horizons):
     """Torque and Δu limits: the active set (not the interior point) reaches DAQP's plan and objective
     on the condensed problem to 1e-8, its KKT residual (NNLS on the active rows) at the rounding
-    floor, the limits binding on several stages. The nonlinear form's torque rows after Nu act on
-    the held state alone: that problem goes to the interior point."""
+    floor, the limits binding on several stages. Every form, the nonlinear one's torque rows after Nu
+    (on the held input: stage Nu − 1's tightest, input_bounds) included."""
     robot = ParallelRobot.load(name)
     ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
     path = ctl._riccati
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
-    H = ctl.horizons
-    expected = "interior-point" if form == "nonlinear" and H.Nu < H.N and "torque" in case else "active-set"
+    expected = "active-set"
     assert path.constrained.method == expected
     assert result.status == "optimal" and result.message == "", result.message
     full, x_ref = _condensed(ctl, X, w)
@@ -622,13 +621,14 @@ if not HAS_COMPILED_STEP and os.environ.get("CI"):
 @pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
 @pytest.mark.parametrize("horizons", [dict(N=15), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
 @pytest.mark.parametrize("case", ["torque", "du", "torque+du"])
-@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
-def test_compiled_limited_step_equals_the_python_path_along_warm_steps(form, case, horizons):
-    """The compiled limited step of a linear form (``_native.RiccatiActive``: stage models, criterion,
-    active set and J in one call) against the Python reference (stage_models, stage_problem,
-    solve_active_set) over five warm-started steps at moving states: the same method and sweeps on
-    every step, plans ≤ 1e-9 and J ≤ 1e-9 relative."""
-    robot = ParallelRobot.load("planar_4rrr")
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_compiled_limited_step_equals_the_python_path_along_warm_steps(name, form, case, horizons):
+    """The compiled limited step (``_native.RiccatiActive``: stage models, criterion, active set and J
+    in one call; the nonlinear form's bounds passed each step) against the Python reference
+    (stage_models, stage_problem, solve_active_set) over five warm-started steps at moving states:
+    the same method and sweeps on every step, plans ≤ 1e-9 and J ≤ 1e-9 relative."""
+    robot = ParallelRobot.load(name)
     ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
     paths = [RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
              for native in (False, True)]
@@ -714,21 +714,24 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
 
 
-def _row_excess(ctl: GPCController, form: str, v, base) -> float:
+def _row_excess(ctl: GPCController, stages: tuple, v) -> float:
     """The largest excess (N·m) of the plan v's torque and Δu rows over the QP's (tightened) limits,
-    recomputed here from the inputs: u(i) = v(i) (absolute) or base + Σ_{l ≤ i} v(l), Δu(i) = v(i)."""
+    recomputed here from the inputs u = u_base + u_map v of the form's input map (the nonlinear form's
+    every pre-simulated step), Δu(i) = u(i) − u(i−1) on the Nu decided steps from u(k−1) (the delayed
+    form: from u(k), the input it holds)."""
     lim, m = ctl._qp_limits, ctl.n_u
-    V = np.asarray(v).reshape(-1, m)
-    U = V if form == "absolute" else base + np.cumsum(V, axis=0)
+    pred = ctl._riccati.input_map(ctl, stages)
+    U = (pred.u_base + pred.u_map @ np.ravel(v)).reshape(-1, m)
     excess = [np.max(np.abs(U) - lim.torque)] if lim.torque is not None else []
     if lim.du is not None:
-        excess.append(np.max(np.abs(V) - lim.du))
+        first = ctl.u_prev if stages[4] is None else stages[4]
+        excess.append(np.max(np.abs(np.diff(np.vstack([first, U]), axis=0)[:ctl.horizons.Nu]) - lim.du))
     return float(max(excess))
 
 
 @pytest.mark.parametrize("native", [False, True], ids=["python", "compiled"])
 @pytest.mark.parametrize("case", list(INPUT_CASES))
-@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
+@pytest.mark.parametrize("form", FORMS)
 def test_the_active_sets_verified_excess_keeps_the_true_limits(form, case, native):
     """What lets the controller skip its own first-move check of a limited stage-wise step: the active
     set's verified row excess (its KKT residual × the largest bound) bounds every row's excess
@@ -750,9 +753,9 @@ def test_the_active_sets_verified_excess_keeps_the_true_limits(form, case, nativ
         result = path.solve(*stages, warm=k > 0)
         assert result.status == "optimal" and path.constrained.method == "active-set", result.message
         scale = float(np.max(np.abs(ctl._qp_limits.torque if ctl._qp_limits.torque is not None else ctl._qp_limits.du)))
-        assert _row_excess(ctl, form, result.v, stages[4]) <= path.excess + 1e-13 * scale
+        assert _row_excess(ctl, stages, result.v) <= path.excess + 1e-13 * scale
         assert path.excess <= gap  # certified: the controller does not check it again
-        assert limit_violation(path.input_map(ctl, stages), result.v, form, ctl.u_prev, ctl._limits) == ""
+        assert limit_violation(ctl._riccati.input_map(ctl, stages), result.v, form, ctl.u_prev, ctl._limits) == ""
         binding += result.active_limits
         X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
     assert binding  # the limits bind: the certificate is about rows that matter
@@ -775,7 +778,7 @@ def test_the_compiled_steps_residual_bounds_the_broken_rows(form, case):
     v, _, _, _, _, ok, residual, _ = sw._step.solve(
         np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), np.asarray(c, float).reshape(-1),
         X, np.zeros(m) if u0 is None else u0, r, None, 1)
-    excess = _row_excess(ctl, form, v, u0)
+    excess = _row_excess(ctl, (A, B, c, x0, u0, r), v)
     assert excess > 0.0 and not ok  # one sweep leaves rows broken
     assert excess <= residual * sw._f_scale * (1.0 + 1e-12)
 

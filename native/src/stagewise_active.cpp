@@ -443,16 +443,18 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
 }
 
 
-// The controller's torque/Δu-limited problem of a linear form (0 absolute, 1 incremental, 2 delayed)
-// in one call per step: the stage models (stage_model.hpp) and the criterion's linear terms built
-// here from the step's (A_d, B_d, c_d, x0, u0, targets), the rows (Fz, f, comp, sign: the controller's
-// StageQP template, the same every step) kept from construction, then solve_active_set and J.
+// The controller's torque/Δu-limited problem of a form (0 absolute, 1 incremental, 2 delayed, 3 the
+// nonlinear form's deviation model) in one call per step: the stage models (stage_model.hpp) and the
+// criterion's linear terms built here from the step's (A_d, B_d, c_d, x0, u0, targets; form 3: A_i,
+// B_i along the pre-simulation, z0 = 0), the rows (Fz, comp, sign: the controller's StageQP template,
+// the same every step) kept from construction with their bounds f, which a step may replace (the
+// nonlinear form's move with the pre-simulated inputs), then solve_active_set and J.
 class RiccatiActive {
  public:
   RiccatiActive(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form, In3 Fz, In2 f,
                 InI comp, In2 sign)
       : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
-    if (form < 0 || form > 2) throw std::invalid_argument("RiccatiActive: form must be 0..2 (a linear form)");
+    if (form < 0 || form > 3) throw std::invalid_argument("RiccatiActive: form must be 0..3");
     if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("RiccatiActive: bad horizons");
     if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("RiccatiActive: weights");
     nz = stage_model::state_size(form, n, m, N, Nu);
@@ -494,16 +496,32 @@ class RiccatiActive {
     read_rows(qp_, comp, sign, f, "RiccatiActive");
   }
 
-  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m), r (N − No, p), start
-  // (Nu, m) or none → the Outcome (v, z, λ, set; valid until the next solve) and J of the criterion (5)
+  // the used rows' bounds from f (N, k), row-major (the unused rows' entries are not read)
+  void set_bounds(const double *f) {
+    qp_.f_scale = 1e-12;
+    for (long i = 0; i < qp_.nd; ++i)
+      for (Row &row : qp_.rows[i]) {
+        row.f = f[i * qp_.k + row.r];
+        if (!std::isfinite(row.f))
+          throw std::invalid_argument("RiccatiActive.solve: the bound f[" + std::to_string(i) + ", " +
+                                      std::to_string(row.r) + "] of a used row is not finite (" +
+                                      std::to_string(row.f) + "); the rows in use are fixed at construction");
+        qp_.f_scale = std::max(qp_.f_scale, std::abs(row.f));
+      }
+  }
+
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (form 3: neither read),
+  // r (N − No, p), start (Nu, m) or none, f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
+  // set; valid until the next solve) and J of the criterion (5)
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
                        const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
-                       double &J) {
+                       const double *f, double &J) {
+    if (f) set_bounds(f);
     for (long i = 0; i < N; ++i)
       stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
                         c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
-    qp_.z0.head(n) = VMap(x0, n);
-    if (form != 0) qp_.z0.tail(m) = VMap(u0, m);
+    if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
+    if (form == 1 || form == 2) qp_.z0.tail(m) = VMap(u0, m);
     Eigen::Map<const RowMat> W(r, N - No, p);
     q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
     Set &fixed = ws_.fixed;
@@ -530,6 +548,7 @@ class RiccatiActive {
 
   long n, m, p, N, No, Nu, nz;
   int form;
+  long k() const { return qp_.k; }
 
  private:
   QP qp_;
@@ -585,24 +604,27 @@ void bind_stagewise_active(nb::module_ &m) {
       .def(
           "solve",
           [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
-             In1 u0, In2 r, std::optional<InI> start, int max_iter) {
+             In1 u0, In2 r, std::optional<InI> start, int max_iter, std::optional<In2> f) {
             const long m = self.m;
             const stage_model::StepShape shape = stage_model::check_step(
                 "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
+            if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
+              throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
             double J = 0.0;
             const Outcome &res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
                                            shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
-                                           max_iter, J);
+                                           max_iter, f ? f->data() : nullptr, J);
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
           nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
-          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30,
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(),
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
-          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None");
+          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None; "
+          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last");
 }
 }  // namespace pgpc
