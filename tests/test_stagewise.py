@@ -457,6 +457,11 @@ def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horiz
     if expected == "active-set":
         binding = (path.constrained._fixed >= 0).any(axis=1)
         assert binding.sum() >= 2, binding
+    H = ctl.horizons
+    if form == "nonlinear" and H.Nu < H.N and case == "torque":  # rows after Nu bind here (moved to stage Nu − 1)
+        pred = path.input_map(ctl, path.stages(ctl, X, w[H.No:]))
+        U = (pred.u_base + pred.u_map @ result.v).reshape(-1, ctl.n_u)
+        assert np.isclose(np.abs(U[H.Nu:]), ctl._qp_limits.torque, rtol=1e-9).any()
 
 
 def _input_row_qp(seed: int, incremental: bool, du: bool = True):

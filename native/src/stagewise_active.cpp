@@ -50,8 +50,8 @@ using VMap = Eigen::Map<const Vec>;
 // X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs and the
 // reciprocals of its diagonal d: plain substitution (Eigen's triangular solve packs its operands for a
 // blocked product, slower at these sizes)
-template <class M>
-void neg_chol_solve(const Mat &L, const Vec &d, M &X) {
+template <class ML, class VD, class M>
+void neg_chol_solve(const ML &L, const VD &d, M &X) {
   const long n = L.rows();
   for (long c = 0; c < X.cols(); ++c) {
     for (long a = 0; a < n; ++a) {
@@ -78,6 +78,36 @@ struct QP {  // views of the caller's arrays (no copy)
   double f_scale = 1e-12;
 };
 
+// The temporaries of one sweep's stage: fixed-size (on the stack, products unrolled) for the stage
+// sizes of the common robots (Sweep::run's table), dynamic otherwise (kept in the Sweep: no
+// allocation once sized). NZ: the stage state's size, M: the inputs'.
+template <int NZ, int M>
+struct SweepTemps {
+  using MZ = Eigen::Matrix<double, NZ, NZ>;
+  using MZM = Eigen::Matrix<double, NZ, M>;
+  using MMZ = Eigen::Matrix<double, M, NZ>;
+  using MM = Eigen::Matrix<double, M, M>;
+  using VZ = Eigen::Matrix<double, NZ, 1>;
+  using VM = Eigen::Matrix<double, M, 1>;
+  using MF = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, M, M>;  // free × free
+  using MFZ = Eigen::Matrix<double, Eigen::Dynamic, NZ, Eigen::ColMajor, M, NZ>;           // free × state
+  using VF = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, M, 1>;
+  MZ P, Pz, PA;
+  MZM PB;
+  MM Hvv;
+  MMZ Hvz, Hz;
+  MF Hww;
+  MFZ Hwz;
+  VZ p, lin, w;
+  VM gv;
+  VF gw, vf, dinv;
+  Eigen::LLT<MF> llt;
+  void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
+    P.resize(nz, nz), Pz.resize(nz, nz), PA.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
+    Hvz.resize(m, nz), Hz.resize(m, nz), p.resize(nz), lin.resize(nz), w.resize(nz), gv.resize(m);
+  }
+};
+
 // The Riccati sweep of a fixed set (_sweep in the Python twin), its buffers kept from sweep to sweep
 // and from solve to solve (part of a Workspace)
 struct Sweep {
@@ -90,9 +120,7 @@ struct Sweep {
   Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
-  Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
-  Vec p, lin, w, gv, gw, vf, dinv;
-  Eigen::LLT<Mat> llt;
+  SweepTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size sweep
 
   // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
   void prepare(const QP &qp) {
@@ -112,9 +140,44 @@ struct Sweep {
     }
   }
 
+  // the sweep, with the stage sizes (nz, m) of the robots measured fixed at compile time (the same
+  // operations as the dynamic sweep; the sums of a product may round in another order)
   void run(const Set &fixed, Traj &z, Traj &v) {
+    const long nz = qpp->nz, m = qpp->m;
+    if (nz == 6 && m == 3) return run_sized<6, 3>(fixed, z, v);     // planar_3rrr, delta_3rus: absolute
+    if (nz == 6 && m == 4) return run_sized<6, 4>(fixed, z, v);     // planar_4rrr: absolute
+    if (nz == 9 && m == 3) return run_sized<9, 3>(fixed, z, v);     // … with the input in the state
+    if (nz == 10 && m == 4) return run_sized<10, 4>(fixed, z, v);
+    run_sized<Eigen::Dynamic, Eigen::Dynamic>(fixed, z, v);
+  }
+
+  template <int NZ, int M>
+  void run_sized(const Set &fixed, Traj &z, Traj &v) {
+    if constexpr (NZ == Eigen::Dynamic) {
+      dyn.resize(qpp->nz, qpp->m);
+      sweep<NZ, M>(dyn, fixed, z, v);
+    } else {
+      SweepTemps<NZ, M> t;
+      sweep<NZ, M>(t, fixed, z, v);
+    }
+  }
+
+  template <int NZ, int M>
+  void sweep(SweepTemps<NZ, M> &t, const Set &fixed, Traj &z, Traj &v) {
+    using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
+    using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
+    using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
     const QP &qp = *qpp;
-    const long N = qp.N, nd = qp.nd, m = qp.m;
+    const long N = qp.N, nd = qp.nd, m = qp.m, nz = qp.nz;
+    auto &P = t.P, &Pz = t.Pz, &PA = t.PA;
+    auto &PB = t.PB;
+    auto &Hvv = t.Hvv;
+    auto &Hvz = t.Hvz, &Hz = t.Hz;
+    auto &Hww = t.Hww;
+    auto &Hwz = t.Hwz;
+    auto &p = t.p, &lin = t.lin, &w = t.w;
+    auto &gv = t.gv;
+    auto &gw = t.gw, &dinv = t.dinv;
     long top = N - 1;  // the last stage to redo
     if (valid) {
       top = -1;
@@ -129,16 +192,16 @@ struct Sweep {
       p = ps[top + 1];
     }
     for (long i = top; i >= 0; --i) {
-      const CMap &A = qp.A[i];
+      const AM A(qp.A[i].data(), nz, nz);
       PA.noalias() = P.lazyProduct(A);
       w = p;
-      w.noalias() += P.lazyProduct(qp.c[i]);
-      Pz = qp.Q[i];
+      w.noalias() += P.lazyProduct(ZV(qp.c[i].data(), nz));
+      Pz = AM(qp.Q[i].data(), nz, nz);
       Pz.noalias() += A.transpose().lazyProduct(PA);
-      lin = qp.q[i];
+      lin = ZV(qp.q[i].data(), nz);
       lin.noalias() += A.transpose().lazyProduct(w);
       if (i < nd) {
-        const CMap &B = qp.B[i];
+        const BM B(qp.B[i].data(), nz, m);
         PB.noalias() = P.lazyProduct(B);
         Hvv = qp.R;
         Hvv.noalias() += B.transpose().lazyProduct(PB);
@@ -160,20 +223,16 @@ struct Sweep {
             has_E[i] = 1;
           }
         }
+        Hz = Hvz;
         if (any_fixed) {
           lin.noalias() += Hvz.transpose().lazyProduct(ei);
           gv.noalias() += Hvv.lazyProduct(ei);
           if (has_E[i]) {
-            Hz = Hvz;
             Hz.noalias() += Hvv.lazyProduct(Ei);
             Pz.noalias() += Ei.transpose().lazyProduct(Hvz);
             Pz.noalias() += Hz.transpose().lazyProduct(Ei);
             lin.noalias() += Ei.transpose().lazyProduct(gv);
-          } else {
-            Hz = Hvz;
           }
-        } else {
-          Hz = Hvz;
         }
         std::vector<long> &fr = free[i];
         fr.clear();
@@ -187,7 +246,7 @@ struct Sweep {
             gw = gv;
           } else {
             Hww.resize(nf, nf);
-            Hwz.resize(nf, qp.nz);
+            Hwz.resize(nf, nz);
             gw.resize(nf);
             for (long a = 0; a < nf; ++a) {
               for (long b = 0; b < nf; ++b) Hww(a, b) = Hvv(fr[a], fr[b]);
@@ -198,16 +257,16 @@ struct Sweep {
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          llt.compute(Hww);
-          if (llt.info() != Eigen::Success)
+          t.llt.compute(Hww);
+          if (t.llt.info() != Eigen::Success)
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          dinv = llt.matrixLLT().diagonal().cwiseInverse();
+          dinv = t.llt.matrixLLT().diagonal().cwiseInverse();
           K[i] = Hwz;
-          neg_chol_solve(llt.matrixLLT(), dinv, K[i]);
+          neg_chol_solve(t.llt.matrixLLT(), dinv, K[i]);
           k[i] = gw;
-          neg_chol_solve(llt.matrixLLT(), dinv, k[i]);
+          neg_chol_solve(t.llt.matrixLLT(), dinv, k[i]);
           Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
           lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
         }
@@ -222,8 +281,10 @@ struct Sweep {
     z.resize(N + 1);
     v.resize(nd);
     z[0] = qp.z0;
+    auto &vf = t.vf;
     for (long i = 0; i < N; ++i) {
-      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+      const AM A(qp.A[i].data(), nz, nz);
+      z[i + 1].noalias() = A.lazyProduct(z[i]);
       z[i + 1] += qp.c[i];
       if (i < nd) {
         v[i] = e[i];
@@ -234,7 +295,7 @@ struct Sweep {
           vf.noalias() += K[i].lazyProduct(z[i]);
           for (size_t a = 0; a < fr.size(); ++a) v[i](fr[a]) = vf(long(a));
         }
-        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+        z[i + 1].noalias() += BM(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
     }
   }
