@@ -78,6 +78,19 @@ struct QP {  // views of the caller's arrays (no copy)
   double f_scale = 1e-12;
 };
 
+// f(std::integral_constant<int, NZ>, std::integral_constant<int, M>) with the stage sizes (nz, m) fixed
+// at compile time where they are those of the robots measured (the state without / with the input
+// held in it: planar_3rrr and delta_3rus (6, 3), (9, 3); planar_4rrr (6, 4), (10, 4)), else Dynamic
+template <class F>
+decltype(auto) with_stage_sizes(long nz, long m, F &&f) {
+  using std::integral_constant;
+  if (nz == 6 && m == 3) return f(integral_constant<int, 6>(), integral_constant<int, 3>());
+  if (nz == 6 && m == 4) return f(integral_constant<int, 6>(), integral_constant<int, 4>());
+  if (nz == 9 && m == 3) return f(integral_constant<int, 9>(), integral_constant<int, 3>());
+  if (nz == 10 && m == 4) return f(integral_constant<int, 10>(), integral_constant<int, 4>());
+  return f(integral_constant<int, Eigen::Dynamic>(), integral_constant<int, Eigen::Dynamic>());
+}
+
 // The temporaries of one sweep's stage: fixed-size (on the stack, products unrolled) for the stage
 // sizes of the common robots (Sweep::run's table), dynamic otherwise (kept in the Sweep: no
 // allocation once sized). NZ: the stage state's size, M: the inputs'.
@@ -143,12 +156,7 @@ struct Sweep {
   // the sweep, with the stage sizes (nz, m) of the robots measured fixed at compile time (the same
   // operations as the dynamic sweep; the sums of a product may round in another order)
   void run(const Set &fixed, Traj &z, Traj &v) {
-    const long nz = qpp->nz, m = qpp->m;
-    if (nz == 6 && m == 3) return run_sized<6, 3>(fixed, z, v);     // planar_3rrr, delta_3rus: absolute
-    if (nz == 6 && m == 4) return run_sized<6, 4>(fixed, z, v);     // planar_4rrr: absolute
-    if (nz == 9 && m == 3) return run_sized<9, 3>(fixed, z, v);     // … with the input in the state
-    if (nz == 10 && m == 4) return run_sized<10, 4>(fixed, z, v);
-    run_sized<Eigen::Dynamic, Eigen::Dynamic>(fixed, z, v);
+    with_stage_sizes(qpp->nz, qpp->m, [&](auto nz_, auto m_) { run_sized<nz_(), m_()>(fixed, z, v); });
   }
 
   template <int NZ, int M>
@@ -303,24 +311,31 @@ struct Sweep {
 
 // λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (costates with the active set, in
 // solvers/stagewise_ipm.py)
-struct Costates {  // the buffers of multipliers()
-  Vec nu, nxt, g, Rv;
+template <int NZ, int M>
+struct Costates {  // the buffers of multipliers() (fixed-size, or dynamic and kept in the Workspace)
+  Eigen::Matrix<double, NZ, 1> nu, nxt;
+  Eigen::Matrix<double, M, 1> g, Rv;
 };
 
-double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
-                   Costates &buf) {
-  const long N = qp.N, nd = qp.nd;
+template <int NZ, int M>
+double multipliers_sized(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
+                         Costates<NZ, M> &buf) {
+  using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
+  using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
+  using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
+  const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
   lam.setZero(N, qp.k);
   grad.setZero(nd, qp.m);
   double scale = 0.0;
-  Vec &nu = buf.nu, &nxt = buf.nxt, &g = buf.g, &Rv = buf.Rv;
-  nu.noalias() = qp.Q[N] * z[N];
-  nu += qp.q[N];
+  auto &nu = buf.nu, &nxt = buf.nxt;
+  auto &g = buf.g, &Rv = buf.Rv;
+  nu.noalias() = AM(qp.Q[N].data(), nz, nz).lazyProduct(z[N]);
+  nu += ZV(qp.q[N].data(), nz);
   for (long i = N - 1; i >= 0; --i) {
-    nxt.noalias() = qp.A[i].transpose().lazyProduct(nu);
+    nxt.noalias() = AM(qp.A[i].data(), nz, nz).transpose().lazyProduct(nu);
     if (i < nd) {
       Rv.noalias() = qp.R.lazyProduct(v[i]);
-      g.noalias() = qp.B[i].transpose().lazyProduct(nu);
+      g.noalias() = BM(qp.B[i].data(), nz, m).transpose().lazyProduct(nu);
       scale = std::max({scale, Rv.cwiseAbs().maxCoeff(), g.cwiseAbs().maxCoeff()});
       g += Rv;
       for (long j = 0; j < qp.m; ++j)
@@ -333,12 +348,26 @@ double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v,
       }
     }
     if (i > 0) {
-      nu.noalias() = qp.Q[i] * z[i];
-      nu += qp.q[i];
+      nu.noalias() = AM(qp.Q[i].data(), nz, nz).lazyProduct(z[i]);
+      nu += ZV(qp.q[i].data(), nz);
       nu += nxt;
     }
   }
   return scale;
+}
+
+// multipliers_sized with the stage sizes of with_stage_sizes; buf: the dynamic sizes' buffers
+double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
+                   Costates<Eigen::Dynamic, Eigen::Dynamic> &buf) {
+  return with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+    constexpr int NZ = nz_(), M = m_();
+    if constexpr (NZ == Eigen::Dynamic) {
+      return multipliers_sized(qp, fixed, z, v, lam, grad, buf);
+    } else {
+      Costates<NZ, M> local;
+      return multipliers_sized(qp, fixed, z, v, lam, grad, local);
+    }
+  });
 }
 
 struct Outcome {
@@ -354,7 +383,7 @@ struct Outcome {
 // everything a solve writes, kept from solve to solve (sized by the first solve of a problem size)
 struct Workspace {
   Sweep sweep;
-  Costates costates;
+  Costates<Eigen::Dynamic, Eigen::Dynamic> costates;
   Outcome out;
   RowMat grad;
   Set fixed, next, brk;  // the set of a sweep (the start on entry), the next one, each component's most broken row
