@@ -848,3 +848,42 @@ def test_a_stagewise_plan_the_solver_did_not_verify_is_checked_by_the_controller
     info = ctl.step(X, w)
     assert info.replaced and "torque limit" in info.result.message and info.result.ok
     assert np.all(np.abs(info.u) <= ctl._limits.torque)
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("horizons", [dict(N=12), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
+def test_a_compiled_nonlinear_step_given_new_bounds_answers_as_one_built_with_them(horizons):
+    """The nonlinear form's bounds move with the pre-simulated inputs: RiccatiActive.solve takes each step's
+    (input_bounds). A step built with the first state's bounds and given the next state's answers as one
+    built with those (set, sweeps, plan, multipliers, J ≤ 1e-12 relative), and the bounds then stay; a
+    used row given a non-finite bound is a clear error, not a silently dropped limit."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "nonlinear", "torque+du", cases=INPUT_CASES, **horizons)
+    ctl.step(X, w)  # builds the compiled step
+    sw, H, n, m = ctl._riccati.constrained, ctl.horizons, ctl.n_x, ctl.n_u
+    qp = sw._template[0]
+    rows = sw._input_rows(qp)
+
+    def built(f):
+        return native_module().RiccatiActive(sw.C, sw.Wy, sw.Wu, H.N, H.No, H.Nu, FORM_CODES["nonlinear"], qp.Fz, f,
+                                             np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+
+    step = built(qp.f)
+    X2 = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.05)])
+    A, B, _, _, _, r = ctl._riccati.stages(ctl, X2, w[H.No:])
+    extra = ctl._riccati._extra
+    f2 = sw._step_bounds(extra["u_sim"], extra["u_prev"])
+    assert not np.allclose(f2[np.isfinite(f2)], qp.f[np.isfinite(qp.f)])  # the bounds did move
+    args = (np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), np.zeros(0), X2, np.zeros(m), r)
+    for got in (step.solve(*args, None, 30, f2), step.solve(*args, None, 30)):  # then kept
+        want = built(f2).solve(*args, None, 30)
+        assert (np.array_equal(got[3], want[3]), got[4], got[5]) == (True, want[4], want[5]) and got[5]
+        assert (got[3] >= 0).any()  # limits bind
+        assert np.abs(got[0] - want[0]).max() <= 1e-12 * np.abs(want[0]).max()
+        assert np.abs(got[2] - want[2]).max() <= 1e-12 * max(np.abs(want[2]).max(), 1.0)
+        assert got[1] == pytest.approx(want[1], rel=1e-12)
+    used = np.argwhere(rows.comp >= 0)[0]
+    bad = f2.copy()
+    bad[tuple(used)] = np.inf
+    with pytest.raises(ValueError, match="not finite"):
+        step.solve(*args, None, 30, bad)

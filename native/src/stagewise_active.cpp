@@ -6,9 +6,11 @@
 // stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
 // reference; this file follows it function by function (same names). One workspace serves every
 // sweep of a solve and is kept from solve to solve (a controller's steps allocate nothing once the
-// first has sized it). Two entry points: `stagewise_active` (any StageQP of input rows; one workspace
-// per thread) and the class `RiccatiActive` (a linear form's limited step in one call: its stage
-// models and criterion built here, gpc/stagewise.py; its own workspace).
+// first has sized it); the sweep's and the multipliers' stage products are fixed-size for the stage
+// sizes of the robots measured (with_stage_sizes), dynamic for the others. Two entry points:
+// `stagewise_active` (any StageQP of input rows; one workspace per thread) and the class
+// `RiccatiActive` (a form's limited step in one call: its stage models and criterion built here,
+// gpc/stagewise.py; its own workspace).
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
@@ -586,16 +588,20 @@ class RiccatiActive {
     read_rows(qp_, comp, sign, f, "RiccatiActive");
   }
 
-  // the used rows' bounds from f (N, k), row-major (the unused rows' entries are not read)
+  // the used rows' bounds from f (N, k), row-major (the unused rows' entries are not read); checked
+  // whole before any is kept
   void set_bounds(const double *f) {
+    for (long i = 0; i < qp_.nd; ++i)
+      for (const Row &row : qp_.rows[i])
+        if (!std::isfinite(f[i * qp_.k + row.r]))
+          throw std::invalid_argument("RiccatiActive.solve: the bound f[" + std::to_string(i) + ", " +
+                                      std::to_string(row.r) + "] of a used row is not finite (" +
+                                      std::to_string(f[i * qp_.k + row.r]) +
+                                      "); the rows in use are fixed at construction");
     qp_.f_scale = 1e-12;
     for (long i = 0; i < qp_.nd; ++i)
       for (Row &row : qp_.rows[i]) {
         row.f = f[i * qp_.k + row.r];
-        if (!std::isfinite(row.f))
-          throw std::invalid_argument("RiccatiActive.solve: the bound f[" + std::to_string(i) + ", " +
-                                      std::to_string(row.r) + "] of a used row is not finite (" +
-                                      std::to_string(row.f) + "); the rows in use are fixed at construction");
         qp_.f_scale = std::max(qp_.f_scale, std::abs(row.f));
       }
   }
