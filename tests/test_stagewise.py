@@ -17,6 +17,7 @@ from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
+from parallel_gpc.gpc.stagewise import StagewiseSolver
 from parallel_gpc.gpc.stages import FORM_CODES
 from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
@@ -887,3 +888,32 @@ def test_a_compiled_nonlinear_step_given_new_bounds_answers_as_one_built_with_th
     bad[tuple(used)] = np.inf
     with pytest.raises(ValueError, match="not finite"):
         step.solve(*args, None, 30, bad)
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("with_c", [True, False], ids=["c", "no-c"])
+def test_the_compiled_step_reads_per_stage_models_in_place(with_c):
+    """The benchmark's LTV row: the absolute form (Nu = N: the stage models are the step's A_i, B_i, c_i,
+    read in place) with a model per stage, warm-started over moving states: the compiled limited step
+    gives the Python reference's sweeps and plan (≤ 1e-9), and a controller's own one-model step after
+    it still its own answer (the stages re-read, nothing of the per-stage arrays kept)."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "absolute", "torque", cases=INPUT_CASES)
+    H, n, m = ctl.horizons, ctl.n_x, ctl.n_u
+    solvers = [StagewiseSolver(*ctl._criterion.weights.blocks(robot.n_y, m), ctl.model.C, H, "absolute",
+                               ctl._qp_limits, TS, native=native) for native in (False, True)]
+    rng = np.random.default_rng(13)
+    for k in range(4):
+        Ad, Bd, cd, base = ctl.linear_stages(X)
+        A = Ad * (1.0 + 1e-3 * rng.standard_normal((H.N, n, n)))
+        B = Bd * (1.0 + 1e-2 * rng.standard_normal((H.N, n, m)))
+        c = (np.asarray(cd) + 1e-3 * rng.standard_normal((H.N, n))) if with_c else None
+        results = [s.solve((A, B, c, X, None), w, ctl.model.C @ X, warm=k > 0)[0] for s in solvers]
+        assert solvers[0].iterations == solvers[1].iterations and solvers[1].method == "active-set"
+        python, compiled = results
+        assert python.status == compiled.status == "optimal" and compiled.active_limits
+        assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
+        X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
+    assert solvers[1]._step is not None
+    one = [s.solve((Ad, Bd, cd, X, None), w, ctl.model.C @ X)[0] for s in solvers]  # one model for every stage
+    assert np.abs(one[1].v - one[0].v).max() <= 1e-9 * np.abs(one[0].v).max()

@@ -584,7 +584,7 @@ class RiccatiActive {
       qp_.q.emplace_back(q_.data() + i * nz, nz);
     }
     qp_.R = 2.0 * Wu.transpose() * Wu;
-    qp_.z0 = Vec::Zero(nz);
+    qp_.z0 = Vec::Zero(nz);  // with nz == n, qp_.A, B and c are re-seated on each step's arrays (solve)
     read_rows(qp_, comp, sign, f, "RiccatiActive");
   }
 
@@ -613,9 +613,17 @@ class RiccatiActive {
                        const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
                        const double *f, double &J) {
     if (f) set_bounds(f);
-    for (long i = 0; i < N; ++i)
-      stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
-                        c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+    if (nz == n) {  // Ā_i = A_i, B̄_i = B_i, c̄_i = c_i (absolute, Nu = N): read in place, no copy
+      for (long i = 0; i < N; ++i) {
+        new (&qp_.A[i]) CMap(A + (nA == 1 ? 0 : i) * n * n, n, n);
+        new (&qp_.B[i]) CMap(B + (nB == 1 ? 0 : i) * n * m, n, m);
+        new (&qp_.c[i]) VMap(c ? c + (nc == 1 ? 0 : i) * n : cb_.data() + i * nz, n);  // cb_: zeros
+      }
+    } else {
+      for (long i = 0; i < N; ++i)
+        stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
+                          c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+    }
     if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
     if (form == 1 || form == 2) qp_.z0.tail(m) = VMap(u0, m);
     Eigen::Map<const RowMat> W(r, N - No, p);
