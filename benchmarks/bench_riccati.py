@@ -2,7 +2,7 @@
 """Time the absolute and incremental steps with ``solver="riccati"`` against ``"qr"``.
 
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
-``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr]``
+``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
 absolute form, on the full plant) are recorded; then every configuration steps through the same
@@ -26,6 +26,7 @@ from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.gpc.prediction import Horizons
 from parallel_gpc.gpc.references import SCurve, path_for
+from parallel_gpc.gpc.settings import condensed_default
 from parallel_gpc.limits import Limits
 from parallel_gpc.model.dynamics import ReducedModel
 from parallel_gpc.model.plant import ConstrainedPlant
@@ -84,10 +85,11 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
               f"max|u − u_qr|/max|u_qr| = {diff:.1e}")
 
 
-def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None:
+def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: list[str]) -> None:
     """``--limited``: the torque-limited step (τ = half the unconstrained run's largest |u|) with
     ``solver="riccati"`` (the stage-wise active set; the interior point when its set does not
-    settle) against the condensed default of the form, and against the unconstrained Riccati step
+    settle) against the condensed default of the form (:func:`condensed_default`: what ``solver=None``
+    resolves to without the stage-wise path), and against the unconstrained Riccati step
     of the same form; per N, then the fitted exponent of the step time in N. Also the active
     set's sweeps per step (the first step of a pass cold, the others warm) and how many steps
     went to the interior point."""
@@ -97,13 +99,14 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None
     rows = {}
     for N in horizons:
         Xs, ws = _states(robot, ref, N, samples)
-        for form in ("absolute", "incremental"):
+        for form in forms:
             free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
             tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
             configs = {"unconstrained riccati": free}
-            for solver in ("riccati", None):
-                configs[f"limited {solver or 'default'}"] = GPCController.build(
-                    model, TS, Horizons(N), WEIGHTS, form=form, solver=solver, limits=Limits(torque=tau))
+            limits = Limits(torque=tau)
+            for key, solver in (("riccati", "riccati"), ("condensed", condensed_default(form, limits))):
+                configs[f"limited {key}"] = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form,
+                                                                solver=solver, limits=limits)
             times = {key: [] for key in configs}
             us = {key: [] for key in configs}
             sweeps, ipm = {"cold": [], "warm": []}, 0
@@ -121,17 +124,17 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int) -> None
                             sweeps["warm" if k else "cold"].append(stagewise.iterations[0])
                             ipm += stagewise.method != "active-set"
             med = {key: 1e6 * float(np.median(t)) for key, t in times.items()}
-            lim, dflt = np.array(us["limited riccati"]), np.array(us["limited default"])
+            lim, dflt = np.array(us["limited riccati"]), np.array(us["limited condensed"])
             rows[(form, N)] = med
-            print(f"{name} {form:11s} N = {N:3d}: limited riccati {med['limited riccati']:9.1f} µs, limited default "
-                  f"({configs['limited default'].solver}) {med['limited default']:8.1f} µs, unconstrained riccati "
+            print(f"{name} {form:11s} N = {N:3d}: limited riccati {med['limited riccati']:9.1f} µs, limited condensed "
+                  f"({configs['limited condensed'].solver}) {med['limited condensed']:8.1f} µs, unconstrained riccati "
                   f"{med['unconstrained riccati']:7.1f} µs; limited/unconstrained "
-                  f"{med['limited riccati'] / med['unconstrained riccati']:5.2f}, default/riccati "
-                  f"{med['limited default'] / med['limited riccati']:5.2f}; max|Δu|/τ {np.abs(lim - dflt).max() / tau:.1e}; "
+                  f"{med['limited riccati'] / med['unconstrained riccati']:5.2f}, condensed/riccati "
+                  f"{med['limited condensed'] / med['limited riccati']:5.2f}; max|Δu|/τ {np.abs(lim - dflt).max() / tau:.1e}; "
                   f"sweeps cold {np.mean(sweeps['cold']):.1f} warm {np.mean(sweeps['warm']):.2f}, "
                   f"{ipm}/{len(sweeps['cold']) + len(sweeps['warm'])} steps by the interior point")
-    for form in ("absolute", "incremental"):
-        for key in ("limited riccati", "limited default", "unconstrained riccati"):
+    for form in forms:
+        for key in ("limited riccati", "limited condensed", "unconstrained riccati"):
             t = [rows[(form, N)][key] for N in horizons]
             slope = np.polyfit(np.log(horizons), np.log(t), 1)[0]
             print(f"{form:11s} {key:22s} time ∝ N^{slope:.2f} over N = {horizons}")
@@ -145,9 +148,11 @@ def main() -> None:
     parser.add_argument("--limited", action="store_true", help="the torque-limited step (stage-wise active set)")
     parser.add_argument("--horizons", default="20,40,80,160", help="N values of --limited")
     parser.add_argument("--robot", default="planar_4rrr", help="robot of --limited")
+    parser.add_argument("--forms", default="absolute,incremental", help="forms of --limited")
     args = parser.parse_args()
     if args.limited:
-        run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples)
+        run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples,
+                    args.forms.split(","))
         return
     for case in args.cases.split(","):
         name, N = case.split(":")

@@ -17,6 +17,7 @@ from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
+from parallel_gpc.gpc.stagewise import StagewiseSolver
 from parallel_gpc.gpc.stages import FORM_CODES
 from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
@@ -434,18 +435,17 @@ INPUT_CASES = {  # torque and Δu limits tight enough to bind on many stages
 @pytest.mark.parametrize("horizons", [dict(N=12), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
 @pytest.mark.parametrize("case", list(INPUT_CASES))
 @pytest.mark.parametrize("form", FORMS)
-@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups"])  # redundant drives; prismatic drives
+@pytest.mark.parametrize("name", ["planar_4rrr", "hexapod_6ups", "delta_3rus"])  # redundant; prismatic; spatial
 def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horizons):
     """Torque and Δu limits: the active set (not the interior point) reaches DAQP's plan and objective
     on the condensed problem to 1e-8, its KKT residual (NNLS on the active rows) at the rounding
-    floor, the limits binding on several stages. The nonlinear form's torque rows after Nu act on
-    the held state alone: that problem goes to the interior point."""
+    floor, the limits binding on several stages. Every form, the nonlinear one's torque rows after Nu
+    (on the held input: stage Nu − 1's tightest, input_bounds) included."""
     robot = ParallelRobot.load(name)
     ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
     path = ctl._riccati
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
-    H = ctl.horizons
-    expected = "interior-point" if form == "nonlinear" and H.Nu < H.N and "torque" in case else "active-set"
+    expected = "active-set"
     assert path.constrained.method == expected
     assert result.status == "optimal" and result.message == "", result.message
     full, x_ref = _condensed(ctl, X, w)
@@ -458,6 +458,11 @@ def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horiz
     if expected == "active-set":
         binding = (path.constrained._fixed >= 0).any(axis=1)
         assert binding.sum() >= 2, binding
+    H = ctl.horizons
+    if form == "nonlinear" and H.Nu < H.N and case == "torque":  # rows after Nu bind here (moved to stage Nu − 1)
+        pred = path.input_map(ctl, path.stages(ctl, X, w[H.No:]))
+        U = (pred.u_base + pred.u_map @ result.v).reshape(-1, ctl.n_u)
+        assert np.isclose(np.abs(U[H.Nu:]), ctl._qp_limits.torque, rtol=1e-9).any()
 
 
 def _input_row_qp(seed: int, incremental: bool, du: bool = True):
@@ -622,13 +627,14 @@ if not HAS_COMPILED_STEP and os.environ.get("CI"):
 @pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
 @pytest.mark.parametrize("horizons", [dict(N=15), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
 @pytest.mark.parametrize("case", ["torque", "du", "torque+du"])
-@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
-def test_compiled_limited_step_equals_the_python_path_along_warm_steps(form, case, horizons):
-    """The compiled limited step of a linear form (``_native.RiccatiActive``: stage models, criterion,
-    active set and J in one call) against the Python reference (stage_models, stage_problem,
-    solve_active_set) over five warm-started steps at moving states: the same method and sweeps on
-    every step, plans ≤ 1e-9 and J ≤ 1e-9 relative."""
-    robot = ParallelRobot.load("planar_4rrr")
+@pytest.mark.parametrize("form", FORMS)
+@pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
+def test_compiled_limited_step_equals_the_python_path_along_warm_steps(name, form, case, horizons):
+    """The compiled limited step (``_native.RiccatiActive``: stage models, criterion, active set and J
+    in one call; the nonlinear form's bounds passed each step) against the Python reference
+    (stage_models, stage_problem, solve_active_set) over five warm-started steps at moving states:
+    the same method and sweeps on every step, plans ≤ 1e-9 and J ≤ 1e-9 relative."""
+    robot = ParallelRobot.load(name)
     ctl, X, w = _setup(robot, form, case, cases=INPUT_CASES, **horizons)
     paths = [RiccatiPath(ctl._criterion, ctl.model.C, form, native=native, limits=ctl._qp_limits, Ts=TS)
              for native in (False, True)]
@@ -714,21 +720,24 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
 
 
-def _row_excess(ctl: GPCController, form: str, v, base) -> float:
+def _row_excess(ctl: GPCController, stages: tuple, v) -> float:
     """The largest excess (N·m) of the plan v's torque and Δu rows over the QP's (tightened) limits,
-    recomputed here from the inputs: u(i) = v(i) (absolute) or base + Σ_{l ≤ i} v(l), Δu(i) = v(i)."""
+    recomputed here from the inputs u = u_base + u_map v of the form's input map (the nonlinear form's
+    every pre-simulated step), Δu(i) = u(i) − u(i−1) on the Nu decided steps from u(k−1) (the delayed
+    form: from u(k), the input it holds)."""
     lim, m = ctl._qp_limits, ctl.n_u
-    V = np.asarray(v).reshape(-1, m)
-    U = V if form == "absolute" else base + np.cumsum(V, axis=0)
+    pred = ctl._riccati.input_map(ctl, stages)
+    U = (pred.u_base + pred.u_map @ np.ravel(v)).reshape(-1, m)
     excess = [np.max(np.abs(U) - lim.torque)] if lim.torque is not None else []
     if lim.du is not None:
-        excess.append(np.max(np.abs(V) - lim.du))
+        first = ctl.u_prev if stages[4] is None else stages[4]
+        excess.append(np.max(np.abs(np.diff(np.vstack([first, U]), axis=0)[:ctl.horizons.Nu]) - lim.du))
     return float(max(excess))
 
 
 @pytest.mark.parametrize("native", [False, True], ids=["python", "compiled"])
 @pytest.mark.parametrize("case", list(INPUT_CASES))
-@pytest.mark.parametrize("form", ["absolute", "incremental", "incremental-delayed"])
+@pytest.mark.parametrize("form", FORMS)
 def test_the_active_sets_verified_excess_keeps_the_true_limits(form, case, native):
     """What lets the controller skip its own first-move check of a limited stage-wise step: the active
     set's verified row excess (its KKT residual × the largest bound) bounds every row's excess
@@ -750,9 +759,9 @@ def test_the_active_sets_verified_excess_keeps_the_true_limits(form, case, nativ
         result = path.solve(*stages, warm=k > 0)
         assert result.status == "optimal" and path.constrained.method == "active-set", result.message
         scale = float(np.max(np.abs(ctl._qp_limits.torque if ctl._qp_limits.torque is not None else ctl._qp_limits.du)))
-        assert _row_excess(ctl, form, result.v, stages[4]) <= path.excess + 1e-13 * scale
+        assert _row_excess(ctl, stages, result.v) <= path.excess + 1e-13 * scale
         assert path.excess <= gap  # certified: the controller does not check it again
-        assert limit_violation(path.input_map(ctl, stages), result.v, form, ctl.u_prev, ctl._limits) == ""
+        assert limit_violation(ctl._riccati.input_map(ctl, stages), result.v, form, ctl.u_prev, ctl._limits) == ""
         binding += result.active_limits
         X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
     assert binding  # the limits bind: the certificate is about rows that matter
@@ -775,7 +784,7 @@ def test_the_compiled_steps_residual_bounds_the_broken_rows(form, case):
     v, _, _, _, _, ok, residual, _ = sw._step.solve(
         np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), np.asarray(c, float).reshape(-1),
         X, np.zeros(m) if u0 is None else u0, r, None, 1)
-    excess = _row_excess(ctl, form, v, u0)
+    excess = _row_excess(ctl, (A, B, c, x0, u0, r), v)
     assert excess > 0.0 and not ok  # one sweep leaves rows broken
     assert excess <= residual * sw._f_scale * (1.0 + 1e-12)
 
@@ -840,3 +849,71 @@ def test_a_stagewise_plan_the_solver_did_not_verify_is_checked_by_the_controller
     info = ctl.step(X, w)
     assert info.replaced and "torque limit" in info.result.message and info.result.ok
     assert np.all(np.abs(info.u) <= ctl._limits.torque)
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("horizons", [dict(N=12), dict(N=15, No=2, Nu=5)], ids=["Nu=N", "No=2,Nu=5"])
+def test_a_compiled_nonlinear_step_given_new_bounds_answers_as_one_built_with_them(horizons):
+    """The nonlinear form's bounds move with the pre-simulated inputs: RiccatiActive.solve takes each step's
+    (input_bounds). A step built with the first state's bounds and given the next state's answers as one
+    built with those (set, sweeps, plan, multipliers, J ≤ 1e-12 relative), and the bounds then stay; a
+    used row given a non-finite bound is a clear error, not a silently dropped limit."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "nonlinear", "torque+du", cases=INPUT_CASES, **horizons)
+    ctl.step(X, w)  # builds the compiled step
+    sw, H, n, m = ctl._riccati.constrained, ctl.horizons, ctl.n_x, ctl.n_u
+    qp = sw._template[0]
+    rows = sw._input_rows(qp)
+
+    def built(f):
+        return native_module().RiccatiActive(sw.C, sw.Wy, sw.Wu, H.N, H.No, H.Nu, FORM_CODES["nonlinear"], qp.Fz, f,
+                                             np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+
+    step = built(qp.f)
+    X2 = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.05)])
+    A, B, _, _, _, r = ctl._riccati.stages(ctl, X2, w[H.No:])
+    extra = ctl._riccati._extra
+    f2 = sw._step_bounds(extra["u_sim"], extra["u_prev"])
+    assert not np.allclose(f2[np.isfinite(f2)], qp.f[np.isfinite(qp.f)])  # the bounds did move
+    args = (np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m), np.zeros(0), X2, np.zeros(m), r)
+    for got in (step.solve(*args, None, 30, f2), step.solve(*args, None, 30)):  # then kept
+        want = built(f2).solve(*args, None, 30)
+        assert (np.array_equal(got[3], want[3]), got[4], got[5]) == (True, want[4], want[5]) and got[5]
+        assert (got[3] >= 0).any()  # limits bind
+        assert np.abs(got[0] - want[0]).max() <= 1e-12 * np.abs(want[0]).max()
+        assert np.abs(got[2] - want[2]).max() <= 1e-12 * max(np.abs(want[2]).max(), 1.0)
+        assert got[1] == pytest.approx(want[1], rel=1e-12)
+    used = np.argwhere(rows.comp >= 0)[0]
+    bad = f2.copy()
+    bad[tuple(used)] = np.inf
+    with pytest.raises(ValueError, match="not finite"):
+        step.solve(*args, None, 30, bad)
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("with_c", [True, False], ids=["c", "no-c"])
+def test_the_compiled_step_reads_per_stage_models_in_place(with_c):
+    """The benchmark's LTV row: the absolute form (Nu = N: the stage models are the step's A_i, B_i, c_i,
+    read in place) with a model per stage, warm-started over moving states: the compiled limited step
+    gives the Python reference's sweeps and plan (≤ 1e-9), and a controller's own one-model step after
+    it still its own answer (the stages re-read, nothing of the per-stage arrays kept)."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, "absolute", "torque", cases=INPUT_CASES)
+    H, n, m = ctl.horizons, ctl.n_x, ctl.n_u
+    solvers = [StagewiseSolver(*ctl._criterion.weights.blocks(robot.n_y, m), ctl.model.C, H, "absolute",
+                               ctl._qp_limits, TS, native=native) for native in (False, True)]
+    rng = np.random.default_rng(13)
+    for k in range(4):
+        Ad, Bd, cd, base = ctl.linear_stages(X)
+        A = Ad * (1.0 + 1e-3 * rng.standard_normal((H.N, n, n)))
+        B = Bd * (1.0 + 1e-2 * rng.standard_normal((H.N, n, m)))
+        c = (np.asarray(cd) + 1e-3 * rng.standard_normal((H.N, n))) if with_c else None
+        results = [s.solve((A, B, c, X, None), w, ctl.model.C @ X, warm=k > 0)[0] for s in solvers]
+        assert solvers[0].iterations == solvers[1].iterations and solvers[1].method == "active-set"
+        python, compiled = results
+        assert python.status == compiled.status == "optimal" and compiled.active_limits
+        assert np.abs(compiled.v - python.v).max() <= 1e-9 * np.abs(python.v).max()
+        X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
+    assert solvers[1]._step is not None
+    one = [s.solve((Ad, Bd, cd, X, None), w, ctl.model.C @ X)[0] for s in solvers]  # one model for every stage
+    assert np.abs(one[1].v - one[0].v).max() <= 1e-9 * np.abs(one[0].v).max()

@@ -6,9 +6,11 @@
 // stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
 // reference; this file follows it function by function (same names). One workspace serves every
 // sweep of a solve and is kept from solve to solve (a controller's steps allocate nothing once the
-// first has sized it). Two entry points: `stagewise_active` (any StageQP of input rows; one workspace
-// per thread) and the class `RiccatiActive` (a linear form's limited step in one call: its stage
-// models and criterion built here, gpc/stagewise.py; its own workspace).
+// first has sized it); the sweep's and the multipliers' stage products are fixed-size for the stage
+// sizes of the robots measured (with_stage_sizes), dynamic for the others. Two entry points:
+// `stagewise_active` (any StageQP of input rows; one workspace per thread) and the class
+// `RiccatiActive` (a form's limited step in one call: its stage models and criterion built here,
+// gpc/stagewise.py; its own workspace).
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
@@ -50,8 +52,8 @@ using VMap = Eigen::Map<const Vec>;
 // X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs and the
 // reciprocals of its diagonal d: plain substitution (Eigen's triangular solve packs its operands for a
 // blocked product, slower at these sizes)
-template <class M>
-void neg_chol_solve(const Mat &L, const Vec &d, M &X) {
+template <class ML, class VD, class M>
+void neg_chol_solve(const ML &L, const VD &d, M &X) {
   const long n = L.rows();
   for (long c = 0; c < X.cols(); ++c) {
     for (long a = 0; a < n; ++a) {
@@ -78,6 +80,49 @@ struct QP {  // views of the caller's arrays (no copy)
   double f_scale = 1e-12;
 };
 
+// f(std::integral_constant<int, NZ>, std::integral_constant<int, M>) with the stage sizes (nz, m) fixed
+// at compile time where they are those of the robots measured (the state without / with the input
+// held in it: planar_3rrr and delta_3rus (6, 3), (9, 3); planar_4rrr (6, 4), (10, 4)), else Dynamic
+template <class F>
+decltype(auto) with_stage_sizes(long nz, long m, F &&f) {
+  using std::integral_constant;
+  if (nz == 6 && m == 3) return f(integral_constant<int, 6>(), integral_constant<int, 3>());
+  if (nz == 6 && m == 4) return f(integral_constant<int, 6>(), integral_constant<int, 4>());
+  if (nz == 9 && m == 3) return f(integral_constant<int, 9>(), integral_constant<int, 3>());
+  if (nz == 10 && m == 4) return f(integral_constant<int, 10>(), integral_constant<int, 4>());
+  return f(integral_constant<int, Eigen::Dynamic>(), integral_constant<int, Eigen::Dynamic>());
+}
+
+// The temporaries of one sweep's stage: fixed-size (on the stack, products unrolled) for the stage
+// sizes of the common robots (Sweep::run's table), dynamic otherwise (kept in the Sweep: no
+// allocation once sized). NZ: the stage state's size, M: the inputs'.
+template <int NZ, int M>
+struct SweepTemps {
+  using MZ = Eigen::Matrix<double, NZ, NZ>;
+  using MZM = Eigen::Matrix<double, NZ, M>;
+  using MMZ = Eigen::Matrix<double, M, NZ>;
+  using MM = Eigen::Matrix<double, M, M>;
+  using VZ = Eigen::Matrix<double, NZ, 1>;
+  using VM = Eigen::Matrix<double, M, 1>;
+  using MF = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, M, M>;  // free × free
+  using MFZ = Eigen::Matrix<double, Eigen::Dynamic, NZ, Eigen::ColMajor, M, NZ>;           // free × state
+  using VF = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, M, 1>;
+  MZ P, Pz, PA;
+  MZM PB;
+  MM Hvv;
+  MMZ Hvz, Hz;
+  MF Hww;
+  MFZ Hwz;
+  VZ p, lin, w;
+  VM gv;
+  VF gw, vf, dinv;
+  Eigen::LLT<MF> llt;
+  void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
+    P.resize(nz, nz), Pz.resize(nz, nz), PA.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
+    Hvz.resize(m, nz), Hz.resize(m, nz), p.resize(nz), lin.resize(nz), w.resize(nz), gv.resize(m);
+  }
+};
+
 // The Riccati sweep of a fixed set (_sweep in the Python twin), its buffers kept from sweep to sweep
 // and from solve to solve (part of a Workspace)
 struct Sweep {
@@ -90,9 +135,7 @@ struct Sweep {
   Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
-  Mat P, Pz, PA, PB, Hvv, Hvz, Hz, Hww, Hwz;
-  Vec p, lin, w, gv, gw, vf, dinv;
-  Eigen::LLT<Mat> llt;
+  SweepTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size sweep
 
   // bind to qp (a new solve: nothing of the last sweep kept), the per-stage buffers sized for it
   void prepare(const QP &qp) {
@@ -112,9 +155,39 @@ struct Sweep {
     }
   }
 
+  // the sweep, with the stage sizes (nz, m) of the robots measured fixed at compile time (the same
+  // operations as the dynamic sweep; the sums of a product may round in another order)
   void run(const Set &fixed, Traj &z, Traj &v) {
+    with_stage_sizes(qpp->nz, qpp->m, [&](auto nz_, auto m_) { run_sized<nz_(), m_()>(fixed, z, v); });
+  }
+
+  template <int NZ, int M>
+  void run_sized(const Set &fixed, Traj &z, Traj &v) {
+    if constexpr (NZ == Eigen::Dynamic) {
+      dyn.resize(qpp->nz, qpp->m);
+      sweep<NZ, M>(dyn, fixed, z, v);
+    } else {
+      SweepTemps<NZ, M> t;
+      sweep<NZ, M>(t, fixed, z, v);
+    }
+  }
+
+  template <int NZ, int M>
+  void sweep(SweepTemps<NZ, M> &t, const Set &fixed, Traj &z, Traj &v) {
+    using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
+    using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
+    using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
     const QP &qp = *qpp;
-    const long N = qp.N, nd = qp.nd, m = qp.m;
+    const long N = qp.N, nd = qp.nd, m = qp.m, nz = qp.nz;
+    auto &P = t.P, &Pz = t.Pz, &PA = t.PA;
+    auto &PB = t.PB;
+    auto &Hvv = t.Hvv;
+    auto &Hvz = t.Hvz, &Hz = t.Hz;
+    auto &Hww = t.Hww;
+    auto &Hwz = t.Hwz;
+    auto &p = t.p, &lin = t.lin, &w = t.w;
+    auto &gv = t.gv;
+    auto &gw = t.gw, &dinv = t.dinv;
     long top = N - 1;  // the last stage to redo
     if (valid) {
       top = -1;
@@ -129,16 +202,16 @@ struct Sweep {
       p = ps[top + 1];
     }
     for (long i = top; i >= 0; --i) {
-      const CMap &A = qp.A[i];
+      const AM A(qp.A[i].data(), nz, nz);
       PA.noalias() = P.lazyProduct(A);
       w = p;
-      w.noalias() += P.lazyProduct(qp.c[i]);
-      Pz = qp.Q[i];
+      w.noalias() += P.lazyProduct(ZV(qp.c[i].data(), nz));
+      Pz = AM(qp.Q[i].data(), nz, nz);
       Pz.noalias() += A.transpose().lazyProduct(PA);
-      lin = qp.q[i];
+      lin = ZV(qp.q[i].data(), nz);
       lin.noalias() += A.transpose().lazyProduct(w);
       if (i < nd) {
-        const CMap &B = qp.B[i];
+        const BM B(qp.B[i].data(), nz, m);
         PB.noalias() = P.lazyProduct(B);
         Hvv = qp.R;
         Hvv.noalias() += B.transpose().lazyProduct(PB);
@@ -160,20 +233,16 @@ struct Sweep {
             has_E[i] = 1;
           }
         }
+        Hz = Hvz;
         if (any_fixed) {
           lin.noalias() += Hvz.transpose().lazyProduct(ei);
           gv.noalias() += Hvv.lazyProduct(ei);
           if (has_E[i]) {
-            Hz = Hvz;
             Hz.noalias() += Hvv.lazyProduct(Ei);
             Pz.noalias() += Ei.transpose().lazyProduct(Hvz);
             Pz.noalias() += Hz.transpose().lazyProduct(Ei);
             lin.noalias() += Ei.transpose().lazyProduct(gv);
-          } else {
-            Hz = Hvz;
           }
-        } else {
-          Hz = Hvz;
         }
         std::vector<long> &fr = free[i];
         fr.clear();
@@ -187,7 +256,7 @@ struct Sweep {
             gw = gv;
           } else {
             Hww.resize(nf, nf);
-            Hwz.resize(nf, qp.nz);
+            Hwz.resize(nf, nz);
             gw.resize(nf);
             for (long a = 0; a < nf; ++a) {
               for (long b = 0; b < nf; ++b) Hww(a, b) = Hvv(fr[a], fr[b]);
@@ -198,16 +267,16 @@ struct Sweep {
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          llt.compute(Hww);
-          if (llt.info() != Eigen::Success)
+          t.llt.compute(Hww);
+          if (t.llt.info() != Eigen::Success)
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          dinv = llt.matrixLLT().diagonal().cwiseInverse();
+          dinv = t.llt.matrixLLT().diagonal().cwiseInverse();
           K[i] = Hwz;
-          neg_chol_solve(llt.matrixLLT(), dinv, K[i]);
+          neg_chol_solve(t.llt.matrixLLT(), dinv, K[i]);
           k[i] = gw;
-          neg_chol_solve(llt.matrixLLT(), dinv, k[i]);
+          neg_chol_solve(t.llt.matrixLLT(), dinv, k[i]);
           Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
           lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
         }
@@ -222,8 +291,10 @@ struct Sweep {
     z.resize(N + 1);
     v.resize(nd);
     z[0] = qp.z0;
+    auto &vf = t.vf;
     for (long i = 0; i < N; ++i) {
-      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+      const AM A(qp.A[i].data(), nz, nz);
+      z[i + 1].noalias() = A.lazyProduct(z[i]);
       z[i + 1] += qp.c[i];
       if (i < nd) {
         v[i] = e[i];
@@ -234,7 +305,7 @@ struct Sweep {
           vf.noalias() += K[i].lazyProduct(z[i]);
           for (size_t a = 0; a < fr.size(); ++a) v[i](fr[a]) = vf(long(a));
         }
-        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+        z[i + 1].noalias() += BM(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
     }
   }
@@ -242,24 +313,31 @@ struct Sweep {
 
 // λ (N, k), the free components' v-gradient (nd, m) and the gradient's scale (costates with the active set, in
 // solvers/stagewise_ipm.py)
-struct Costates {  // the buffers of multipliers()
-  Vec nu, nxt, g, Rv;
+template <int NZ, int M>
+struct Costates {  // the buffers of multipliers() (fixed-size, or dynamic and kept in the Workspace)
+  Eigen::Matrix<double, NZ, 1> nu, nxt;
+  Eigen::Matrix<double, M, 1> g, Rv;
 };
 
-double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
-                   Costates &buf) {
-  const long N = qp.N, nd = qp.nd;
+template <int NZ, int M>
+double multipliers_sized(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
+                         Costates<NZ, M> &buf) {
+  using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
+  using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
+  using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
+  const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
   lam.setZero(N, qp.k);
   grad.setZero(nd, qp.m);
   double scale = 0.0;
-  Vec &nu = buf.nu, &nxt = buf.nxt, &g = buf.g, &Rv = buf.Rv;
-  nu.noalias() = qp.Q[N] * z[N];
-  nu += qp.q[N];
+  auto &nu = buf.nu, &nxt = buf.nxt;
+  auto &g = buf.g, &Rv = buf.Rv;
+  nu.noalias() = AM(qp.Q[N].data(), nz, nz).lazyProduct(z[N]);
+  nu += ZV(qp.q[N].data(), nz);
   for (long i = N - 1; i >= 0; --i) {
-    nxt.noalias() = qp.A[i].transpose().lazyProduct(nu);
+    nxt.noalias() = AM(qp.A[i].data(), nz, nz).transpose().lazyProduct(nu);
     if (i < nd) {
       Rv.noalias() = qp.R.lazyProduct(v[i]);
-      g.noalias() = qp.B[i].transpose().lazyProduct(nu);
+      g.noalias() = BM(qp.B[i].data(), nz, m).transpose().lazyProduct(nu);
       scale = std::max({scale, Rv.cwiseAbs().maxCoeff(), g.cwiseAbs().maxCoeff()});
       g += Rv;
       for (long j = 0; j < qp.m; ++j)
@@ -272,12 +350,26 @@ double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v,
       }
     }
     if (i > 0) {
-      nu.noalias() = qp.Q[i] * z[i];
-      nu += qp.q[i];
+      nu.noalias() = AM(qp.Q[i].data(), nz, nz).lazyProduct(z[i]);
+      nu += ZV(qp.q[i].data(), nz);
       nu += nxt;
     }
   }
   return scale;
+}
+
+// multipliers_sized with the stage sizes of with_stage_sizes; buf: the dynamic sizes' buffers
+double multipliers(const QP &qp, const Set &fixed, const Traj &z, const Traj &v, RowMat &lam, RowMat &grad,
+                   Costates<Eigen::Dynamic, Eigen::Dynamic> &buf) {
+  return with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+    constexpr int NZ = nz_(), M = m_();
+    if constexpr (NZ == Eigen::Dynamic) {
+      return multipliers_sized(qp, fixed, z, v, lam, grad, buf);
+    } else {
+      Costates<NZ, M> local;
+      return multipliers_sized(qp, fixed, z, v, lam, grad, local);
+    }
+  });
 }
 
 struct Outcome {
@@ -293,7 +385,7 @@ struct Outcome {
 // everything a solve writes, kept from solve to solve (sized by the first solve of a problem size)
 struct Workspace {
   Sweep sweep;
-  Costates costates;
+  Costates<Eigen::Dynamic, Eigen::Dynamic> costates;
   Outcome out;
   RowMat grad;
   Set fixed, next, brk;  // the set of a sweep (the start on entry), the next one, each component's most broken row
@@ -443,16 +535,18 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
 }
 
 
-// The controller's torque/Δu-limited problem of a linear form (0 absolute, 1 incremental, 2 delayed)
-// in one call per step: the stage models (stage_model.hpp) and the criterion's linear terms built
-// here from the step's (A_d, B_d, c_d, x0, u0, targets), the rows (Fz, f, comp, sign: the controller's
-// StageQP template, the same every step) kept from construction, then solve_active_set and J.
+// The controller's torque/Δu-limited problem of a form (0 absolute, 1 incremental, 2 delayed, 3 the
+// nonlinear form's deviation model) in one call per step: the stage models (stage_model.hpp) and the
+// criterion's linear terms built here from the step's (A_d, B_d, c_d, x0, u0, targets; form 3: A_i,
+// B_i along the pre-simulation, z0 = 0), the rows (Fz, comp, sign: the controller's StageQP template,
+// the same every step) kept from construction with their bounds f, which a step may replace (the
+// nonlinear form's move with the pre-simulated inputs), then solve_active_set and J.
 class RiccatiActive {
  public:
   RiccatiActive(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form, In3 Fz, In2 f,
                 InI comp, In2 sign)
       : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
-    if (form < 0 || form > 2) throw std::invalid_argument("RiccatiActive: form must be 0..2 (a linear form)");
+    if (form < 0 || form > 3) throw std::invalid_argument("RiccatiActive: form must be 0..3");
     if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("RiccatiActive: bad horizons");
     if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("RiccatiActive: weights");
     nz = stage_model::state_size(form, n, m, N, Nu);
@@ -490,20 +584,48 @@ class RiccatiActive {
       qp_.q.emplace_back(q_.data() + i * nz, nz);
     }
     qp_.R = 2.0 * Wu.transpose() * Wu;
-    qp_.z0 = Vec::Zero(nz);
+    qp_.z0 = Vec::Zero(nz);  // with nz == n, qp_.A, B and c are re-seated on each step's arrays (solve)
     read_rows(qp_, comp, sign, f, "RiccatiActive");
   }
 
-  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m), r (N − No, p), start
-  // (Nu, m) or none → the Outcome (v, z, λ, set; valid until the next solve) and J of the criterion (5)
+  // the used rows' bounds from f (N, k), row-major (the unused rows' entries are not read); checked
+  // whole before any is kept
+  void set_bounds(const double *f) {
+    for (long i = 0; i < qp_.nd; ++i)
+      for (const Row &row : qp_.rows[i])
+        if (!std::isfinite(f[i * qp_.k + row.r]))
+          throw std::invalid_argument("RiccatiActive.solve: the bound f[" + std::to_string(i) + ", " +
+                                      std::to_string(row.r) + "] of a used row is not finite (" +
+                                      std::to_string(f[i * qp_.k + row.r]) +
+                                      "); the rows in use are fixed at construction");
+    qp_.f_scale = 1e-12;
+    for (long i = 0; i < qp_.nd; ++i)
+      for (Row &row : qp_.rows[i]) {
+        row.f = f[i * qp_.k + row.r];
+        qp_.f_scale = std::max(qp_.f_scale, std::abs(row.f));
+      }
+  }
+
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (form 3: neither read),
+  // r (N − No, p), start (Nu, m) or none, f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
+  // set; valid until the next solve) and J of the criterion (5)
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
                        const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
-                       double &J) {
-    for (long i = 0; i < N; ++i)
-      stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
-                        c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
-    qp_.z0.head(n) = VMap(x0, n);
-    if (form != 0) qp_.z0.tail(m) = VMap(u0, m);
+                       const double *f, double &J) {
+    if (f) set_bounds(f);
+    if (nz == n) {  // Ā_i = A_i, B̄_i = B_i, c̄_i = c_i (absolute, Nu = N): read in place, no copy
+      for (long i = 0; i < N; ++i) {
+        new (&qp_.A[i]) CMap(A + (nA == 1 ? 0 : i) * n * n, n, n);
+        new (&qp_.B[i]) CMap(B + (nB == 1 ? 0 : i) * n * m, n, m);
+        new (&qp_.c[i]) VMap(c ? c + (nc == 1 ? 0 : i) * n : cb_.data() + i * nz, n);  // cb_: zeros
+      }
+    } else {
+      for (long i = 0; i < N; ++i)
+        stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
+                          c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+    }
+    if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
+    if (form == 1 || form == 2) qp_.z0.tail(m) = VMap(u0, m);
     Eigen::Map<const RowMat> W(r, N - No, p);
     q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
     Set &fixed = ws_.fixed;
@@ -530,6 +652,7 @@ class RiccatiActive {
 
   long n, m, p, N, No, Nu, nz;
   int form;
+  long k() const { return qp_.k; }
 
  private:
   QP qp_;
@@ -585,24 +708,27 @@ void bind_stagewise_active(nb::module_ &m) {
       .def(
           "solve",
           [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
-             In1 u0, In2 r, std::optional<InI> start, int max_iter) {
+             In1 u0, In2 r, std::optional<InI> start, int max_iter, std::optional<In2> f) {
             const long m = self.m;
             const stage_model::StepShape shape = stage_model::check_step(
                 "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
+            if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
+              throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
             double J = 0.0;
             const Outcome &res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
                                            shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
-                                           max_iter, J);
+                                           max_iter, f ? f->data() : nullptr, J);
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
           nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
-          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30,
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(),
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
-          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None");
+          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None; "
+          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last");
 }
 }  // namespace pgpc

@@ -43,8 +43,15 @@ RICCATI_QU_MARGIN = 1e-2
 #: 1e-8 of DAQP's (benchmarks/README.md, "Round 5: the active set on the input rows"). Shorter
 #: horizons were not measured: the condensed default there.
 STAGEWISE_LIMITED_MIN_N = 10
-#: forms and limit kinds the limited stage-wise default was measured on.
-STAGEWISE_LIMITED_FORMS = ("absolute", "incremental")
+#: forms the limited stage-wise default was measured on (torque and Δu limits). The nonlinear form's
+#: torque rows after Nu sit on the held deviation and join the active set through stage Nu − 1
+#: (:func:`~parallel_gpc.gpc.stagewise.input_bounds`); its plan equals DAQP's on the condensed problem to
+#: 1e-8 with a KKT residual ≤ 1e-9 (tests/test_stagewise.py: planar_4rrr, delta_3rus, hexapod_6ups,
+#: Nu = N and Nu < N), and its step is 1.4–1.6× the unconstrained one over N = 20…160 (planar_4rrr,
+#: torque at half the free run's largest |u|: time ∝ N^0.93; the condensed default 1.9–29× slower).
+#: Not the delayed form: there the same bench took 1.9–2.9× the unconstrained step up to N = 80 and at
+#: N = 160 half its steps went to the interior point (15×).
+STAGEWISE_LIMITED_FORMS = ("absolute", "incremental", "nonlinear")
 #: terminal equalities of the tracking forms: ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: that and
 #: ŷ(k+N) = ŷ(k+N−1) (zero mean velocity over the last predicted sample).
 TERMINALS = ("pose", "stop")

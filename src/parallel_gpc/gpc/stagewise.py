@@ -24,8 +24,9 @@ this module only places them on the stages:
 From the controller's second step on, the solve starts from the previous solution shifted by one
 stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; the interior point's
 plan, multipliers and slacks, :class:`~parallel_gpc.solvers.StageStart`).
-Not covered by the active set: the nonlinear form's torque rows after Nu (the held input plus
-the pre-simulated one: a row on the state alone) go to the interior point.
+The nonlinear form's torque rows after Nu (the held deviation plus the pre-simulated input: rows
+on the state alone) bound v(Nu−1) through the held input: stage Nu − 1 keeps the tightest of each
+side (:func:`input_bounds`), and the active set takes them too.
 
 Not covered (refused by :func:`~parallel_gpc.gpc.settings.resolve_solver`): the drive limits
 (drive_position, drive_rate), linearized through the robot's drive Jacobian along the previous
@@ -51,7 +52,7 @@ from .criterion import input_rows
 from .prediction import Horizons
 from .stages import FORM_CODES, stage_models
 
-__all__ = ["StagewiseSolver", "stage_problem", "tracking_gradient", "STAGEWISE_KINDS"]
+__all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "tracking_gradient", "STAGEWISE_KINDS"]
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
@@ -70,6 +71,45 @@ def tracking_gradient(CQ, r, N: int, No: int) -> np.ndarray:
     q = np.zeros((N + 1, CQ.shape[0]))
     q[No + 1:] = -2.0 * np.asarray(r, float) @ CQ.T
     return q
+
+
+def input_bounds(form: str, limits: Limits, horizons: Horizons, m: int, u_sim=None, u_prev=None) -> list[tuple]:
+    """The bounds of the input rows lo ≤ v(i) [+ z(i)[n:]] ≤ hi on the stages: (kind, lo (N, m), hi (N, m))
+    per input kind (``"torque"``, ``"du"``) the limits have, ±inf on the unused rows (stages i ≥ Nu).
+
+    The values of :func:`~parallel_gpc.gpc.criterion.input_rows` (the condensed layout's), less what u(i)
+    holds besides v and the held input: the nonlinear form's pre-simulated u_sim(i) (its Δu bounds come
+    shifted by the drift already). The nonlinear form's torque rows after Nu bound the held deviation,
+    u(i) − u_sim(i) = z(i)[n:] = z(Nu−1)[n:] + v(Nu−1) for i ≥ Nu: every row of the stages i ≥ Nu − 1
+    acts on v(Nu−1) alike, and stage Nu − 1 keeps the tightest of each side (the same feasible set, and
+    rows on a decision: the active set's).
+
+    Args:
+        form: the controller's form. limits: sized to the m drives, input kinds tightened by the margin.
+        horizons: N, Nu. u_sim: (N, m) pre-simulated inputs (nonlinear form, N·m). u_prev: (m,) u(k−1)
+            (nonlinear Δu, N·m).
+    """
+    N, Nu = horizons.N, horizons.Nu
+    nonlinear = form == "nonlinear"
+    rows = input_rows(limits, "absolute" if form == "absolute" else "simulative" if nonlinear else "incremental",
+                      Nu, N if nonlinear else Nu, u_sim, u_prev)
+    bounds = []
+    if rows.torque is not None:
+        hi = np.full((N, m), np.inf)
+        hi[:Nu] = rows.torque[:Nu]
+        lo = -hi
+        if nonlinear:
+            u_sim = np.asarray(u_sim, float)
+            hi[:Nu] -= u_sim[:Nu]
+            lo[:Nu] -= u_sim[:Nu]
+            hi[Nu - 1] = np.min(rows.torque[Nu - 1:] - u_sim[Nu - 1:], axis=0)
+            lo[Nu - 1] = np.max(-rows.torque[Nu - 1:] - u_sim[Nu - 1:], axis=0)
+        bounds.append(("torque", lo, hi))
+    if rows.du_lo is not None:  # a box on v(i), i < Nu
+        lo, hi = np.full((N, m), -np.inf), np.full((N, m), np.inf)
+        lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
+        bounds.append(("du", lo, hi))
+    return bounds
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
@@ -100,26 +140,12 @@ def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, 
     q = tracking_gradient(CQ, r, N, No)
     decided = (np.arange(N) < Nu)[:, None, None]  # v(i) exists on the stages i < Nu
     blocks = []
-    nonlinear = form == "nonlinear"
-    rows = input_rows(limits, "absolute" if form == "absolute" else "simulative" if nonlinear else "incremental",
-                      Nu, N if nonlinear else Nu, u_sim, u_prev)
-    if rows.torque is not None:  # u(i) = z(i)[n:] + v(i) [+ u_sim(i)] (absolute: v(i))
-        n_t = len(rows.torque)
-        Fz, Fv, off = np.zeros((N, m, nz)), np.zeros((N, m, m)), np.zeros((N, m))
-        if form != "absolute":
-            Fz[:n_t, :, nz - m:] = np.eye(m)
-        Fv[:min(n_t, Nu)] = np.eye(m)
-        if nonlinear:
-            off[:n_t] = u_sim[:n_t]
-        hi = np.full((N, m), np.inf)
-        hi[:n_t] = rows.torque
-        blocks.append(_pair("torque", Fz, Fv, off, -hi, hi, False))
-    if rows.du_lo is not None:  # a box on v(i), i < Nu
-        Fv = np.zeros((N, m, m))
+    for kind, lo, hi in input_bounds(form, limits, H, m, u_sim, u_prev):
+        Fz, Fv = np.zeros((N, m, nz)), np.zeros((N, m, m))
         Fv[:Nu] = np.eye(m)
-        lo, hi = np.full((N, m), -np.inf), np.full((N, m), np.inf)
-        lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
-        blocks.append(_pair("du", np.zeros((N, m, nz)), Fv, np.zeros((N, m)), lo, hi, False))
+        if kind == "torque" and form != "absolute":  # u(i) = z(i)[n:] + v(i) [+ u_sim(i), in the bounds]
+            Fz[:Nu, :, nz - m:] = np.eye(m)
+        blocks.append(_pair(kind, Fz, Fv, np.zeros((N, m)), lo, hi, False))
     out_rows = output_rows(limits, H, Ts, p) if out_rows is None else out_rows
     if out_rows:
         # ŷ(i) = C̄ Ā z(i−1) + C̄ B̄ v(i−1) + C̄ c̄(i−1) [+ ŷ_sim(i)], a row of stage i − 1, whose own
@@ -180,10 +206,11 @@ class StagewiseSolver:
             :func:`~parallel_gpc.solvers.solve_active_set` and :func:`~parallel_gpc.solvers.solve_stage_qp`,
             True = compiled or raise.
 
-    A linear form's problem of input rows alone (torque, Δu) is solved in ONE compiled call per step
+    A problem of input rows alone (torque, Δu; every form) is solved in ONE compiled call per step
     (``_native.RiccatiActive``: the stage models, the criterion's linear terms, the active set and J
-    built and solved without a :class:`~parallel_gpc.solvers.StageQP`); the problem is formed in
-    Python only when the interior point takes over.
+    built and solved without a :class:`~parallel_gpc.solvers.StageQP`; the nonlinear form's bounds,
+    which move with the pre-simulated inputs, passed each step); the problem is formed in Python only
+    when the interior point takes over.
 
     Attributes:
         method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
@@ -206,12 +233,12 @@ class StagewiseSolver:
         self._compiled_active = compiled_part(native, "stagewise_active", "the compiled stage-wise active set")
         self._compiled_step = compiled_part(native, "RiccatiActive", "the compiled limited step")
         self.native = self._compiled is not None and self._compiled_active is not None
-        self._step = None  # the compiled RiccatiActive of a linear form's input rows (built on the first step)
+        self._step = None  # the compiled RiccatiActive of a problem of input rows (built on the first step)
         self._zero_u = read_only(np.zeros(self.Wu.shape[0]))
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
-        # the first step's problem when only its models and targets change from step to step (input rows
-        # of the linear forms: Q, the rows and their bounds are the limits' and the weights'), and its kinds
+        # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
+        # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
         self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
         self.method, self.iterations, self.excess = "", (0, 0), np.inf
@@ -283,10 +310,19 @@ class StagewiseSolver:
         return SolveResult(np.full(n_v, np.nan), np.inf, "failed", self.name, None, time.perf_counter() - t0, False,
                            message)
 
-    def _solve_step(self, step: tuple, r, warm: bool, t0: float) -> SolveResult | None:
-        """The compiled limited step of a linear form (``_native.RiccatiActive``): its SolveResult, or
-        None when the active set did not settle (the caller hands the problem to the interior point;
-        the last solution, kept for its warm start, is left in place)."""
+    def _step_bounds(self, u_sim, u_prev) -> np.ndarray | None:
+        """The input rows' bounds f (N, k) of this step where they change from step to step (the
+        nonlinear form's: they move with the pre-simulated inputs), else None (the limits' own)."""
+        if self.form != "nonlinear":
+            return None
+        bounds = input_bounds(self.form, self.limits, self.horizons, self.Wu.shape[0], u_sim, u_prev)
+        return np.concatenate([b for _, lo, hi in bounds for b in (hi, -lo)], axis=1)  # _pair's rows, const 0
+
+    def _solve_step(self, step: tuple, r, warm: bool, t0: float, f: np.ndarray | None) -> SolveResult | None:
+        """The compiled limited step of input rows (``_native.RiccatiActive``), f: the step's bounds of
+        :meth:`_step_bounds` or None: its SolveResult, or None when the active set did not settle (the
+        caller hands the problem to the interior point; the last solution, kept for its warm start, is
+        left in place)."""
         A, B, c, x0, u0 = step
         n, m = self.C.shape[1], self.Wu.shape[0]
         start = shift_active_set(self._fixed) if warm else None
@@ -295,7 +331,7 @@ class StagewiseSolver:
             v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
                 np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
                 np.zeros(0) if c is None else np.asarray(c, float).reshape(-1), x0,
-                self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER)
+                self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER, f)
         except RuntimeError as exc:
             self._last, self._fixed = None, None
             return self._failed(t0, str(exc))
@@ -303,7 +339,8 @@ class StagewiseSolver:
         if not ok:
             self._unsettled = (message, self.iterations)
             return None
-        self.method, self._fixed, self.excess = "active-set", fixed, residual * self._f_scale
+        self.method, self._fixed = "active-set", fixed
+        self.excess = residual * (self._f_scale if f is None else _bound_scale(f))
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
                            bool(fixed.max(initial=-1) >= 0), "")
@@ -326,19 +363,21 @@ class StagewiseSolver:
         t0 = time.perf_counter()
         H = self.horizons
         self.excess = np.inf
+        f = None if self._template is None else self._step_bounds(u_sim, u_prev)
         if self._step is not None:
-            result = self._solve_step(step, r, warm, t0)
+            result = self._solve_step(step, r, warm, t0, f)
             if result is not None:
                 return result, None
         models = stage_models(self.form, *step[:3], self.C, *step[3:], H)
         Ab, Bb, cb, Cz, z0 = models
         if self._template is not None:
             template, kinds, CQ = self._template
-            qp = replace(template, A=Ab, B=Bb, c=cb, z0=z0, q=tracking_gradient(CQ, r, H.N, H.No))
+            qp = replace(template, A=Ab, B=Bb, c=cb, z0=z0, q=tracking_gradient(CQ, r, H.N, H.No),
+                         f=template.f if f is None else f)
         else:
             qp, kinds = stage_problem(self.form, Ab, Bb, cb, Cz, z0, r, self.Wy, self.Wu, H, self.limits, self.Ts,
                                       y_now, y_sim, u_sim, u_prev, self._output_rows)
-            if self.form != "nonlinear" and not self._output_rows:
+            if not self._output_rows:  # input rows alone: only the models, targets (and nonlinear bounds) change
                 self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
                 rows = self._input_rows(qp)
                 if rows is not None and self._compiled_step is not None and self._compiled_active is not None:
@@ -346,7 +385,7 @@ class StagewiseSolver:
                     self._step = self._compiled_step(
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
                         np.ascontiguousarray(rows.comp, np.int64), rows.sign)
-                    result = self._solve_step(step, r, warm, t0)
+                    result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f)
                     if result is not None:
                         return result, None
         rows = self._input_rows(qp)
