@@ -222,3 +222,36 @@ def test_fused_nonlinear_step_failure_keeps_the_presimulation():
         solver.presimulated(model.compiled_update, X, u, TS, None, w[1:])
     absolute = RiccatiSolver(Wy, Wu, model.C, H, "absolute", native=True)
     assert not absolute.fuses_presimulation
+
+
+@pytest.mark.skipif(not (HAS_COMPILED and hasattr(native_module(), "presimulated_stages")),
+                    reason="the compiled core has no presimulated_stages")
+def test_limited_nonlinear_stages_are_the_models_presimulation(robot):
+    """The limited nonlinear step's pre-simulation (one compiled call with null(B_d(X))) against its
+    references: the model's simulate_factorized and the LAPACK null_basis of B_d(X)."""
+    model = ReducedModel(robot)
+    rng = np.random.default_rng(7)
+    X = np.concatenate([robot.home_pose + 0.002 * rng.standard_normal(robot.n_y),
+                        0.05 * rng.standard_normal(robot.n_y)])
+    for N, No, Nu in ((10, 0, 10), (15, 2, 5)):
+        ctl = GPCController.build(model, TS, Horizons(N, No, Nu), Weights(1.0, 1e-4), form="nonlinear",
+                                  solver="riccati", limits=Limits(torque=50.0))
+        ctl.plan = rng.standard_normal((N, robot.n_u))
+        ctl.disturbance = 1e-4 * rng.standard_normal(model.n_x)
+        path = ctl._riccati
+        assert path._stages_call is not None and path.constrained is not None
+        A_seq, B_seq, c_seq, X_seq = model.simulate_factorized(X, np.concatenate((ctl.plan[1:], ctl.plan[-1:])), TS,
+                                                                ctl.disturbance)
+        stages = path.stages(ctl, X, robot.home_pose + np.zeros((N - No, robot.n_y)))
+        assert stages[0].flags.c_contiguous and stages[1].flags.c_contiguous  # read in place by RiccatiActive
+        np.testing.assert_allclose(stages[0], A_seq, rtol=0, atol=1e-9 * np.abs(A_seq).max())
+        np.testing.assert_allclose(stages[1], B_seq, rtol=0, atol=1e-9 * np.abs(B_seq).max())
+        np.testing.assert_allclose(ctl._one_step[2], c_seq[0] + ctl.disturbance, rtol=0,
+                                   atol=1e-9 * np.abs(c_seq[0]).max())
+        np.testing.assert_allclose(path._extra["y_sim"], X_seq[1:] @ model.C.T, rtol=0, atol=1e-9)
+        basis = null_basis(B_seq[0], native=False)
+        assert (ctl._null is None) == (basis is None)
+        if basis is not None:  # the same subspace (the rows may differ by sign or a rotation)
+            np.testing.assert_allclose(ctl._null.T @ ctl._null, basis.T @ basis, rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="u_seq"):
+        native_module().presimulated_stages(model.compiled_update, X, np.zeros((4, robot.n_u + 1)), TS, None, 1e-8)

@@ -17,7 +17,7 @@ from parallel_gpc.errors import InvalidParameterError, SolverError
 from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
-from parallel_gpc.gpc.stagewise import StagewiseSolver
+from parallel_gpc.gpc.stagewise import StagewiseSolver, input_bounds, step_bounds
 from parallel_gpc.gpc.stages import FORM_CODES
 from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
@@ -463,6 +463,30 @@ def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horiz
         pred = path.input_map(ctl, path.stages(ctl, X, w[H.No:]))
         U = (pred.u_base + pred.u_map @ result.v).reshape(-1, ctl.n_u)
         assert np.isclose(np.abs(U[H.Nu:]), ctl._qp_limits.torque, rtol=1e-9).any()
+
+
+@pytest.mark.parametrize("Nu", [1, 4, 12])
+@pytest.mark.parametrize("kinds", [("torque",), ("du",), ("torque", "du")])
+def test_step_bounds_are_input_bounds_in_the_stage_layout(kinds, Nu):
+    """step_bounds (the compiled nonlinear step's bounds, every step) against its reference input_bounds:
+    the columns [hi, −lo] per kind, torque then du, the rows after Nu on stage Nu − 1, inf where unused;
+    the du rows need u(k−1) (a clear error without it)."""
+    rng = np.random.default_rng(Nu)
+    m, H = 4, Horizons(12, 0, Nu)
+    values = {"torque": 3.0 + rng.random(m), "du": 0.5 + rng.random(m)}
+    limits = Limits(**{kind: values[kind] for kind in kinds}).for_drives(m)
+    for _ in range(3):
+        u_sim, u_prev = rng.standard_normal((H.N, m)), rng.standard_normal(m)
+        want = np.concatenate([b for _, lo, hi in input_bounds("nonlinear", limits, H, m, u_sim, u_prev)
+                               for b in (hi, -lo)], axis=1)
+        got = step_bounds(limits, H, u_sim, u_prev)
+        assert got.shape == want.shape == (H.N, 2 * m * len(kinds))
+        assert np.array_equal(np.isfinite(got), np.isfinite(want)) and np.isfinite(got[:Nu]).all()
+        used = np.isfinite(want)
+        assert np.abs(got[used] - want[used]).max() <= 1e-15 * np.abs(want[used]).max()
+    if "du" in kinds:
+        with pytest.raises(InvalidParameterError, match="pass u_prev"):
+            step_bounds(limits, H, u_sim)
 
 
 def _input_row_qp(seed: int, incremental: bool, du: bool = True):

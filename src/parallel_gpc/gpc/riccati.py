@@ -145,8 +145,14 @@ class RiccatiSolver:
         n, m = self.C.shape[1], self.Wu.shape[0]
         sim = (E[:, :, :n], E[:, :, n:n + m], E[:, :, -1], X_seq)
         status = "failed" if message else "unconstrained"
-        null = False if null is None else null if null.shape[0] else None
-        return sim, SolveResult(v, J, status, self.name, None, time.perf_counter() - t0, False, message), inputs, null
+        return sim, SolveResult(v, J, status, self.name, None, time.perf_counter() - t0, False, message), inputs, \
+            _null_result(null)
+
+
+def _null_result(null):
+    """The null(B_d(X)) rows a compiled pre-simulation returned as :meth:`GPCController.presimulate`
+    takes them: the rows, None at full column rank, False (not computed) when B_d was not finite (None)."""
+    return False if null is None else null if null.shape[0] else None
 
 
 class RiccatiPath:
@@ -184,15 +190,18 @@ class RiccatiPath:
             H.N if form == "nonlinear" else H.Nu, H.Nu, m)
         self._zero_base = read_only(np.zeros(H.Nu * m))
         self._planned = None  # (A_seq, SolveResult, inputs) of the last fused nonlinear step, taken by solve()
+        # the limited nonlinear step's pre-simulation with null(B_d) in one call (compiled; else the model's)
+        self._stages_call = None if form != "nonlinear" or self.constrained is None or not self.constrained.native \
+            else compiled_part(None, "presimulated_stages", "the compiled pre-simulation")
         self._solved = (None, None)  # (SolveResult, inputs) that solve() returned from it
 
     def stages(self, ctl, X: np.ndarray, w: np.ndarray) -> tuple:
         """(A, B, c, x0, u0, r) of the step at X with the reference rows w ((N − No, p), m and rad);
         keeps the controller's one-step model (and, nonlinear, the pre-simulated inputs)."""
         if self.form == "nonlinear":
-            update = None if self.constrained is not None or not self.solver.fuses_presimulation else getattr(
-                ctl.model, "compiled_update", None)
-            simulate = None if update is None else self._fused(update, w)
+            fused = self.constrained is None and self.solver.fuses_presimulation
+            update = getattr(ctl.model, "compiled_update", None) if fused or self._stages_call is not None else None
+            simulate = None if update is None else self._fused(update, w) if fused else self._limited(update)
             A_seq, B_seq, C, y_sim, self._u_sim = ctl.presimulate(X, simulate)
             if self.constrained is not None:
                 self._extra = {"y_now": C @ X, "y_sim": y_sim, "u_sim": self._u_sim, "u_prev": ctl.u_prev}
@@ -209,6 +218,14 @@ class RiccatiPath:
             sim, result, inputs, null = self.solver.presimulated(update, X0, u_seq, Ts, offset, w)
             self._planned = (sim[0], result, inputs)
             return (*sim, null)
+        return simulate
+
+    def _limited(self, update):
+        """The limited step's pre-simulation for :meth:`GPCController.presimulate`: the model's
+        ``simulate_factorized`` and null(B_d(X)) in one compiled call (``_native.presimulated_stages``)."""
+        def simulate(X0, u_seq, Ts, offset):
+            A, B, c, X, null = self._stages_call(update, X0, u_seq, Ts, offset, NULL_RTOL)
+            return A, B, c, X, _null_result(null)
         return simulate
 
     def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:

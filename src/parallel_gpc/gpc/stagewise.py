@@ -40,7 +40,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..errors import SolverError
+from ..errors import InvalidParameterError, SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
 from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
@@ -52,7 +52,7 @@ from .criterion import input_rows
 from .prediction import Horizons
 from .stages import FORM_CODES, stage_models
 
-__all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "tracking_gradient", "STAGEWISE_KINDS"]
+__all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "step_bounds", "tracking_gradient", "STAGEWISE_KINDS"]
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
@@ -110,6 +110,45 @@ def input_bounds(form: str, limits: Limits, horizons: Horizons, m: int, u_sim=No
         lo[:Nu], hi[:Nu] = rows.du_lo, rows.du_hi
         bounds.append(("du", lo, hi))
     return bounds
+
+
+def step_bounds(limits: Limits, horizons: Horizons, u_sim, u_prev=None) -> np.ndarray:
+    """The nonlinear form's input-row bounds f (N, k) of one step in the stage layout: per input kind
+    the limits have (torque, then du), the columns [hi, −lo] of :func:`input_bounds` (the rows
+    [v; −v] [+ z[n:]] ≤ f of :func:`stage_problem`), inf on the unused rows (stages i ≥ Nu).
+
+    :func:`input_bounds` is the reference; this is the same numbers written straight into one array
+    (the compiled limited step passes them every step: they move with the pre-simulated inputs). The
+    tightest torque rows after Nu on stage Nu − 1: min_i (τ − u_sim(i)) = τ − max_i u_sim(i) (rounding
+    is monotone: the same float). The entries of the stages i < Nu are finite (the limits are).
+
+    Args:
+        limits: sized to the m drives, input kinds tightened by the margin. horizons: N, Nu.
+        u_sim: (N, m) pre-simulated inputs (N·m). u_prev: (m,) u(k−1) (N·m), needed with a du limit.
+    """
+    N, Nu = horizons.N, horizons.Nu
+    tau, delta = limits.torque, limits.du
+    u_sim = np.asarray(u_sim, float)
+    m = u_sim.shape[1]
+    f = np.full((N, 2 * m * ((tau is not None) + (delta is not None))), np.inf)
+    u = u_sim[:Nu]
+    col = 0
+    if tau is not None:
+        np.subtract(tau, u, out=f[:Nu, :m])
+        np.add(tau, u, out=f[:Nu, m:2 * m])
+        tail = u_sim[Nu - 1:]
+        np.subtract(tau, tail.max(axis=0), out=f[Nu - 1, :m])
+        np.add(tau, tail.min(axis=0), out=f[Nu - 1, m:2 * m])
+        col = 2 * m
+    if delta is not None:
+        if u_prev is None:
+            raise InvalidParameterError("the nonlinear form's du limit is measured from u(k−1): pass u_prev")
+        drift = np.empty_like(u)  # u_sim(i) − u_sim(i−1), u_sim(−1) = u(k−1)
+        np.subtract(u[0], u_prev, out=drift[0])
+        np.subtract(u[1:], u[:-1], out=drift[1:])
+        np.subtract(delta, drift, out=f[:Nu, col:col + m])
+        np.add(delta, drift, out=f[:Nu, col + m:col + 2 * m])
+    return f
 
 
 def stage_problem(form: str, Ab, Bb, cb, Cz, z0, r, Wy, Wu, horizons: Horizons, limits: Limits, Ts: float,
@@ -313,10 +352,7 @@ class StagewiseSolver:
     def _step_bounds(self, u_sim, u_prev) -> np.ndarray | None:
         """The input rows' bounds f (N, k) of this step where they change from step to step (the
         nonlinear form's: they move with the pre-simulated inputs), else None (the limits' own)."""
-        if self.form != "nonlinear":
-            return None
-        bounds = input_bounds(self.form, self.limits, self.horizons, self.Wu.shape[0], u_sim, u_prev)
-        return np.concatenate([b for _, lo, hi in bounds for b in (hi, -lo)], axis=1)  # _pair's rows, const 0
+        return None if self.form != "nonlinear" else step_bounds(self.limits, self.horizons, u_sim, u_prev)
 
     def _solve_step(self, step: tuple, r, warm: bool, t0: float, f: np.ndarray | None) -> SolveResult | None:
         """The compiled limited step of input rows (``_native.RiccatiActive``), f: the step's bounds of
@@ -340,7 +376,8 @@ class StagewiseSolver:
             self._unsettled = (message, self.iterations)
             return None
         self.method, self._fixed = "active-set", fixed
-        self.excess = residual * (self._f_scale if f is None else _bound_scale(f))
+        # the largest bound: step_bounds's are finite on the stages i < Nu (the limits are), inf after
+        self.excess = residual * (self._f_scale if f is None else max(float(np.abs(f[:self.horizons.Nu]).max()), 1e-12))
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
                            bool(fixed.max(initial=-1) >= 0), "")
