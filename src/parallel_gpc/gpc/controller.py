@@ -291,8 +291,8 @@ class GPCController:
 
         ``simulate``: what runs it, with the signature and results of the model's
         ``simulate_factorized`` (the default); the Riccati path's compiled step passes one that
-        plans along the trajectory in the same call (:meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`)
-        and gives null(B_d(X)) as a fifth result (:func:`~parallel_gpc.gpc.redundancy.null_basis`;
+        plans along the trajectory in the same call (limited: one that only simulates,
+        :meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`) and gives null(B_d(X)) as a fifth result (:func:`~parallel_gpc.gpc.redundancy.null_basis`;
         False: not computed).
         """
         C = self.model.C

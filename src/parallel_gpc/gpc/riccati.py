@@ -20,6 +20,8 @@ Compiled, the nonlinear form's unconstrained step is one call: the model update'
 the deviation stages and the recursion (``_native.riccati_presimulated``,
 :meth:`RiccatiSolver.presimulated`); the model's ``simulate_factorized`` followed by
 :meth:`RiccatiSolver.solve` (compiled or :func:`~parallel_gpc.solvers.riccati.lq_tracking`) is its reference.
+Its limited step takes the pre-simulation and null(B_d(X)) in one compiled call too
+(``_native.presimulated_stages``: ``simulate_factorized``'s arrays, contiguous), then the compiled active set.
 
 The minimizer equals the QR back end's whenever it is unique: Qu nonsingular (R = QuᵀQu ≻ 0).
 With limits (torque, Δu, output box and velocity) the same stage models feed the stage-wise
