@@ -56,6 +56,12 @@ __all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "tracking_gradien
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
+#: the forms whose next active set moves the last step's moving arc edges again
+#: (:func:`~parallel_gpc.solvers.shift_active_set` with the set before): their torque rows act on the
+#: held input, whose limited arcs grow or shrink smoothly from step to step (planar_4rrr, incremental,
+#: N = 160: 3 sweeps a step → 1). Not the absolute and nonlinear forms: their limited inputs switch
+#: between the bounds, and a move repeated there costs more sweeps (N = 160: 3–7 → up to 12).
+EDGE_FORMS = ("incremental", "incremental-delayed")
 
 
 def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
@@ -237,6 +243,7 @@ class StagewiseSolver:
         self._zero_u = read_only(np.zeros(self.Wu.shape[0]))
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
+        self._before: np.ndarray | None = None  # the set of the step before the last (EDGE_FORMS), or None
         # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
         # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
@@ -260,6 +267,16 @@ class StagewiseSolver:
             return np.concatenate([a[1:], a[-1:]])
 
         return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
+
+    def _next_start(self) -> np.ndarray | None:
+        """The active set's start from the last step's set: shifted (:data:`EDGE_FORMS`: its moving
+        edges moved again)."""
+        return shift_active_set(self._fixed, self._before if self.form in EDGE_FORMS else None)
+
+    def _keep_set(self, fixed: np.ndarray | None, warm: bool) -> None:
+        """Keep ``fixed`` (the step's active set, or None) as the next step's, the last one as the set
+        before (warm: a step after the last; else None)."""
+        self._before, self._fixed = (self._fixed if warm else None), fixed
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
@@ -325,7 +342,7 @@ class StagewiseSolver:
         left in place)."""
         A, B, c, x0, u0 = step
         n, m = self.C.shape[1], self.Wu.shape[0]
-        start = shift_active_set(self._fixed) if warm else None
+        start = self._next_start() if warm else None
         self.excess = np.inf
         try:
             v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
@@ -333,13 +350,15 @@ class StagewiseSolver:
                 np.zeros(0) if c is None else np.asarray(c, float).reshape(-1), x0,
                 self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER, f)
         except RuntimeError as exc:
-            self._last, self._fixed = None, None
+            self._last = None
+            self._keep_set(None, False)
             return self._failed(t0, str(exc))
         self.iterations = (iterations, 0)
         if not ok:
             self._unsettled = (message, self.iterations)
             return None
-        self.method, self._fixed = "active-set", fixed
+        self.method = "active-set"
+        self._keep_set(fixed, warm)
         self.excess = residual * (self._f_scale if f is None else _bound_scale(f))
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
@@ -389,8 +408,9 @@ class StagewiseSolver:
                     if result is not None:
                         return result, None
         rows = self._input_rows(qp)
-        fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
-        last, self._last, self._fixed = self._last if warm else None, None, None
+        fixed_start = self._next_start() if warm and rows is not None else None
+        last, self._last = self._last if warm else None, None
+        self._keep_set(None, warm)
         try:
             sol, self.method, self.iterations = None, "interior-point", (0, 0)
             if self._unsettled is not None:  # the compiled step's set did not settle: straight to the interior point
@@ -400,7 +420,7 @@ class StagewiseSolver:
                 sol = self._active(qp, rows, fixed_start)
                 self.iterations = (sol.iterations, 0)
                 if sol.status == "optimal":
-                    self.method, self._fixed = "active-set", sol.fixed
+                    self.method, self._fixed = "active-set", sol.fixed  # self._before: kept above
                 else:
                     self.method, fell_back = "interior-point after active set", sol.message
             if sol is None or sol.status != "optimal":
