@@ -244,6 +244,10 @@ class StagewiseSolver:
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
         self._before: np.ndarray | None = None  # the set of the step before the last (EDGE_FORMS), or None
+        # the last step's starts (the plain shift, the one with the edges moved or None) and whether the moved
+        # edges start this step: they do while the last step's solution was nearer the moved start than the plain one
+        self._starts: tuple | None = None
+        self._edges = False
         # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
         # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
@@ -269,14 +273,24 @@ class StagewiseSolver:
         return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
 
     def _next_start(self) -> np.ndarray | None:
-        """The active set's start from the last step's set: shifted (:data:`EDGE_FORMS`: its moving
-        edges moved again)."""
-        return shift_active_set(self._fixed, self._before if self.form in EDGE_FORMS else None)
+        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, while
+        that paid on the last step) with its moving edges moved again."""
+        plain = shift_active_set(self._fixed)
+        moved = None
+        if self.form in EDGE_FORMS and self._before is not None:
+            moved = shift_active_set(self._fixed, self._before)
+        self._starts = (plain, moved)
+        return moved if self._edges and moved is not None else plain
 
     def _keep_set(self, fixed: np.ndarray | None, warm: bool) -> None:
         """Keep ``fixed`` (the step's active set, or None) as the next step's, the last one as the set
-        before (warm: a step after the last; else None)."""
-        self._before, self._fixed = (self._fixed if warm else None), fixed
+        before (warm: a step after the last; else None), and whether the next step starts from the
+        moved edges: when this step's set is nearer (fewer components differing) its moved start than
+        the plain shift (an edge moving steadily; not one that turns back or moves every other step)."""
+        plain, moved = self._starts if warm and self._starts is not None else (None, None)
+        self._edges = (fixed is not None and moved is not None
+                       and np.count_nonzero(moved != fixed) < np.count_nonzero(plain != fixed))
+        self._before, self._fixed, self._starts = (self._fixed if warm else None), fixed, None
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
@@ -410,7 +424,7 @@ class StagewiseSolver:
         rows = self._input_rows(qp)
         fixed_start = self._next_start() if warm and rows is not None else None
         last, self._last = self._last if warm else None, None
-        self._keep_set(None, warm)
+        kept = None  # the next step's set
         try:
             sol, self.method, self.iterations = None, "interior-point", (0, 0)
             if self._unsettled is not None:  # the compiled step's set did not settle: straight to the interior point
@@ -420,16 +434,18 @@ class StagewiseSolver:
                 sol = self._active(qp, rows, fixed_start)
                 self.iterations = (sol.iterations, 0)
                 if sol.status == "optimal":
-                    self.method, self._fixed = "active-set", sol.fixed  # self._before: kept above
+                    self.method, kept = "active-set", sol.fixed
                 else:
                     self.method, fell_back = "interior-point after active set", sol.message
             if sol is None or sol.status != "optimal":
                 sol = self._solve(qp, self._start(qp, last))
                 self.iterations = (self.iterations[0], sol.iterations)
                 if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
-                    self._fixed = active_set_of(qp, rows, sol.lam)
+                    kept = active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
+            self._keep_set(None, False)
             return self._failed(t0, str(exc)), None
+        self._keep_set(kept, warm)
         if sol.status == "optimal":
             self._last = sol
         v = sol.v.reshape(-1)
