@@ -22,8 +22,10 @@ this module only places them on the stages:
   instead of one per pair: the same optimum, the two sides never both bind).
 
 From the controller's second step on, the solve starts from the previous solution shifted by one
-stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; the interior point's
-plan, multipliers and slacks, :class:`~parallel_gpc.solvers.StageStart`).
+stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; for the incremental
+forms, :data:`EDGE_FORMS`, with the edges of the limited arcs that moved from step to step moved
+again while that brought the last step nearer its set; the interior point's plan, multipliers and
+slacks, :class:`~parallel_gpc.solvers.StageStart`).
 The nonlinear form's torque rows after Nu (the held deviation plus the pre-simulated input: rows
 on the state alone) bound v(Nu−1) through the held input: stage Nu − 1 keeps the tightest of each
 side (:func:`input_bounds`), and the active set takes them too.
