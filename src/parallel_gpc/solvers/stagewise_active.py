@@ -237,30 +237,32 @@ def _extrapolate_edges(fixed: np.ndarray, was: np.ndarray, shifted: np.ndarray) 
     verifies its KKT conditions)."""
     nd = fixed.shape[0]
     out = shifted.copy()
-    moved = fixed != was
-    for j in np.flatnonzero(moved.any(axis=0)):
-        col, old = fixed[:, j], was[:, j]
-        stages = np.flatnonzero(moved[:, j])
-        cuts = np.flatnonzero((np.diff(stages) != 1) | (np.diff(col[stages]) != 0)) + 1
-        for run in np.split(stages, cuts):
-            s, e = int(run[0]), int(run[-1])
-            r, length = col[s], e - s + 1
-            grew_later = s > 0 and col[s - 1] == r and old[s - 1] == r
-            grew_earlier = e + 1 < nd and col[e + 1] == r and old[e + 1] == r
-            if grew_later == grew_earlier:  # no side or both: not an edge
+    # the changed entries (few: a step's set moves by a stage or two) as (component, stage), in that order
+    changed = [divmod(c, nd) for c in np.flatnonzero((fixed != was).T).tolist()]
+    a = 0
+    while a < len(changed):
+        j, s = changed[a]
+        r, e = fixed.item(s, j), s
+        a += 1
+        while a < len(changed) and changed[a] == (j, e + 1) and fixed.item(e + 1, j) == r:
+            e, a = e + 1, a + 1
+        length = e - s + 1
+        grew_later = s > 0 and fixed.item(s - 1, j) == r and was.item(s - 1, j) == r
+        grew_earlier = e + 1 < nd and fixed.item(e + 1, j) == r and was.item(e + 1, j) == r
+        if grew_later == grew_earlier:  # no side or both: not an edge
+            continue
+        if grew_later:  # the next stages after the run (at s − 1 … e − 1 once shifted)
+            if e + 1 >= nd:
                 continue
-            if grew_later:  # the next stages after the run (at s − 1 … e − 1 once shifted)
-                if e + 1 >= nd:
-                    continue
-                beyond, targets = col[e + 1], range(e, min(e + length, nd))
-            else:
-                if s == 0:
-                    continue
-                beyond, targets = col[s - 1], range(s - 2, max(s - 2 - length, -1), -1)
-            for t in targets:
-                if out[t, j] != beyond:
-                    break
-                out[t, j] = r
+            beyond, targets = fixed.item(e + 1, j), range(e, min(e + length, nd))
+        else:
+            if s == 0:
+                continue
+            beyond, targets = fixed.item(s - 1, j), range(s - 2, max(s - 2 - length, -1), -1)
+        for t in targets:
+            if out.item(t, j) != beyond:
+                break
+            out[t, j] = r
     return out
 
 
