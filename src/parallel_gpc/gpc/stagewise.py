@@ -64,6 +64,10 @@ STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 #: N = 160: 3 sweeps a step → 1). Not the absolute and nonlinear forms: their limited inputs switch
 #: between the bounds, and a move repeated there costs more sweeps (N = 160: 3–7 → up to 12).
 EDGE_FORMS = ("incremental", "incremental-delayed")
+#: the shortest control horizon Nu whose steps move the edges: the prediction and its check cost ~30 µs
+#: of Python a step, a sweep saved pays that from N ≈ 80 (planar_4rrr, incremental, limited/unconstrained:
+#: N = 160 1.55–1.94 → 1.10–1.26; N = 20 1.24–1.27 → 1.37–1.42 with it).
+EDGE_MIN_STAGES = 80
 
 
 def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
@@ -275,11 +279,10 @@ class StagewiseSolver:
         return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
 
     def _next_start(self) -> np.ndarray | None:
-        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, while
-        that paid on the last step) with its moving edges moved again."""
-        plain = shift_active_set(self._fixed)
-        moved = None
-        if self.form in EDGE_FORMS and self._before is not None:
+        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, Nu ≥
+        :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again."""
+        plain, moved = shift_active_set(self._fixed), None
+        if self.form in EDGE_FORMS and self.horizons.Nu >= EDGE_MIN_STAGES and self._before is not None:
             moved = shift_active_set(self._fixed, self._before)
         self._starts = (plain, moved)
         return moved if self._edges and moved is not None else plain
