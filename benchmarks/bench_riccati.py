@@ -3,6 +3,7 @@
 
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
 ``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear]``
+``python benchmarks/bench_riccati.py --trace incremental:160 [--samples 12] [--robot planar_4rrr]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
 absolute form, on the full plant) are recorded; then every configuration steps through the same
@@ -140,6 +141,37 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
             print(f"{form:11s} {key:22s} time ∝ N^{slope:.2f} over N = {horizons}")
 
 
+def run_trace(name: str, form: str, N: int, samples: int) -> None:
+    """``--trace form:N``: the limited step of :func:`run_limited` step by step (one pass after a
+    warm-up pass, the unconstrained step timed on the same state right after): µs of each, what
+    solved it (active set, or the interior point after it), the active set's sweeps and the
+    interior point's iterations, how many components the solution's set holds on a limit."""
+    robot = ParallelRobot.load(name)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    model = ReducedModel(robot)
+    Xs, ws = _states(robot, ref, N, samples)
+    free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
+    tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
+    limited = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati",
+                                  limits=Limits(torque=tau))
+    print(f"{name} {form} N = {N}, τ = {tau:.3g} N·m: step, limited µs, unconstrained µs, method, "
+          "(sweeps, interior-point iterations), components on a limit")
+    for rep in range(2):
+        limited.reset()
+        free.reset()
+        for k, (X, w) in enumerate(zip(Xs, ws)):
+            t0 = time.perf_counter()
+            limited.step(X, w)
+            t1 = time.perf_counter()
+            free.step(X, w)
+            t2 = time.perf_counter()
+            stagewise = limited._riccati.constrained
+            held = "–" if stagewise._fixed is None else f"{int((stagewise._fixed >= 0).sum())}/{stagewise._fixed.size}"
+            if rep:
+                print(f"  {k:3d} {1e6 * (t1 - t0):9.1f} {1e6 * (t2 - t1):8.1f}  {stagewise.method:32s} "
+                      f"{stagewise.iterations}  {held}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=7)
@@ -149,7 +181,12 @@ def main() -> None:
     parser.add_argument("--horizons", default="20,40,80,160", help="N values of --limited")
     parser.add_argument("--robot", default="planar_4rrr", help="robot of --limited")
     parser.add_argument("--forms", default="absolute,incremental", help="forms of --limited")
+    parser.add_argument("--trace", metavar="FORM:N", help="the limited step of one form and N, step by step")
     args = parser.parse_args()
+    if args.trace:
+        form, N = args.trace.split(":")
+        run_trace(args.robot, form, int(N), args.samples)
+        return
     if args.limited:
         run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples,
                     args.forms.split(","))

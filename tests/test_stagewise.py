@@ -941,3 +941,74 @@ def test_the_compiled_step_reads_per_stage_models_in_place(with_c):
     assert solvers[1]._step is not None
     one = [s.solve((Ad, Bd, cd, X, None), w, ctl.model.C @ X)[0] for s in solvers]  # one model for every stage
     assert np.abs(one[1].v - one[0].v).max() <= 1e-9 * np.abs(one[0].v).max()
+
+
+def test_shift_active_set_moves_again_the_edges_that_moved():
+    """With the set of the step before, an edge that moved between the two steps (a run of stages
+    changed to one value, next to stages that held it in both) moves again by the run's length in
+    the same direction, only over stages holding what lay beyond it; other changes (a hole filled)
+    are shifted and left; without it, the plain shift."""
+    nd = 10
+    before = np.full((nd, 3), -1)
+    fixed = np.full((nd, 3), -1)
+    before[7:, 0], fixed[4:, 0] = 3, 3  # an arc of row 3 starting at 6 once shifted, now at 4: grew earlier by 2
+    before[:, 1], fixed[:, 1] = 5, 5
+    before[:4, 1], fixed[:4, 1] = -1, -1  # the free stretch 0..2 once shifted, now 0..3: grew later by 1
+    before[:, 2], fixed[:, 2] = 2, 2
+    before[4:6, 2] = -1  # a hole at 3..4 once shifted, filled: an edge on neither side
+    shifted = shift_active_set(fixed)
+    np.testing.assert_array_equal(shifted, np.concatenate([fixed[1:], fixed[-1:]]))
+    moved = shift_active_set(fixed, before)
+    expected = shifted.copy()
+    expected[1:3, 0] = 3  # the arc (at 3.. once shifted) starts 2 stages earlier again
+    expected[3, 1] = -1  # the free stretch (0..2 once shifted) one stage longer again
+    np.testing.assert_array_equal(moved, expected)
+    other = fixed.copy()
+    other[2, 0] = 7  # another value (stage 1 once shifted) on the arc's next move: the move stops there
+    before_other = before.copy()
+    before_other[3, 0] = 7
+    expected_other = shift_active_set(other)
+    expected_other[2, 0], expected_other[3, 1] = 3, -1
+    np.testing.assert_array_equal(shift_active_set(other, before_other), expected_other)
+
+
+def test_incremental_warm_steps_move_the_edges_and_keep_the_plan(monkeypatch):
+    """planar_4rrr, incremental, N = 40, the torque limit at half the largest unconstrained |u| along
+    the path: the held input reaches its limit earlier from step to step. Starting each step from the
+    last one's moved edges, the warm steps take fewer sweeps in all than from the plain shift, and the
+    plans are the same to 1e-8 (both sets' KKT conditions verified, to AS_ACCEPT: one optimum).
+    From the states of an unlimited closed loop (absolute, the default solver), as in
+    ``benchmarks/bench_riccati.py --limited``."""
+    import parallel_gpc.gpc.stagewise as stagewise_module
+
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    N, weights = 40, Weights(1.0, 1e-5)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    loop = GPCController.build(model, TS, Horizons(N), weights)  # the states: an unlimited closed loop
+    free = GPCController.build(model, TS, Horizons(N), weights, form="incremental", solver="riccati")
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
+    states = []
+    for k in range(12):
+        w = ref.window(k * TS, TS, N)
+        states.append((plant.X.copy(), w))
+        plant.step(loop.step(plant.X, w).u)
+    limits = Limits(torque=0.5 * max(float(np.abs(free.step(X, w).u).max()) for X, w in states))
+
+    def run():
+        ctl = GPCController.build(model, TS, Horizons(N), weights, form="incremental", solver="riccati",
+                                  limits=limits)
+        plans, sweeps = [], 0
+        for k, (X, w) in enumerate(states):
+            info = ctl.step(X, w)
+            assert info.result.ok and ctl._riccati.constrained.method == "active-set", info.result.message
+            plans.append(ctl.plan.copy())
+            sweeps += ctl._riccati.constrained.iterations[0] if k else 0
+        return np.array(plans), sweeps
+
+    monkeypatch.setattr(stagewise_module, "EDGE_MIN_STAGES", N)  # the rule at N = 40 (a quick test)
+    moved, moved_sweeps = run()
+    monkeypatch.setattr(stagewise_module, "EDGE_FORMS", ())
+    plain, plain_sweeps = run()
+    assert moved_sweeps < plain_sweeps
+    assert np.abs(moved - plain).max() <= 1e-8 * np.abs(plain).max()

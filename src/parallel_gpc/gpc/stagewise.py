@@ -22,8 +22,10 @@ this module only places them on the stages:
   instead of one per pair: the same optimum, the two sides never both bind).
 
 From the controller's second step on, the solve starts from the previous solution shifted by one
-stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; the interior point's
-plan, multipliers and slacks, :class:`~parallel_gpc.solvers.StageStart`).
+stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; for the incremental
+forms, :data:`EDGE_FORMS`, with the edges of the limited arcs that moved from step to step moved
+again while that brought the last step nearer its set; the interior point's plan, multipliers and
+slacks, :class:`~parallel_gpc.solvers.StageStart`).
 The nonlinear form's torque rows after Nu (the held deviation plus the pre-simulated input: rows
 on the state alone) bound v(Nu−1) through the held input: stage Nu − 1 keeps the tightest of each
 side (:func:`input_bounds`), and the active set takes them too.
@@ -56,6 +58,16 @@ __all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "step_bounds", "t
 
 #: the limit kinds the stage-wise path enforces.
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
+#: the forms whose next active set moves the last step's moving arc edges again
+#: (:func:`~parallel_gpc.solvers.shift_active_set` with the set before): their torque rows act on the
+#: held input, whose limited arcs grow or shrink smoothly from step to step (planar_4rrr, incremental,
+#: N = 160: 3 sweeps a step → 1). Not the absolute and nonlinear forms: their limited inputs switch
+#: between the bounds, and a move repeated there costs more sweeps (N = 160: 3–7 → up to 12).
+EDGE_FORMS = ("incremental", "incremental-delayed")
+#: the shortest control horizon Nu whose steps move the edges: the prediction and its check cost ~30 µs
+#: of Python a step, a sweep saved pays that from N ≈ 80 (planar_4rrr, incremental, limited/unconstrained:
+#: N = 160 1.55–1.94 → 1.10–1.26; N = 20 1.24–1.27 → 1.37–1.42 with it).
+EDGE_MIN_STAGES = 80
 
 
 def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
@@ -276,6 +288,11 @@ class StagewiseSolver:
         self._zero_u = read_only(np.zeros(self.Wu.shape[0]))
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
+        self._before: np.ndarray | None = None  # the set of the step before the last (EDGE_FORMS), or None
+        # the last step's starts (the plain shift, the one with the edges moved or None) and whether the moved
+        # edges start this step: they do while the last step's solution was nearer the moved start than the plain one
+        self._starts: tuple | None = None
+        self._edges = False
         # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
         # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
@@ -299,6 +316,25 @@ class StagewiseSolver:
             return np.concatenate([a[1:], a[-1:]])
 
         return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
+
+    def _next_start(self) -> np.ndarray | None:
+        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, Nu ≥
+        :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again."""
+        plain, moved = shift_active_set(self._fixed), None
+        if self.form in EDGE_FORMS and self.horizons.Nu >= EDGE_MIN_STAGES and self._before is not None:
+            moved = shift_active_set(self._fixed, self._before)
+        self._starts = (plain, moved)
+        return moved if self._edges and moved is not None else plain
+
+    def _keep_set(self, fixed: np.ndarray | None, warm: bool) -> None:
+        """Keep ``fixed`` (the step's active set, or None) as the next step's, the last one as the set
+        before (warm: a step after the last; else None), and whether the next step starts from the
+        moved edges: when this step's set is nearer (fewer components differing) its moved start than
+        the plain shift (an edge moving steadily; not one that turns back or moves every other step)."""
+        plain, moved = self._starts if warm and self._starts is not None else (None, None)
+        self._edges = (fixed is not None and moved is not None
+                       and np.count_nonzero(moved != fixed) < np.count_nonzero(plain != fixed))
+        self._before, self._fixed, self._starts = (self._fixed if warm else None), fixed, None
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
         """:func:`~parallel_gpc.solvers.input_rows_of` ``qp``, formed again only when the used rows
@@ -361,7 +397,7 @@ class StagewiseSolver:
         left in place)."""
         A, B, c, x0, u0 = step
         n, m = self.C.shape[1], self.Wu.shape[0]
-        start = shift_active_set(self._fixed) if warm else None
+        start = self._next_start() if warm else None
         self.excess = np.inf
         try:
             v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
@@ -369,13 +405,15 @@ class StagewiseSolver:
                 np.zeros(0) if c is None else np.asarray(c, float).reshape(-1), x0,
                 self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER, f)
         except RuntimeError as exc:
-            self._last, self._fixed = None, None
+            self._last = None
+            self._keep_set(None, False)
             return self._failed(t0, str(exc))
         self.iterations = (iterations, 0)
         if not ok:
             self._unsettled = (message, self.iterations)
             return None
-        self.method, self._fixed = "active-set", fixed
+        self.method = "active-set"
+        self._keep_set(fixed, warm)
         # the largest bound: step_bounds's are finite on the stages i < Nu (the limits are), inf after
         self.excess = residual * (self._f_scale if f is None else max(float(np.abs(f[:self.horizons.Nu]).max()), 1e-12))
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
@@ -426,8 +464,9 @@ class StagewiseSolver:
                     if result is not None:
                         return result, None
         rows = self._input_rows(qp)
-        fixed_start = shift_active_set(self._fixed) if warm and rows is not None else None
-        last, self._last, self._fixed = self._last if warm else None, None, None
+        fixed_start = self._next_start() if warm and rows is not None else None
+        last, self._last = self._last if warm else None, None
+        kept = None  # the next step's set
         try:
             sol, self.method, self.iterations = None, "interior-point", (0, 0)
             if self._unsettled is not None:  # the compiled step's set did not settle: straight to the interior point
@@ -437,16 +476,18 @@ class StagewiseSolver:
                 sol = self._active(qp, rows, fixed_start)
                 self.iterations = (sol.iterations, 0)
                 if sol.status == "optimal":
-                    self.method, self._fixed = "active-set", sol.fixed
+                    self.method, kept = "active-set", sol.fixed
                 else:
                     self.method, fell_back = "interior-point after active set", sol.message
             if sol is None or sol.status != "optimal":
                 sol = self._solve(qp, self._start(qp, last))
                 self.iterations = (self.iterations[0], sol.iterations)
                 if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
-                    self._fixed = active_set_of(qp, rows, sol.lam)
+                    kept = active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
+            self._keep_set(None, False)
             return self._failed(t0, str(exc)), None
+        self._keep_set(kept, warm)
         if sol.status == "optimal":
             self._last = sol
         v = sol.v.reshape(-1)

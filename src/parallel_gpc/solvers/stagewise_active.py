@@ -207,11 +207,63 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, f
     return new
 
 
-def shift_active_set(fixed: np.ndarray | None) -> np.ndarray | None:
-    """A previous step's set (n_decide, m) shifted by one stage (the last stage repeated), or None."""
+def shift_active_set(fixed: np.ndarray | None, before: np.ndarray | None = None) -> np.ndarray | None:
+    """A previous step's set (n_decide, m) shifted by one stage (the last stage repeated), or None.
+
+    With ``before``, the set (n_decide, m) of the step before that one, the edges of the limited
+    arcs that moved from step to step (``fixed`` against ``before`` shifted) are moved again by as
+    many stages (:func:`_extrapolate_edges`): an arc that grows or shrinks by a few stages per step
+    (the held input of the incremental forms reaching its torque limit earlier and earlier) costs
+    the plain shift one sweep per stage of the move, every step (planar_4rrr, incremental, N = 160:
+    3 sweeps a step, 1 with the edges moved).
+    """
     if fixed is None or fixed.shape[0] == 0:
         return None
-    return np.concatenate([fixed[1:], fixed[-1:]])
+    shifted = np.concatenate([fixed[1:], fixed[-1:]])
+    if before is None or before.shape != fixed.shape:
+        return shifted
+    return _extrapolate_edges(fixed, np.concatenate([before[1:], before[-1:]]), shifted)
+
+
+def _extrapolate_edges(fixed: np.ndarray, was: np.ndarray, shifted: np.ndarray) -> np.ndarray:
+    """``shifted`` (``fixed`` shifted by one stage) with every moved edge moved again.
+
+    A *moved edge*: a run of consecutive stages of one component where ``fixed`` differs from
+    ``was`` (the set it was solved from, or the step before's shifted), all with one value r (a
+    row, or −1: free), next on one side only to a stage that held r in both — the arc (or the
+    free stretch) r grew into the run. Its next move, of the run's length in the same direction,
+    is predicted: those stages (in the shifted frame) set to r while they hold what lay beyond the
+    run. A wrong prediction costs sweeps, not accuracy (the active set corrects the set and
+    verifies its KKT conditions)."""
+    nd = fixed.shape[0]
+    out = shifted.copy()
+    # the changed entries (few: a step's set moves by a stage or two) as (component, stage), in that order
+    changed = [divmod(c, nd) for c in np.flatnonzero((fixed != was).T).tolist()]
+    a = 0
+    while a < len(changed):
+        j, s = changed[a]
+        r, e = fixed.item(s, j), s
+        a += 1
+        while a < len(changed) and changed[a] == (j, e + 1) and fixed.item(e + 1, j) == r:
+            e, a = e + 1, a + 1
+        length = e - s + 1
+        grew_later = s > 0 and fixed.item(s - 1, j) == r and was.item(s - 1, j) == r
+        grew_earlier = e + 1 < nd and fixed.item(e + 1, j) == r and was.item(e + 1, j) == r
+        if grew_later == grew_earlier:  # no side or both: not an edge
+            continue
+        if grew_later:  # the next stages after the run (at s − 1 … e − 1 once shifted)
+            if e + 1 >= nd:
+                continue
+            beyond, targets = fixed.item(e + 1, j), range(e, min(e + length, nd))
+        else:
+            if s == 0:
+                continue
+            beyond, targets = fixed.item(s - 1, j), range(s - 2, max(s - 2 - length, -1), -1)
+        for t in targets:
+            if out.item(t, j) != beyond:
+                break
+            out[t, j] = r
+    return out
 
 
 def active_set_of(qp: StageQP, rows: InputRowMap, lam: np.ndarray) -> np.ndarray:
