@@ -292,8 +292,8 @@ class GPCController:
         ``simulate``: what runs it, with the signature and results of the model's
         ``simulate_factorized`` (the default); the Riccati path's compiled step passes one that
         plans along the trajectory in the same call (limited: one that only simulates,
-        :meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`) and gives null(B_d(X)) as a fifth result (:func:`~parallel_gpc.gpc.redundancy.null_basis`;
-        False: not computed).
+        :meth:`~parallel_gpc.gpc.riccati.RiccatiPath.stages`) and gives null(B_d(X)) as a fifth
+        result (:func:`~parallel_gpc.gpc.redundancy.null_basis`; False: not computed).
         """
         C = self.model.C
         u_sim = np.concatenate((self.plan[1:], self.plan[-1:]))  # previous plan, shifted (vstack: 2× the time)

@@ -21,7 +21,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from ..model import cached_identity, native_module
+from ..model import cached_identity, compiled_part
 from ..errors import InvalidParameterError, ShapeError
 
 
@@ -320,14 +320,13 @@ def deviation_gain(A_seq, B_seq, C, horizons: Horizons) -> np.ndarray:
     n, m = B_seq.shape[-2], B_seq.shape[-1]
     A_seq, B_seq = _per_step("A_seq", A_seq, N, (n, n)), _per_step("B_seq", B_seq, N, (n, m))
     C = np.asarray(C, dtype=float)
-    compiled = native_module()
-    if compiled is not None and hasattr(compiled, "condense_deviation") and C.ndim == 2 and C.shape[1] == n:
-        return compiled.condense_deviation(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq),
+    compiled = compiled_part(None, "condense_deviation", "the compiled deviation gain")
+    if compiled is not None and C.ndim == 2 and C.shape[1] == n:
+        return compiled(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq),
                                            np.ascontiguousarray(C), horizons.No, horizons.Nu)
     Aa, Ba, _ = _augment(A_seq, B_seq, None)
     Ca = np.hstack([C, np.zeros((C.shape[0], m))])
     return condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)[1]
-
 
 
 def deviation_response(A_seq, B_seq, C, horizons: Horizons, v) -> np.ndarray:
@@ -343,13 +342,14 @@ def deviation_response(A_seq, B_seq, C, horizons: Horizons, v) -> np.ndarray:
         ((N − No)·p,) G v on the penalized outputs (m, rad); ``deviation_gain(...) @ v`` is its
         reference (``PARALLEL_GPC_NATIVE=0``).
     """
-    compiled = native_module()
-    if compiled is not None and hasattr(compiled, "deviation_response"):
-        return compiled.deviation_response(np.ascontiguousarray(A_seq, dtype=float),
+    compiled = compiled_part(None, "deviation_response", "the compiled deviation response")
+    if compiled is not None:
+        return compiled(np.ascontiguousarray(A_seq, dtype=float),
                                            np.ascontiguousarray(B_seq, dtype=float),
                                            np.ascontiguousarray(C, dtype=float), np.ascontiguousarray(v, dtype=float),
                                            horizons.No, horizons.Nu)
     return deviation_gain(A_seq, B_seq, C, horizons) @ v
+
 
 def simulative_prediction(A_seq, B_seq, C, y_sim, u_sim, horizons: Horizons) -> Prediction:
     """Incremental prediction with nonlinear simulative substitution, eq. (10)–(12).

@@ -260,8 +260,8 @@ class StagewiseSolver:
     A problem of input rows alone (torque, Δu; every form) is solved in ONE compiled call per step
     (``_native.RiccatiActive``: the stage models, the criterion's linear terms, the active set and J
     built and solved without a :class:`~parallel_gpc.solvers.StageQP`; the nonlinear form's bounds,
-    which move with the pre-simulated inputs, passed each step: :func:`step_bounds`); the problem is formed in Python only
-    when the interior point takes over.
+    which move with the pre-simulated inputs, passed each step: :func:`step_bounds`); the problem is
+    formed in Python only when the interior point takes over.
 
     Attributes:
         method: what solved the last problem: ``"active-set"``, ``"interior-point"`` (rows other
