@@ -143,7 +143,8 @@ class GPCController:
         self._criterion, self._settings = criterion, settings
         self._limits, self._qp_limits = limits, limits.scaled(1.0 - LIMIT_MARGIN)
         self._limit_gap = limit_gap(limits, self._qp_limits)  # a verified row excess within it keeps the limits
-        self._riccati = None if settings.solver != "riccati" else RiccatiPath(
+        # the stage-wise steps (the nonlinear iterations': the paper's step stage-wise, not condensed)
+        self._riccati = None if settings.step_solver != "riccati" else RiccatiPath(
             criterion, self.model.C, settings.form, limits=self._qp_limits, Ts=settings.Ts)
         if self._backend_name != settings.solver:  # a new back end (the same one kept across limit changes)
             self._backend = None if settings.solver == "riccati" else make_solver(settings.solver)
@@ -152,7 +153,7 @@ class GPCController:
         self._replacement = None
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
-            self._drives, riccati_steps(settings, criterion, self.model.C))
+            self._drives, riccati_steps(settings, criterion, self.model.C), self._qp_limits)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
@@ -304,9 +305,10 @@ class GPCController:
         else:
             A_seq, B_seq, c_seq, X_sim, null = simulate(X, u_sim, self.Ts, self.disturbance)
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
-        self._presimulated = (A_seq, B_seq)  # the paper's step by the NMPC iterations' Riccati recursion
+        y_sim = X_sim[1:] @ C.T
+        self._presimulated = (A_seq, B_seq, y_sim)  # the NMPC iterations' first linearization
         self._null = null  # null(B_d) of this step (False: computed on first use)
-        return A_seq, B_seq, C, X_sim[1:] @ C.T, u_sim
+        return A_seq, B_seq, C, y_sim, u_sim
 
     # ------------------------------------------------------------------ step
     def _reference_rows(self, w) -> np.ndarray:
@@ -337,7 +339,7 @@ class GPCController:
         X = finite_vector("measured state X", X, self.n_x)
         w = self._reference_rows(w)
         t0 = time.perf_counter()
-        constraint_report, rows = None, None
+        constraint_report, rows, problem = None, None, None
         self._update_disturbance(X)
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
@@ -361,8 +363,7 @@ class GPCController:
             rows = self._stage_rows(pred, X, warm)
             full = constrain(problem, rows, self._limits, terminal_rows(pred, w, self._settings.terminal))
             t2 = time.perf_counter()
-            first = None if self._nmpc is None else self._nmpc.riccati_step(X, *self._presimulated, pred.f, w, full)
-            result = first if first is not None else self._dense_solve(full, pred, result, warm)
+            result = self._dense_solve(full, pred, result, warm)
             if rows is not None and result.ok:
                 constraint_report = report(full, rows, result.v)
                 excess = hard_violation(full, rows, result.v)
@@ -374,13 +375,16 @@ class GPCController:
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: every linearization's input map)
             result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0, rows, None if staged else problem)
+                self._backend.solve, self.disturbance, t0, rows, self.u_prev, self._presimulated)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
-        if not staged:  # a dense (or iterated) solution; a stage-wise one is checked above
+        if not staged or self._nmpc is not None:  # a dense or iterated solution; a stage-wise one is checked above
             result = self._within_limits(pred, result)
         fallback = not result.ok
         if fallback:
+            if problem is None:  # a stage-wise step: its condensed problem only now
+                pred = self.predict(X)
+                problem = self._criterion.problem(pred, w, self._qp_limits, self.u_prev)
             result = project_on_limits(problem, pred, result, self._limits.torque, self.n_u)
         t3 = time.perf_counter()
         planned = None if self._riccati is None else self._riccati.planned_inputs(result)

@@ -33,11 +33,15 @@ optimum) — rebuilds the state limits' rows along that trajectory (exact at the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
 v, every limit of the problem included. Where the Riccati recursion gives that problem's minimizer
 (:func:`riccati_steps`: the default back end, no state limit, Qu nonsingular, no terminal weight)
-every step, the paper's included, is solved stage-wise on the linearization's stage models
-(:meth:`NMPCIterations.riccati_step`, no least-squares factorization; the re-linearizations'
-targets and model decrease take G v by one pass of the deviation model,
-:func:`~parallel_gpc.gpc.prediction.deviation_response`, not G); a minimizer beyond an
-input limit goes to the condensed problem (G condensed) and the back end. A
+every step, the paper's included (the controller's stage-wise path, nothing condensed), is solved
+stage-wise on the linearization's stage models (:meth:`NMPCIterations.riccati_step`, no
+least-squares factorization; the linearizations' targets and model decrease take G v by one pass
+of the deviation model, :func:`~parallel_gpc.gpc.prediction.deviation_response`, not G): by the
+recursion without input limits, with torque/Δu limits by the stage-wise active set
+(:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`, one compiled call per step; the input rows
+u = u_sim⁰ + u_map v are the same in every step of a control step); a limited step that the active set
+does not verify within the limits' margin goes to the condensed problem (G condensed) and the back
+end, the reference. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
@@ -61,13 +65,15 @@ import numpy as np
 
 from ..errors import AssemblyError, NonFiniteError, SingularPoseError
 from ..limits import SOFT_QUADRATIC, Limits
-from ..solvers import LeastSquaresProblem, SolveResult
+from ..solvers import SolveResult
 from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
                           hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
+from .fallback import limit_gap
 from .prediction import Prediction, deviation_gain, deviation_response
 from .riccati import RiccatiSolver
 from .settings import GPCSettings, iterations_by_riccati
+from .stagewise import StagewiseSolver
 
 __all__ = ["NMPCIterations", "IterationReport", "riccati_steps", "ARMIJO", "BACKTRACKS"]
 
@@ -88,8 +94,8 @@ def riccati_steps(settings: GPCSettings, criterion: Criterion, C: np.ndarray) ->
     """The Riccati recursion that solves every Gauss–Newton step of the iterations, the paper's
     included (:meth:`NMPCIterations.riccati_step`), or None: where
     :func:`~parallel_gpc.gpc.settings.iterations_by_riccati` says it gives the condensed subproblem's
-    minimizer (then ``settings.step_solver`` is ``"riccati"``). A minimizer that breaks an input
-    limit goes to the condensed problem.
+    minimizer (then ``settings.step_solver`` is ``"riccati"``). With torque/Δu limits the steps are
+    the stage-wise active set's on the same stage models (:class:`NMPCIterations`).
 
     Args:
         settings: the controller's settings (iterations > 1). criterion: its criterion.
@@ -141,13 +147,24 @@ class NMPCIterations:
             by drive_position and drive_rate), or None.
         riccati: the form's Riccati recursion for the steps (:func:`riccati_steps`), or None:
             every step's condensed problem goes to the controller's back end.
+        qp_limits: the limits the steps' problems hold (``limits`` tightened by the controller's
+            margin), or None: with ``riccati`` and a torque or Δu limit, the steps are solved by the
+            stage-wise active set (:attr:`stagewise`).
+
+    Attributes:
+        stagewise: the :class:`~parallel_gpc.gpc.stagewise.StagewiseSolver` of the limited steps, or None.
     """
 
     def __init__(self, model, criterion: Criterion, Ts: float, iterations: int, tolerance: float,
                  time_budget: float | None, limits: Limits | None = None, drives: DriveKinematics | None = None,
-                 riccati: RiccatiSolver | None = None):
+                 riccati: RiccatiSolver | None = None, qp_limits: Limits | None = None):
         self.model, self.criterion, self.Ts = model, criterion, Ts
         self.riccati = riccati
+        self.stagewise, self._gap = None, np.inf
+        if riccati is not None and qp_limits is not None and qp_limits.needs_qp:
+            self.stagewise = StagewiseSolver(riccati.Wy, riccati.Wu, model.C, criterion.horizons, "nonlinear",
+                                             qp_limits, Ts)
+            self._gap = limit_gap(limits, qp_limits)  # a verified row excess within it keeps the true limits
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
@@ -224,37 +241,44 @@ class NMPCIterations:
 
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
-                     bounds: LeastSquaresProblem) -> SolveResult | None:
+                     u_sim: np.ndarray, u_prev: np.ndarray | None) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
-        m and rad) by the Riccati recursion,
-        when :attr:`riccati` is set and its minimizer keeps the input limits of ``bounds`` (the
-        step's problem: its limit rows are every iteration's); else None (the condensed problem
-        then decides, every limit included). w: (n_rows, p) or (n_rows·p,) reference rows (m, rad).
-        Without state limits and with Qu nonsingular (:func:`riccati_steps`) the subproblem's
-        minimizer is unique: the recursion's and QR's agree to rounding."""
+        m and rad) solved stage-wise when :attr:`riccati` is set: by the Riccati recursion, or with
+        torque/Δu limits by the stage-wise active set (:attr:`stagewise`) on the input rows of
+        u = u_sim + u_map v (u_sim: (N·m,) or (N, m) the step's pre-simulated inputs, u_prev: (m,)
+        u(k−1), N·m); None when it is not set, fails, or a limited solution is not verified within
+        the limits' margin (the condensed problem then decides, every limit included).
+        w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). Without state limits and with Qu
+        nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
+        the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
         if self.riccati is None:
             return None
         targets = (np.reshape(w, -1) - f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
-        new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
-        if not new.ok or (bounds.constrained and not bounds.feasible(new.v)):
-            return None
-        return new
+        if self.stagewise is None:
+            new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
+            return new if new.ok else None
+        new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
+                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev)
+        return new if new.ok and self.stagewise.excess <= self._gap else None
 
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
-            rows: ConstraintRows | None = None, bounds: LeastSquaresProblem | None = None):
+            rows: ConstraintRows | None = None, u_prev: np.ndarray | None = None, presimulated: tuple | None = None):
         """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
             X: (n_x,) measured state. w: (n_rows, p) reference rows (m, rad).
-            pred: the paper's prediction (frozen Jacobians along the pre-simulation of u_sim⁰).
+            pred: the paper's prediction (frozen Jacobians along the pre-simulation of u_sim⁰), condensed
+                (f, G), or only its input map (the stage-wise step: G has no row; ``presimulated`` then
+                gives f and G v).
             result: its solve (v = the paper's increments, without slack variables).
             problem_of: Prediction → LeastSquaresProblem with the controller's input limits.
             solve: (problem, warm start) → SolveResult (the controller's back end).
             disturbance: (n_x,) d of the step. start: time.perf_counter() at the step's start.
             rows: the paper's step's state-limit rows (None without state limits).
-            bounds: the paper's step's problem (its input-limit rows are every iteration's:
-                u = u_sim⁰ + u_map v in all of them), or None (built from the first linearization).
+            u_prev: (m,) u(k−1) (N·m), the Δu rows' origin (needed by the stage-wise limited steps).
+            presimulated: (A_seq (N, n_x, n_x), B_seq (N, n_x, m), y_sim (N, p)) of the step's
+                pre-simulation (the paper's linearization), needed when ``pred`` is not condensed.
 
         Returns:
             (its result with v the accepted plan, :class:`IterationReport`). Every linearization maps
@@ -267,11 +291,16 @@ class NMPCIterations:
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
-        true_rows = self._true_rows(pred.f, y_now)  # the state limits along the pre-simulation (v = 0)
-        merit = self._cost(pred.f, w, v) + self._penalty(true_rows, NO_DECISION)
-        excess = self._hard(true_rows)
         # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows
-        y_lin, gain, lin_rows = pred.f, pred.G.__matmul__, rows
+        if pred.G.size:
+            y_lin, gain = pred.f, pred.G.__matmul__
+        else:  # the stage-wise step: G v by the deviation model along the pre-simulation
+            A_seq, B_seq, y_sim = presimulated
+            y_lin, gain = y_sim[H.No:].reshape(-1), partial(deviation_response, A_seq, B_seq, C, H)
+        lin_rows = rows
+        true_rows = self._true_rows(y_lin, y_now)  # the state limits along the pre-simulation (v = 0)
+        merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
+        excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
         last = time.perf_counter()
         while True:
@@ -284,8 +313,9 @@ class NMPCIterations:
                 if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
                     report.update(stop="converged", converged=True)
                     break
-            decrease = max(self._model_merit(y_lin, lin_rows, w, v)
-                           - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
+            # the model's merit at v: the true one (the linearization is exact there) without state-limit rows
+            at_v = merit if lin_rows is None else self._model_merit(y_lin, lin_rows, w, v)
+            decrease = max(at_v - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
@@ -324,16 +354,13 @@ class NMPCIterations:
                 break
             y_lin, lin = y_rows, None  # ŷ(v + δ) ≈ y_rows + G δ along this plan's trajectory
             result = None
-            if self.riccati is not None and bounds is not None and self.limits is None:  # G v alone, not G
+            if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, bounds)
-            if result is None:  # G itself: the condensed subproblem (or its input limits' problem)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev)
+            if result is None:  # G itself: the condensed subproblem with every limit, the back end's
                 G = deviation_gain(JX, B_seq, C, H)
                 gain = G.__matmul__
                 lin = Prediction(y_rows - G @ v, G, u0, u_map, H, "simulative")
-                if bounds is None and self.riccati is not None:
-                    bounds = problem_of(lin)
-                    result = self.riccati_step(X, JX, B_seq, lin.f, w, bounds)
             try:  # the state limits linearized along this plan's trajectory (exact at v)
                 lin_rows = None if lin is None else self._rows(lin, y_rows, y_now)
             except MODEL_ERRORS:
