@@ -373,15 +373,103 @@ def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name, compiled_s
     np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
 
 
-def test_riccati_steps_leave_a_binding_torque_limit_to_the_condensed_problem(robot4, compiled_stagewise):
+def _limited_case(kind):
+    """(model, X, plan, target, limits) of the planar step with a torque or Δu limit that binds at
+    the unconstrained optimum (80 % of its peak torque, half its largest increment)."""
     model, X, plan, target = _case("planar_4rrr")
     _, free = _step(model, X, plan, target, 10, 50)
     u_free = np.vstack([plan[1:10], plan[9:10]]) + np.cumsum(free.result.v.reshape(10, -1), axis=0)
-    limits = Limits(torque=0.8 * np.abs(u_free).max())
-    ctrl, info = _step(ReducedModel(robot4), X, plan, target, 10, 50, limits=limits)
-    assert ctrl._nmpc.riccati is not None  # eligible, but its minimizer breaks the limit: QP decides
-    assert info.result.active_limits and info.result.solver != "riccati" and not info.fallback
-    assert np.abs(info.u).max() <= limits.torque.max() * (1.0 - LIMIT_MARGIN) * (1.0 + 1e-9)
+    if kind == "torque":
+        return model, X, plan, target, Limits(torque=0.8 * np.abs(u_free).max())
+    return model, X, plan, target, Limits(du=0.5 * np.abs(np.diff(np.vstack([plan[:1], u_free]), axis=0)).max())
+
+
+def _kkt_residual(model, X, plan, target, limits, v, N=10, h=1e-3):
+    """The KKT conditions of the limited discrete problem (the module docstring of gpc/nmpc.py) at v,
+    computed here: ∇J by central differences of the model's rollout, the multipliers of the active
+    torque/Δu rows by NNLS (λ ≥ 0). Returns (‖∇J + Lᵀλ‖∞ / ‖∇J‖∞, the rows' largest excess (N·m),
+    number of active rows)."""
+    from scipy.optimize import nnls
+
+    m = model.n_u
+    u0 = np.vstack([plan[1:N], plan[N - 1:N]])
+    tight = limits.for_drives(m).scaled(1.0 - LIMIT_MARGIN)
+    w = np.tile(target, (N, 1))
+
+    def outputs(vv):
+        u = u0 + np.cumsum(vv.reshape(N, m), axis=0)
+        return model.simulate_factorized(X, u, TS)[3][1:] @ model.C.T
+
+    y = outputs(v)
+    jac = np.empty((y.size, v.size))
+    for k in range(v.size):
+        e = np.zeros_like(v)
+        e[k] = h
+        jac[:, k] = (outputs(v + e) - outputs(v - e)).reshape(-1) / (2 * h)
+    grad = 2.0 * QY ** 2 * jac.T @ (y - w).reshape(-1) + 2.0 * QU ** 2 * v
+    u = u0 + np.cumsum(v.reshape(N, m), axis=0)
+    value, rows, bound = [], [], []  # each limit row: its value, d(value)/dv, its bound
+    cum = np.kron(np.tril(np.ones((N, N))), np.eye(m))  # u = u0 + cum v
+    if tight.torque is not None:
+        for i in range(N * m):
+            for sign in (1.0, -1.0):
+                value.append(sign * u.reshape(-1)[i]), rows.append(sign * cum[i]), bound.append(tight.torque[i % m])
+    if tight.du is not None:
+        du = np.diff(np.vstack([plan[:1], u]), axis=0).reshape(-1)
+        for i in range(N * m):
+            for sign in (1.0, -1.0):
+                value.append(sign * du[i]), rows.append(sign * np.eye(N * m)[i]), bound.append(tight.du[i % m])
+    value, rows, bound = np.array(value), np.array(rows), np.array(bound)
+    active = value >= bound * (1.0 - 1e-9)
+    lam, _ = nnls(rows[active].T, -grad)
+    residual = np.abs(grad + rows[active].T @ lam).max() / np.abs(grad).max()
+    return residual, float(np.max(value - bound)), int(active.sum())
+
+
+@pytest.mark.parametrize("kind", ["torque", "du"])
+def test_limited_iterations_take_the_stagewise_active_set(kind, compiled_stagewise, monkeypatch):
+    """A torque or Δu limit binding in every Gauss–Newton step: each step is the stage-wise active
+    set's (the condensed back end is never called), the converged plan is the condensed path's
+    (the same settings with the back end named: every step condensed, DAQP) within 1e-8, and a KKT
+    point of the limited problem (gradient of the rollout, multipliers ≥ 0 on the active rows)."""
+    model, X, plan, target, limits = _limited_case(kind)
+    N = 10
+    ctrl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=50,
+                               tolerance=1e-12, limits=limits, disturbance_gain=0.0)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+
+    def condensed(*args):
+        raise AssertionError("a limited step went to the condensed back end")
+
+    monkeypatch.setattr(ctrl._backend, "solve", condensed)
+    info = ctrl.step(X, np.tile(target, (N, 1)))
+    assert ctrl._nmpc.stagewise is not None and ctrl._nmpc.stagewise.method == "active-set"
+    assert info.result.solver == "riccati" and info.result.active_limits and not info.fallback
+    assert info.iterations > 2 and info.residual <= 1e-6
+    _, dense = _step(model, X, plan, target, N, 50, limits=limits, solver=ctrl.settings.solver)
+    assert dense.result.solver == ctrl.settings.solver != "riccati" and dense.result.active_limits
+    np.testing.assert_allclose(info.result.v, dense.result.v, rtol=0, atol=1e-8 * np.abs(dense.result.v).max())
+    assert info.result.cost == pytest.approx(dense.result.cost, rel=1e-10)
+    residual, excess, n_active = _kkt_residual(model, X, plan, target, limits, info.result.v)
+    assert n_active > 0 and residual <= 1e-6 and excess <= 1e-9  # measured 1e-8 (torque), 3e-9 (du)
+    _, paper = _step(model, X, plan, target, N, 1, limits=limits)  # the oracle can fail: the paper's step is not it
+    assert _kkt_residual(model, X, plan, target, limits, paper.result.v)[0] > 1e-4  # measured 6e-3, 1e-3
+
+
+def test_a_limited_step_the_active_set_does_not_verify_goes_to_the_condensed_problem(compiled_stagewise,
+                                                                                     monkeypatch):
+    """The condensed back end stays the fallback: a stage-wise step not verified within the limits'
+    margin (here every one after the paper's) is solved condensed, to the same converged plan."""
+    model, X, plan, target, limits = _limited_case("torque")
+    N = 10
+    ctrl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=50,
+                               tolerance=1e-12, limits=limits, disturbance_gain=0.0)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+    monkeypatch.setattr(ctrl._nmpc, "_gap", -1.0)  # no excess is within it
+    info = ctrl.step(X, np.tile(target, (N, 1)))
+    assert info.result.solver == ctrl.settings.solver != "riccati" and info.iterations > 2 and not info.fallback
+    _, staged = _step(model, X, plan, target, N, 50, limits=limits)
+    np.testing.assert_allclose(info.result.v, staged.result.v, rtol=0, atol=1e-8 * np.abs(staged.result.v).max())
 
 
 @pytest.mark.parametrize("kw", [dict(solver="qr"), dict(limits=Limits(output_box=[[0.0, 1.0], [0.0, 1.0], [-3.0, 3.0]])),
