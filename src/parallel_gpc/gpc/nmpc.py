@@ -8,7 +8,7 @@ and solves one least-squares problem: one Gauss–Newton step of the discrete pr
 sample (the pre-simulation's inputs), v = [Δu(0) … Δu(Nu−1)] and
 u(i) = u_sim⁰(i) + Σ_{l ≤ min(i, Nu−1)} Δu(l), i = 0..N−1 (the nonlinear form's inputs)::
 
-    minimize   J(v) = Σ_{j=No+1..N} ‖Qy (C X(j) − w(j))‖² + Σ_{i<Nu} ‖Qu Δu(i)‖²
+    minimize   J(v) = Σ_{j=No+1..N} ‖Qy (C X(j) − w(j))‖² + Σ_{i<Nu} ‖Qu Δu(i)‖²   (j = N: diag(Qf) Qy)
     subject to X(0) = X(k),  X(i+1) = Φ(X(i), u(i)) + d,
                |u(i)| ≤ τ (i < N),  |u(i) − u(i−1)| ≤ δ (i < Nu, u(−1) = u(k−1)),
                the state limits (:mod:`~parallel_gpc.gpc.constraints`) on the outputs C X(j),
@@ -180,11 +180,20 @@ class NMPCIterations:
         return traj, u, y, self._cost(y, w, v)
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
-        """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,))."""
+        """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,)), the
+        last row weighed diag(Qf) Qy like the condensed problem's
+        (:meth:`~parallel_gpc.gpc.criterion.Criterion.problem`); diagonal weights as vectors."""
         c = self.criterion
-        e = (y_rows - w).reshape(-1, c.n_outputs) @ c.Wy.T
-        q = c.Qu_block @ v
-        return float(e.reshape(-1) @ e.reshape(-1) + q @ q)
+        r = y_rows - w
+        if c.wy is not None:
+            e = c.wy * r
+        else:
+            p = c.n_outputs
+            e = (r.reshape(-1, p) @ c.Wy.T).reshape(-1)
+            if c.Wf is not None:
+                e[-p:] = c.Wf @ r[-p:]
+        q = v * c.qu_diag if c.qu_diag is not None else c.Qu_block @ v
+        return float(e @ e + q @ q)
 
     # -------------------------------------------------------------- state limits
     def _rows(self, lin: Prediction, y_lin: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
@@ -291,12 +300,14 @@ class NMPCIterations:
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
         v = np.zeros_like(result.v)
-        # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows
-        if pred.G.size:
-            y_lin, gain = pred.f, pred.G.__matmul__
-        else:  # the stage-wise step: G v by the deviation model along the pre-simulation
+        # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows; whether `result`
+        # is a stage-wise solve (its J, the criterion along the stage models, is the model's J at result.v)
+        staged = not pred.G.size
+        if staged:  # the controller's stage-wise step: G v by the deviation model along the pre-simulation
             A_seq, B_seq, y_sim = presimulated
             y_lin, gain = y_sim[H.No:].reshape(-1), partial(deviation_response, A_seq, B_seq, C, H)
+        else:
+            y_lin, gain = pred.f, pred.G.__matmul__
         lin_rows = rows
         true_rows = self._true_rows(y_lin, y_now)  # the state limits along the pre-simulation (v = 0)
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
@@ -313,9 +324,12 @@ class NMPCIterations:
                 if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
                     report.update(stop="converged", converged=True)
                     break
-            # the model's merit at v: the true one (the linearization is exact there) without state-limit rows
-            at_v = merit if lin_rows is None else self._model_merit(y_lin, lin_rows, w, v)
-            decrease = max(at_v - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
+            if lin_rows is None:  # the model's merit at v is the true one (the linearization is exact there)
+                model_new = result.cost if staged else self._cost(y_lin + gain(delta), w, v_new)
+                decrease = max(merit - model_new, 0.0)
+            else:
+                decrease = max(self._model_merit(y_lin, lin_rows, w, v)
+                               - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
@@ -357,6 +371,7 @@ class NMPCIterations:
             if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
                 result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev)
+            staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's
                 G = deviation_gain(JX, B_seq, C, H)
                 gain = G.__matmul__
