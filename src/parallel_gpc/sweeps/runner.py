@@ -8,8 +8,8 @@
 * ``scheduler="tcp://HOST:PORT"`` (or a ``distributed.Client``) — an existing cluster whose
   workers can import ``parallel_gpc`` and read the robot files.
 
-Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: the
-first tasks are single cells; then a batch holds about :data:`BATCH_SECONDS` of work at the mean
+Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: on
+a running cluster the first tasks are single cells; then a batch holds about :data:`BATCH_SECONDS` of work at the mean
 cell time measured so far, and never more than its share of the cells left (:data:`IN_FLIGHT`
 batches queued per worker), so the workers finish together. A cell of 0.1 s thus pays the
 scheduler's 5–25 ms per task once per ten cells, not once per cell. The records of a batch are
@@ -21,10 +21,10 @@ first batches are sized from the probe's time per cell (no single-cell tasks).
 
 Local workers are forked from this process where the platform allows it (:data:`START_METHOD`,
 Linux): they start with the modules the probe imported (the package, Pinocchio, the compiled
-core) instead of importing them again (spawned: ~1.7 CPU-s per worker). Elsewhere they are
-spawned and get this process's ``sys.path``, so a package found through ``PYTHONPATH`` or an
-editable install is found by the workers too. A progress bar
-shows done / failed / ETA as cells (batches) finish (``distributed.as_completed``). A cell that fails is a
+core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
+checks run seldom (:data:`CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
+``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
+workers too. A progress bar shows done / failed / ETA as cells (batches) finish (``distributed.as_completed``). A cell that fails is a
 record with its error, a cell whose closed loop diverged a record of the part run; the sweep
 goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
 journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
