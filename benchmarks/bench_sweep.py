@@ -198,6 +198,7 @@ def main() -> int:
     finally:
         client.close()
         cluster.close()
+    t_import = dask_import_seconds()
     w = args.workers
     rows = []
     for name, t in times.items():
@@ -215,6 +216,8 @@ def main() -> int:
                                        f"ideal {ideal:.2f}× ({speedup / ideal:.0%} of it)"))
     rows += [
         ("cluster start-up (start_local_cluster + imports on the workers)", f"{t_start:.2f} s"),
+        ("import dask.distributed in a fresh process (the first own cluster of a process pays it; "
+         "not in the times above)", f"{t_import:.2f} s"),
         (f"64 no-op cells through run_sweep (median of {REPEATS})",
          f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
         (f"64 no-op client.submit + as_completed (median of {REPEATS})",
@@ -240,6 +243,17 @@ def main() -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_sweep.md").write_text(text + "\n")
     return 0 if same else 1
+
+
+def dask_import_seconds() -> float:
+    """Wall time of ``import dask.distributed`` in a fresh Python process that has imported the package, s."""
+    import subprocess
+    import sys
+
+    code = ("import time, parallel_gpc.sweeps, parallel_gpc.studies; t = time.perf_counter(); "
+            "import dask.distributed; print(time.perf_counter() - t)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=os.environ)
+    return float(out.stdout.split()[-1])
 
 
 def table(header, rows) -> str:

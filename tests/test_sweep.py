@@ -303,6 +303,7 @@ def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch
     assert cluster_pays(60 * 0.2, 2)  # 64 cells of 0.2 s
     assert not cluster_pays(1.99 * start, 2) and cluster_pays(2.01 * start, 2)  # 2 workers save half the work
     assert not cluster_pays(1.49 * start, 3) and cluster_pays(1.51 * start, 3)
+    assert not cluster_pays(1.99 * 1.5, 2, cost=1.5) and cluster_pays(2.01 * 1.5, 2, cost=1.5)
 
     def no_cluster(*args, **kwargs):
         raise AssertionError("a LocalCluster was started for a sweep too small to repay it")
@@ -383,6 +384,14 @@ def test_a_sweeps_local_cluster_has_its_settings_and_forks_on_linux():
     for tick, profile, mark in seen.values():
         assert (tick, profile) == ("1s", False)
         assert mark == ([os.getpid()] if forked else [])  # a forked worker has this process's state
+
+
+def test_a_process_without_dask_counts_its_import_into_the_cluster_cost(monkeypatch):
+    import dask.distributed  # noqa: F401 - imported: the cost is the start-up alone
+
+    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS
+    monkeypatch.delitem(sys.modules, "distributed")
+    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS + runner.DASK_IMPORT_SECONDS
 
 
 def test_run_cells_keeps_the_order_and_records_a_cell_function_that_raises():

@@ -73,6 +73,9 @@ START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
 #: 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close. A cluster is
 #: started only if the time its extra workers save repays it (:func:`cluster_pays`).
 LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
+#: Time to import ``dask.distributed`` in a process that has not yet, s (0.54–0.61 CPU-s measured,
+#: 2 cores): paid by the first sweep of a process that starts a cluster (:func:`local_cluster_cost`).
+DASK_IMPORT_SECONDS = 0.6
 #: Dask settings of a sweep's own local cluster (:func:`start_local_cluster`): no statistical
 #: profiler sampling the running cell's stack every 10 ms (it feeds a dashboard nobody watches),
 #: and the periodic checks of the scheduler, nannies and workers (event-loop tick every 20 ms,
@@ -255,7 +258,8 @@ def _run_probe(cells, func, collector: _Collector, n_workers: int) -> tuple[list
     while queue and not collector.result.interrupted:
         elapsed = time.perf_counter() - start
         done = len(cells) - len(queue)
-        if done and elapsed >= PROBE_SECONDS and cluster_pays(elapsed / done * len(queue), n_workers):
+        if done and elapsed >= PROBE_SECONDS and cluster_pays(elapsed / done * len(queue), n_workers,
+                                                              local_cluster_cost()):
             return list(queue), elapsed / done
         collector.add(_run_one(func, queue.popleft()))
         collector.result.local += 1
@@ -304,11 +308,17 @@ def batch_size(left: int, n_workers: int, per_cell: float | None) -> int:
     return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
 
 
-def cluster_pays(work_left: float, n_workers: int) -> bool:
+def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
     """Whether starting a local cluster of ``n_workers`` (≥ 2) for ``work_left`` seconds of serial
     work saves time: the work the extra workers take over, ``work_left · (1 − 1/n)``, must exceed
-    :data:`LOCAL_START_SECONDS`."""
-    return work_left * (1 - 1 / n_workers) > LOCAL_START_SECONDS
+    the cluster's ``cost`` in s (default :data:`LOCAL_START_SECONDS`)."""
+    return work_left * (1 - 1 / n_workers) > (LOCAL_START_SECONDS if cost is None else cost)
+
+
+def local_cluster_cost() -> float:
+    """What a sweep's own local cluster costs this process, s: :data:`LOCAL_START_SECONDS`, plus
+    :data:`DASK_IMPORT_SECONDS` while ``dask.distributed`` is not imported yet."""
+    return LOCAL_START_SECONDS + (0.0 if "distributed" in sys.modules else DASK_IMPORT_SECONDS)
 
 
 def _run_dask(cells, func, collector: _Collector, workers, scheduler, probe_per_cell: float | None) -> None:
