@@ -9,9 +9,10 @@
   workers can import ``parallel_gpc`` and read the robot files.
 
 Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: on
-a running cluster the first tasks are single cells; then a batch holds about :data:`BATCH_SECONDS` of work at the mean
-cell time measured so far, and never more than its share of the cells left (:data:`IN_FLIGHT`
-batches queued per worker), so the workers finish together. A cell of 0.1 s thus pays the
+a running cluster the first tasks are single cells; then a batch holds about
+:data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
+share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
+together. A cell of 0.1 s thus pays the
 scheduler's 5–25 ms per task once per ten cells, not once per cell. The records of a batch are
 journalled as it returns. A sweep on a local cluster it starts itself first runs cells in this
 process for :data:`PROBE_SECONDS`: if the work left (cells left × mean cell time) would not pay
@@ -24,12 +25,12 @@ Linux): they start with the modules the probe imported (the package, Pinocchio, 
 core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
 checks run seldom (:data:`CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
 ``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
-workers too. A progress bar shows done / failed / ETA as cells (batches) finish (``distributed.as_completed``). A cell that fails is a
-record with its error, a cell whose closed loop diverged a record of the part run; the sweep
-goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
-journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
-of work), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the
-sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
+workers too. A progress bar shows done / failed / ETA as cells (batches) finish
+(``distributed.as_completed``). A cell that fails is a record with its error, a cell whose
+closed loop diverged a record of the part run; the sweep goes on. Ctrl-C cancels the cells not
+yet finished and keeps the finished ones (already journalled in the store; a batch still
+running is lost, at most :data:`BATCH_SECONDS` per worker of work), so a rerun resumes; the
+local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
 a second sweep into the same folder is refused.
 """
 
@@ -68,8 +69,8 @@ PROBE_SECONDS = 0.5
 #: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
 #: Cost of a sweep's own local cluster, s: its start-up and shutdown plus the workers' imports,
-#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 7.6:
-#: forked 0.46–0.57 s start + 0.11–0.14 s close (0.04 CPU-s per worker); spawned 3.4–4.8 s start,
+#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6:
+#: forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned 3.4–4.8 s start,
 #: 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close. A cluster is
 #: started only if the time its extra workers save repays it (:func:`cluster_pays`).
 LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
