@@ -30,8 +30,8 @@ workers too. A progress bar shows done / failed / ETA as cells (batches) finish
 closed loop diverged a record of the part run; the sweep goes on. Ctrl-C cancels the cells not
 yet finished and keeps the finished ones (already journalled in the store; a batch still
 running is lost, at most :data:`BATCH_SECONDS` per worker of work), so a rerun resumes; the
-local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
-a second sweep into the same folder is refused.
+local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is
+quiet. A store is locked while the sweep runs: a second sweep into the same folder is refused.
 """
 
 from __future__ import annotations
