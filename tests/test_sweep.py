@@ -366,6 +366,17 @@ def test_the_probe_sizes_the_first_batches_of_the_cluster_it_starts():
 
 
 @pytest.mark.slow
+def test_the_probe_stops_after_one_cell_when_the_cluster_clearly_pays(monkeypatch):
+    import dask.distributed  # noqa: F401 - imported: the cluster's cost is LOCAL_START_SECONDS
+
+    monkeypatch.setattr(runner, "LOCAL_START_SECONDS", 0.05)
+    n = 60  # 59 × SLEEP_CELL left after one cell: half of it (2 workers) is 0.59 s > PROBE_MARGIN × 0.05 s
+    assert cluster_pays((n - 1) * SLEEP_CELL, 2, runner.PROBE_MARGIN * runner.LOCAL_START_SECONDS)
+    result = run_sweep(_sleep_cells(n), workers=2, progress=False, func=_sleeping_cell)
+    assert result.ran == n and result.local == 1 and sum(result.batches) == n - 1
+
+
+@pytest.mark.slow
 def test_a_sweeps_local_cluster_has_its_settings_and_forks_on_linux():
     import dask
     from dask.distributed import Client

@@ -12,13 +12,13 @@ Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as th
 a running cluster the first tasks are single cells; then a batch holds about
 :data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
 share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
-together. A cell of 0.1 s thus pays the
-scheduler's 5–25 ms per task once per ten cells, not once per cell. The records of a batch are
-journalled as it returns. A sweep on a local cluster it starts itself first runs cells in this
-process for :data:`PROBE_SECONDS`: if the work left (cells left × mean cell time) would not pay
-for starting the cluster (:data:`LOCAL_START_SECONDS` per the time the extra workers save) the
-rest runs here too, so a small sweep is never slower than a serial one; otherwise the cluster's
-first batches are sized from the probe's time per cell (no single-cell tasks).
+together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task once per ten cells, not
+once per cell. The records of a batch are journalled as it returns. A sweep on a local cluster
+it starts itself first runs cells in this process for :data:`PROBE_SECONDS` (or until the
+cluster clearly pays, :data:`PROBE_MARGIN`): if the work left (cells left × mean cell time) would
+not pay for starting the cluster (:func:`local_cluster_cost` per the time the extra workers
+save) the rest runs here too, so a small sweep is never slower than a serial one; otherwise the
+cluster's first batches are sized from the probe's time per cell (no single-cell tasks).
 
 Local workers are forked from this process where the platform allows it (:data:`START_METHOD`,
 Linux): they start with the modules the probe imported (the package, Pinocchio, the compiled
@@ -65,6 +65,9 @@ BATCH_SECONDS = 1.0
 IN_FLIGHT = 2
 #: In-process run time before deciding whether a local cluster pays for itself, s.
 PROBE_SECONDS = 0.5
+#: The probe decides sooner, after any cell, once the work left would repay the cluster's cost
+#: this many times over (64 cells of 0.13 s: after the first; the other worker stops idling).
+PROBE_MARGIN = 4.0
 #: How a sweep's own local workers are started (multiprocessing): forked on Linux (the workers
 #: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
@@ -245,7 +248,8 @@ def _run_serial(cells, func, collector: _Collector) -> None:
 
 
 def _run_probe(cells, func, collector: _Collector, n_workers: int) -> tuple[list, float | None]:
-    """Run cells in this process for :data:`PROBE_SECONDS`.
+    """Run cells in this process for :data:`PROBE_SECONDS` (less when the work left repays the
+    cluster :data:`PROBE_MARGIN` times over).
 
     Returns:
         (the cells left for a local cluster of ``n_workers``, the probe's time per cell in s):
@@ -259,9 +263,10 @@ def _run_probe(cells, func, collector: _Collector, n_workers: int) -> tuple[list
     while queue and not collector.result.interrupted:
         elapsed = time.perf_counter() - start
         done = len(cells) - len(queue)
-        if done and elapsed >= PROBE_SECONDS and cluster_pays(elapsed / done * len(queue), n_workers,
-                                                              local_cluster_cost()):
-            return list(queue), elapsed / done
+        if done:
+            work_left, cost = elapsed / done * len(queue), local_cluster_cost()
+            if cluster_pays(work_left, n_workers, cost * (1.0 if elapsed >= PROBE_SECONDS else PROBE_MARGIN)):
+                return list(queue), elapsed / done
         collector.add(_run_one(func, queue.popleft()))
         collector.result.local += 1
     return [], None
