@@ -7,11 +7,17 @@ Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass s
 ~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
 round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (its own
 LocalCluster: start-up, in-process probe and shutdown included) and on a running LocalCluster
-(``scheduler=client``, workers warmed up), interleaved, and checks that every path gives the
-serial metrics. Then it times 64 no-op cells through ``run_sweep`` and 64 bare ``client.submit``
-tasks. Prints a Markdown table (medians over the rounds, the speed-ups' range, the speed-up per
-worker and the ideal one: serial / W, plus the measured cluster start-up for ``run_sweep``'s own
-cluster) and writes it to
+(``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
+the three rotates from round to round; every path runs the same cells, one cell runs in this
+process before the first round so that no path pays the first imports), and checks that every
+path gives the serial metrics. Then it times 64 no-op cells through ``run_sweep`` and 64 bare
+``client.submit`` tasks. Prints a Markdown table (medians over the rounds, the speed-ups' range, the
+speed-up per worker and the ideal one: serial / W, plus the measured cluster start-up for
+``run_sweep``'s own cluster) and, from a trace of every cell (process, start and end, thread CPU),
+where the parallel paths lose to the ideal (instrumentation table, medians over the rounds): CPU of
+the cells against the same cells serially, Dask's own CPU (this process: scheduler, client,
+nannies; the workers beyond their cells), each worker's idle time (before its first cell, between
+cells, after its last), the tasks' sizes, the bytes of the records returned. Both tables go to
 DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
 """
 
@@ -20,18 +26,22 @@ import os
 os.environ["OPENBLAS_NUM_THREADS"] = "1"  # one BLAS thread per process: the workers are the parallelism
 
 import argparse  # noqa: E402
-import logging  # noqa: E402
+import pickle  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from parallel_gpc.sweeps import TIMING_COLUMNS, failed_record, load_spec  # noqa: E402
-from parallel_gpc.sweeps import run_sweep  # noqa: E402
+from parallel_gpc.sweeps import TIMING_COLUMNS, failed_record, load_spec, run_cell  # noqa: E402
+from parallel_gpc.sweeps import run_sweep, start_local_cluster  # noqa: E402
 
 
 #: Repetitions of the no-op timings (the median is reported).
 REPEATS = 5
+#: Columns the trace adds to a record (process, start and end on the wall clock in s, thread CPU in s).
+TRACE_COLUMNS = ("trace_pid", "trace_start", "trace_end", "trace_cpu")
+#: A gap between two cells of one worker counted as idle, s (below: the loop from cell to cell).
+GAP_SECONDS = 0.005
 
 
 def spec_64(duration: float = 0.5):
@@ -55,6 +65,15 @@ def spec_16(duration: float = 0.25):
     })
 
 
+def traced(cell):
+    """:func:`run_cell` with its trace: the process, start and end (wall clock, s), thread CPU (s)."""
+    start, cpu = time.time(), time.thread_time()
+    record = run_cell(cell)
+    record.update(trace_pid=os.getpid(), trace_start=start, trace_end=time.time(),
+                  trace_cpu=time.thread_time() - cpu)
+    return record
+
+
 def noop(cell):
     """A task that does nothing but return a (blank) record: measures the scheduling cost."""
     record = failed_record(cell, "")
@@ -66,15 +85,67 @@ def _bare(x):
     return x
 
 
-def timed(fn):
-    start = time.perf_counter()
-    out = fn()
-    return time.perf_counter() - start, out
-
-
 def metrics(result):
     frame = result.frame()
-    return frame[[c for c in frame.columns if c not in TIMING_COLUMNS]]
+    return frame[[c for c in frame.columns if c not in TIMING_COLUMNS and c not in TRACE_COLUMNS]]
+
+
+def process_cpu(pids) -> float:
+    """CPU time (user + system) of the processes ``pids`` so far, s."""
+    import psutil
+
+    return sum(sum(psutil.Process(pid).cpu_times()[:2]) for pid in pids)
+
+
+def run_path(run, worker_pids=()):
+    """Run one path of one sweep; its wall time and its trace.
+
+    Returns:
+        (wall time in s, the SweepResult, a dict: CPU of this process, of its reaped children
+        (a cluster it started and closed) and of ``worker_pids`` (a running cluster), s).
+    """
+    here, children = time.process_time(), os.times()
+    workers = process_cpu(worker_pids)
+    start = time.perf_counter()
+    start_clock = time.time()
+    result = run()
+    wall = time.perf_counter() - start
+    after = os.times()
+    cpu = {"here": time.process_time() - here,
+           "children": after.children_user + after.children_system - children.children_user - children.children_system,
+           "workers": process_cpu(worker_pids) - workers, "start": start_clock, "end": start_clock + wall}
+    return wall, result, cpu
+
+
+def instrument(result, cpu, serial_cpu):
+    """Where a parallel run's time went, from its cells' trace (see the module docstring).
+
+    Returns:
+        dict of floats: cells' CPU / the same cells' CPU serially; Dask's CPU (s): this process
+        minus its cells, and the workers beyond their cells; per worker (medians over workers):
+        idle before the first cell, between cells (gaps ≥ :data:`GAP_SECONDS`) and after the
+        last, s; cells run here; tasks; bytes of a record returned.
+    """
+    here_pid = os.getpid()
+    records = [r for r in result.records if "trace_pid" in r]
+    cells_cpu = sum(r["trace_cpu"] for r in records)
+    here_cells = sum(r["trace_cpu"] for r in records if r["trace_pid"] == here_pid)
+    out = {"cpu_ratio": cells_cpu / serial_cpu,
+           "dask_here": cpu["here"] - here_cells,
+           "dask_workers": cpu["children"] + cpu["workers"] - (cells_cpu - here_cells),
+           "local": result.local, "tasks": len(result.batches),
+           "bytes": statistics.median(len(pickle.dumps(r)) for r in records)}
+    pids = sorted({r["trace_pid"] for r in records} - {here_pid})
+    before, between, after = [], [], []
+    for pid in pids:
+        mine = sorted((r for r in records if r["trace_pid"] == pid), key=lambda r: r["trace_start"])
+        before.append(mine[0]["trace_start"] - cpu["start"])
+        gaps = [b["trace_start"] - a["trace_end"] for a, b in zip(mine, mine[1:])]
+        between.append(sum(g for g in gaps if g >= GAP_SECONDS))
+        after.append(cpu["end"] - mine[-1]["trace_end"])
+    for key, values in (("idle_before", before), ("idle_between", between), ("idle_after", after)):
+        out[key] = statistics.median(values) if values else 0.0
+    return out
 
 
 def main() -> int:
@@ -83,35 +154,51 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     args = parser.parse_args()
-    from dask.distributed import Client, LocalCluster, as_completed
+    from dask.distributed import Client, as_completed
 
     sweeps = {"64 cells of ~0.2 s": spec_64().cells(), "16 cells of ~0.1 s": spec_16().cells()}
     load_before = os.getloadavg()
-    t_start, (cluster, client) = timed(lambda: _start(LocalCluster, Client, args.workers))
-    times = {name: {"serial": [], "own": [], "running": []} for name in sweeps}
+    traced(sweeps["16 cells of ~0.1 s"][0])  # the first imports and caches of this process, outside the timing
+    start = time.perf_counter()
+    cluster = start_local_cluster(args.workers)
+    client = Client(cluster)
+    client.run(lambda: __import__("parallel_gpc.sweeps"))  # imports done before the timing
+    t_start = time.perf_counter() - start
+    worker_pids = list(client.run(os.getpid).values())
+    paths = {
+        "serial": lambda cells: run_path(lambda: run_sweep(cells, workers=0, progress=False, func=traced)),
+        "own": lambda cells: run_path(lambda: run_sweep(cells, workers=args.workers, progress=False, func=traced)),
+        "running": lambda cells: run_path(lambda: run_sweep(cells, scheduler=client, progress=False, func=traced),
+                                          worker_pids),
+    }
+    times = {name: {path: [] for path in paths} for name in sweeps}
+    probes = {name: {path: [] for path in ("own", "running")} for name in sweeps}
     cell_means, same, failed = {}, True, {}
     try:
-        run_sweep(spec_16().cells()[:4], scheduler=client, progress=False)  # warm-up: first run of each worker
-        for _ in range(args.rounds):
+        run_sweep(spec_16().cells()[:4], scheduler=client, progress=False, func=traced)  # warm-up of each worker
+        for round_ in range(args.rounds):
+            order = list(paths)[round_ % 3:] + list(paths)[:round_ % 3]  # rotate: no path always first
             for name, cells in sweeps.items():
-                t, serial = timed(lambda: run_sweep(cells, workers=0, progress=False))
-                times[name]["serial"].append(t)
-                t, own = timed(lambda: run_sweep(cells, workers=args.workers, progress=False))
-                times[name]["own"].append(t)
-                t, running = timed(lambda: run_sweep(cells, scheduler=client, progress=False))
-                times[name]["running"].append(t)
-                same &= metrics(own).equals(metrics(serial)) and metrics(running).equals(metrics(serial))
+                runs = {path: paths[path](cells) for path in order}
+                serial = runs["serial"][1]
+                serial_cpu = sum(r["trace_cpu"] for r in serial.records)
+                for path, (t, result, cpu) in runs.items():
+                    times[name][path].append(t)
+                    same &= metrics(result).equals(metrics(serial))
+                    if path != "serial":
+                        probes[name][path].append(instrument(result, cpu, serial_cpu))
                 cell_means[name] = serial.frame()["wall_time_s"].mean()
                 failed[name] = serial.failed
         cells = sweeps["64 cells of ~0.2 s"]
         run_sweep(cells[:4], scheduler=client, progress=False, func=noop)  # warm-up: functions shipped once
-        t_noop = statistics.median(timed(lambda: run_sweep(cells, scheduler=client, progress=False, func=noop))[0]
+        t_noop = statistics.median(run_path(lambda: run_sweep(cells, scheduler=client, progress=False, func=noop))[0]
                                    for _ in range(REPEATS))
-        t_bare = statistics.median(timed(lambda: [f.result() for f in as_completed(
+        t_bare = statistics.median(run_path(lambda: [f.result() for f in as_completed(
             [client.submit(_bare, i, pure=False) for i in range(len(cells))])])[0] for _ in range(REPEATS))
     finally:
         client.close()
         cluster.close()
+    t_import = dask_import_seconds()
     w = args.workers
     rows = []
     for name, t in times.items():
@@ -128,7 +215,9 @@ def main() -> int:
                                        f"({min(ratios):.2f}–{max(ratios):.2f}×), {speedup / w:.2f} per worker; "
                                        f"ideal {ideal:.2f}× ({speedup / ideal:.0%} of it)"))
     rows += [
-        ("cluster start-up (incl. imports on the workers)", f"{t_start:.2f} s"),
+        ("cluster start-up (start_local_cluster + imports on the workers)", f"{t_start:.2f} s"),
+        ("import dask.distributed in a fresh process (the first own cluster of a process pays it; "
+         "not in the times above)", f"{t_import:.2f} s"),
         (f"64 no-op cells through run_sweep (median of {REPEATS})",
          f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
         (f"64 no-op client.submit + as_completed (median of {REPEATS})",
@@ -137,10 +226,18 @@ def main() -> int:
         ("machine", f"{platform.machine()}, {os.cpu_count()} cores, 1-min load avg {load_before[0]:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after; {args.rounds} interleaved rounds"),
     ]
-    width = max(len(r[0]) for r in rows)
-    lines = [f"| {'quantity':<{width}} | value |", f"|{'-' * (width + 2)}|-------|"]
-    lines += [f"| {k:<{width}} | {v} |" for k, v in rows]
-    text = "\n".join(lines)
+    text = table(("quantity", "value"), rows)
+    columns = ("sweep, path", "cells' CPU / serial", "Dask CPU here", "Dask CPU workers", "idle per worker: "
+               "before / between / after", "cells here", "tasks", "record")
+    probe_rows = []
+    for name, by_path in probes.items():
+        for path, runs in by_path.items():
+            m = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+            probe_rows.append((f"{name.split(' of')[0]}, {path}", f"{m['cpu_ratio']:.2f}", f"{m['dask_here']:.2f} s",
+                               f"{m['dask_workers']:.2f} s",
+                               f"{m['idle_before']:.2f} / {m['idle_between']:.2f} / {m['idle_after']:.2f} s",
+                               f"{m['local']:.0f}", f"{m['tasks']:.0f}", f"{m['bytes']:.0f} B"))
+    text += "\n\nInstrumentation (medians over the rounds):\n\n" + table(columns, probe_rows)
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -148,12 +245,24 @@ def main() -> int:
     return 0 if same else 1
 
 
-def _start(LocalCluster, Client, workers):
-    cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                           dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
-    client = Client(cluster)
-    client.run(lambda: __import__("parallel_gpc.sweeps"))  # imports done before the timing
-    return cluster, client
+def dask_import_seconds() -> float:
+    """Wall time of ``import dask.distributed`` in a fresh Python process that has imported the package, s."""
+    import subprocess
+    import sys
+
+    code = ("import time, parallel_gpc.sweeps, parallel_gpc.studies; t = time.perf_counter(); "
+            "import dask.distributed; print(time.perf_counter() - t)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=os.environ)
+    return float(out.stdout.split()[-1])
+
+
+def table(header, rows) -> str:
+    """A Markdown table, columns padded to their widest cell."""
+    widths = [max(len(str(r[i])) for r in (header, *rows)) for i in range(len(header))]
+    lines = ["| " + " | ".join(f"{c:<{w}}" for c, w in zip(header, widths)) + " |",
+             "|" + "|".join("-" * (w + 2) for w in widths) + "|"]
+    lines += ["| " + " | ".join(f"{c:<{w}}" for c, w in zip(row, widths)) + " |" for row in rows]
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

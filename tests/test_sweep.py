@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -302,6 +303,7 @@ def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch
     assert cluster_pays(60 * 0.2, 2)  # 64 cells of 0.2 s
     assert not cluster_pays(1.99 * start, 2) and cluster_pays(2.01 * start, 2)  # 2 workers save half the work
     assert not cluster_pays(1.49 * start, 3) and cluster_pays(1.51 * start, 3)
+    assert not cluster_pays(1.99 * 1.5, 2, cost=1.5) and cluster_pays(2.01 * 1.5, 2, cost=1.5)
 
     def no_cluster(*args, **kwargs):
         raise AssertionError("a LocalCluster was started for a sweep too small to repay it")
@@ -311,6 +313,96 @@ def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch
     monkeypatch.setattr(dask.distributed, "LocalCluster", no_cluster)
     result = run_sweep(tiny_spec(N=[3, 4, 5]).cells(), workers=2, progress=False, func=_pid_cell)
     assert result.ran == 3 and {r["error"] for r in result.records} == {str(os.getpid())}
+
+
+#: Length of a :func:`_sleeping_cell`, s.
+SLEEP_CELL = 0.02
+#: Set in this process before a cluster starts: a forked worker sees it, a spawned one does not.
+_PARENT_MARK = []
+
+
+def _sleeping_cell(cell):
+    """A cell of known length (:data:`SLEEP_CELL`; sleeping, so CPU load does not stretch it) that
+    records the pid of the process that ran it."""
+    import time
+
+    time.sleep(SLEEP_CELL)
+    return _pid_cell(cell)
+
+
+def _sleep_cells(n):
+    return [Cell(i, {**TINY, "Qu": 1e-4 * (i + 1)}) for i in range(n)]
+
+
+def test_sixteen_small_cells_stay_in_this_process(monkeypatch):
+    """16 cells of 0.1 s (issue 23's small sweep): the probe's work left (~11 × 0.1 s) saves half of it
+    on 2 workers, less than a cluster costs; every cell runs here and no cluster starts."""
+    import dask.distributed
+
+    def no_cluster(*args, **kwargs):
+        raise AssertionError("a LocalCluster was started for 16 cells of 0.1 s")
+
+    monkeypatch.setattr(dask.distributed, "LocalCluster", no_cluster)
+    monkeypatch.setattr(sys.modules[__name__], "SLEEP_CELL", 0.1)
+    result = run_sweep(_sleep_cells(16), workers=2, progress=False, func=_sleeping_cell)
+    assert (result.ran, result.local, result.batches) == (16, 16, [])
+    assert {r["error"] for r in result.records} == {str(os.getpid())}
+
+
+@pytest.mark.slow
+def test_the_probe_sizes_the_first_batches_of_the_cluster_it_starts():
+    """Enough short cells that a cluster pays: the probe runs the first ones here, the cluster's first
+    tasks are already batches sized from the probe's time per cell (no single-cell tasks), every cell
+    runs once, the rest on the workers."""
+    n = int(4 * runner.LOCAL_START_SECONDS / SLEEP_CELL) + 25  # work left after the probe ≥ 4 cluster costs
+    result = run_sweep(_sleep_cells(n), workers=2, progress=False, func=_sleeping_cell)
+    assert result.ran == n and result.failed == 0
+    assert 1 <= result.local < n and result.local + sum(result.batches) == n
+    largest = runner.BATCH_SECONDS / SLEEP_CELL  # a batch holds at most BATCH_SECONDS at ≥ SLEEP_CELL per cell
+    assert all(1 < size <= largest for size in result.batches[:runner.IN_FLIGHT * 2]), result.batches
+    pids = [int(r["error"]) for r in result.records]
+    assert set(pids[:result.local]) == {os.getpid()}
+    assert len(set(pids[result.local:])) == 2 and os.getpid() not in pids[result.local:]
+
+
+@pytest.mark.slow
+def test_the_probe_stops_after_one_cell_when_the_cluster_clearly_pays(monkeypatch):
+    import dask.distributed  # noqa: F401 - imported: the cluster's cost is LOCAL_START_SECONDS
+
+    monkeypatch.setattr(runner, "LOCAL_START_SECONDS", 0.05)
+    n = 60  # 59 × SLEEP_CELL left after one cell: half of it (2 workers) is 0.59 s > PROBE_MARGIN × 0.05 s
+    assert cluster_pays((n - 1) * SLEEP_CELL, 2, runner.PROBE_MARGIN * runner.LOCAL_START_SECONDS)
+    result = run_sweep(_sleep_cells(n), workers=2, progress=False, func=_sleeping_cell)
+    assert result.ran == n and result.local == 1 and sum(result.batches) == n - 1
+
+
+@pytest.mark.slow
+def test_a_sweeps_local_cluster_has_its_settings_and_forks_on_linux():
+    import dask
+    from dask.distributed import Client
+
+    _PARENT_MARK.append(os.getpid())
+    try:
+        with runner.start_local_cluster(2) as cluster, Client(cluster) as client:
+            seen = client.run(lambda: (dask.config.get("distributed.admin.tick.interval"),
+                                       dask.config.get("distributed.worker.profile.enabled"),
+                                       list(sys.modules[__name__]._PARENT_MARK)))
+    finally:
+        _PARENT_MARK.clear()
+    assert len(seen) == 2
+    forked = sys.platform.startswith("linux")
+    assert runner.START_METHOD == ("fork" if forked else "spawn")
+    for tick, profile, mark in seen.values():
+        assert (tick, profile) == ("1s", False)
+        assert mark == ([os.getpid()] if forked else [])  # a forked worker has this process's state
+
+
+def test_a_process_without_dask_counts_its_import_into_the_cluster_cost(monkeypatch):
+    import dask.distributed  # noqa: F401 - imported: the cost is the start-up alone
+
+    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS
+    monkeypatch.delitem(sys.modules, "distributed")
+    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS + runner.DASK_IMPORT_SECONDS
 
 
 def test_run_cells_keeps_the_order_and_records_a_cell_function_that_raises():

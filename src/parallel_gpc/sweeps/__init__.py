@@ -15,7 +15,7 @@ _PUBLIC = {
     "cell_settings": "spec", "drive_q_indices": "spec", "drive_work": "spec", "result_metrics": "spec",
     "METRIC_COLUMNS": "spec", "TIMING_COLUMNS": "spec", "RECORD_COLUMNS": "spec", "SETTLE_FRACTION": "spec",
     "SweepResult": "runner", "run_sweep": "runner", "check_scheduler": "runner", "run_cells": "runner",
-    "batch_size": "runner", "cluster_pays": "runner", "MAX_CELLS": "spec",
+    "batch_size": "runner", "cluster_pays": "runner", "start_local_cluster": "runner", "MAX_CELLS": "spec",
     "SPEC_MAX_BYTES": "spec",
     "SweepStore": "store", "load_results": "store", "records_frame": "store",
     "COLUMNS": "robustness", "RobustnessCase": "robustness", "RobustnessResult": "robustness",

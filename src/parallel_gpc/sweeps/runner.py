@@ -8,25 +8,30 @@
 * ``scheduler="tcp://HOST:PORT"`` (or a ``distributed.Client``) — an existing cluster whose
   workers can import ``parallel_gpc`` and read the robot files.
 
-Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: the
-first tasks are single cells; then a batch holds about :data:`BATCH_SECONDS` of work at the mean
-cell time measured so far, and never more than its share of the cells left (:data:`IN_FLIGHT`
-batches queued per worker), so the workers finish together. A cell of 0.1 s thus pays the
-scheduler's 5–25 ms per task once per ten cells, not once per cell. The records of a batch are
-journalled as it returns. A sweep on a local cluster it starts itself first runs cells in this
-process for :data:`PROBE_SECONDS`: if the work left (cells left × mean cell time) would not pay
-for starting the cluster (:data:`LOCAL_START_SECONDS` per the time the extra workers save) the
-rest runs here too, so a small sweep is never slower than a serial one.
+Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: on
+a running cluster the first tasks are single cells; then a batch holds about
+:data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
+share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
+together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task once per ten cells, not
+once per cell. The records of a batch are journalled as it returns. A sweep on a local cluster
+it starts itself first runs cells in this process for :data:`PROBE_SECONDS` (or until the
+cluster clearly pays, :data:`PROBE_MARGIN`): if the work left (cells left × mean cell time) would
+not pay for starting the cluster (:func:`local_cluster_cost` per the time the extra workers
+save) the rest runs here too, so a small sweep is never slower than a serial one; otherwise the
+cluster's first batches are sized from the probe's time per cell (no single-cell tasks).
 
-Spawned local workers get this process's ``sys.path`` (multiprocessing "spawn"), so a package
-found through ``PYTHONPATH`` or an editable install is found by the workers too. A progress bar
-shows done / failed / ETA as cells (batches) finish (``distributed.as_completed``). A cell that fails is a
-record with its error, a cell whose closed loop diverged a record of the part run; the sweep
-goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
-journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
-of work), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the
-sweep stops them) and the cluster's shutdown is quiet. A store is locked while the sweep runs:
-a second sweep into the same folder is refused.
+Local workers are forked from this process where the platform allows it (:data:`START_METHOD`,
+Linux): they start with the modules the probe imported (the package, Pinocchio, the compiled
+core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
+checks run seldom (:data:`CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
+``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
+workers too. A progress bar shows done / failed / ETA as cells (batches) finish
+(``distributed.as_completed``). A cell that fails is a record with its error, a cell whose
+closed loop diverged a record of the part run; the sweep goes on. Ctrl-C cancels the cells not
+yet finished and keeps the finished ones (already journalled in the store; a batch still
+running is lost, at most :data:`BATCH_SECONDS` per worker of work), so a rerun resumes; the
+local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is
+quiet. A store is locked while the sweep runs: a second sweep into the same folder is refused.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ import os
 import re
 import signal
 import statistics
+import sys
 import threading
 import time
 import uuid
@@ -59,10 +65,35 @@ BATCH_SECONDS = 1.0
 IN_FLIGHT = 2
 #: In-process run time before deciding whether a local cluster pays for itself, s.
 PROBE_SECONDS = 0.5
-#: Time to start a local cluster and import the package on its workers, s (measured 1.1–2 s on
-#: 2 cores): a cluster is started only if the time its extra workers save repays it
-#: (:func:`cluster_pays`).
-LOCAL_START_SECONDS = 2.0
+#: The probe decides sooner, after any cell, once the work left would repay the cluster's cost
+#: this many times over (64 cells of 0.13 s: after the first; the other worker stops idling).
+PROBE_MARGIN = 4.0
+#: How a sweep's own local workers are started (multiprocessing): forked on Linux (the workers
+#: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
+START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
+#: Cost of a sweep's own local cluster, s: its start-up and shutdown plus the workers' imports,
+#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6:
+#: forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned 3.4–4.8 s start,
+#: 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close. A cluster is
+#: started only if the time its extra workers save repays it (:func:`cluster_pays`).
+LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
+#: Time to import ``dask.distributed`` in a process that has not yet, s (0.54–0.61 CPU-s measured,
+#: 2 cores): paid by the first sweep of a process that starts a cluster (:func:`local_cluster_cost`).
+DASK_IMPORT_SECONDS = 0.6
+#: Dask settings of a sweep's own local cluster (:func:`start_local_cluster`): no statistical
+#: profiler sampling the running cell's stack every 10 ms (it feeds a dashboard nobody watches),
+#: and the periodic checks of the scheduler, nannies and workers (event-loop tick every 20 ms,
+#: system monitor every 0.5 s, memory monitor every 0.1 s) slowed to once per second or five:
+#: idle, they took 0.08 of a core in this process and 0.03 per worker (10 s idle, 2 forked
+#: workers, load average 9: 0.80 CPU-s here and 0.30 per worker; slowed: 0.12 and 0.04–0.05),
+#: CPU the workers need on a machine with one core per worker.
+CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "1s",
+    "distributed.admin.system-monitor.interval": "5s",
+    "distributed.worker.memory.monitor-interval": "1s",
+    "distributed.worker.multiprocessing-method": START_METHOD,
+}
 #: Loggers of Dask quieted while a sweep's cluster shuts down (cancelled tasks, closing comms).
 _DASK_LOGGERS = ("distributed", "tornado", "asyncio")
 
@@ -80,6 +111,9 @@ class SweepResult:
         skipped_lines: lines of the store's journal that were not records (skipped, counted).
         interrupted: Ctrl-C stopped the sweep before every cell finished.
         total: cells in the sweep.
+        local: cells run in this process before deciding whether a cluster pays (its own local
+            cluster only; all of them when it did not pay).
+        batches: cells per Dask task, in the order submitted (empty: no cluster was used).
     """
 
     records: list = field(default_factory=list)
@@ -90,6 +124,8 @@ class SweepResult:
     skipped_lines: int = 0
     interrupted: bool = False
     total: int = 0
+    local: int = 0
+    batches: list = field(default_factory=list)
 
     @property
     def finished(self) -> int:
@@ -188,10 +224,11 @@ def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_fail
             if workers == 0 and scheduler is None:
                 _run_serial(todo, func, collector)
             else:
+                per_cell = None
                 if scheduler is None:  # our own cluster: worth starting only for enough work
-                    todo = _run_probe(todo, func, collector, workers or os.cpu_count() or 1)
+                    todo, per_cell = _run_probe(todo, func, collector, workers or os.cpu_count() or 1)
                 if todo and not result.interrupted:
-                    _run_dask(todo, func, collector, workers, scheduler)
+                    _run_dask(todo, func, collector, workers, scheduler, per_cell)
         except KeyboardInterrupt:
             result.interrupted = True
     by_key = {**done, **{r["key"]: r for r in collector.fresh}}
@@ -210,21 +247,29 @@ def _run_serial(cells, func, collector: _Collector) -> None:
             return
 
 
-def _run_probe(cells, func, collector: _Collector, n_workers: int) -> list:
-    """Run cells in this process for :data:`PROBE_SECONDS`; the cells left for a local cluster of
-    ``n_workers``: none if the work left would not repay the cluster's start-up
-    (:func:`cluster_pays`), then all run here. One worker is a cluster asked for as such
-    (its worker process isolates a crash): no probe."""
+def _run_probe(cells, func, collector: _Collector, n_workers: int) -> tuple[list, float | None]:
+    """Run cells in this process for :data:`PROBE_SECONDS` (less when the work left repays the
+    cluster :data:`PROBE_MARGIN` times over).
+
+    Returns:
+        (the cells left for a local cluster of ``n_workers``, the probe's time per cell in s):
+        no cells if the work left would not repay the cluster's start-up (:func:`cluster_pays`),
+        then all ran here. One worker is a cluster asked for as such (its worker process isolates
+        a crash): no probe, (cells, None).
+    """
     if n_workers < 2:
-        return cells
+        return cells, None
     queue, start = deque(cells), time.perf_counter()
     while queue and not collector.result.interrupted:
         elapsed = time.perf_counter() - start
         done = len(cells) - len(queue)
-        if done and elapsed >= PROBE_SECONDS and cluster_pays(elapsed / done * len(queue), n_workers):
-            return list(queue)
+        if done:
+            work_left, cost = elapsed / done * len(queue), local_cluster_cost()
+            if cluster_pays(work_left, n_workers, cost * (1.0 if elapsed >= PROBE_SECONDS else PROBE_MARGIN)):
+                return list(queue), elapsed / done
         collector.add(_run_one(func, queue.popleft()))
-    return []
+        collector.result.local += 1
+    return [], None
 
 
 def run_cells(cells, func=run_cell) -> tuple[list, float]:
@@ -269,16 +314,21 @@ def batch_size(left: int, n_workers: int, per_cell: float | None) -> int:
     return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
 
 
-def cluster_pays(work_left: float, n_workers: int) -> bool:
+def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
     """Whether starting a local cluster of ``n_workers`` (≥ 2) for ``work_left`` seconds of serial
     work saves time: the work the extra workers take over, ``work_left · (1 − 1/n)``, must exceed
-    :data:`LOCAL_START_SECONDS`."""
-    return work_left * (1 - 1 / n_workers) > LOCAL_START_SECONDS
+    the cluster's ``cost`` in s (default :data:`LOCAL_START_SECONDS`)."""
+    return work_left * (1 - 1 / n_workers) > (LOCAL_START_SECONDS if cost is None else cost)
 
 
-def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
-    import dask
-    from dask.distributed import Client, LocalCluster, as_completed
+def local_cluster_cost() -> float:
+    """What a sweep's own local cluster costs this process, s: :data:`LOCAL_START_SECONDS`, plus
+    :data:`DASK_IMPORT_SECONDS` while ``dask.distributed`` is not imported yet."""
+    return LOCAL_START_SECONDS + (0.0 if "distributed" in sys.modules else DASK_IMPORT_SECONDS)
+
+
+def _run_dask(cells, func, collector: _Collector, workers, scheduler, probe_per_cell: float | None) -> None:
+    from dask.distributed import Client, as_completed
 
     cluster = None
     if isinstance(scheduler, Client):
@@ -290,29 +340,28 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
             raise InvalidParameterError(f"cannot reach the Dask scheduler {scheduler!r}: "
                                         f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
     else:
-        # the workers inherit SIGINT ignored (Ctrl-C reaches this process only) and the config: no
-        # statistical profiler sampling the running cell's stack every 10 ms (it feeds a dashboard
-        # nobody watches)
+        # the workers inherit SIGINT ignored (Ctrl-C reaches this process only)
         start_quiet_resource_tracker()
-        with _sigint_ignored(), dask.config.set({"distributed.worker.profile.enabled": False}):
-            cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1, processes=True,
-                                   host="127.0.0.1", dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
+        with _sigint_ignored():
+            cluster = start_local_cluster(workers or os.cpu_count() or 1)
         client, own_client = Client(cluster), True
     token = uuid.uuid4().hex[:8]
     futures = {}
     queue = deque(cells)
     try:
         n_workers = max(1, sum(client.nthreads().values()))
-        per_cell, finished = [], as_completed()  # per batch: its time per cell (s)
+        # per batch: its time per cell (s); the probe's (run here) sizes the first batches
+        per_cell, finished = [] if probe_per_cell is None else [probe_per_cell], as_completed()
 
         def submit() -> None:
-            # the median over batches: a worker's first task (it imports the package) counts once
+            # the median over batches: a worker's first task (it may import the package) counts once
             size = batch_size(len(queue), n_workers, statistics.median(per_cell) if per_cell else None)
             batch = [queue.popleft() for _ in range(min(len(queue), size))]
             future = client.submit(run_cells, batch, func, key=f"sweep-{token}-{batch[0].key}-{len(batch)}",
                                    pure=False)
             futures[future] = batch
             finished.add(future)
+            collector.result.batches.append(len(batch))
 
         while queue and len(futures) < IN_FLIGHT * n_workers:
             submit()
@@ -338,6 +387,26 @@ def _run_dask(cells, func, collector: _Collector, workers, scheduler) -> None:
                 client.close()
             if cluster is not None:
                 cluster.close()
+
+
+def start_local_cluster(n_workers: int):
+    """A Dask ``LocalCluster`` as :func:`run_sweep` starts its own: ``n_workers`` processes of one
+    thread, forked where possible (:data:`START_METHOD`), with :data:`CLUSTER_CONFIG`, bound to
+    127.0.0.1 (its dashboard on a free port). Also the way to keep one running for many sweeps
+    (``run_sweep(…, scheduler=Client(cluster))``).
+
+    Args:
+        n_workers: worker processes (≥ 1).
+
+    Returns:
+        the running ``distributed.LocalCluster`` (close it, or use it as a context manager).
+    """
+    import dask
+    from dask.distributed import LocalCluster
+
+    with dask.config.set(CLUSTER_CONFIG):
+        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                            dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
 
 
 def silence_dask_logs() -> None:
