@@ -103,6 +103,21 @@ bool ModelUpdate::map_from(const Mat &jac, bool exact) {
   return true;
 }
 
+void ModelUpdate::velocity_map_rate(const Mat &jac, const Mat &T, const Mat &pinv, const Mat &dPsi, Mat &dT,
+                                    Mat &dP) const {
+  // K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺) (full column rank; the second term vanishes for a square K)
+  const Mat K = columns(jac, cfg.z_idx), dK = columns(dPsi, cfg.z_idx);
+  dP.noalias() = -(pinv * (dK * pinv));
+  dP.noalias() += (pinv * pinv.transpose()) * (dK.transpose() - (dK.transpose() * K) * pinv);
+  if (!kin.task) {  // T_z = −K⁺ Ψ_y: Ṫ_z = −(K̇⁺ Ψ_y + K⁺ Ψ̇_y)
+    dT.setZero(T.rows(), T.cols());
+    const Mat dTz = -(dP * columns(jac, cfg.y_idx) + pinv * columns(dPsi, cfg.y_idx));
+    for (Index i = 0; i < n_z; ++i) dT.row(cfg.z_idx[i]) = dTz.row(i);
+  } else {  // T = K⁺'s output columns
+    dT = dP.rightCols(n_y);
+  }
+}
+
 bool ModelUpdate::assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bool near) {
   if (!kin.task)
     for (Index i = 0; i < n_y; ++i) q[cfg.y_q[i]] = pose[i];
