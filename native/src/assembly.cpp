@@ -105,14 +105,20 @@ bool ModelUpdate::map_from(const Mat &jac, bool exact) {
 
 void ModelUpdate::velocity_map_rate(const Mat &jac, const Mat &T, const Mat &pinv, const Mat &dPsi, Mat &dT,
                                     Mat &dP) const {
-  // K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺) (full column rank; the second term vanishes for a square K)
-  const Mat K = columns(jac, cfg.z_idx), dK = columns(dPsi, cfg.z_idx);
-  dP.noalias() = -(pinv * (dK * pinv));
-  dP.noalias() += (pinv * pinv.transpose()) * (dK.transpose() - (dK.transpose() * K) * pinv);
+  // K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺) (full column rank; the second term vanishes for a square K); the
+  // small products coefficient-wise, each factor evaluated once (Eigen's blocked GEMM costs more here)
+  const Mat K = columns(jac, cfg.z_idx), dKt = columns(dPsi, cfg.z_idx).transpose();
+  const Mat PdK = pinv.lazyProduct(dKt.transpose()), PPt = pinv.lazyProduct(pinv.transpose());
+  const Mat dKtK = dKt.lazyProduct(K);
+  const Mat R = dKt - dKtK.lazyProduct(pinv);
+  dP.noalias() = PPt.lazyProduct(R);
+  dP.noalias() -= PdK.lazyProduct(pinv);
   if (!kin.task) {  // T_z = −K⁺ Ψ_y: Ṫ_z = −(K̇⁺ Ψ_y + K⁺ Ψ̇_y)
     dT.setZero(T.rows(), T.cols());
-    const Mat dTz = -(dP * columns(jac, cfg.y_idx) + pinv * columns(dPsi, cfg.y_idx));
-    for (Index i = 0; i < n_z; ++i) dT.row(cfg.z_idx[i]) = dTz.row(i);
+    const Mat Ky = columns(jac, cfg.y_idx), dKy = columns(dPsi, cfg.y_idx);
+    Mat dTz = dP.lazyProduct(Ky);
+    dTz.noalias() += pinv.lazyProduct(dKy);
+    for (Index i = 0; i < n_z; ++i) dT.row(cfg.z_idx[i]) = -dTz.row(i);
   } else {  // T = K⁺'s output columns
     dT = dP.rightCols(n_y);
   }

@@ -172,6 +172,7 @@ class ModelUpdate {
   std::vector<Mat> rate_dPhi_;  // Φ̇_q(T e_i), i < n_y (factor_rates)
   std::vector<std::vector<pinocchio::Motion>> tangent_ov_;  // world velocities of the joints at T e_i (tangent_rates)
   std::vector<std::vector<pinocchio::Force>> tangent_oh_;   // their momenta oY ov
+  std::vector<std::vector<pinocchio::Motion>> tangent_dJ_;  // the joints' Jacobian rates ov × J at T e_i
   std::vector<pinocchio::Inertia> tangent_oY_;              // world inertias at q_
   Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, K_;
   Eigen::LLT<Mat> llt_;

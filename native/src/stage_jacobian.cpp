@@ -34,6 +34,7 @@ void ModelUpdate::tangent_rates(Mat &P) {
   pinocchio::computeJointJacobians(model, data, q_);  // oMi and J at q_ (eval_placed reads them too)
   tangent_ov_.resize(ny, std::vector<Motion>(nj, Motion::Zero()));
   tangent_oh_.resize(ny, std::vector<Force>(nj, Force::Zero()));
+  tangent_dJ_.resize(ny, std::vector<Motion>(nj, Motion::Zero()));
   tangent_oY_.resize(nj);
   rate_dPhi_.resize(ny);
   for (int k = 1; k < nj; ++k) tangent_oY_[k] = data.oMi[k].act(model.inertias[k]);
@@ -43,7 +44,8 @@ void ModelUpdate::tangent_rates(Mat &P) {
       const Index c = model.joints[k].idx_v();
       ov[k] = ov[model.parents[k]] + Motion(data.J.col(c) * T_(c, i));
       data.ov[k] = ov[k];
-      data.dJ.col(c) = ov[k].cross(Motion(data.J.col(c))).toVector();
+      tangent_dJ_[i][k] = ov[k].cross(Motion(data.J.col(c)));
+      data.dJ.col(c) = tangent_dJ_[i][k].toVector();
       tangent_oh_[i][k] = tangent_oY_[k] * ov[k];
     }
     kin.jacobian_rate(q_, T_.col(i), rate_dPhi_[i], true);
@@ -54,10 +56,10 @@ void ModelUpdate::tangent_rates(Mat &P) {
     for (Index j = i; j < ny; ++j) {
       const auto &vi = tangent_ov_[i], &vj = tangent_ov_[j];
       const auto &hi = tangent_oh_[i], &hj = tangent_oh_[j];
+      const auto &ci = tangent_dJ_[i], &cj = tangent_dJ_[j];
       for (int k = 1; k < nj; ++k) {
         const Index c = model.joints[k].idx_v();
-        const Motion Jc(data.J.col(c));
-        a[k] = a[model.parents[k]] + (vi[k].cross(Jc) * T_(c, j) + vj[k].cross(Jc) * T_(c, i)) * 0.5;
+        a[k] = a[model.parents[k]] + (ci[k] * T_(c, j) + cj[k] * T_(c, i)) * 0.5;
         f[k] = tangent_oY_[k] * a[k] + (vi[k].cross(hj[k]) + vj[k].cross(hi[k])) * 0.5;
       }
       for (int k = nj - 1; k > 0; --k) {
