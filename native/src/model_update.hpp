@@ -113,9 +113,10 @@ class ModelUpdate {
   const Mat &factor_rows_with(const Vec &q, const Mat &T, const Mat &pinv, const Vec &yd);
   // Φ̇_q(T e_i), i < n_y, at the state of the last factor_rates
   const std::vector<Mat> &rate_jacobians() const { return rate_dPhi_; }
-  // (Ṫ, K̇⁺) of the velocity map (T, K⁺) of map_from along a motion δ: jac = Ψ_q at q, dPsi = Ψ̇_q(q, δ); exact for
-  // K = Ψ_q's dependent columns of full column rank (AssemblyMixin.velocity_map_rate)
-  void velocity_map_rate(const Mat &jac, const Mat &T, const Mat &pinv, const Mat &dPsi, Mat &dT, Mat &dP) const;
+  // (Ṫ_j, K̇⁺_j) of the velocity map (T, K⁺) of map_from along motions δ_j: jac = Ψ_q at q, dPsi[j] = Ψ̇_q(q, δ_j);
+  // exact for K = Ψ_q's dependent columns of full column rank (AssemblyMixin.velocity_map_rate)
+  void velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pinv, const std::vector<Mat> &dPsi,
+                          std::vector<Mat> &dT, std::vector<Mat> &dP) const;
   // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
   const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out

@@ -108,8 +108,7 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
     T = self.velocity_map();
     P = self.pinv();
     self.kin.eval_placed();  // Ψ_q at q: factor_rates' rate passes left q's kinematics in the data
-    for (long j = 0; j < ny; ++j)
-      self.velocity_map_rate(self.kin.jac_, T, P, self.rate_jacobians()[j], dT[j], dP[j]);
+    self.velocity_map_rates(self.kin.jac_, T, P, self.rate_jacobians(), dT, dP);
     for (long j = 0; j < ny; ++j) {
       const double h = step * std::max(1.0, std::abs(x[j]));
       T_s = T + h * dT[j];
