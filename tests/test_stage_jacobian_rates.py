@@ -65,13 +65,7 @@ def test_stage_jacobians_equal_central_differences_of_the_stage_map(robots, name
     """Compiled and Python Jacobians against central differences of the stage map Φ = A_d X + B_d u + c_d
     (2·n_x discrete() per stage, an independent oracle) on the prismatic-drive and universal-joint robots
     (tests/test_nmpc.py covers planar_4rrr, delta_3rus and hexapod_6ups)."""
-    model, traj, u = _moving(robots[name], native=native)
-    J = model.stage_jacobians(traj, u, TS)
-    J_ref = model.stage_jacobians_differences(traj, u, TS)
-    assert J.shape == J_ref.shape == (5, model.n_x, model.n_x)
-    assert np.abs(J - J_ref).max() <= 1e-7 * np.abs(J_ref).max()
-    A_d = model.simulate_factorized(traj[0], u, TS)[0]
-    assert np.abs(J_ref - A_d).max() > 1e-4 * np.abs(J_ref - np.eye(model.n_x)).max()  # not the frozen A_d
+    mech.assert_stage_jacobians_match_differences(*_moving(robots[name], native=native), TS, 5)
 
 
 @pytest.mark.parametrize("name", NAMES)
