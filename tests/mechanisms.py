@@ -519,3 +519,15 @@ def assert_same_reduced_dynamics(robot_a, robot_b, n: int = 6, seed: int = 0) ->
         Ab, Bb, cb = mb.factorize(X)
         np.testing.assert_allclose(Aa @ X + Ba @ u + ca, Ab @ X + Bb @ u + cb, rtol=1e-9, atol=1e-10)
         np.testing.assert_allclose(Aa @ X + Ba @ u + ca, ma.state_derivative(X, u), rtol=1e-9, atol=1e-10)
+
+
+def assert_stage_jacobians_match_differences(model, traj, u, Ts: float, stages: int) -> None:
+    """The stage Jacobians ∂Φ/∂X (``ReducedModel.stage_jacobians``) along a trajectory against central
+    differences of the whole stage map Φ = A_d X + B_d u + c_d (2·n_x ``discrete`` per stage), to 1e-7
+    of their largest entry, and not the frozen A_d (the derivative of A_d(X) matters along the move)."""
+    J = model.stage_jacobians(traj, u, Ts)
+    J_ref = model.stage_jacobians_differences(traj, u, Ts)
+    assert J.shape == J_ref.shape == (stages, model.n_x, model.n_x)
+    assert np.abs(J - J_ref).max() <= 1e-7 * np.abs(J_ref).max()
+    A_d = model.simulate_factorized(traj[0], u, Ts)[0]
+    assert np.abs(J_ref - A_d).max() > 1e-3 * np.abs(J_ref - np.eye(model.n_x)).max()

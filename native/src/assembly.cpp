@@ -103,6 +103,56 @@ bool ModelUpdate::map_from(const Mat &jac, bool exact) {
   return true;
 }
 
+void ModelUpdate::velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pinv, const std::vector<Mat> &dPsi,
+                                     std::vector<Mat> &dT, std::vector<Mat> &dP) const {
+  // K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺) (full column rank) on the rows of K that are not identically zero
+  // in K and every K̇ (planar point closures' z rows): the others hold zero columns of K⁺ and K̇⁺ and add
+  // nothing; the second term vanishes when the remaining K is square. The small products coefficient-wise,
+  // each factor evaluated once (Eigen's blocked GEMM costs more than it saves here)
+  const size_t nd = dPsi.size();
+  std::vector<Index> rows;
+  for (Index r = 0; r < jac.rows(); ++r) {
+    bool zero = (jac.row(r).array() == 0.0).all();
+    for (size_t j = 0; j < nd && zero; ++j) zero = (dPsi[j].row(r).array() == 0.0).all();
+    if (!zero) rows.push_back(r);
+  }
+  const Index nr = static_cast<Index>(rows.size());
+  Mat K(nr, n_z), Ps(n_z, nr), dK(nr, n_z), dPs, Q, N;
+  for (Index r = 0; r < nr; ++r) {
+    for (Index i = 0; i < n_z; ++i) K(r, i) = jac(rows[r], cfg.z_idx[i]);
+    Ps.col(r) = pinv.col(rows[r]);
+  }
+  const bool square = nr == n_z;
+  if (!square) {
+    Q = Ps.lazyProduct(Ps.transpose());
+    N = -K.lazyProduct(Ps);
+    N.diagonal().array() += 1.0;
+  }
+  dT.resize(nd);
+  dP.resize(nd);
+  for (size_t j = 0; j < nd; ++j) {
+    for (Index r = 0; r < nr; ++r)
+      for (Index i = 0; i < n_z; ++i) dK(r, i) = dPsi[j](rows[r], cfg.z_idx[i]);
+    const Mat dKP = dK.lazyProduct(Ps);
+    dPs.noalias() = -Ps.lazyProduct(dKP);
+    if (!square) {
+      const Mat dKtN = dK.transpose().lazyProduct(N);
+      dPs.noalias() += Q.lazyProduct(dKtN);
+    }
+    dP[j].setZero(n_z, jac.rows());
+    for (Index r = 0; r < nr; ++r) dP[j].col(rows[r]) = dPs.col(r);
+    if (!kin.task) {  // T_z = −K⁺ Ψ_y: Ṫ_z = −(K̇⁺ Ψ_y + K⁺ Ψ̇_y)
+      const Mat Ky = columns(jac, cfg.y_idx), dKy = columns(dPsi[j], cfg.y_idx);
+      Mat dTz = dP[j].lazyProduct(Ky);
+      dTz.noalias() += pinv.lazyProduct(dKy);
+      dT[j].setZero(T.rows(), T.cols());
+      for (Index i = 0; i < n_z; ++i) dT[j].row(cfg.z_idx[i]) = -dTz.row(i);
+    } else {  // T = K⁺'s output columns
+      dT[j] = dP[j].rightCols(n_y);
+    }
+  }
+}
+
 bool ModelUpdate::assemble_warm(const Vec &pose, Vec q, const Mat *pinv_hint, bool near) {
   if (!kin.task)
     for (Index i = 0; i < n_y; ++i) q[cfg.y_q[i]] = pose[i];

@@ -90,6 +90,10 @@ Vec Kinematics::integrate(const Vec &q, const Vec &dv) const {
 
 void Kinematics::eval(const Vec &q) {
   pinocchio::computeJointJacobians(model, data, q);
+  eval_placed();
+}
+
+void Kinematics::eval_placed() {
   place_frames();
   long row = 0;
   for (size_t k = 0; k < cfg.closure_frames.size(); ++k) {

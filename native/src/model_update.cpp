@@ -110,13 +110,10 @@ const Mat &ModelUpdate::factor_rows(const Vec &X, const Warm *base) {
   return Z_;
 }
 
-const Mat &ModelUpdate::factor_rows_at(const Vec &q, const Vec &yd) {
-  kin.eval(q);
-  if (!map_from(kin.jac_, false) && !map_from(kin.jac_, true)) {
-    handler_.attr("singular")(q);
-    throw std::runtime_error("compiled velocity map singular where the Python one is not");
-  }
+const Mat &ModelUpdate::factor_rows_with(const Vec &q, const Mat &T, const Mat &pinv, const Vec &yd) {
   q_ = q;
+  T_ = T;
+  pinv_ = pinv;
   return factor_here(yd);
 }
 
@@ -129,18 +126,22 @@ const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates)
   auto &model = kin.model;
   auto &data = kin.data;
   const Index ny = n_y;
-  rate_dPhi_.resize(ny);
-  for (Index i = 0; i < ny; ++i) kin.jacobian_rate(q_, T_.col(i), rate_dPhi_[i]);
   Mat P(nv, ny * ny);  // column i·n_y + j: 2 b(T e_i, T e_j)
-  for (Index i = 0; i < ny; ++i)
-    P.col(i * ny + i) = 2.0 * (pinocchio::rnea(model, data, q_, T_.col(i), zero_v_) - g_);
-  for (Index i = 0; i < ny; ++i)
-    for (Index j = i + 1; j < ny; ++j) {
-      const Vec both = T_.col(i) + T_.col(j);
-      P.col(i * ny + j) = pinocchio::rnea(model, data, q_, both, zero_v_) - g_ -
-                          0.5 * (P.col(i * ny + i) + P.col(j * ny + j));
-      P.col(j * ny + i) = P.col(i * ny + j);
-    }
+  if (christoffel_) {
+    tangent_rates(P);  // the same from one kinematics pass
+  } else {
+    rate_dPhi_.resize(ny);
+    for (Index i = 0; i < ny; ++i) kin.jacobian_rate(q_, T_.col(i), rate_dPhi_[i]);
+    for (Index i = 0; i < ny; ++i)
+      P.col(i * ny + i) = 2.0 * (pinocchio::rnea(model, data, q_, T_.col(i), zero_v_) - g_);
+    for (Index i = 0; i < ny; ++i)
+      for (Index j = i + 1; j < ny; ++j) {
+        const Vec both = T_.col(i) + T_.col(j);
+        P.col(i * ny + j) = pinocchio::rnea(model, data, q_, both, zero_v_) - g_ -
+                            0.5 * (P.col(i * ny + i) + P.col(j * ny + j));
+        P.col(j * ny + i) = P.col(i * ny + j);
+      }
+  }
   Mat Mz(nv, n_z), rhs(nv, ny * ny), Wb(n_z, ny);
   for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
   for (Index j = 0; j < ny; ++j) {

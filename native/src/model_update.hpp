@@ -62,6 +62,9 @@ class Kinematics {
   Kinematics &operator=(const Kinematics &) = delete;
   // Ψ(q) + [0; y] and ∂Ψ/∂v (ClosureMixin._eval); fills res_, jac_
   void eval(const Vec &q);
+  // eval at the configuration whose joint placements and world Jacobians data already holds (any of
+  // computeJointJacobians, computeJointJacobiansTimeVariation, computeCoriolisMatrix at it): no kinematics pass
+  void eval_placed();
   // Ψ̇_q at (q, v) (constraint_jacobian_derivative), into out (rows × nv); fresh: data already holds the
   // joint placements, Jacobians and their rates at (q, v) (computeJointJacobiansTimeVariation's
   // oMi, v, ov, J, dJ, which computeCoriolisMatrix leaves too, by the same formulas)
@@ -104,9 +107,16 @@ class ModelUpdate {
   // (n_y, n_y·n_y), block j = ∂Z[:, :n_y]/∂ẏ_j (ReducedModel._factor_derivatives); the warm start is X's
   // base: an explicit warm start (a pre-simulation's at X: its assembly is reused) or null
   const Mat &factor_rates(const Vec &X, const Warm *base, Mat &rates);
-  // factor_rows at a configuration q that need not be assembled (T, K⁺ from the assembly Jacobian
-  // at q) and platform velocity ẏ: ReducedModel._factor_at; the warm start is not changed
-  const Mat &factor_rows_at(const Vec &q, const Vec &yd);
+  // factor_rows at a configuration q that need not be assembled, with a given velocity map T and K⁺ (the
+  // Jacobian's difference steps: their first-order values, stage_jacobian.cpp) and platform velocity ẏ:
+  // ReducedModel._factor_at; the warm start is not changed
+  const Mat &factor_rows_with(const Vec &q, const Mat &T, const Mat &pinv, const Vec &yd);
+  // Φ̇_q(T e_i), i < n_y, at the state of the last factor_rates
+  const std::vector<Mat> &rate_jacobians() const { return rate_dPhi_; }
+  // (Ṫ_j, K̇⁺_j) of the velocity map (T, K⁺) of map_from along motions δ_j: jac = Ψ_q at q, dPsi[j] = Ψ̇_q(q, δ_j);
+  // exact for K = Ψ_q's dependent columns of full column rank (AssemblyMixin.velocity_map_rate)
+  void velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pinv, const std::vector<Mat> &dPsi,
+                          std::vector<Mat> &dT, std::vector<Mat> &dP) const;
   // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
   const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
@@ -145,6 +155,10 @@ class ModelUpdate {
   // M_ (full), the gravity torques g_ and ∂h/∂v · T_ into DT_ at (q_, v) (bias_terms.cpp): one pass of
   // Pinocchio's Coriolis matrix algorithm when christoffel_, else RNEA derivatives
   void inertia_terms(const Vec &v);
+  // factor_rates' passes at q_ along the directions T e_i from one kinematics pass (stage_jacobian.cpp):
+  // Φ̇_q(T e_i) into rate_dPhi_ and P's columns i·n_y + j = 2 b(T e_i, T e_j), b the bilinear form of
+  // h − g; only when christoffel_ (one degree of freedom per joint: no joint bias c_J)
+  void tangent_rates(Mat &P);
   // every joint has one degree of freedom: Pinocchio's C(q, v) is Christoffel-consistent (bias_terms.cpp)
   static bool christoffel_coriolis(const pinocchio::Model &model);
   // A⁻¹ B into out, A = M_r (LLT, else the Python solve)
@@ -157,6 +171,10 @@ class ModelUpdate {
   Vec q_, zero_v_, g_;
   bool christoffel_ = false;  // christoffel_coriolis(kin.model), decided once
   std::vector<Mat> rate_dPhi_;  // Φ̇_q(T e_i), i < n_y (factor_rates)
+  std::vector<std::vector<pinocchio::Motion>> tangent_ov_;  // world velocities of the joints at T e_i (tangent_rates)
+  std::vector<std::vector<pinocchio::Force>> tangent_oh_;   // their momenta oY ov
+  std::vector<std::vector<pinocchio::Motion>> tangent_dJ_;  // the joints' Jacobian rates ov × J at T e_i
+  std::vector<pinocchio::Inertia> tangent_oY_;              // world inertias at q_
   Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, K_;
   Eigen::LLT<Mat> llt_;
   Mat aug_, E_;

@@ -446,6 +446,28 @@ class AssemblyMixin:
         self._vm_cache = (key, *out)
         return out
 
+    def velocity_map_rate(self, q: np.ndarray, T: np.ndarray, pinv_z: np.ndarray, dPsi: np.ndarray):
+        """(Ṫ, K̇⁺): the derivative of :meth:`velocity_map`'s (T, K⁺) at q along a motion δ.
+
+        K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺), exact while K has full column rank (the second term
+        vanishes for a square K); T_z = −K⁺ Ψ_y (joint outputs) or K⁺'s output columns (task outputs).
+
+        Args:
+            q: (nq,) configuration; T: (nv, n_y) and pinv_z: (n_z, rows) its velocity map;
+            dPsi: (rows, nv) Ψ̇_q(q, δ) (:meth:`constraint_jacobian_derivative` at velocity δ).
+
+        Returns:
+            (Ṫ (nv, n_y), K̇⁺ (n_z, rows)) per unit of δ (1/m or 1/rad as δ's units).
+        """
+        _, jac = self._eval(q)
+        K, dK = jac[:, self.dependent_v], dPsi[:, self.dependent_v]
+        dP = -pinv_z @ (dK @ pinv_z) + (pinv_z @ pinv_z.T) @ (dK.T - (dK.T @ K) @ pinv_z)
+        if self.task_output is not None:
+            return dP[:, self.n_constraints:], dP
+        dT = np.zeros_like(T)
+        dT[self.dependent_v] = -(dP @ jac[:, self._ys] + pinv_z @ dPsi[:, self._ys])
+        return dT, dP
+
     def singularity(self, q: np.ndarray) -> dict:
         """Conditioning at q: ``cond_phi_z`` (assembly Jacobian K = Φ_z, or [Φ_q; H] for task
         outputs: legs) and ``cond_B_r`` (reduced input matrix B_r = Tᵀ Sᵀ, actuation); large

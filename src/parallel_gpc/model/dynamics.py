@@ -296,11 +296,14 @@ class ReducedModel:
         same block at ẏ = e_j (K of :meth:`_bias_rows` at e_j, one more solve with M_r), at the
         same q; the other blocks do not depend on ẏ. ∂Z/∂y_j is a forward difference of Z along
         the closures' tangent: Z at q + T e_j h_j (h_j = ``step``·max(1, |y_j|)), not assembled,
-        minus Z at X. Z(q) is smooth off the closures too (T and Φ_z⁺ from the assembly Jacobian at
-        q) and the line q + T e_j h has the assembled curve's first derivative (it leaves the curve
-        by ½ z'' h²): O(h) like the forward difference on the curve, without a Newton step, and
-        one model update per direction (a central difference costs two: measured, the forward
-        one at h ≈ √ε (:data:`TANGENT_STEP`) moves ∂Φ/∂X by ≤ 3e-9 of its norm).
+        minus Z at X. Z(q) is smooth off the closures too and the line q + T e_j h has the
+        assembled curve's first derivative (it leaves the curve by ½ z'' h²): O(h) like the forward
+        difference on the curve, without a Newton step. There T and Φ_z⁺ are taken to first order,
+        T + h Ṫ_j and Φ_z⁺ + h (Φ_z⁺)˙_j (``velocity_map_rate`` of the robot, from Φ̇_q(T e_j)): an
+        O(h) change of the difference like the step's own, instead of a kinematics pass and a
+        factorization of the assembly Jacobian at q + T e_j h. One model update per direction (a
+        central difference costs two: measured, the forward one at h ≈ √ε (:data:`TANGENT_STEP`)
+        moves ∂Φ/∂X by ≤ 3e-9 of its norm).
 
         Args:
             X: (n_x,) state. step: relative step. base: the warm start of a pre-simulation at X
@@ -331,8 +334,8 @@ class ReducedModel:
         dZ[ny:, :, :ny] = sol[:, nc:].reshape(ny, ny, ny).transpose(1, 0, 2)
         for j in range(ny):
             h = step * max(1.0, abs(y[j]))
-            qs = r.integrate(q, T[:, j] * h)
-            dZ[j] = (self._factor_at(qs, *r.velocity_map_nocopy(qs), yd)[0] - Z) / h
+            dT, dP = r.velocity_map_rate(q, T, pinv_z, r.constraint_jacobian_derivative(q, T[:, j]))
+            dZ[j] = (self._factor_at(r.integrate(q, T[:, j] * h), T + h * dT, pinv_z + h * dP, yd)[0] - Z) / h
         return Z, dZ
 
     def factorize(self, X: np.ndarray):
