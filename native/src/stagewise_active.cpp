@@ -606,12 +606,13 @@ class RiccatiActive {
       }
   }
 
-  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (form 3: neither read),
-  // r (N − No, p), start (Nu, m) or none, f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (forms 1, 2; none: zeros;
+  // form 3: neither read), r (N − No, p), start (Nu, m) or none (shift: the last step's set, shifted by
+  // one stage here: the last stage repeated), f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
   // set; valid until the next solve) and J of the criterion (5)
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
-                       const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
-                       const double *f, double &J) {
+                       const double *x0, const double *u0, const double *r, const int64_t *start, bool shift,
+                       int max_iter, const double *f, double &J) {
     if (f) set_bounds(f);
     if (nz == n) {  // Ā_i = A_i, B̄_i = B_i, c̄_i = c_i (absolute, Nu = N): read in place, no copy
       for (long i = 0; i < N; ++i) {
@@ -625,17 +626,30 @@ class RiccatiActive {
                           c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
     }
     if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
-    if (form == 1 || form == 2) qp_.z0.tail(m) = VMap(u0, m);
+    if (form == 1 || form == 2) {
+      if (u0)
+        qp_.z0.tail(m) = VMap(u0, m);
+      else
+        qp_.z0.tail(m).setZero();
+    }
     Eigen::Map<const RowMat> W(r, N - No, p);
-    q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
+    q_.bottomRows(N - No).noalias() = -W.lazyProduct(CQ2_.transpose());  // small: no blocked product
     Set &fixed = ws_.fixed;
     if (start) {
-      fixed = Eigen::Map<const Set>(start, Nu, m);
+      const Eigen::Map<const Set> given(start, Nu, m);
+      if (shift) {  // v(i) starts on the rows of v(i + 1) (shift_active_set in solvers/stagewise_active.py)
+        fixed.resize(Nu, m);
+        fixed.topRows(Nu - 1) = given.bottomRows(Nu - 1);
+        fixed.row(Nu - 1) = given.row(Nu - 1);
+      } else {
+        fixed = given;
+      }
       sanitize(qp_, fixed);
     } else {
       fixed.setConstant(Nu, m, -1);
     }
     const Outcome &out = solve_active_set(qp_, ws_, max_iter, start != nullptr);
+    active_ = out.fixed.size() > 0 && out.fixed.maxCoeff() >= 0;
     J = 0.0;
     for (long i = 0; i < Nu; ++i) {
       wu_.noalias() = Wu_.lazyProduct(out.v[i]);
@@ -653,6 +667,28 @@ class RiccatiActive {
   long n, m, p, N, No, Nu, nz;
   int form;
   long k() const { return qp_.k; }
+  bool active() const { return active_; }           // a row of the last solve's set binds
+  double f_scale() const { return qp_.f_scale; }  // the largest bound of the used rows, at least 1e-12
+
+  // how many models the step's A, B or c holds (A: (n, n), or one per stage (N, n, n) or (N·n, n); B
+  // likewise with m columns; c (n,), (N·n,) or (N, n)): 1 or N, 0 for an empty c
+  long models_in(const char *name, const Floats &a, long cols) const {
+    const bool vec = cols == 0;  // c
+    const long size = long(a.size()), nd = long(a.ndim()), last = nd ? long(a.shape(nd - 1)) : 0;
+    const long one = vec ? n : n * cols;
+    if (vec && size == 0) return 0;
+    const bool shaped = vec ? (nd == 1 || (nd == 2 && last == n)) : ((nd == 2 || nd == 3) && last == cols);
+    if (shaped && (size == one || size == N * one)) return size == one ? 1 : N;
+    std::string got;
+    for (long d = 0; d < nd; ++d) got += (d ? ", " : "") + std::to_string(a.shape(d));
+    throw std::invalid_argument("RiccatiActive.solve: " + std::string(name) +
+                                " must be one model or one per stage (n = " + std::to_string(n) +
+                                ", m = " + std::to_string(m) + ", N = " + std::to_string(N) + "): " +
+                                (vec ? "(n,), (N·n,), (N, n) or empty" : cols == m ? "(n, m), (N·n, m) or (N, n, m)"
+                                                                                   : "(n, n), (N·n, n) or (N, n, n)") +
+                                "; got (" + got + ")");
+  }
+
 
  private:
   QP qp_;
@@ -661,6 +697,7 @@ class RiccatiActive {
   std::vector<RowMat> Ab_, Bb_;
   Workspace ws_;
   Vec wu_, y_, wy_;  // J's terms
+  bool active_ = false;
 };
 
 // (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
@@ -707,28 +744,41 @@ void bind_stagewise_active(nb::module_ &m) {
            nb::arg("f"), nb::arg("comp"), nb::arg("sign"))
       .def(
           "solve",
-          [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
-             In1 u0, In2 r, std::optional<InI> start, int max_iter, std::optional<In2> f) {
+          [](RiccatiActive &self, Floats A, Floats B, std::optional<Floats> c, In1 x0, std::optional<In1> u0, In2 r,
+             std::optional<InI> start, int max_iter, std::optional<In2> f, bool shift) {
+            // the step's arrays read in place (nanobind converts another dtype or layout on the way in)
             const long m = self.m;
-            const stage_model::StepShape shape = stage_model::check_step(
-                "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
+            const long nA = self.models_in("A", A, self.n), nB = self.models_in("B", B, m),
+                       nc = c ? self.models_in("c", *c, 0) : 0;
+            if (long(x0.shape(0)) != self.n || (u0 && long(u0->shape(0)) != m) || long(r.shape(0)) != self.N - self.No ||
+                long(r.shape(1)) != self.p)
+              throw std::invalid_argument("RiccatiActive.solve: x0 must be (n,) = (" + std::to_string(self.n) +
+                                          ",), u0 (m,) = (" + std::to_string(m) + ",) or None, r (N − No, p) = (" +
+                                          std::to_string(self.N - self.No) + ", " + std::to_string(self.p) + ")");
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
+            if (shift && !start) throw std::invalid_argument("RiccatiActive.solve: shift needs a start (the last set)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
               throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
             double J = 0.0;
-            const Outcome &res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
-                                           shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
+            const Outcome &res = self.solve(A.data(), nA, B.data(), nB, nc ? c->data() : nullptr, nc, x0.data(),
+                                           u0 ? u0->data() : nullptr, r.data(), start ? start->data() : nullptr, shift,
                                            max_iter, f ? f->data() : nullptr, J);
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
-          nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
-          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(),
+          nb::arg("A"), nb::arg("B"), nb::arg("c").none(), nb::arg("x0"), nb::arg("u0").none(), nb::arg("r"),
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(), nb::arg("shift") = false,
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
-          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None; "
-          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last");
+          "solvers/stagewise_active.py on the step's stage models; A, B, c: one model or one per stage, "
+          "(N, n, n) or (N·n, n) etc., read in place; start: the previous set shifted (shift: the previous set, "
+          "shifted here), or None; "
+          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last")
+      .def_prop_ro("active", &RiccatiActive::active, "a row of the last solve's set binds")
+      .def_prop_ro("f_scale", &RiccatiActive::f_scale,
+                   "the largest bound of the used rows (the last bounds given), at least 1e-12: the scale of the "
+                   "residual's row excess");
 }
 }  // namespace pgpc
