@@ -860,9 +860,10 @@ def test_the_compiled_step_takes_the_steps_arrays_as_they_are(form):
     """What the controller hands the compiled step unchanged answers as the flattened arrays it was
     given before: one model per stage as (N, n, n) / (N, n, m) / (N, n) or as (N·n, n) / (N·n, m) /
     (N·n,), another layout converted on the way in, c and u0 absent as zeros, the last set
-    shifted by the call (shift) as by shift_active_set: the same set, sweeps, plan, multipliers and J,
-    bit for bit; the set's `active` and the bounds' `f_scale` as recomputed here. An array of another
-    size is one clear error naming it and the shapes that are valid."""
+    shifted by the call (shift) as by shift_active_set, the plan, multipliers and set written into the
+    caller's arrays: the same set, sweeps, plan, multipliers and J, bit for bit; the set's `active` and
+    the bounds' `f_scale` as recomputed here. An array of another size is one clear error naming it
+    and the shapes that are valid."""
     robot = ParallelRobot.load("planar_4rrr")
     ctl, X, w = _setup(robot, form, "torque", cases=INPUT_CASES)
     ctl.step(X, w)  # builds the compiled step
@@ -897,6 +898,12 @@ def test_the_compiled_step_takes_the_steps_arrays_as_they_are(form):
             step.solve(*bad, X, None, r, None, AS_MAX_ITER)
     with pytest.raises(ValueError, match="shift needs a start"):
         step.solve(*warm, None, AS_WARM_MAX_ITER, shift=True)
+    outs = (np.full((H.Nu, m), np.nan), np.full(sw._template[0].f.shape, np.nan), np.full((H.Nu, m), -7, np.int64))
+    got = step.solve(*flat, None, AS_MAX_ITER, None, False, *outs)  # written into the caller's arrays
+    same(got, cold)
+    assert got[0] is outs[0] and got[2] is outs[1] and got[3] is outs[2]
+    with pytest.raises(ValueError, match="go together"):
+        step.solve(*flat, None, AS_MAX_ITER, v_out=outs[0])
 
 
 @pytest.mark.parametrize("claimed", [np.inf, 1e3], ids=["unverified", "residual-too-large"])

@@ -35,6 +35,7 @@ namespace {
 using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
     stage_arrays::RowMat;
 using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutI = nb::ndarray<int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Traj = std::vector<Vec>;
 using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // (nd, m): row or −1
 
@@ -745,7 +746,8 @@ void bind_stagewise_active(nb::module_ &m) {
       .def(
           "solve",
           [](RiccatiActive &self, Floats A, Floats B, std::optional<Floats> c, In1 x0, std::optional<In1> u0, In2 r,
-             std::optional<InI> start, int max_iter, std::optional<In2> f, bool shift) {
+             std::optional<InI> start, int max_iter, std::optional<In2> f, bool shift, std::optional<Out2> v_out,
+             std::optional<Out2> lam_out, std::optional<OutI> set_out) {
             // the step's arrays read in place (nanobind converts another dtype or layout on the way in)
             const long m = self.m;
             const long nA = self.models_in("A", A, self.n), nB = self.models_in("B", B, m),
@@ -761,21 +763,40 @@ void bind_stagewise_active(nb::module_ &m) {
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
               throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
+            const bool outs = v_out || lam_out || set_out;
+            if (outs && !(v_out && lam_out && set_out && long(v_out->shape(0)) == self.Nu &&
+                          long(v_out->shape(1)) == m && long(lam_out->shape(0)) == self.N &&
+                          long(lam_out->shape(1)) == self.k() && long(set_out->shape(0)) == self.Nu &&
+                          long(set_out->shape(1)) == m))
+              throw std::invalid_argument("RiccatiActive.solve: v_out (Nu, m), lam_out (N, k) and set_out (Nu, m) "
+                                          "go together (Nu = " + std::to_string(self.Nu) + ", m = " +
+                                          std::to_string(m) + ", N = " + std::to_string(self.N) + ", k = " +
+                                          std::to_string(self.k()) + ")");
             double J = 0.0;
             const Outcome &res = self.solve(A.data(), nA, B.data(), nB, nc ? c->data() : nullptr, nc, x0.data(),
                                            u0 ? u0->data() : nullptr, r.data(), start ? start->data() : nullptr, shift,
                                            max_iter, f ? f->data() : nullptr, J);
+            if (outs) {  // written into the caller's arrays, which are returned (no new array to hand over)
+              Eigen::Map<RowMat> v(v_out->data(), self.Nu, m);
+              for (long i = 0; i < self.Nu; ++i) v.row(i) = res.v[i].transpose();
+              Eigen::Map<RowMat>(lam_out->data(), self.N, self.k()) = res.lam;
+              Eigen::Map<Set>(set_out->data(), self.Nu, m) = res.fixed;
+              return nb::make_tuple(*v_out, J, *lam_out, *set_out, res.iterations, res.ok, res.residual, res.message);
+            }
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
           nb::arg("A"), nb::arg("B"), nb::arg("c").none(), nb::arg("x0"), nb::arg("u0").none(), nb::arg("r"),
           nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(), nb::arg("shift") = false,
+          nb::arg("v_out") = nb::none(), nb::arg("lam_out") = nb::none(), nb::arg("set_out") = nb::none(),
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
           "solvers/stagewise_active.py on the step's stage models; A, B, c: one model or one per stage, "
           "(N, n, n) or (N·n, n) etc., read in place; start: the previous set shifted (shift: the previous set, "
           "shifted here), or None; "
-          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last")
+          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last; "
+          "v_out, lam_out, set_out (float64, float64, int64): arrays to write v, λ and the set into (returned; "
+          "cheaper than new ones), or None")
       .def_prop_ro("active", &RiccatiActive::active, "a row of the last solve's set binds")
       .def_prop_ro("f_scale", &RiccatiActive::f_scale,
                    "the largest bound of the used rows (the last bounds given), at least 1e-12: the scale of the "

@@ -284,6 +284,7 @@ class StagewiseSolver:
         self._compiled_step = compiled_part(native, "RiccatiActive", "the compiled limited step")
         self.native = self._compiled is not None and self._compiled_active is not None
         self._step = None  # the compiled RiccatiActive of a problem of input rows (built on the first step)
+        self._out_shape: tuple = ()  # ((Nu, m), k): the shapes of its plan and set, the columns of its λ
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
         self._before: np.ndarray | None = None  # the set of the step before the last (EDGE_FORMS), or None
@@ -395,8 +396,9 @@ class StagewiseSolver:
         left in place).
 
         The step's arrays go to the compiled call as they are (it reads any C-contiguous float64 array
-        of the right size in place; others are converted on the way in) and a warm start's set is
-        shifted there: nothing is built here but the result."""
+        of the right size in place; others are converted on the way in), a warm start's set is shifted
+        there, and it writes the plan, multipliers and set into arrays made here (cheaper than the ones
+        it would hand over): nothing else is built here but the result."""
         A, B, c, x0, u0 = step
         if not warm or self._fixed is None:
             start, shift, cap = None, False, AS_MAX_ITER
@@ -405,9 +407,11 @@ class StagewiseSolver:
         else:
             start, shift, cap = self._fixed, True, AS_WARM_MAX_ITER
         self.excess = np.inf
+        (Nu, m), k = self._out_shape
+        v, lam, fixed = np.empty((Nu, m)), np.empty((self.horizons.N, k)), np.empty((Nu, m), np.int64)
         try:
-            v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f,
-                                                                                   shift)
+            _, J, _, _, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f, shift, v,
+                                                                             lam, fixed)
         except RuntimeError as exc:
             self._last = None
             self._keep_set(None, False)
@@ -463,6 +467,7 @@ class StagewiseSolver:
                     self._step = self._compiled_step(
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
                         np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+                    self._out_shape = ((H.Nu, self.Wu.shape[0]), qp.f.shape[1])  # v and the set, λ's columns
                     result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f)
                     if result is not None:
                         return result, None
