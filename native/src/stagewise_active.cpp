@@ -11,7 +11,7 @@
 // `stagewise_active` (any StageQP of input rows; one workspace per thread) and the class
 // `RiccatiActive` (a form's limited step in one call: its stage models and criterion built here,
 // gpc/stagewise.py; its own workspace).
-#include <Eigen/Cholesky>
+#include <Eigen/Core>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
@@ -70,6 +70,28 @@ void neg_chol_solve(const ML &L, const VD &d, M &X) {
   }
 }
 
+// L ← the Cholesky factor (its lower triangle) of the symmetric positive definite L (read: the lower
+// triangle), d ← the reciprocals of its diagonal; false (L left part-way) when a pivot is not positive
+// (or NaN). Plain loops: at a few inputs, with the size known at compile time, unrolled.
+template <class ML, class VD>
+bool cholesky_lower(ML &L, VD &d) {
+  const long n = L.rows();
+  for (long j = 0; j < n; ++j) {
+    double t = L(j, j);
+    for (long c = 0; c < j; ++c) t -= L(j, c) * L(j, c);
+    if (!(t > 0.0)) return false;
+    const double l = std::sqrt(t);
+    L(j, j) = l;
+    d(j) = 1.0 / l;
+    for (long r = j + 1; r < n; ++r) {
+      double x = L(r, j);
+      for (long c = 0; c < j; ++c) x -= L(r, c) * L(j, c);
+      L(r, j) = x * d(j);
+    }
+  }
+  return true;
+}
+
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
   std::vector<CMap> A, B, Q, Fz;
@@ -105,22 +127,16 @@ struct SweepTemps {
   using MM = Eigen::Matrix<double, M, M>;
   using VZ = Eigen::Matrix<double, NZ, 1>;
   using VM = Eigen::Matrix<double, M, 1>;
-  using MF = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, M, M>;  // free × free
-  using MFZ = Eigen::Matrix<double, Eigen::Dynamic, NZ, Eigen::ColMajor, M, NZ>;           // free × state
-  using VF = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, M, 1>;
   MZ P, Pz, PA;
   MZM PB;
-  MM Hvv;
-  MMZ Hvz, Hz;
-  MF Hww;
-  MFZ Hwz;
+  MM Hvv, Hww;  // Hww: the free inputs' Hessian, the fixed ones' rows and columns those of the identity
+  MMZ Hvz, Hz, Hwz;
   VZ p, lin, w;
-  VM gv;
-  VF gw, vf, dinv;
-  Eigen::LLT<MF> llt;
+  VM gv, gw, vf, dinv;
   void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
     P.resize(nz, nz), Pz.resize(nz, nz), PA.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
-    Hvz.resize(m, nz), Hz.resize(m, nz), p.resize(nz), lin.resize(nz), w.resize(nz), gv.resize(m);
+    Hww.resize(m, m), Hvz.resize(m, nz), Hz.resize(m, nz), Hwz.resize(m, nz), p.resize(nz), lin.resize(nz);
+    w.resize(nz), gv.resize(m), gw.resize(m), vf.resize(m), dinv.resize(m);
   }
 };
 
@@ -128,12 +144,14 @@ struct SweepTemps {
 // and from solve to solve (part of a Workspace)
 struct Sweep {
   const QP *qpp = nullptr;
-  std::vector<Mat> K, E;
-  Traj k, e;
-  std::vector<std::vector<long>> free;
+  // per stage, one contiguous buffer each (column-major blocks): the gains v = K_i z + k_i of the free
+  // components (zero rows on the fixed ones) and v = E_i z + e_i of the fixed ones (zero rows on the free
+  // ones), (m, nz) and (m,) per decision stage; P_i (nz, nz) and p_i (nz) of the last sweep (N + 1): a sweep
+  // redoes only the stages up to the last one whose set changed (the later ones' P, p and gains are the same)
+  std::vector<double> K, k, E, e, Ps, ps;
+  std::vector<long> n_free;  // the free components per decision stage
   std::vector<char> has_E;
-  std::vector<Mat> Ps;  // P_i and p_i of the last sweep: a sweep redoes only the stages up to the last one
-  Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
+  long sized[4] = {-1, -1, -1, -1};  // (N, nd, nz, m) the buffers are sized for
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
   SweepTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size sweep
@@ -142,17 +160,16 @@ struct Sweep {
   void prepare(const QP &qp) {
     qpp = &qp;
     valid = false;
-    if (long(Ps.size()) != qp.N + 1) {
-      Ps.assign(qp.N + 1, Mat());
-      ps.assign(qp.N + 1, Vec());
-    }
-    if (long(E.size()) != qp.nd || (qp.nd && (E[0].rows() != qp.m || E[0].cols() != qp.nz))) {
-      K.assign(qp.nd, Mat());
-      E.assign(qp.nd, Mat::Zero(qp.m, qp.nz));
-      k.assign(qp.nd, Vec());
-      e.assign(qp.nd, Vec::Zero(qp.m));
-      free.assign(qp.nd, {});
-      has_E.assign(qp.nd, 1);  // E is zeroed on its first use
+    if (sized[0] != qp.N || sized[1] != qp.nd || sized[2] != qp.nz || sized[3] != qp.m) {
+      Ps.assign(size_t((qp.N + 1) * qp.nz * qp.nz), 0.0);
+      ps.assign(size_t((qp.N + 1) * qp.nz), 0.0);
+      K.assign(size_t(qp.nd * qp.m * qp.nz), 0.0);
+      E.assign(K.size(), 0.0);
+      k.assign(size_t(qp.nd * qp.m), 0.0);
+      e.assign(k.size(), 0.0);
+      n_free.assign(size_t(qp.nd), 0);
+      has_E.assign(size_t(qp.nd), 0);  // E_i is zero
+      sized[0] = qp.N, sized[1] = qp.nd, sized[2] = qp.nz, sized[3] = qp.m;
     }
   }
 
@@ -178,29 +195,32 @@ struct Sweep {
     using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
     using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
     using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
+    using ZZ = Eigen::Map<Eigen::Matrix<double, NZ, NZ>>;   // P_i
+    using ZW = Eigen::Map<Eigen::Matrix<double, NZ, 1>>;    // p_i
+    using GM = Eigen::Map<Eigen::Matrix<double, M, NZ>>;    // K_i, E_i
+    using GV = Eigen::Map<Eigen::Matrix<double, M, 1>>;     // k_i, e_i
     const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, m = qp.m, nz = qp.nz;
     auto &P = t.P, &Pz = t.Pz, &PA = t.PA;
     auto &PB = t.PB;
-    auto &Hvv = t.Hvv;
-    auto &Hvz = t.Hvz, &Hz = t.Hz;
-    auto &Hww = t.Hww;
-    auto &Hwz = t.Hwz;
+    auto &Hvv = t.Hvv, &Hww = t.Hww;
+    auto &Hvz = t.Hvz, &Hz = t.Hz, &Hwz = t.Hwz;
     auto &p = t.p, &lin = t.lin, &w = t.w;
-    auto &gv = t.gv;
-    auto &gw = t.gw, &dinv = t.dinv;
+    auto &gv = t.gv, &gw = t.gw, &dinv = t.dinv;
+    auto Pi = [&](long i) { return ZZ(Ps.data() + i * nz * nz, nz, nz); };
+    auto pi = [&](long i) { return ZW(ps.data() + i * nz, nz); };
     long top = N - 1;  // the last stage to redo
     if (valid) {
       top = -1;
       for (long i = nd - 1; i >= 0 && top < 0; --i)
         if (fixed.row(i) != last.row(i)) top = i;
     } else {
-      Ps[N] = qp.Q[N];
-      ps[N] = qp.q[N];
+      Pi(N) = qp.Q[N];
+      pi(N) = qp.q[N];
     }
     if (top >= 0) {
-      P = Ps[top + 1];
-      p = ps[top + 1];
+      P = Pi(top + 1);
+      p = pi(top + 1);
     }
     for (long i = top; i >= 0; --i) {
       const AM A(qp.A[i].data(), nz, nz);
@@ -217,10 +237,10 @@ struct Sweep {
         Hvv = qp.R;
         Hvv.noalias() += B.transpose().lazyProduct(PB);
         gv.noalias() = B.transpose().lazyProduct(w);
-        Hvz.noalias() = PB.transpose().lazyProduct(A);
+        Hvz.noalias() = B.transpose().lazyProduct(PA);  // (PB)ᵀA: P is symmetric
         // v = E z + e on the fixed components
-        Mat &Ei = E[i];
-        Vec &ei = e[i];
+        GM Ei(E.data() + i * m * nz, m, nz);
+        GV ei(e.data() + i * m, m);
         if (has_E[i]) Ei.setZero();
         ei.setZero();
         has_E[i] = 0;
@@ -245,47 +265,46 @@ struct Sweep {
             lin.noalias() += Ei.transpose().lazyProduct(gv);
           }
         }
-        std::vector<long> &fr = free[i];
-        fr.clear();
-        for (long j = 0; j < m; ++j)
-          if (fixed(i, j) < 0) fr.push_back(j);
-        const long nf = long(fr.size());
+        // v = K z + k on the free ones: the system of all m inputs with the fixed ones' rows and columns
+        // those of the identity and their right-hand sides 0 (its factor is the free block's, bordered by the
+        // identity: the same numbers, and zero gains on the fixed components), at a size known at compile time
+        long nf = 0;
+        for (long j = 0; j < m; ++j) nf += fixed(i, j) < 0;
+        n_free[i] = nf;
         if (nf) {
-          if (nf == m) {
-            Hww = Hvv;
-            Hwz = Hz;
-            gw = gv;
-          } else {
-            Hww.resize(nf, nf);
-            Hwz.resize(nf, nz);
-            gw.resize(nf);
-            for (long a = 0; a < nf; ++a) {
-              for (long b = 0; b < nf; ++b) Hww(a, b) = Hvv(fr[a], fr[b]);
-              Hwz.row(a) = Hz.row(fr[a]);
-              gw(a) = gv(fr[a]);
-            }
-          }
+          Hww = Hvv;
+          Hwz = Hz;
+          gw = gv;
+          if (nf < m)
+            for (long j = 0; j < m; ++j)
+              if (fixed(i, j) >= 0) {
+                Hww.row(j).setZero();
+                Hww.col(j).setZero();
+                Hww(j, j) = 1.0;
+                Hwz.row(j).setZero();
+                gw(j) = 0.0;
+              }
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          t.llt.compute(Hww);
-          if (t.llt.info() != Eigen::Success)
+          if (!cholesky_lower(Hww, dinv))
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          dinv = t.llt.matrixLLT().diagonal().cwiseInverse();
-          K[i] = Hwz;
-          neg_chol_solve(t.llt.matrixLLT(), dinv, K[i]);
-          k[i] = gw;
-          neg_chol_solve(t.llt.matrixLLT(), dinv, k[i]);
-          Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
-          lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
+          GM Ki(K.data() + i * m * nz, m, nz);
+          GV ki(k.data() + i * m, m);
+          Ki = Hwz;
+          neg_chol_solve(Hww, dinv, Ki);
+          ki = gw;
+          neg_chol_solve(Hww, dinv, ki);
+          Pz.noalias() += Hwz.transpose().lazyProduct(Ki);
+          lin.noalias() += Hwz.transpose().lazyProduct(ki);
         }
       }
       P = 0.5 * (Pz + Pz.transpose());
       p = lin;
-      Ps[i] = P;
-      ps[i] = p;
+      Pi(i) = P;
+      pi(i) = p;
     }
     last = fixed;
     valid = true;
@@ -298,13 +317,12 @@ struct Sweep {
       z[i + 1].noalias() = A.lazyProduct(z[i]);
       z[i + 1] += qp.c[i];
       if (i < nd) {
-        v[i] = e[i];
-        if (has_E[i]) v[i].noalias() += E[i].lazyProduct(z[i]);
-        const std::vector<long> &fr = free[i];
-        if (!fr.empty()) {
-          vf = k[i];
-          vf.noalias() += K[i].lazyProduct(z[i]);
-          for (size_t a = 0; a < fr.size(); ++a) v[i](fr[a]) = vf(long(a));
+        v[i] = GV(e.data() + i * m, m);
+        if (has_E[i]) v[i].noalias() += GM(E.data() + i * m * nz, m, nz).lazyProduct(z[i]);
+        if (n_free[i]) {  // the free components (0 on the fixed ones: their v stays E z + e)
+          vf = GV(k.data() + i * m, m);
+          vf.noalias() += GM(K.data() + i * m * nz, m, nz).lazyProduct(z[i]);
+          v[i] += vf;
         }
         z[i + 1].noalias() += BM(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
