@@ -422,11 +422,11 @@ class StagewiseSolver:
             return None
         self.method = "active-set"
         self._keep_set(fixed, warm)
-        step_ = self._step
-        self.excess = residual * step_.f_scale  # the largest bound of the used rows (this step's)
+        compiled = self._step
+        self.excess = residual * compiled.f_scale  # the largest bound of the used rows (this step's)
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
-        return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0, step_.active,
-                           "")
+        return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
+                           compiled.active, "")
 
     def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
