@@ -301,7 +301,8 @@ struct Sweep {
           lin.noalias() += Hwz.transpose().lazyProduct(ki);
         }
       }
-      P = 0.5 * (Pz + Pz.transpose());
+      for (long a = 0; a < nz; ++a)  // P = (Pz + Pzᵀ) / 2, each pair once
+        for (long b = 0; b <= a; ++b) P(a, b) = P(b, a) = 0.5 * (Pz(a, b) + Pz(b, a));
       p = lin;
       Pi(i) = P;
       pi(i) = p;
