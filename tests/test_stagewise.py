@@ -810,7 +810,7 @@ def test_the_compiled_steps_residual_bounds_the_broken_rows(form, case):
         X, np.zeros(m) if u0 is None else u0, r, None, 1)
     excess = _row_excess(ctl, (A, B, c, x0, u0, r), v)
     assert excess > 0.0 and not ok  # one sweep leaves rows broken
-    assert excess <= residual * sw._f_scale * (1.0 + 1e-12)
+    assert excess <= residual * sw._step.f_scale * (1.0 + 1e-12)
 
 
 @pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
@@ -852,6 +852,58 @@ def test_a_reused_compiled_step_answers_as_a_fresh_one(form):
                 last = fixed
         X = X + np.concatenate([X[robot.n_y:] * TS, 0.02 * rng.standard_normal(robot.n_y)])
     assert unsettled and binding  # the calls cover sets that bind and sweeps that stop unsettled
+
+
+@pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
+@pytest.mark.parametrize("form", ["absolute", "incremental"])
+def test_the_compiled_step_takes_the_steps_arrays_as_they_are(form):
+    """What the controller hands the compiled step unchanged answers as the flattened arrays it was
+    given before: one model per stage as (N, n, n) / (N, n, m) / (N, n) or as (N·n, n) / (N·n, m) /
+    (N·n,), another layout converted on the way in, c and u0 absent as zeros, the last set
+    shifted by the call (shift) as by shift_active_set, the plan, multipliers and set written into the
+    caller's arrays: the same set, sweeps, plan, multipliers and J, bit for bit; the set's `active` and
+    the bounds' `f_scale` as recomputed here. An array of another size is one clear error naming it
+    and the shapes that are valid."""
+    robot = ParallelRobot.load("planar_4rrr")
+    ctl, X, w = _setup(robot, form, "torque", cases=INPUT_CASES)
+    ctl.step(X, w)  # builds the compiled step
+    sw, H, n, m = ctl._riccati.constrained, ctl.horizons, ctl.n_x, ctl.n_u
+    step = sw._step
+    Ad, Bd, _, _, _, r = ctl._riccati.stages(ctl, X, w)
+    rng = np.random.default_rng(5)
+    A = np.asarray(Ad, float) * (1.0 + 1e-3 * rng.standard_normal((H.N, n, n)))  # a model per stage
+    B = np.asarray(Bd, float) * (1.0 + 1e-2 * rng.standard_normal((H.N, n, m)))
+    c = 1e-3 * rng.standard_normal((H.N, n))
+    flat = (A.reshape(-1, n), B.reshape(-1, m), c.reshape(-1), X, np.zeros(m), r)
+
+    def same(got, want):
+        assert np.array_equal(got[3], want[3]) and got[4:] == want[4:]
+        for a, b in zip(got[:3], want[:3]):
+            assert np.array_equal(a, b)
+
+    cold = step.solve(*flat, None, AS_MAX_ITER)
+    assert cold[5] and (cold[3] >= 0).any()  # settled, limits bind
+    assert step.active == bool((cold[3] >= 0).any())
+    assert step.f_scale == float(np.max(np.abs(sw._template[0].f[np.isfinite(sw._template[0].f)])))
+    same(step.solve(A, B, c, X, None, r, None, AS_MAX_ITER), cold)
+    same(step.solve(np.asfortranarray(A.reshape(-1, n)), np.asfortranarray(B), c, X, None, r, None, AS_MAX_ITER), cold)
+    same(step.solve(*flat[:2], None, *flat[3:], None, AS_MAX_ITER), step.solve(*flat[:2], np.zeros(0), *flat[3:],
+                                                                               None, AS_MAX_ITER))
+    X2 = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.02)])
+    warm = (A, B, c, X2, None, r)
+    same(step.solve(*warm, cold[3], AS_WARM_MAX_ITER, shift=True),
+         step.solve(*warm, shift_active_set(cold[3]), AS_WARM_MAX_ITER))
+    for bad, name in [((A[:-1], B, c), "A"), ((A, B[..., :-1], c), "B"), ((A, B, c[:, :-1]), "c")]:
+        with pytest.raises(ValueError, match=f"RiccatiActive.solve: {name} must be one model or one per stage.*got"):
+            step.solve(*bad, X, None, r, None, AS_MAX_ITER)
+    with pytest.raises(ValueError, match="shift needs a start"):
+        step.solve(*warm, None, AS_WARM_MAX_ITER, shift=True)
+    outs = (np.full((H.Nu, m), np.nan), np.full(sw._template[0].f.shape, np.nan), np.full((H.Nu, m), -7, np.int64))
+    got = step.solve(*flat, None, AS_MAX_ITER, None, False, *outs)  # written into the caller's arrays
+    same(got, cold)
+    assert got[0] is outs[0] and got[2] is outs[1] and got[3] is outs[2]
+    with pytest.raises(ValueError, match="go together"):
+        step.solve(*flat, None, AS_MAX_ITER, v_out=outs[0])
 
 
 @pytest.mark.parametrize("claimed", [np.inf, 1e3], ids=["unverified", "residual-too-large"])

@@ -11,7 +11,7 @@
 // `stagewise_active` (any StageQP of input rows; one workspace per thread) and the class
 // `RiccatiActive` (a form's limited step in one call: its stage models and criterion built here,
 // gpc/stagewise.py; its own workspace).
-#include <Eigen/Cholesky>
+#include <Eigen/Core>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
@@ -35,6 +35,7 @@ namespace {
 using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
     stage_arrays::RowMat;
 using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
+using OutI = nb::ndarray<int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Traj = std::vector<Vec>;
 using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // (nd, m): row or −1
 
@@ -67,6 +68,28 @@ void neg_chol_solve(const ML &L, const VD &d, M &X) {
       X(a, c) = -t * d(a);
     }
   }
+}
+
+// L ← the Cholesky factor (its lower triangle) of the symmetric positive definite L (read: the lower
+// triangle), d ← the reciprocals of its diagonal; false (L left part-way) when a pivot is not positive
+// (or NaN). Plain loops: at a few inputs, with the size known at compile time, unrolled.
+template <class ML, class VD>
+bool cholesky_lower(ML &L, VD &d) {
+  const long n = L.rows();
+  for (long j = 0; j < n; ++j) {
+    double t = L(j, j);
+    for (long c = 0; c < j; ++c) t -= L(j, c) * L(j, c);
+    if (!(t > 0.0)) return false;
+    const double l = std::sqrt(t);
+    L(j, j) = l;
+    d(j) = 1.0 / l;
+    for (long r = j + 1; r < n; ++r) {
+      double x = L(r, j);
+      for (long c = 0; c < j; ++c) x -= L(r, c) * L(j, c);
+      L(r, j) = x * d(j);
+    }
+  }
+  return true;
 }
 
 struct QP {  // views of the caller's arrays (no copy)
@@ -104,22 +127,16 @@ struct SweepTemps {
   using MM = Eigen::Matrix<double, M, M>;
   using VZ = Eigen::Matrix<double, NZ, 1>;
   using VM = Eigen::Matrix<double, M, 1>;
-  using MF = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, M, M>;  // free × free
-  using MFZ = Eigen::Matrix<double, Eigen::Dynamic, NZ, Eigen::ColMajor, M, NZ>;           // free × state
-  using VF = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, M, 1>;
   MZ P, Pz, PA;
   MZM PB;
-  MM Hvv;
-  MMZ Hvz, Hz;
-  MF Hww;
-  MFZ Hwz;
+  MM Hvv, Hww;  // Hww: the free inputs' Hessian, the fixed ones' rows and columns those of the identity
+  MMZ Hvz, Hz, Hwz;
   VZ p, lin, w;
-  VM gv;
-  VF gw, vf, dinv;
-  Eigen::LLT<MF> llt;
+  VM gv, gw, vf, dinv;
   void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
     P.resize(nz, nz), Pz.resize(nz, nz), PA.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
-    Hvz.resize(m, nz), Hz.resize(m, nz), p.resize(nz), lin.resize(nz), w.resize(nz), gv.resize(m);
+    Hww.resize(m, m), Hvz.resize(m, nz), Hz.resize(m, nz), Hwz.resize(m, nz), p.resize(nz), lin.resize(nz);
+    w.resize(nz), gv.resize(m), gw.resize(m), vf.resize(m), dinv.resize(m);
   }
 };
 
@@ -127,12 +144,14 @@ struct SweepTemps {
 // and from solve to solve (part of a Workspace)
 struct Sweep {
   const QP *qpp = nullptr;
-  std::vector<Mat> K, E;
-  Traj k, e;
-  std::vector<std::vector<long>> free;
+  // per stage, one contiguous buffer each (column-major blocks): the gains v = K_i z + k_i of the free
+  // components (zero rows on the fixed ones) and v = E_i z + e_i of the fixed ones (zero rows on the free
+  // ones), (m, nz) and (m,) per decision stage; P_i (nz, nz) and p_i (nz) of the last sweep (N + 1): a sweep
+  // redoes only the stages up to the last one whose set changed (the later ones' P, p and gains are the same)
+  std::vector<double> K, k, E, e, Ps, ps;
+  std::vector<long> n_free;  // the free components per decision stage
   std::vector<char> has_E;
-  std::vector<Mat> Ps;  // P_i and p_i of the last sweep: a sweep redoes only the stages up to the last one
-  Traj ps;              // whose set changed (the later ones' P, p and gains are the same)
+  long sized[4] = {-1, -1, -1, -1};  // (N, nd, nz, m) the buffers are sized for
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
   SweepTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size sweep
@@ -141,17 +160,16 @@ struct Sweep {
   void prepare(const QP &qp) {
     qpp = &qp;
     valid = false;
-    if (long(Ps.size()) != qp.N + 1) {
-      Ps.assign(qp.N + 1, Mat());
-      ps.assign(qp.N + 1, Vec());
-    }
-    if (long(E.size()) != qp.nd || (qp.nd && (E[0].rows() != qp.m || E[0].cols() != qp.nz))) {
-      K.assign(qp.nd, Mat());
-      E.assign(qp.nd, Mat::Zero(qp.m, qp.nz));
-      k.assign(qp.nd, Vec());
-      e.assign(qp.nd, Vec::Zero(qp.m));
-      free.assign(qp.nd, {});
-      has_E.assign(qp.nd, 1);  // E is zeroed on its first use
+    if (sized[0] != qp.N || sized[1] != qp.nd || sized[2] != qp.nz || sized[3] != qp.m) {
+      Ps.assign(size_t((qp.N + 1) * qp.nz * qp.nz), 0.0);
+      ps.assign(size_t((qp.N + 1) * qp.nz), 0.0);
+      K.assign(size_t(qp.nd * qp.m * qp.nz), 0.0);
+      E.assign(K.size(), 0.0);
+      k.assign(size_t(qp.nd * qp.m), 0.0);
+      e.assign(k.size(), 0.0);
+      n_free.assign(size_t(qp.nd), 0);
+      has_E.assign(size_t(qp.nd), 0);  // E_i is zero
+      sized[0] = qp.N, sized[1] = qp.nd, sized[2] = qp.nz, sized[3] = qp.m;
     }
   }
 
@@ -177,29 +195,32 @@ struct Sweep {
     using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
     using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
     using ZV = Eigen::Map<const Eigen::Matrix<double, NZ, 1>>;
+    using ZZ = Eigen::Map<Eigen::Matrix<double, NZ, NZ>>;   // P_i
+    using ZW = Eigen::Map<Eigen::Matrix<double, NZ, 1>>;    // p_i
+    using GM = Eigen::Map<Eigen::Matrix<double, M, NZ>>;    // K_i, E_i
+    using GV = Eigen::Map<Eigen::Matrix<double, M, 1>>;     // k_i, e_i
     const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, m = qp.m, nz = qp.nz;
     auto &P = t.P, &Pz = t.Pz, &PA = t.PA;
     auto &PB = t.PB;
-    auto &Hvv = t.Hvv;
-    auto &Hvz = t.Hvz, &Hz = t.Hz;
-    auto &Hww = t.Hww;
-    auto &Hwz = t.Hwz;
+    auto &Hvv = t.Hvv, &Hww = t.Hww;
+    auto &Hvz = t.Hvz, &Hz = t.Hz, &Hwz = t.Hwz;
     auto &p = t.p, &lin = t.lin, &w = t.w;
-    auto &gv = t.gv;
-    auto &gw = t.gw, &dinv = t.dinv;
+    auto &gv = t.gv, &gw = t.gw, &dinv = t.dinv;
+    auto Pi = [&](long i) { return ZZ(Ps.data() + i * nz * nz, nz, nz); };
+    auto pi = [&](long i) { return ZW(ps.data() + i * nz, nz); };
     long top = N - 1;  // the last stage to redo
     if (valid) {
       top = -1;
       for (long i = nd - 1; i >= 0 && top < 0; --i)
         if (fixed.row(i) != last.row(i)) top = i;
     } else {
-      Ps[N] = qp.Q[N];
-      ps[N] = qp.q[N];
+      Pi(N) = qp.Q[N];
+      pi(N) = qp.q[N];
     }
     if (top >= 0) {
-      P = Ps[top + 1];
-      p = ps[top + 1];
+      P = Pi(top + 1);
+      p = pi(top + 1);
     }
     for (long i = top; i >= 0; --i) {
       const AM A(qp.A[i].data(), nz, nz);
@@ -216,10 +237,10 @@ struct Sweep {
         Hvv = qp.R;
         Hvv.noalias() += B.transpose().lazyProduct(PB);
         gv.noalias() = B.transpose().lazyProduct(w);
-        Hvz.noalias() = PB.transpose().lazyProduct(A);
+        Hvz.noalias() = B.transpose().lazyProduct(PA);  // (PB)ᵀA: P is symmetric
         // v = E z + e on the fixed components
-        Mat &Ei = E[i];
-        Vec &ei = e[i];
+        GM Ei(E.data() + i * m * nz, m, nz);
+        GV ei(e.data() + i * m, m);
         if (has_E[i]) Ei.setZero();
         ei.setZero();
         has_E[i] = 0;
@@ -244,47 +265,47 @@ struct Sweep {
             lin.noalias() += Ei.transpose().lazyProduct(gv);
           }
         }
-        std::vector<long> &fr = free[i];
-        fr.clear();
-        for (long j = 0; j < m; ++j)
-          if (fixed(i, j) < 0) fr.push_back(j);
-        const long nf = long(fr.size());
+        // v = K z + k on the free ones: the system of all m inputs with the fixed ones' rows and columns
+        // those of the identity and their right-hand sides 0 (its factor is the free block's, bordered by the
+        // identity: the same numbers, and zero gains on the fixed components), at a size known at compile time
+        long nf = 0;
+        for (long j = 0; j < m; ++j) nf += fixed(i, j) < 0;
+        n_free[i] = nf;
         if (nf) {
-          if (nf == m) {
-            Hww = Hvv;
-            Hwz = Hz;
-            gw = gv;
-          } else {
-            Hww.resize(nf, nf);
-            Hwz.resize(nf, nz);
-            gw.resize(nf);
-            for (long a = 0; a < nf; ++a) {
-              for (long b = 0; b < nf; ++b) Hww(a, b) = Hvv(fr[a], fr[b]);
-              Hwz.row(a) = Hz.row(fr[a]);
-              gw(a) = gv(fr[a]);
-            }
-          }
+          Hww = Hvv;
+          Hwz = Hz;
+          gw = gv;
+          if (nf < m)
+            for (long j = 0; j < m; ++j)
+              if (fixed(i, j) >= 0) {
+                Hww.row(j).setZero();
+                Hww.col(j).setZero();
+                Hww(j, j) = 1.0;
+                Hwz.row(j).setZero();
+                gw(j) = 0.0;
+              }
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          t.llt.compute(Hww);
-          if (t.llt.info() != Eigen::Success)
+          if (!cholesky_lower(Hww, dinv))
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
-          dinv = t.llt.matrixLLT().diagonal().cwiseInverse();
-          K[i] = Hwz;
-          neg_chol_solve(t.llt.matrixLLT(), dinv, K[i]);
-          k[i] = gw;
-          neg_chol_solve(t.llt.matrixLLT(), dinv, k[i]);
-          Pz.noalias() += Hwz.transpose().lazyProduct(K[i]);
-          lin.noalias() += Hwz.transpose().lazyProduct(k[i]);
+          GM Ki(K.data() + i * m * nz, m, nz);
+          GV ki(k.data() + i * m, m);
+          Ki = Hwz;
+          neg_chol_solve(Hww, dinv, Ki);
+          ki = gw;
+          neg_chol_solve(Hww, dinv, ki);
+          Pz.noalias() += Hwz.transpose().lazyProduct(Ki);
+          lin.noalias() += Hwz.transpose().lazyProduct(ki);
         }
       }
-      P = 0.5 * (Pz + Pz.transpose());
+      for (long a = 0; a < nz; ++a)  // P = (Pz + Pzᵀ) / 2, each pair once
+        for (long b = 0; b <= a; ++b) P(a, b) = P(b, a) = 0.5 * (Pz(a, b) + Pz(b, a));
       p = lin;
-      Ps[i] = P;
-      ps[i] = p;
+      Pi(i) = P;
+      pi(i) = p;
     }
     last = fixed;
     valid = true;
@@ -297,13 +318,12 @@ struct Sweep {
       z[i + 1].noalias() = A.lazyProduct(z[i]);
       z[i + 1] += qp.c[i];
       if (i < nd) {
-        v[i] = e[i];
-        if (has_E[i]) v[i].noalias() += E[i].lazyProduct(z[i]);
-        const std::vector<long> &fr = free[i];
-        if (!fr.empty()) {
-          vf = k[i];
-          vf.noalias() += K[i].lazyProduct(z[i]);
-          for (size_t a = 0; a < fr.size(); ++a) v[i](fr[a]) = vf(long(a));
+        v[i] = GV(e.data() + i * m, m);
+        if (has_E[i]) v[i].noalias() += GM(E.data() + i * m * nz, m, nz).lazyProduct(z[i]);
+        if (n_free[i]) {  // the free components (0 on the fixed ones: their v stays E z + e)
+          vf = GV(k.data() + i * m, m);
+          vf.noalias() += GM(K.data() + i * m * nz, m, nz).lazyProduct(z[i]);
+          v[i] += vf;
         }
         z[i + 1].noalias() += BM(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
@@ -606,12 +626,13 @@ class RiccatiActive {
       }
   }
 
-  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (form 3: neither read),
-  // r (N − No, p), start (Nu, m) or none, f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
+  // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (forms 1, 2; none: zeros;
+  // form 3: neither read), r (N − No, p), start (Nu, m) or none (shift: the last step's set, shifted by
+  // one stage here: the last stage repeated), f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
   // set; valid until the next solve) and J of the criterion (5)
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
-                       const double *x0, const double *u0, const double *r, const int64_t *start, int max_iter,
-                       const double *f, double &J) {
+                       const double *x0, const double *u0, const double *r, const int64_t *start, bool shift,
+                       int max_iter, const double *f, double &J) {
     if (f) set_bounds(f);
     if (nz == n) {  // Ā_i = A_i, B̄_i = B_i, c̄_i = c_i (absolute, Nu = N): read in place, no copy
       for (long i = 0; i < N; ++i) {
@@ -625,17 +646,30 @@ class RiccatiActive {
                           c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
     }
     if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
-    if (form == 1 || form == 2) qp_.z0.tail(m) = VMap(u0, m);
+    if (form == 1 || form == 2) {
+      if (u0)
+        qp_.z0.tail(m) = VMap(u0, m);
+      else
+        qp_.z0.tail(m).setZero();
+    }
     Eigen::Map<const RowMat> W(r, N - No, p);
-    q_.bottomRows(N - No).noalias() = -W * CQ2_.transpose();
+    q_.bottomRows(N - No).noalias() = -W.lazyProduct(CQ2_.transpose());  // small: no blocked product
     Set &fixed = ws_.fixed;
     if (start) {
-      fixed = Eigen::Map<const Set>(start, Nu, m);
+      const Eigen::Map<const Set> given(start, Nu, m);
+      if (shift) {  // v(i) starts on the rows of v(i + 1) (shift_active_set in solvers/stagewise_active.py)
+        fixed.resize(Nu, m);
+        fixed.topRows(Nu - 1) = given.bottomRows(Nu - 1);
+        fixed.row(Nu - 1) = given.row(Nu - 1);
+      } else {
+        fixed = given;
+      }
       sanitize(qp_, fixed);
     } else {
       fixed.setConstant(Nu, m, -1);
     }
     const Outcome &out = solve_active_set(qp_, ws_, max_iter, start != nullptr);
+    active_ = out.fixed.size() > 0 && out.fixed.maxCoeff() >= 0;
     J = 0.0;
     for (long i = 0; i < Nu; ++i) {
       wu_.noalias() = Wu_.lazyProduct(out.v[i]);
@@ -653,6 +687,28 @@ class RiccatiActive {
   long n, m, p, N, No, Nu, nz;
   int form;
   long k() const { return qp_.k; }
+  bool active() const { return active_; }           // a row of the last solve's set binds
+  double f_scale() const { return qp_.f_scale; }  // the largest bound of the used rows, at least 1e-12
+
+  // how many models the step's A, B or c holds (A: (n, n), or one per stage (N, n, n) or (N·n, n); B
+  // likewise with m columns; c (n,), (N·n,) or (N, n)): 1 or N, 0 for an empty c
+  long models_in(const char *name, const Floats &a, long cols) const {
+    const bool vec = cols == 0;  // c
+    const long size = long(a.size()), nd = long(a.ndim()), last = nd ? long(a.shape(nd - 1)) : 0;
+    const long one = vec ? n : n * cols;
+    if (vec && size == 0) return 0;
+    const bool shaped = vec ? (nd == 1 || (nd == 2 && last == n)) : ((nd == 2 || nd == 3) && last == cols);
+    if (shaped && (size == one || size == N * one)) return size == one ? 1 : N;
+    std::string got;
+    for (long d = 0; d < nd; ++d) got += (d ? ", " : "") + std::to_string(a.shape(d));
+    throw std::invalid_argument("RiccatiActive.solve: " + std::string(name) +
+                                " must be one model or one per stage (n = " + std::to_string(n) +
+                                ", m = " + std::to_string(m) + ", N = " + std::to_string(N) + "): " +
+                                (vec ? "(n,), (N·n,), (N, n) or empty" : cols == m ? "(n, m), (N·n, m) or (N, n, m)"
+                                                                                   : "(n, n), (N·n, n) or (N, n, n)") +
+                                "; got (" + got + ")");
+  }
+
 
  private:
   QP qp_;
@@ -661,6 +717,7 @@ class RiccatiActive {
   std::vector<RowMat> Ab_, Bb_;
   Workspace ws_;
   Vec wu_, y_, wy_;  // J's terms
+  bool active_ = false;
 };
 
 // (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
@@ -707,28 +764,61 @@ void bind_stagewise_active(nb::module_ &m) {
            nb::arg("f"), nb::arg("comp"), nb::arg("sign"))
       .def(
           "solve",
-          [](RiccatiActive &self, In2 A, In2 B, nb::ndarray<const double, nb::c_contig, nb::device::cpu> c, In1 x0,
-             In1 u0, In2 r, std::optional<InI> start, int max_iter, std::optional<In2> f) {
+          [](RiccatiActive &self, Floats A, Floats B, std::optional<Floats> c, In1 x0, std::optional<In1> u0, In2 r,
+             std::optional<InI> start, int max_iter, std::optional<In2> f, bool shift, std::optional<Out2> v_out,
+             std::optional<Out2> lam_out, std::optional<OutI> set_out) {
+            // the step's arrays read in place (nanobind converts another dtype or layout on the way in)
             const long m = self.m;
-            const stage_model::StepShape shape = stage_model::check_step(
-                "RiccatiActive.solve", self.n, m, self.p, self.N, self.No, A, B, long(c.size()), false, x0, u0, r);
+            const long nA = self.models_in("A", A, self.n), nB = self.models_in("B", B, m),
+                       nc = c ? self.models_in("c", *c, 0) : 0;
+            if (long(x0.shape(0)) != self.n || (u0 && long(u0->shape(0)) != m) || long(r.shape(0)) != self.N - self.No ||
+                long(r.shape(1)) != self.p)
+              throw std::invalid_argument("RiccatiActive.solve: x0 must be (n,) = (" + std::to_string(self.n) +
+                                          ",), u0 (m,) = (" + std::to_string(m) + ",) or None, r (N − No, p) = (" +
+                                          std::to_string(self.N - self.No) + ", " + std::to_string(self.p) + ")");
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
+            if (shift && !start) throw std::invalid_argument("RiccatiActive.solve: shift needs a start (the last set)");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
               throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
+            const bool outs = v_out || lam_out || set_out;
+            if (outs && !(v_out && lam_out && set_out && long(v_out->shape(0)) == self.Nu &&
+                          long(v_out->shape(1)) == m && long(lam_out->shape(0)) == self.N &&
+                          long(lam_out->shape(1)) == self.k() && long(set_out->shape(0)) == self.Nu &&
+                          long(set_out->shape(1)) == m))
+              throw std::invalid_argument("RiccatiActive.solve: v_out (Nu, m), lam_out (N, k) and set_out (Nu, m) "
+                                          "go together (Nu = " + std::to_string(self.Nu) + ", m = " +
+                                          std::to_string(m) + ", N = " + std::to_string(self.N) + ", k = " +
+                                          std::to_string(self.k()) + ")");
             double J = 0.0;
-            const Outcome &res = self.solve(A.data(), shape.nA, B.data(), shape.nB, shape.nc ? c.data() : nullptr,
-                                           shape.nc, x0.data(), u0.data(), r.data(), start ? start->data() : nullptr,
+            const Outcome &res = self.solve(A.data(), nA, B.data(), nB, nc ? c->data() : nullptr, nc, x0.data(),
+                                           u0 ? u0->data() : nullptr, r.data(), start ? start->data() : nullptr, shift,
                                            max_iter, f ? f->data() : nullptr, J);
+            if (outs) {  // written into the caller's arrays, which are returned (no new array to hand over)
+              Eigen::Map<RowMat> v(v_out->data(), self.Nu, m);
+              for (long i = 0; i < self.Nu; ++i) v.row(i) = res.v[i].transpose();
+              Eigen::Map<RowMat>(lam_out->data(), self.N, self.k()) = res.lam;
+              Eigen::Map<Set>(set_out->data(), self.Nu, m) = res.fixed;
+              return nb::make_tuple(*v_out, J, *lam_out, *set_out, res.iterations, res.ok, res.residual, res.message);
+            }
             RowMat vout(self.Nu, m);
             for (long i = 0; i < self.Nu; ++i) vout.row(i) = res.v[i].transpose();
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
-          nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("x0"), nb::arg("u0"), nb::arg("r"),
-          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(),
+          nb::arg("A"), nb::arg("B"), nb::arg("c").none(), nb::arg("x0"), nb::arg("u0").none(), nb::arg("r"),
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(), nb::arg("shift") = false,
+          nb::arg("v_out") = nb::none(), nb::arg("lam_out") = nb::none(), nb::arg("set_out") = nb::none(),
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
-          "solvers/stagewise_active.py on the step's stage models; start: the previous set shifted, or None; "
-          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last");
+          "solvers/stagewise_active.py on the step's stage models; A, B, c: one model or one per stage, "
+          "(N, n, n) or (N·n, n) etc., read in place; start: the previous set shifted (shift: the previous set, "
+          "shifted here), or None; "
+          "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last; "
+          "v_out, lam_out, set_out (float64, float64, int64): arrays to write v, λ and the set into (returned; "
+          "cheaper than new ones), or None")
+      .def_prop_ro("active", &RiccatiActive::active, "a row of the last solve's set binds")
+      .def_prop_ro("f_scale", &RiccatiActive::f_scale,
+                   "the largest bound of the used rows (the last bounds given), at least 1e-12: the scale of the "
+                   "residual's row excess");
 }
 }  // namespace pgpc

@@ -48,7 +48,6 @@ from ..model import compiled_part
 from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
                        StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
                        solve_stage_qp)
-from ..validation import read_only
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -285,7 +284,7 @@ class StagewiseSolver:
         self._compiled_step = compiled_part(native, "RiccatiActive", "the compiled limited step")
         self.native = self._compiled is not None and self._compiled_active is not None
         self._step = None  # the compiled RiccatiActive of a problem of input rows (built on the first step)
-        self._zero_u = read_only(np.zeros(self.Wu.shape[0]))
+        self._out_shape: tuple = ()  # ((Nu, m), k): the shapes of its plan and set, the columns of its λ
         self._last: StageQPSolution | None = None  # the last solution (the next step's warm start)
         self._fixed: np.ndarray | None = None  # the last active set (the next step's, shifted)
         self._before: np.ndarray | None = None  # the set of the step before the last (EDGE_FORMS), or None
@@ -293,12 +292,12 @@ class StagewiseSolver:
         # edges start this step: they do while the last step's solution was nearer the moved start than the plain one
         self._starts: tuple | None = None
         self._edges = False
+        self._moves_edges = form in EDGE_FORMS and horizons.Nu >= EDGE_MIN_STAGES  # the edges' start is tried
         # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
         # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
         self._rows: tuple | None = None  # (the used rows (N, k), their InputRowMap or None): the same every step
         self.method, self.iterations, self.excess = "", (0, 0), np.inf
-        self._f_scale = 0.0  # the compiled step's largest bound (its rows' are fixed: the limits')
         self._unsettled: tuple | None = None  # (message, iterations) of a compiled step whose set did not settle
         self._output_rows = output_rows(limits, horizons, Ts, self.Wy.shape[0])  # the same every step
 
@@ -321,7 +320,7 @@ class StagewiseSolver:
         """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, Nu ≥
         :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again."""
         plain, moved = shift_active_set(self._fixed), None
-        if self.form in EDGE_FORMS and self.horizons.Nu >= EDGE_MIN_STAGES and self._before is not None:
+        if self._moves_edges and self._before is not None:
             moved = shift_active_set(self._fixed, self._before)
         self._starts = (plain, moved)
         return moved if self._edges and moved is not None else plain
@@ -394,16 +393,25 @@ class StagewiseSolver:
         """The compiled limited step of input rows (``_native.RiccatiActive``), f: the step's bounds of
         :meth:`_step_bounds` or None: its SolveResult, or None when the active set did not settle (the
         caller hands the problem to the interior point; the last solution, kept for its warm start, is
-        left in place)."""
+        left in place).
+
+        The step's arrays go to the compiled call as they are (it reads any C-contiguous float64 array
+        of the right size in place; others are converted on the way in), a warm start's set is shifted
+        there, and it writes the plan, multipliers and set into arrays made here (cheaper than the ones
+        it would hand over): nothing else is built here but the result."""
         A, B, c, x0, u0 = step
-        n, m = self.C.shape[1], self.Wu.shape[0]
-        start = self._next_start() if warm else None
+        if not warm or self._fixed is None:
+            start, shift, cap = None, False, AS_MAX_ITER
+        elif self._moves_edges:  # the start is chosen here (the moved edges or the plain shift)
+            start, shift, cap = self._next_start(), False, AS_WARM_MAX_ITER
+        else:
+            start, shift, cap = self._fixed, True, AS_WARM_MAX_ITER
         self.excess = np.inf
+        (Nu, m), k = self._out_shape
+        v, lam, fixed = np.empty((Nu, m)), np.empty((self.horizons.N, k)), np.empty((Nu, m), np.int64)
         try:
-            v, J, lam, fixed, iterations, ok, residual, message = self._step.solve(
-                np.asarray(A, float).reshape(-1, n), np.asarray(B, float).reshape(-1, m),
-                np.zeros(0) if c is None else np.asarray(c, float).reshape(-1), x0,
-                self._zero_u if u0 is None else u0, r, start, AS_MAX_ITER if start is None else AS_WARM_MAX_ITER, f)
+            _, J, _, _, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f, shift, v,
+                                                                             lam, fixed)
         except RuntimeError as exc:
             self._last = None
             self._keep_set(None, False)
@@ -414,11 +422,11 @@ class StagewiseSolver:
             return None
         self.method = "active-set"
         self._keep_set(fixed, warm)
-        # the largest bound: step_bounds's are finite on the stages i < Nu (the limits are), inf after
-        self.excess = residual * (self._f_scale if f is None else max(float(np.abs(f[:self.horizons.Nu]).max()), 1e-12))
+        compiled = self._step
+        self.excess = residual * compiled.f_scale  # the largest bound of the used rows (this step's)
         self._last = StageQPSolution(v, None, None, lam, None, iterations, "optimal", residual)  # s: no slacks
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
-                           bool(fixed.max(initial=-1) >= 0), "")
+                           compiled.active, "")
 
     def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
               ) -> tuple[SolveResult, ConstraintReport | None]:
@@ -456,10 +464,10 @@ class StagewiseSolver:
                 self._template = (qp, kinds, Cz.T @ (self.Wy.T @ self.Wy))
                 rows = self._input_rows(qp)
                 if rows is not None and self._compiled_step is not None and self._compiled_active is not None:
-                    self._f_scale = _bound_scale(qp.f)
                     self._step = self._compiled_step(
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
                         np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+                    self._out_shape = ((H.Nu, self.Wu.shape[0]), qp.f.shape[1])  # v and the set, λ's columns
                     result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f)
                     if result is not None:
                         return result, None
