@@ -397,6 +397,12 @@ def test_a_sweeps_local_cluster_has_its_settings_and_forks_on_linux():
         assert mark == ([os.getpid()] if forked else [])  # a forked worker has this process's state
 
 
+@pytest.mark.parametrize("n", [0, -1, 1.5, True, "2"])
+def test_start_local_cluster_refuses_a_worker_count_that_is_not_a_positive_integer(n):
+    with pytest.raises(InvalidParameterError, match="n_workers"):
+        runner.start_local_cluster(n)
+
+
 def test_a_process_without_dask_counts_its_import_into_the_cluster_cost(monkeypatch):
     import dask.distributed  # noqa: F401 - imported: the cost is the start-up alone
 

@@ -400,7 +400,12 @@ def start_local_cluster(n_workers: int):
 
     Returns:
         the running ``distributed.LocalCluster`` (close it, or use it as a context manager).
+
+    Raises:
+        InvalidParameterError: n_workers not an integer ≥ 1.
     """
+    if not isinstance(n_workers, int) or isinstance(n_workers, bool) or n_workers < 1:
+        raise InvalidParameterError(f"n_workers = {n_workers!r} must be a number of worker processes ≥ 1")
     import dask
     from dask.distributed import LocalCluster
 
