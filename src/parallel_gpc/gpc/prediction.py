@@ -322,8 +322,8 @@ def deviation_gain(A_seq, B_seq, C, horizons: Horizons) -> np.ndarray:
     C = np.asarray(C, dtype=float)
     compiled = compiled_part(None, "condense_deviation", "the compiled deviation gain")
     if compiled is not None and C.ndim == 2 and C.shape[1] == n:
-        return compiled(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq),
-                                           np.ascontiguousarray(C), horizons.No, horizons.Nu)
+        return compiled(np.ascontiguousarray(A_seq), np.ascontiguousarray(B_seq), np.ascontiguousarray(C),
+                        horizons.No, horizons.Nu)
     Aa, Ba, _ = _augment(A_seq, B_seq, None)
     Ca = np.hstack([C, np.zeros((C.shape[0], m))])
     return condense(Aa, Ba, None, Ca, np.zeros(n + m), horizons, hold_inputs=False)[1]
@@ -344,10 +344,9 @@ def deviation_response(A_seq, B_seq, C, horizons: Horizons, v) -> np.ndarray:
     """
     compiled = compiled_part(None, "deviation_response", "the compiled deviation response")
     if compiled is not None:
-        return compiled(np.ascontiguousarray(A_seq, dtype=float),
-                                           np.ascontiguousarray(B_seq, dtype=float),
-                                           np.ascontiguousarray(C, dtype=float), np.ascontiguousarray(v, dtype=float),
-                                           horizons.No, horizons.Nu)
+        return compiled(np.ascontiguousarray(A_seq, dtype=float), np.ascontiguousarray(B_seq, dtype=float),
+                        np.ascontiguousarray(C, dtype=float), np.ascontiguousarray(v, dtype=float),
+                        horizons.No, horizons.Nu)
     return deviation_gain(A_seq, B_seq, C, horizons) @ v
 
 
