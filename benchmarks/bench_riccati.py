@@ -2,7 +2,7 @@
 """Time the absolute and incremental steps with ``solver="riccati"`` against ``"qr"``.
 
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
-``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear]``
+``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear] [--cpu] [--closed-loop]``
 ``python benchmarks/bench_riccati.py --trace incremental:160 [--samples 12] [--robot planar_4rrr]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
@@ -14,6 +14,12 @@ the compiled model update. Ts = 2 ms, No = 0, Nu = N, Qy = 1, Qu = 1e-5. Prints 
 (µs, the whole ``GPCController.step``) and its ratio to the same form's reference-Python step.
 
 Run with ``OPENBLAS_NUM_THREADS=1 taskset -c 1`` and PYTHONPATH=src (the compiled core built).
+``--cpu`` times ``--limited`` steps by this process's CPU time (``time.process_time``) instead of the
+wall clock: on a machine shared with other work, the time the step itself used. ``--closed-loop``
+steps every ``--limited`` configuration through its own closed loop on the full plant (from the
+reference's initial state; the plant is not timed) instead of the recorded states: the delayed form
+applies the u(k) it decided at k − 1, and on states that do not follow its inputs its plan swings from
+step to step (planar_4rrr, N = 160: every other step's active set far from the one before).
 """
 
 from __future__ import annotations
@@ -86,23 +92,47 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
               f"max|u − u_qr|/max|u_qr| = {diff:.1e}")
 
 
-def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: list[str]) -> None:
+def _closed_loop(robot, ref, ctl, N: int, samples: int, clock, on_step=None) -> tuple[list, np.ndarray]:
+    """(step times (s, by ``clock``), applied inputs (samples, m)) of ``ctl`` (reset first) in closed loop
+    on the full plant from the reference's initial state; ``on_step(k, ctl)`` after each step."""
+    ctl.reset()
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
+    times, us = [], []
+    for k in range(samples):
+        w = ref.window(k * TS, TS, N)
+        t0 = clock()
+        info = ctl.step(plant.X, w)
+        times.append(clock() - t0)
+        us.append(info.u)
+        if on_step is not None:
+            on_step(k, ctl)
+        plant.step(info.u)
+    return times, np.array(us)
+
+
+def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: list[str],
+                clock=time.perf_counter, closed_loop: bool = False) -> None:
     """``--limited``: the torque-limited step (τ = half the unconstrained run's largest |u|) with
     ``solver="riccati"`` (the stage-wise active set; the interior point when its set does not
     settle) against the condensed default of the form (:func:`condensed_default`: what ``solver=None``
     resolves to without the stage-wise path), and against the unconstrained Riccati step
     of the same form; per N, then the fitted exponent of the step time in N. Also the active
     set's sweeps per step (the first step of a pass cold, the others warm) and how many steps
-    went to the interior point."""
+    went to the interior point. ``clock``: what times a step (s; the wall clock, or ``time.process_time``).
+    ``closed_loop``: every configuration in its own closed loop on the plant (τ from the unconstrained
+    one's), not on the recorded states."""
     robot = ParallelRobot.load(name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     model = ReducedModel(robot)
     rows = {}
     for N in horizons:
-        Xs, ws = _states(robot, ref, N, samples)
+        Xs, ws = (None, None) if closed_loop else _states(robot, ref, N, samples)
         for form in forms:
             free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
-            tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
+            if closed_loop:
+                tau = 0.5 * np.abs(_closed_loop(robot, ref, free, N, samples, clock)[1]).max()
+            else:
+                tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
             configs = {"unconstrained riccati": free}
             limits = Limits(torque=tau)
             for key, solver in (("riccati", "riccati"), ("condensed", condensed_default(form, limits))):
@@ -111,23 +141,33 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
             times = {key: [] for key in configs}
             us = {key: [] for key in configs}
             sweeps, ipm = {"cold": [], "warm": []}, 0
+            def count(k, ctl):
+                nonlocal ipm
+                stagewise = ctl._riccati.constrained
+                sweeps["warm" if k else "cold"].append(stagewise.iterations[0])
+                ipm += stagewise.method != "active-set"
+
             for _ in range(reps):
                 for key, ctl in configs.items():
+                    on_step = count if key == "limited riccati" else None
+                    if closed_loop:
+                        t, us[key] = _closed_loop(robot, ref, ctl, N, samples, clock, on_step)
+                        times[key] += t
+                        continue
                     ctl.reset()
                     us[key] = []
                     for k, (X, w) in enumerate(zip(Xs, ws)):
-                        t0 = time.perf_counter()
+                        t0 = clock()
                         info = ctl.step(X, w)
-                        times[key].append(time.perf_counter() - t0)
+                        times[key].append(clock() - t0)
                         us[key].append(info.u)
-                        if key == "limited riccati":
-                            stagewise = ctl._riccati.constrained
-                            sweeps["warm" if k else "cold"].append(stagewise.iterations[0])
-                            ipm += stagewise.method != "active-set"
+                        if on_step is not None:
+                            on_step(k, ctl)
             med = {key: 1e6 * float(np.median(t)) for key, t in times.items()}
             lim, dflt = np.array(us["limited riccati"]), np.array(us["limited condensed"])
             rows[(form, N)] = med
-            print(f"{name} {form:11s} N = {N:3d}: limited riccati {med['limited riccati']:9.1f} µs, limited condensed "
+            how = f"{'CPU' if clock is time.process_time else 'wall'}{', closed loop' if closed_loop else ''}"
+            print(f"{name} {form:11s} N = {N:3d} ({how}): limited riccati {med['limited riccati']:9.1f} µs, limited condensed "
                   f"({configs['limited condensed'].solver}) {med['limited condensed']:8.1f} µs, unconstrained riccati "
                   f"{med['unconstrained riccati']:7.1f} µs; limited/unconstrained "
                   f"{med['limited riccati'] / med['unconstrained riccati']:5.2f}, condensed/riccati "
@@ -182,6 +222,9 @@ def main() -> None:
     parser.add_argument("--robot", default="planar_4rrr", help="robot of --limited")
     parser.add_argument("--forms", default="absolute,incremental", help="forms of --limited")
     parser.add_argument("--trace", metavar="FORM:N", help="the limited step of one form and N, step by step")
+    parser.add_argument("--cpu", action="store_true", help="--limited: time the steps by CPU time, not wall time")
+    parser.add_argument("--closed-loop", action="store_true",
+                        help="--limited: each configuration in its own closed loop on the plant, not the recorded states")
     args = parser.parse_args()
     if args.trace:
         form, N = args.trace.split(":")
@@ -189,7 +232,7 @@ def main() -> None:
         return
     if args.limited:
         run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples,
-                    args.forms.split(","))
+                    args.forms.split(","), time.process_time if args.cpu else time.perf_counter, args.closed_loop)
         return
     for case in args.cases.split(","):
         name, N = case.split(":")
