@@ -61,7 +61,11 @@ def resolved(**kwargs) -> GPCSettings:
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), form="nonlinear", limits=Limits(torque=5.0, du=1.0)),
      "riccati"),
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), form="incremental-delayed", limits=Limits(torque=5.0)),
-     DEFAULT_LIMITED_SOLVER),  # not measured fast enough
+     "riccati"),
+    (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), form="incremental-delayed", limits=Limits(torque=5.0, du=1.0)),
+     "riccati"),
+    (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N - 1), form="incremental-delayed", limits=Limits(du=1.0)),
+     DEFAULT_LIMITED_SOLVER),
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N - 1), form="nonlinear", limits=Limits(torque=5.0)),
      DEFAULT_LIMITED_SOLVER),
     (dict(horizons=Horizons(STAGEWISE_LIMITED_MIN_N), limits=Limits(output_box=[[-1, 1]])), DEFAULT_LIMITED_SOLVER),

@@ -41,17 +41,13 @@ RICCATI_QU_MARGIN = 1e-2
 #: condensed default at every N measured, 10 … 160 (1.4–3.5× at N ≤ 20, 8–36× at N ≥ 80; absolute
 #: N = 160 1.55×, most of its steps by the interior point), torque limits, planar_4rrr, plans within
 #: 1e-8 of DAQP's (benchmarks/README.md, "Round 5: the active set on the input rows"). Shorter
-#: horizons were not measured: the condensed default there.
+#: horizons were not measured: the condensed default there. Every form: the nonlinear form's torque
+#: rows after Nu sit on the held deviation and join the active set through stage Nu − 1
+#: (:func:`~parallel_gpc.gpc.stagewise.input_bounds`; its step 1.4–1.6× the unconstrained one over
+#: N = 20…160, planar_4rrr); the delayed form's rows are the incremental form's on [x; u(k)] (its plan
+#: u(k+1…) equals DAQP's to 1e-8, tests/test_stagewise_delayed.py), its step 1.1–1.6× the unconstrained
+#: one over N = 20…160 in closed loop (planar_4rrr, benchmarks/README.md, "Round 9").
 STAGEWISE_LIMITED_MIN_N = 10
-#: forms the limited stage-wise default was measured on (torque and Δu limits). The nonlinear form's
-#: torque rows after Nu sit on the held deviation and join the active set through stage Nu − 1
-#: (:func:`~parallel_gpc.gpc.stagewise.input_bounds`); its plan equals DAQP's on the condensed problem to
-#: 1e-8 with a KKT residual ≤ 1e-9 (tests/test_stagewise.py: planar_4rrr, delta_3rus, hexapod_6ups,
-#: Nu = N and Nu < N), and its step is 1.4–1.6× the unconstrained one over N = 20…160 (planar_4rrr,
-#: torque at half the free run's largest |u|: time ∝ N^0.93; the condensed default 1.9–29× slower).
-#: Not the delayed form: there the same bench took 1.9–2.9× the unconstrained step up to N = 80 and at
-#: N = 160 half its steps went to the interior point (15×).
-STAGEWISE_LIMITED_FORMS = ("absolute", "incremental", "nonlinear")
 #: terminal equalities of the tracking forms: ``"pose"``: ŷ(k+N) = w(k+N); ``"stop"``: that and
 #: ŷ(k+N) = ŷ(k+N−1) (zero mean velocity over the last predicted sample).
 TERMINALS = ("pose", "stop")
@@ -273,9 +269,8 @@ def default_solver(settings: "GPCSettings") -> str:
     the settings                                            default
     ======================================================  =========================================
     stage-wise exact (below), no limits, compiled core      ``"riccati"`` (the Riccati recursion)
-    stage-wise exact, torque/du limits only, form in        ``"riccati"`` (the stage-wise active set;
-    :data:`STAGEWISE_LIMITED_FORMS`, N ≥                    the interior point when it does not settle)
-    :data:`STAGEWISE_LIMITED_MIN_N`
+    stage-wise exact, torque/du limits only, N ≥            ``"riccati"`` (the stage-wise active set;
+    :data:`STAGEWISE_LIMITED_MIN_N`, every form             the interior point when it does not settle)
     otherwise                                               :func:`condensed_default`: ``"qr"``
                                                             without limits (Qu singular: QR's
                                                             minimum-norm answer, no drive fighting),
@@ -292,8 +287,7 @@ def default_solver(settings: "GPCSettings") -> str:
     """
     limits, H = settings.limits, settings.horizons
     inputs_only = not limits.has_state_limits
-    if (not limits.needs_qp or (inputs_only and settings.form in STAGEWISE_LIMITED_FORMS
-                                and H.N >= STAGEWISE_LIMITED_MIN_N)) \
+    if (not limits.needs_qp or (inputs_only and H.N >= STAGEWISE_LIMITED_MIN_N)) \
             and stagewise_exact(settings) and stagewise_compiled(limits.needs_qp):
         return "riccati"
     return condensed_default(settings.form, limits, settings.terminal)
