@@ -41,7 +41,7 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    "condensing: the Riccati recursion, with torque/du limits an active set, with output limits an "
                    "interior point), osqp-direct, proxqp-direct, daqp-direct, qpsolvers:NAME, qr-first:... (default: "
                    "riccati where it gives QR's minimizer — Qu ≥ 0.01·Qy·Ts², no terminal equality or weight, no "
-                   "limits, or torque/du limits at N ≥ 10, not the delayed form —, otherwise qr (Qu = 0: "
+                   "limits, or torque/du limits at N ≥ 10 —, otherwise qr (Qu = 0: "
                    "minimum-norm), with limits qr-first:bvls for the absolute form, qr-first:daqp-direct for the "
                    "incremental forms; the table prints the one used)")
     p.add_argument("--torque-limit", type=float, default=None,

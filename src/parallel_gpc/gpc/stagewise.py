@@ -14,7 +14,9 @@ The rows are the ones the condensed layout uses, defined once per kind
 this module only places them on the stages:
 
 * torque, on u(i): absolute, v(i) = u(i); incremental forms, u(i) = z(i)[n:] + v(i) (the input
-  memory plus the increment); nonlinear, u(i) = u_sim(i) + z(i)[n:] + v(i) (v = 0 after Nu);
+  memory plus the increment; the delayed form's stage i bounds u(k+1+i), its memory holding u(k+i):
+  u(k), decided at k − 1, is in z(0) and no row); nonlinear, u(i) = u_sim(i) + z(i)[n:] + v(i)
+  (v = 0 after Nu);
 * du, the box on v(i), i < Nu;
 * the output kinds, ŷ(i) = C̄ (Ā z + B̄ v + c̄)(i−1) [+ ŷ_sim(i)] and ŷ(i−1) = C̄ z(i−1)
   [+ ŷ_sim(i−1)] (the measured y(k) on stage 0): a row of stage i − 1; soft kinds get a slack
