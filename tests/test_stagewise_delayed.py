@@ -184,9 +184,10 @@ def _closed_loop(model, robot, limits: Limits, solver, steps: int, check=None):
 
 
 #: the closed loop's limits, fractions of the unconstrained loop's largest |u| and |Δu|: binding on most
-#: steps, and loose enough that the condensed default solves every step (delta_3rus, torque at 0.4–0.6:
-#: its regularized QP's answer fails its own KKT check on 6–14 of 30 steps and the step falls back; the
-#: stage-wise plan passes that check there, the loop below checks it step by step)
+#: steps, and loose enough that the condensed default takes every step (delta_3rus, torque at 0.4–0.6:
+#: where u(k) sits on its limit and the plan holds it (v = 0), the condensed back ends' plan — the
+#: stage-wise one — is marked inaccurate by solvers.kkt's relative complementarity, whose scale vanishes
+#: there, and the step falls back to the projected QR plan)
 CLOSED_LOOP = {"torque": {"planar_4rrr": 0.4, "delta_3rus": 0.7}, "du": {"planar_4rrr": 0.3, "delta_3rus": 0.3}}
 
 
