@@ -81,6 +81,21 @@ def test_wrong_multipliers_are_replaced_by_estimated_ones_but_never_certify_a_wr
     assert not kkt_residuals(p, interior, y).passes()
 
 
+def test_a_solution_held_at_zero_on_limits_at_zero_passes_and_slack_on_a_multiplier_row_fails():
+    """v* = 0 on a lower limit at 0 (the delayed form's v = 0 with u(k) on its torque limit): the
+    objective and the limit vanish, so a gap of rounding must not read as a relative 100 %; a
+    multiplier on a row 1e-3 off its limit still fails."""
+    c = np.array([-1.0, 0.0])  # min ‖v − c‖², 0 ≤ v₁ ≤ 1, −1 ≤ v₂ ≤ 1: v* = 0, y = c − v* = (−1, 0)
+    p = LeastSquaresProblem(np.eye(2), c, np.array([0.0, -1.0]), np.ones(2))
+    for v in (np.zeros(2), np.array([2e-16, 0.0])):  # v* and v* off by rounding
+        y = c - v
+        assert kkt_residuals(p, v, y).passes() and kkt_residuals(p, v).passes()
+    off = np.array([1e-3, 0.0])
+    res = kkt_residuals(p, off, c - off)  # stationary with y₁ = −1.001, but 1e-3 off the limit it pushes on
+    assert res.stationarity < 1e-12 and res.complementarity == pytest.approx(1e-3, rel=1e-2) and not res.passes()
+    assert not kkt_residuals(p, off).passes()
+
+
 def test_unconstrained_problem_absent_limits_and_non_finite_points():
     rng = np.random.default_rng(0)
     A, b = rng.standard_normal((8, 4)), rng.standard_normal(8)

@@ -14,8 +14,10 @@ is accepted when three relative residuals are within :class:`KKTTolerance`:
 * stationarity — ``‖P v + q + Cᵀy‖∞ / max(‖P v‖∞, ‖q‖∞, ‖Cᵀy‖∞)`` (OSQP's relative dual
   residual);
 * complementarity — the duality gap ``Σ y⁺(hi − C v) + Σ y⁻(C v − lo)`` over
-  ``max(|vᵀP v|, |qᵀv|, Σ |y_i|·|limit_i|)`` (ProxQP's relative gap). For a convex QP it bounds
-  the suboptimality: ``f(v) − f* ≤ gap + ‖residual‖·‖v − v*‖``.
+  ``max(|vᵀP v|, |qᵀv|, Σ |y_i|·max(1, |limit_i|))`` (ProxQP's relative gap, each limit at the
+  primal check's scale: at v = 0 held on limits at 0 — u(k) on its torque limit in the delayed
+  form — the objective and |limit| vanish and a gap of rounding, 1e-16, would read as 100 %).
+  For a convex QP it bounds the suboptimality: ``f(v) − f* ≤ gap + ‖residual‖·‖v − v*‖``.
 
 The multipliers are the back end's own when it gives them; when it gives none, or its own fail
 the check, they are estimated from v alone: in closed form for box limits (``y = −∇f`` on the
@@ -51,7 +53,8 @@ class KKTTolerance:
     Attributes:
         primal: largest limit violation, each over max(1, |its limit|).
         stationarity: ``‖∇f + Cᵀy‖∞`` over the largest of its terms.
-        complementarity: duality gap over the largest term of the objective and the limits' part.
+        complementarity: duality gap over the largest term of the objective and the limits' part
+            (each limit at max(1, |limit|)).
     """
 
     primal: float = LIMIT_TOL
@@ -124,15 +127,16 @@ class _Point:
         else:
             self.lo, self.hi = np.concatenate([problem.lb, problem.lo]), np.concatenate([problem.ub, problem.hi])
             self.Cv = np.concatenate([v, self.L @ v])
-        self.abs_lo, self.abs_hi = abs(self.lo), abs(self.hi)
-        self.finite = math.isfinite(float(self.abs_lo.sum()) + float(self.abs_hi.sum()))  # else some are ±inf
+        # each limit's scale max(1, |limit|): of its violation (primal), its slack (active) and its gap term
+        self.scale_lo, self.scale_hi = np.maximum(1.0, abs(self.lo)), np.maximum(1.0, abs(self.hi))
+        self.finite = math.isfinite(float(self.scale_lo.sum()) + float(self.scale_hi.sum()))  # else some are ±inf
         self.slack_hi, self.slack_lo = self.hi - self.Cv, self.Cv - self.lo
         self.gap_hi, self.gap_lo = np.maximum(self.slack_hi, 0.0), np.maximum(self.slack_lo, 0.0)
         worst = min(float(self.slack_hi.min(initial=0.0)), float(self.slack_lo.min(initial=0.0)))
         self.primal = 0.0  # never −0
         if worst < 0.0:  # each violation relative to its own limit: max(1, |limit|)
-            self.primal = max(float((-self.slack_hi / np.maximum(1.0, self.abs_hi)).max()),
-                              float((-self.slack_lo / np.maximum(1.0, self.abs_lo)).max()))
+            self.primal = max(float((-self.slack_hi / self.scale_hi).max()),
+                              float((-self.slack_lo / self.scale_lo).max()))
 
     def Cty(self, y: np.ndarray) -> np.ndarray:
         """Cᵀy, (n,)."""
@@ -152,10 +156,10 @@ class _Point:
         slack_hi, slack_lo = self.gap_hi, self.gap_lo
         if self.finite:
             gap = float(up @ slack_hi + down @ slack_lo)
-            limits = float(up @ self.abs_hi + down @ self.abs_lo)
+            limits = float(up @ self.scale_hi + down @ self.scale_lo)
         else:  # no multiplier on an absent limit: 0·inf counts 0 (a multiplier on one counts inf)
             gap = _products(up, slack_hi) + _products(down, slack_lo)
-            limits = _products(up, self.abs_hi) + _products(down, self.abs_lo)
+            limits = _products(up, self.scale_hi) + _products(down, self.scale_lo)
         complementarity = _ratio(gap, max(self.objective, limits))
         return KKTResiduals(self.primal, stationarity, complementarity, estimated)
 
@@ -164,8 +168,8 @@ class _Point:
         y = np.zeros(self.lo.size)
         if y.size == 0:
             return y
-        near_hi = self.slack_hi <= ACTIVE_RTOL * np.maximum(1.0, self.abs_hi)
-        near_lo = self.slack_lo <= ACTIVE_RTOL * np.maximum(1.0, self.abs_lo)
+        near_hi = self.slack_hi <= ACTIVE_RTOL * self.scale_hi
+        near_lo = self.slack_lo <= ACTIVE_RTOL * self.scale_lo
         if not self.finite:  # an absent limit (±inf) is never active
             near_hi &= np.isfinite(self.hi)
             near_lo &= np.isfinite(self.lo)
