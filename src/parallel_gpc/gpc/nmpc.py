@@ -73,7 +73,7 @@ from .fallback import limit_gap
 from .prediction import Prediction, deviation_gain, deviation_response
 from .riccati import RiccatiSolver
 from .settings import GPCSettings, iterations_by_riccati
-from .stagewise import StagewiseSolver
+from .stagewise import StagewiseSolver, step_bounds
 
 __all__ = ["NMPCIterations", "IterationReport", "riccati_steps", "ARMIJO", "BACKTRACKS"]
 
@@ -250,7 +250,8 @@ class NMPCIterations:
 
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
-                     u_sim: np.ndarray, u_prev: np.ndarray | None) -> SolveResult | None:
+                     u_sim: np.ndarray, u_prev: np.ndarray | None, start: np.ndarray | None = None,
+                     bounds: np.ndarray | None = None) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
         m and rad) solved stage-wise when :attr:`riccati` is set: by the Riccati recursion, or with
@@ -258,7 +259,11 @@ class NMPCIterations:
         u = u_sim + u_map v (u_sim: (N·m,) or (N, m) the step's pre-simulated inputs, u_prev: (m,)
         u(k−1), N·m); None when it is not set, fails, or a limited solution is not verified within
         the limits' margin (the condensed problem then decides, every limit included).
-        w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). Without state limits and with Qu
+        w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). start: the active set of this control
+        step's last limited step (:attr:`~parallel_gpc.gpc.stagewise.StagewiseSolver.active_set`), or
+        None: the last control step's, shifted by one stage. bounds: the input rows' bounds of this
+        control step (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps),
+        or None: computed from u_sim and u_prev. Without state limits and with Qu
         nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
         the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
         if self.riccati is None:
@@ -268,7 +273,8 @@ class NMPCIterations:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
         new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
-                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev)
+                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev,
+                                      warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
 
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
@@ -313,6 +319,7 @@ class NMPCIterations:
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
+        bounds = start = None  # the limited steps' input-row bounds, their last active set
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
@@ -370,7 +377,10 @@ class NMPCIterations:
             result = None
             if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev)
+                if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
+                    bounds = step_bounds(self.stagewise.limits, H, u0.reshape(-1, self.model.n_u), u_prev)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, start, bounds)
+                start = None if self.stagewise is None else self.stagewise.active_set  # the next step's start
             staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's
                 G = deviation_gain(JX, B_seq, C, H)
