@@ -319,15 +319,14 @@ class NMPCIterations:
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
-        bounds = start = None  # the limited steps' input-row bounds, their last active set
+        bounds = active = None  # the limited steps' input-row bounds, the last one's active set
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
             if report["iterations"] > 1:
-                report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / (
-                    1.0 + float(np.max(np.abs(v), initial=0.0)))
+                report["residual"] = float(np.abs(delta).max(initial=0.0)) / (1.0 + float(np.abs(v).max(initial=0.0)))
                 if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
                     report.update(stop="converged", converged=True)
                     break
@@ -379,8 +378,8 @@ class NMPCIterations:
                 gain = partial(deviation_response, JX, B_seq, C, H)
                 if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
                     bounds = step_bounds(self.stagewise.limits, H, u0.reshape(-1, self.model.n_u), u_prev)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, start, bounds)
-                start = None if self.stagewise is None else self.stagewise.active_set  # the next step's start
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds)
+                active = None if self.stagewise is None else self.stagewise.active_set  # the next one's start
             staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's
                 G = deviation_gain(JX, B_seq, C, H)
