@@ -39,9 +39,11 @@ least-squares factorization; the linearizations' targets and model decrease take
 of the deviation model, :func:`~parallel_gpc.gpc.prediction.deviation_response`, not G): by the
 recursion without input limits, with torque/Δu limits by the stage-wise active set
 (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`, one compiled call per step; the input rows
-u = u_sim⁰ + u_map v are the same in every step of a control step); a limited step that the active set
-does not verify within the limits' margin goes to the condensed problem (G condensed) and the back
-end, the reference. A
+u = u_sim⁰ + u_map v are the same in every step of a control step: their bounds are computed once, and
+every limited step after the first starts from the last one's active set as it is, the first from the
+last control step's shifted — the verifying step, whose set is the last one's, takes one sweep); a
+limited step that the active set does not verify within the limits' margin goes to the condensed
+problem (G condensed) and the back end, the reference. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
