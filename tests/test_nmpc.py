@@ -531,3 +531,79 @@ def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4, com
     fast, condensed = infos
     assert fast.result.solver == "riccati" and condensed.result.solver == "qr" and fast.residual <= 1e-6
     np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
+
+
+def _limited_loop(steps, reuse=True, spy=None):
+    """Plans (steps, N, m) of the torque-limited planar controller of :func:`_limited_case` closing the loop
+    on its own model (one ZOH step of a separate model instance per sample), and the controller.
+
+    reuse=False: every limited Gauss–Newton step solved as before the steps shared anything (cold
+    active set, bounds recomputed): the reference. spy: called with (solver, keywords, sweeps, result) after
+    each limited step."""
+    model, X, plan, target, limits = _limited_case("torque")
+    plant = ReducedModel(model.robot)
+    N = 10
+    ctrl = GPCController.build(ReducedModel(model.robot), TS, Horizons(N), Weights(QY, QU), form="nonlinear",
+                               iterations=50, tolerance=1e-12, limits=limits, disturbance_gain=0.0)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+    solver = ctrl._nmpc.stagewise
+    solve = solver.solve
+
+    def wrapped(*args, **kw):
+        if not reuse:
+            kw.update(warm=False, start=None, bounds=None)
+        out = solve(*args, **kw)
+        if spy is not None:
+            spy(solver, kw, solver.iterations[0], out[0])
+        return out
+
+    solver.solve = wrapped
+    plans = []
+    for _ in range(steps):
+        info = ctrl.step(X, np.tile(target, (N, 1)))
+        assert info.result.solver == "riccati" and not info.fallback and info.residual <= 1e-6
+        plans.append(ctrl.plan.copy())
+        Ad, Bd, cd = plant.discrete(X, TS)
+        X = Ad @ X + Bd @ info.u + cd
+    return np.array(plans), ctrl
+
+
+def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compiled_stagewise, monkeypatch):
+    """The Gauss–Newton steps of one control step compute the input rows' bounds once (u_sim⁰ and u(k−1)
+    do not change between them) and start each limited step after the first from the last one's active set,
+    not shifted (the first: the last control step's, shifted); the verifying step, whose set is the last
+    one's, takes one Riccati sweep; cold starts (the reference) take more, to the same plans."""
+    from parallel_gpc.gpc import nmpc as nmpc_module
+    from parallel_gpc.gpc import stagewise as stagewise_module
+
+    counted = {"nmpc": 0, "solver": 0}
+
+    def counting(where, f):
+        def g(*args):
+            counted[where] += 1
+            return f(*args)
+        return g
+
+    monkeypatch.setattr(nmpc_module, "step_bounds", counting("nmpc", stagewise_module.step_bounds))
+    monkeypatch.setattr(stagewise_module, "step_bounds", counting("solver", stagewise_module.step_bounds))
+    calls = []
+
+    def spy(solver, kw, sweeps, result):
+        calls.append((kw, sweeps, result.active_limits, solver.active_set))
+
+    steps = 4
+    plans, ctrl = _limited_loop(steps, spy=spy)
+    firsts = [i for i, (kw, *_) in enumerate(calls) if kw["start"] is None]
+    assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 2 * steps  # ≥ 2 limited steps per control step
+    for first, end in zip(firsts, firsts[1:] + [len(calls)]):
+        assert calls[first][0]["warm"] and calls[first][0]["bounds"] is not None
+        for i in range(first + 1, end):
+            kw = calls[i][0]
+            assert not kw["warm"] and kw["start"] is calls[i - 1][3] and kw["bounds"] is calls[first][0]["bounds"]
+        assert calls[end - 1][1] == 1 and calls[end - 1][2]  # the verifying step: one sweep, the limit binding
+    assert counted["nmpc"] == steps  # once per control step (and once more in the paper step's own solver)
+    assert counted["solver"] <= steps
+    cold = []
+    reference, _ = _limited_loop(steps, reuse=False, spy=lambda s, kw, sweeps, r: cold.append(sweeps))
+    assert len(cold) == len(calls) and sum(cold) > sum(c[1] for c in calls)
+    np.testing.assert_allclose(plans, reference, rtol=0, atol=1e-10 * np.abs(reference).max())

@@ -39,9 +39,11 @@ least-squares factorization; the linearizations' targets and model decrease take
 of the deviation model, :func:`~parallel_gpc.gpc.prediction.deviation_response`, not G): by the
 recursion without input limits, with torque/Δu limits by the stage-wise active set
 (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`, one compiled call per step; the input rows
-u = u_sim⁰ + u_map v are the same in every step of a control step); a limited step that the active set
-does not verify within the limits' margin goes to the condensed problem (G condensed) and the back
-end, the reference. A
+u = u_sim⁰ + u_map v are the same in every step of a control step: their bounds are computed once, and
+every limited step after the first starts from the last one's active set as it is, the first from the
+last control step's shifted — the verifying step, whose set is the last one's, takes one sweep); a
+limited step that the active set does not verify within the limits' margin goes to the condensed
+problem (G condensed) and the back end, the reference. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
 by their slack cost) accepts v + α(v⁺ − v) with sufficient decrease and a hard state-limit
 violation on the trial's nonlinear trajectory no larger than before (or 1e-7, ``STATE_TOL``), or
@@ -73,7 +75,7 @@ from .fallback import limit_gap
 from .prediction import Prediction, deviation_gain, deviation_response
 from .riccati import RiccatiSolver
 from .settings import GPCSettings, iterations_by_riccati
-from .stagewise import StagewiseSolver
+from .stagewise import StagewiseSolver, step_bounds
 
 __all__ = ["NMPCIterations", "IterationReport", "riccati_steps", "ARMIJO", "BACKTRACKS"]
 
@@ -250,7 +252,8 @@ class NMPCIterations:
 
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
-                     u_sim: np.ndarray, u_prev: np.ndarray | None) -> SolveResult | None:
+                     u_sim: np.ndarray, u_prev: np.ndarray | None, start: np.ndarray | None = None,
+                     bounds: np.ndarray | None = None) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
         m and rad) solved stage-wise when :attr:`riccati` is set: by the Riccati recursion, or with
@@ -258,7 +261,11 @@ class NMPCIterations:
         u = u_sim + u_map v (u_sim: (N·m,) or (N, m) the step's pre-simulated inputs, u_prev: (m,)
         u(k−1), N·m); None when it is not set, fails, or a limited solution is not verified within
         the limits' margin (the condensed problem then decides, every limit included).
-        w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). Without state limits and with Qu
+        w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). start: the active set of this control
+        step's last limited step (:attr:`~parallel_gpc.gpc.stagewise.StagewiseSolver.active_set`), or
+        None: the last control step's, shifted by one stage. bounds: the input rows' bounds of this
+        control step (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps),
+        or None: computed from u_sim and u_prev. Without state limits and with Qu
         nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
         the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
         if self.riccati is None:
@@ -268,7 +275,8 @@ class NMPCIterations:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
         new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
-                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev)
+                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev,
+                                      warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
 
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
@@ -313,14 +321,14 @@ class NMPCIterations:
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
+        bounds = active = None  # the limited steps' input-row bounds, the last one's active set
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
             v_new = result.v
             delta = v_new - v
             if report["iterations"] > 1:
-                report["residual"] = float(np.max(np.abs(delta), initial=0.0)) / (
-                    1.0 + float(np.max(np.abs(v), initial=0.0)))
+                report["residual"] = float(np.abs(delta).max(initial=0.0)) / (1.0 + float(np.abs(v).max(initial=0.0)))
                 if report["residual"] <= self.tolerance:  # v is converged: v⁺ is not rolled out
                     report.update(stop="converged", converged=True)
                     break
@@ -370,7 +378,10 @@ class NMPCIterations:
             result = None
             if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev)
+                if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
+                    bounds = step_bounds(self.stagewise.limits, H, u0.reshape(-1, self.model.n_u), u_prev)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds)
+                active = None if self.stagewise is None else self.stagewise.active_set  # the next one's start
             staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's
                 G = deviation_gain(JX, B_seq, C, H)

@@ -391,18 +391,21 @@ class StagewiseSolver:
         nonlinear form's: they move with the pre-simulated inputs), else None (the limits' own)."""
         return None if self.form != "nonlinear" else step_bounds(self.limits, self.horizons, u_sim, u_prev)
 
-    def _solve_step(self, step: tuple, r, warm: bool, t0: float, f: np.ndarray | None) -> SolveResult | None:
+    def _solve_step(self, step: tuple, r, warm: bool, t0: float, f: np.ndarray | None,
+                    start: np.ndarray | None = None) -> SolveResult | None:
         """The compiled limited step of input rows (``_native.RiccatiActive``), f: the step's bounds of
-        :meth:`_step_bounds` or None: its SolveResult, or None when the active set did not settle (the
-        caller hands the problem to the interior point; the last solution, kept for its warm start, is
-        left in place).
+        :meth:`_step_bounds` or None, start: a set to start from as it is (:meth:`solve`) or None: its
+        SolveResult, or None when the active set did not settle (the caller hands the problem to the
+        interior point; the last solution, kept for its warm start, is left in place).
 
         The step's arrays go to the compiled call as they are (it reads any C-contiguous float64 array
         of the right size in place; others are converted on the way in), a warm start's set is shifted
         there, and it writes the plan, multipliers and set into arrays made here (cheaper than the ones
         it would hand over): nothing else is built here but the result."""
         A, B, c, x0, u0 = step
-        if not warm or self._fixed is None:
+        if start is not None:  # a set of this control step (its last Gauss–Newton step's), not shifted
+            shift, cap = False, AS_WARM_MAX_ITER
+        elif not warm or self._fixed is None:
             start, shift, cap = None, False, AS_MAX_ITER
         elif self._moves_edges:  # the start is chosen here (the moved edges or the plain shift)
             start, shift, cap = self._next_start(), False, AS_WARM_MAX_ITER
@@ -430,7 +433,15 @@ class StagewiseSolver:
         return SolveResult(v.reshape(-1), J, "optimal", self.name, iterations, time.perf_counter() - t0,
                            compiled.active, "")
 
-    def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False
+    @property
+    def active_set(self) -> np.ndarray | None:
+        """The active set the last solve ended on ((Nu, m) ints: the row each input component is held on,
+        −1 where free; the interior point's active rows when it solved), or None (no solve yet, a failed
+        one, rows other than input rows): a ``start`` of :meth:`solve`."""
+        return self._fixed
+
+    def solve(self, step: tuple, r, y_now, y_sim=None, u_sim=None, u_prev=None, warm: bool = False,
+              start: np.ndarray | None = None, bounds: np.ndarray | None = None
               ) -> tuple[SolveResult, ConstraintReport | None]:
         """(the plan v (Nu·m,) as a SolveResult, what the state limits did or None without them).
 
@@ -440,6 +451,11 @@ class StagewiseSolver:
             r, y_now, y_sim, u_sim, u_prev: as in :func:`stage_problem`.
             warm: start from the last solution shifted by one stage (a controller's next step),
                 else from the unconstrained plan.
+            start: an active set to start from as it is, in place of ``warm``'s (:attr:`active_set`
+                of a solve of the same rows: the last Gauss–Newton step of the same control step), or None.
+            bounds: the nonlinear form's input-row bounds (N, k) of this step, :func:`step_bounds` of
+                u_sim and u_prev, when the caller keeps them (the same in every Gauss–Newton step of a
+                control step), else None: computed here.
 
         Returns:
             status ``optimal`` (``active_limits`` when a row binds), ``infeasible`` (hard limits
@@ -448,9 +464,9 @@ class StagewiseSolver:
         t0 = time.perf_counter()
         H = self.horizons
         self.excess = np.inf
-        f = None if self._template is None else self._step_bounds(u_sim, u_prev)
+        f = bounds if bounds is not None or self._template is None else self._step_bounds(u_sim, u_prev)
         if self._step is not None:
-            result = self._solve_step(step, r, warm, t0, f)
+            result = self._solve_step(step, r, warm, t0, f, start)
             if result is not None:
                 return result, None
         models = stage_models(self.form, *step[:3], self.C, *step[3:], H)
@@ -470,11 +486,11 @@ class StagewiseSolver:
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
                         np.ascontiguousarray(rows.comp, np.int64), rows.sign)
                     self._out_shape = ((H.Nu, self.Wu.shape[0]), qp.f.shape[1])  # v and the set, λ's columns
-                    result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f)
+                    result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f, start)
                     if result is not None:
                         return result, None
         rows = self._input_rows(qp)
-        fixed_start = self._next_start() if warm and rows is not None else None
+        fixed_start = start if start is not None else self._next_start() if warm and rows is not None else None
         last, self._last = self._last if warm else None, None
         kept = None  # the next step's set
         try:
