@@ -115,29 +115,36 @@ def test_a_cluster_up_after_the_last_cell_gets_none_and_is_stopped(scripted):
     assert "closed" in result.timeline and _no_sweep_thread()
 
 
-def test_a_fork_waits_for_the_cell_running_in_the_gate():
-    """The at-fork hook: a thread that forks while the main thread holds FORK_GATE forks only
-    once the gate is released (a worker never copies this process mid-cell)."""
+def test_forks_wait_for_the_cell_running_in_the_gate_and_go_before_the_next():
+    """The at-fork hook: two threads that fork while the main thread holds FORK_GATE (a cell) fork
+    once the gate is released, both before the main thread's next cell takes it again."""
     if not hasattr(os, "register_at_fork"):
         pytest.skip("no fork on this platform")
-    times = {}
+    FORK_GATE.install()
+    forked = []
 
     def fork():
         pid = os.fork()
         if pid == 0:
             os._exit(0)
-        times["forked"] = time.monotonic()
+        forked.append(time.monotonic())
         os.waitpid(pid, 0)
 
     with FORK_GATE:
-        thread = threading.Thread(target=fork)
-        thread.start()
+        threads = [threading.Thread(target=fork) for _ in range(2)]
+        for thread in threads:
+            thread.start()
         time.sleep(0.3)
-        times["released"] = time.monotonic()
-    thread.join(30)
-    assert times["forked"] >= times["released"]
+        released = time.monotonic()
+    with FORK_GATE:  # the next cell, a long one: the forks waiting do not wait for it
+        time.sleep(2.0)
+        next_cell_end = time.monotonic()
+    for thread in threads:
+        thread.join(30)
+    assert len(forked) == 2 and all(released <= t < next_cell_end for t in forked)
     with FORK_GATE:  # re-entrant: a cell that itself forks does not wait for itself
         fork()
+    assert len(forked) == 3
 
 
 @pytest.mark.slow

@@ -11,11 +11,12 @@ workers are gone.
 Forking next to a running cell. Local workers are forked where the platform allows it
 (:data:`START_METHOD`): a child process gets a copy of every lock of this process in the state it
 had at the fork, so a fork while this process's main thread is inside a cell (BLAS, the compiled
-core, malloc) could hand the workers a lock that nobody will release. Hence :data:`FORK_GATE`: a
-re-entrant lock that every ``os.fork`` of this process takes just before forking (an at-fork hook)
-and that the code running cells next to a starting cluster holds around each cell: a worker is
-forked between two cells, when the main thread is in the same state as when it waited for a
-cluster started in the foreground.
+core, malloc) could hand the workers a lock that nobody will release. Hence :data:`FORK_GATE`
+(:class:`ForkGate`): every ``os.fork`` of this process passes it just before forking (an at-fork
+hook, installed with the first cluster started in the background), and the code running cells
+next to a starting cluster holds it around each cell: a worker is forked between two cells, when
+the main thread is in the same state as when it waited for a cluster started in the foreground;
+a fork waiting for the gate goes before the next cell.
 
 Ctrl-C. The thread that starts the cluster blocks SIGINT; the threads and processes it starts (Dask's
 event loop, the nannies' process watchers, the forked or spawned workers) inherit that mask, so a
@@ -63,22 +64,67 @@ CLUSTER_CONFIG = {
 }
 #: Loggers of Dask quieted while a sweep's cluster shuts down (cancelled tasks, closing comms).
 DASK_LOGGERS = ("distributed", "tornado", "asyncio")
-#: Taken by every ``os.fork`` of this process just before it forks; held around each cell that
-#: runs next to a starting cluster (see the module docstring).
-FORK_GATE = threading.RLock()
 
 
-def _gate_before_fork() -> None:
-    FORK_GATE.acquire()
+class ForkGate:
+    """Keeps this process's forks out of the cells run next to a starting cluster (module docstring).
+
+    Once installed (:meth:`install`), every ``os.fork`` of this process passes it just before
+    forking; ``with gate:`` around a cell holds it for the cell. A fork waits for the cell running
+    (at most :data:`FORK_WAIT_SECONDS`), and a cell waits for the forks already waiting (a cell
+    does not take the gate again before them: the workers are not kept waiting cell after cell).
+    Re-entrant: a cell that forks does not wait for itself.
+    """
+
+    def __init__(self):
+        self._lock, self._turn, self._forks = threading.RLock(), threading.Condition(), 0
+        self._held, self._installed = threading.local(), False
+
+    def install(self) -> None:
+        """Register the at-fork hooks (once per process; POSIX). The hooks registered last run
+        first before a fork: installed after ``dask.distributed`` and the modules it imports
+        (whose hooks take locks of their own: logging, concurrent.futures), the wait for a
+        cell holds none of them."""
+        with self._turn:
+            if self._installed or not hasattr(os, "register_at_fork"):
+                return
+            self._installed = True
+        os.register_at_fork(before=self._before_fork, after_in_parent=self._after_fork_in_parent,
+                            after_in_child=self._after_fork_in_child)
+
+    def __enter__(self):
+        with self._turn:
+            while self._forks:
+                self._turn.wait()
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, *exc):
+        self._lock.release()
+
+    def _before_fork(self) -> None:
+        with self._turn:
+            self._forks += 1
+        self._held.value = self._lock.acquire(timeout=FORK_WAIT_SECONDS)
+
+    def _after_fork_in_parent(self) -> None:
+        with self._turn:
+            self._forks -= 1
+            self._turn.notify_all()
+        if self._held.value:
+            self._lock.release()
+
+    def _after_fork_in_child(self) -> None:
+        self._forks = 0
+        if self._held.value:
+            self._lock.release()
 
 
-def _gate_after_fork() -> None:
-    FORK_GATE.release()
-
-
-if hasattr(os, "register_at_fork"):  # POSIX
-    os.register_at_fork(before=_gate_before_fork, after_in_parent=_gate_after_fork,
-                        after_in_child=_gate_after_fork)
+#: Longest a fork waits for the cell running, s: a bound, should the cell wait for a lock that
+#: the forking thread holds (another module's at-fork hook run before this one).
+FORK_WAIT_SECONDS = 30.0
+#: The gate of this process (see :class:`ForkGate`), installed by the first :class:`BackgroundCluster`.
+FORK_GATE = ForkGate()
 
 
 def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
@@ -178,11 +224,12 @@ class BackgroundCluster:
         cluster = client = None
         try:
             self._mark("cluster start")
+            from dask.distributed import Client
+
+            FORK_GATE.install()
             start_quiet_resource_tracker()
             cluster = start_local_cluster(self._n_workers)
             self._mark("cluster up")
-            from dask.distributed import Client
-
             client = Client(cluster)
             self._mark("client up")
             self.value = self._on_up(client)
