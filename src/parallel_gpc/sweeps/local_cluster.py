@@ -219,15 +219,16 @@ class BackgroundCluster:
         self.timeline.append((event, time.perf_counter()))
 
     def _run(self) -> None:
-        if hasattr(signal, "pthread_sigmask"):
-            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         cluster = client = None
         try:
             self._mark("cluster start")
+            # first: starting the tracker unblocks SIGINT in the thread that starts it
+            start_quiet_resource_tracker()
+            if hasattr(signal, "pthread_sigmask"):
+                signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
             from dask.distributed import Client
 
             FORK_GATE.install()
-            start_quiet_resource_tracker()
             cluster = start_local_cluster(self._n_workers)
             self._mark("cluster up")
             client = Client(cluster)
