@@ -25,7 +25,7 @@ TINY = {"robot": "planar_3rrr", "reference": "hold", "duration": 0.1, "Ts": 0.00
 _PARENT_MARK = []
 #: The scripted hand-over: the cell (index) that, run here, lets the cluster come up and waits
 #: until it took the cells left; the clusters started (see :func:`_scripted`).
-_SCRIPT = {"at": None, "go": threading.Event(), "clusters": []}
+_SCRIPT = {"at": None, "go": threading.Event(), "taken": threading.Event(), "clusters": []}
 
 
 def _cells(n, **extra):
@@ -49,7 +49,7 @@ def _scripted(cell):
     cluster's start and returns only once the cluster took the cells left (or after 60 s)."""
     if cell.index == _SCRIPT["at"] and threading.current_thread() is threading.main_thread():
         _SCRIPT["go"].set()
-        _SCRIPT["clusters"][0].up.wait(60)
+        _SCRIPT["taken"].wait(60)
     return _where(cell)
 
 
@@ -64,16 +64,25 @@ def _threads_in_process_cluster(n_workers):
 @pytest.fixture
 def scripted(monkeypatch):
     """run_sweep's own cluster made of threads of this process, coming up when the script says:
-    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``."""
+    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; once
+    it took the cells left (``_SCRIPT["taken"]``) it is seen up only 0.3 s later (this process
+    finishes its cell meanwhile, and must not take another)."""
     class Recorded(BackgroundCluster):
-        def __init__(self, *args, **kwargs):
+        def __init__(self, n_workers, on_up, timeline=None):
+            def taken_then_slow(client):
+                value = on_up(client)
+                _SCRIPT["taken"].set()
+                time.sleep(0.3)
+                return value
+
             _SCRIPT["clusters"].append(self)
-            super().__init__(*args, **kwargs)
+            super().__init__(n_workers, taken_then_slow, timeline)
 
     monkeypatch.setattr(runner, "BackgroundCluster", Recorded)
     monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
     monkeypatch.setattr(local_cluster, "start_local_cluster", _threads_in_process_cluster)
     _SCRIPT["go"].clear()
+    _SCRIPT["taken"].clear()
     _SCRIPT["clusters"].clear()
     yield _SCRIPT
     _SCRIPT["at"] = None
@@ -89,8 +98,9 @@ def _no_sweep_thread():
 
 
 def test_the_cluster_coming_up_mid_cell_takes_the_cells_left_once(scripted):
-    """The cluster comes up while the third cell runs here: its thread takes the 17 cells left,
-    this process finishes its cell and runs no other; every cell runs once, records in order."""
+    """The cluster comes up while the third cell runs here: its thread takes the 17 cells left (its
+    first batches, the rest as they return), this process finishes its cell and runs no other, even
+    before it sees the cluster up; every cell runs once, records in order."""
     cells = _cells(20)
     scripted["at"] = 2
     result = run_sweep(cells, workers=2, progress=False, func=_scripted)

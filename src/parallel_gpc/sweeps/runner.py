@@ -252,6 +252,7 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
     once and runs every cell. The cluster is stopped in the background once the last batch
     returned (or on an error or Ctrl-C), and ``closing`` waits for it.
     """
+    # the cells run here are the queue's first ones: once the cluster took the rest, none runs here
     queue, lock, times, handed = deque(cells), threading.Lock(), [], []
 
     def on_up(client):  # in the cluster's thread, the moment it is up
@@ -274,7 +275,7 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
                 break
             with FORK_GATE:
                 with lock:
-                    if not queue:
+                    if not queue or handed:  # the cells left are the cluster's now
                         break
                     cell = queue.popleft()
                 begin = time.perf_counter()
