@@ -111,12 +111,12 @@ class ForkGate:
         with self._turn:
             self._forks -= 1
             self._turn.notify_all()
-        if self._held.value:
+        if getattr(self._held, "value", False):
             self._lock.release()
 
     def _after_fork_in_child(self) -> None:
         self._forks = 0
-        if self._held.value:
+        if getattr(self._held, "value", False):
             self._lock.release()
 
 
