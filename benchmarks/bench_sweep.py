@@ -6,8 +6,8 @@ Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR]
 Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass scales, 0.5 s runs,
 ~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
 round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (its own
-LocalCluster: start-up, in-process probe and shutdown included) and on a running LocalCluster
-(``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
+LocalCluster: start-up, the cells run here while it starts, and shutdown included) and on a
+running LocalCluster (``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
 the three rotates from round to round; every path runs the same cells, one cell runs in this
 process before the first round so that no path pays the first imports), and checks that every
 path gives the serial metrics. Then it times 64 no-op cells through ``run_sweep`` and 64 bare
@@ -17,7 +17,9 @@ speed-up per worker and the ideal one: serial / W, plus the measured cluster sta
 where the parallel paths lose to the ideal (instrumentation table, medians over the rounds): CPU of
 the cells against the same cells serially, Dask's own CPU (this process: scheduler, client,
 nannies; the workers beyond their cells), each worker's idle time (before its first cell, between
-cells, after its last), the tasks' sizes, the bytes of the records returned. Both tables go to
+cells, after its last), the tasks' sizes, the bytes of the records returned; and when the phases
+of ``run_sweep``'s own cluster happened (``SweepResult.timeline``: the cluster's start in the
+background, up, the hand-over of the cells left, the last record, closed, done). The tables go to
 DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
 """
 
@@ -133,7 +135,7 @@ def instrument(result, cpu, serial_cpu):
     out = {"cpu_ratio": cells_cpu / serial_cpu,
            "dask_here": cpu["here"] - here_cells,
            "dask_workers": cpu["children"] + cpu["workers"] - (cells_cpu - here_cells),
-           "local": result.local, "tasks": len(result.batches),
+           "local": result.local, "tasks": len(result.batches), "timeline": result.timeline,
            "bytes": statistics.median(len(pickle.dumps(r)) for r in records)}
     pids = sorted({r["trace_pid"] for r in records} - {here_pid})
     before, between, after = [], [], []
@@ -232,12 +234,20 @@ def main() -> int:
     probe_rows = []
     for name, by_path in probes.items():
         for path, runs in by_path.items():
-            m = {key: statistics.median(run[key] for run in runs) for key in runs[0]}
+            m = {key: statistics.median(run[key] for run in runs) for key in runs[0] if key != "timeline"}
             probe_rows.append((f"{name.split(' of')[0]}, {path}", f"{m['cpu_ratio']:.2f}", f"{m['dask_here']:.2f} s",
                                f"{m['dask_workers']:.2f} s",
                                f"{m['idle_before']:.2f} / {m['idle_between']:.2f} / {m['idle_after']:.2f} s",
                                f"{m['local']:.0f}", f"{m['tasks']:.0f}", f"{m['bytes']:.0f} B"))
     text += "\n\nInstrumentation (medians over the rounds):\n\n" + table(columns, probe_rows)
+    phase_rows = []
+    for name, by_path in probes.items():
+        runs = by_path["own"]
+        events = [e for e in runs[0]["timeline"] if all(e in run["timeline"] for run in runs)]
+        phase_rows.append((name.split(" of")[0], "; ".join(
+            f"{e} {statistics.median(run['timeline'][e] for run in runs):.2f}" for e in events)))
+    text += ("\n\nrun_sweep's own cluster, its phases (`SweepResult.timeline`: s since run_sweep began, medians "
+             "over the rounds):\n\n" + table(("sweep", "phases"), phase_rows))
     print(text)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -25,7 +25,7 @@ from parallel_gpc.sweeps import (
 from parallel_gpc.sweeps import run_sweep
 from parallel_gpc.sweeps import SweepStore, load_results
 from parallel_gpc.sweeps import batch_size, cluster_pays, failed_record, run_cells
-from parallel_gpc.sweeps import runner
+from parallel_gpc.sweeps import local_cluster, runner
 
 ROBOTS = Path(__file__).resolve().parents[1] / "urdf"
 #: Tiny runs: hold of the home pose offset by the default hold pose, 0.1 s at Ts = 5 ms, N = 4.
@@ -298,8 +298,8 @@ def test_sixty_four_cells_go_in_batches_of_a_second():
 
 
 def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch):
-    start = runner.LOCAL_START_SECONDS
-    assert not cluster_pays(15 * 0.1, 2)  # 16 cells of 0.1 s, one run in the probe
+    start = local_cluster.LOCAL_START_SECONDS
+    assert not cluster_pays(15 * 0.1, 2)  # 16 cells of 0.1 s, one run here first
     assert cluster_pays(60 * 0.2, 2)  # 64 cells of 0.2 s
     assert not cluster_pays(1.99 * start, 2) and cluster_pays(2.01 * start, 2)  # 2 workers save half the work
     assert not cluster_pays(1.49 * start, 3) and cluster_pays(1.51 * start, 3)
@@ -317,8 +317,6 @@ def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch
 
 #: Length of a :func:`_sleeping_cell`, s.
 SLEEP_CELL = 0.02
-#: Set in this process before a cluster starts: a forked worker sees it, a spawned one does not.
-_PARENT_MARK = []
 
 
 def _sleeping_cell(cell):
@@ -335,7 +333,7 @@ def _sleep_cells(n):
 
 
 def test_sixteen_small_cells_stay_in_this_process(monkeypatch):
-    """16 cells of 0.1 s (issue 23's small sweep): the probe's work left (~11 × 0.1 s) saves half of it
+    """16 cells of 0.1 s (issue 23's small sweep): the work left after each cell (≤ 15 × 0.1 s) saves half of it
     on 2 workers, less than a cluster costs; every cell runs here and no cluster starts."""
     import dask.distributed
 
@@ -350,11 +348,11 @@ def test_sixteen_small_cells_stay_in_this_process(monkeypatch):
 
 
 @pytest.mark.slow
-def test_the_probe_sizes_the_first_batches_of_the_cluster_it_starts():
-    """Enough short cells that a cluster pays: the probe runs the first ones here, the cluster's first
-    tasks are already batches sized from the probe's time per cell (no single-cell tasks), every cell
-    runs once, the rest on the workers."""
-    n = int(4 * runner.LOCAL_START_SECONDS / SLEEP_CELL) + 25  # work left after the probe ≥ 4 cluster costs
+def test_the_cells_run_here_size_the_first_batches_of_the_cluster_it_starts():
+    """Enough short cells that a cluster pays: the first ones run here (before and while the cluster
+    starts), the cluster's first tasks are already batches sized from the time per cell measured here
+    (no single-cell tasks), every cell runs once, the rest on the workers."""
+    n = int(4 * local_cluster.LOCAL_START_SECONDS / SLEEP_CELL) + 25  # work left after a cell ≥ 4 cluster costs
     result = run_sweep(_sleep_cells(n), workers=2, progress=False, func=_sleeping_cell)
     assert result.ran == n and result.failed == 0
     assert 1 <= result.local < n and result.local + sum(result.batches) == n
@@ -363,52 +361,6 @@ def test_the_probe_sizes_the_first_batches_of_the_cluster_it_starts():
     pids = [int(r["error"]) for r in result.records]
     assert set(pids[:result.local]) == {os.getpid()}
     assert len(set(pids[result.local:])) == 2 and os.getpid() not in pids[result.local:]
-
-
-@pytest.mark.slow
-def test_the_probe_stops_after_one_cell_when_the_cluster_clearly_pays(monkeypatch):
-    import dask.distributed  # noqa: F401 - imported: the cluster's cost is LOCAL_START_SECONDS
-
-    monkeypatch.setattr(runner, "LOCAL_START_SECONDS", 0.05)
-    n = 60  # 59 × SLEEP_CELL left after one cell: half of it (2 workers) is 0.59 s > PROBE_MARGIN × 0.05 s
-    assert cluster_pays((n - 1) * SLEEP_CELL, 2, runner.PROBE_MARGIN * runner.LOCAL_START_SECONDS)
-    result = run_sweep(_sleep_cells(n), workers=2, progress=False, func=_sleeping_cell)
-    assert result.ran == n and result.local == 1 and sum(result.batches) == n - 1
-
-
-@pytest.mark.slow
-def test_a_sweeps_local_cluster_has_its_settings_and_forks_on_linux():
-    import dask
-    from dask.distributed import Client
-
-    _PARENT_MARK.append(os.getpid())
-    try:
-        with runner.start_local_cluster(2) as cluster, Client(cluster) as client:
-            seen = client.run(lambda: (dask.config.get("distributed.admin.tick.interval"),
-                                       dask.config.get("distributed.worker.profile.enabled"),
-                                       list(sys.modules[__name__]._PARENT_MARK)))
-    finally:
-        _PARENT_MARK.clear()
-    assert len(seen) == 2
-    forked = sys.platform.startswith("linux")
-    assert runner.START_METHOD == ("fork" if forked else "spawn")
-    for tick, profile, mark in seen.values():
-        assert (tick, profile) == ("1s", False)
-        assert mark == ([os.getpid()] if forked else [])  # a forked worker has this process's state
-
-
-@pytest.mark.parametrize("n", [0, -1, 1.5, True, "2"])
-def test_start_local_cluster_refuses_a_worker_count_that_is_not_a_positive_integer(n):
-    with pytest.raises(InvalidParameterError, match="n_workers"):
-        runner.start_local_cluster(n)
-
-
-def test_a_process_without_dask_counts_its_import_into_the_cluster_cost(monkeypatch):
-    import dask.distributed  # noqa: F401 - imported: the cost is the start-up alone
-
-    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS
-    monkeypatch.delitem(sys.modules, "distributed")
-    assert runner.local_cluster_cost() == runner.LOCAL_START_SECONDS + runner.DASK_IMPORT_SECONDS
 
 
 def test_run_cells_keeps_the_order_and_records_a_cell_function_that_raises():

@@ -13,17 +13,21 @@ a running cluster the first tasks are single cells; then a batch holds about
 :data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
 share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
 together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task once per ten cells, not
-once per cell. The records of a batch are journalled as it returns. A sweep on a local cluster
-it starts itself first runs cells in this process for :data:`PROBE_SECONDS` (or until the
-cluster clearly pays, :data:`PROBE_MARGIN`): if the work left (cells left × mean cell time) would
-not pay for starting the cluster (:func:`local_cluster_cost` per the time the extra workers
-save) the rest runs here too, so a small sweep is never slower than a serial one; otherwise the
-cluster's first batches are sized from the probe's time per cell (no single-cell tasks).
+once per cell. The records of a batch are journalled as it returns.
 
-Local workers are forked from this process where the platform allows it (:data:`START_METHOD`,
-Linux): they start with the modules the probe imported (the package, Pinocchio, the compiled
+A sweep on a local cluster it starts itself (:mod:`.local_cluster`) runs its first cells in this
+process and starts the cluster in the background once the work left (cells left × their mean
+time here) repays its cost (:func:`~.local_cluster.cluster_pays`, per the time the extra workers
+save); the cells keep running here while the workers start, and the cells left go to the cluster
+the moment it is up, its first batches sized by the time per cell measured here (no single-cell
+tasks). A small sweep never starts it: it is never slower than a serial one. The cluster is closed
+in the background after the last batch returned, while the records and tables are assembled, and
+``run_sweep`` returns once it is closed.
+
+Local workers are forked from this process where the platform allows it (:data:`~.local_cluster.START_METHOD`,
+Linux): they start with the modules the first cells imported (the package, Pinocchio, the compiled
 core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
-checks run seldom (:data:`CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
+checks run seldom (:data:`~.local_cluster.CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
 ``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
 workers too. A progress bar shows done / failed / ETA as cells (batches) finish
 (``distributed.as_completed``). A cell that fails is a record with its error, a cell whose
@@ -37,13 +41,10 @@ quiet. A store is locked while the sweep runs: a second sweep into the same fold
 from __future__ import annotations
 
 import contextlib
-import logging
 import math
 import os
 import re
-import signal
 import statistics
-import sys
 import threading
 import time
 import uuid
@@ -53,6 +54,14 @@ from dataclasses import dataclass, field
 from tqdm import tqdm
 
 from ..errors import InvalidParameterError
+from .local_cluster import (
+    DASK_LOGGERS,
+    FORK_GATE,
+    BackgroundCluster,
+    cluster_pays,
+    local_cluster_cost,
+    quiet_loggers,
+)
 from .spec import SweepSpec, failed_record, run_cell
 from .store import SweepStore, records_frame
 
@@ -63,39 +72,6 @@ SCHEDULER_ADDRESS = re.compile(r"^[a-z][a-z0-9+.-]*://\S+:\d{1,5}$")
 BATCH_SECONDS = 1.0
 #: Batches queued per worker (one running, the next ready: no idle gap between two).
 IN_FLIGHT = 2
-#: In-process run time before deciding whether a local cluster pays for itself, s.
-PROBE_SECONDS = 0.5
-#: The probe decides sooner, after any cell, once the work left would repay the cluster's cost
-#: this many times over (64 cells of 0.13 s: after the first; the other worker stops idling).
-PROBE_MARGIN = 4.0
-#: How a sweep's own local workers are started (multiprocessing): forked on Linux (the workers
-#: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
-START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
-#: Cost of a sweep's own local cluster, s: its start-up and shutdown plus the workers' imports,
-#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6:
-#: forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned 3.4–4.8 s start,
-#: 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close. A cluster is
-#: started only if the time its extra workers save repays it (:func:`cluster_pays`).
-LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
-#: Time to import ``dask.distributed`` in a process that has not yet, s (0.54–0.61 CPU-s measured,
-#: 2 cores): paid by the first sweep of a process that starts a cluster (:func:`local_cluster_cost`).
-DASK_IMPORT_SECONDS = 0.6
-#: Dask settings of a sweep's own local cluster (:func:`start_local_cluster`): no statistical
-#: profiler sampling the running cell's stack every 10 ms (it feeds a dashboard nobody watches),
-#: and the periodic checks of the scheduler, nannies and workers (event-loop tick every 20 ms,
-#: system monitor every 0.5 s, memory monitor every 0.1 s) slowed to once per second or five:
-#: idle, they took 0.08 of a core in this process and 0.03 per worker (10 s idle, 2 forked
-#: workers, load average 9: 0.80 CPU-s here and 0.30 per worker; slowed: 0.12 and 0.04–0.05),
-#: CPU the workers need on a machine with one core per worker.
-CLUSTER_CONFIG = {
-    "distributed.worker.profile.enabled": False,
-    "distributed.admin.tick.interval": "1s",
-    "distributed.admin.system-monitor.interval": "5s",
-    "distributed.worker.memory.monitor-interval": "1s",
-    "distributed.worker.multiprocessing-method": START_METHOD,
-}
-#: Loggers of Dask quieted while a sweep's cluster shuts down (cancelled tasks, closing comms).
-_DASK_LOGGERS = ("distributed", "tornado", "asyncio")
 
 
 @dataclass
@@ -111,9 +87,14 @@ class SweepResult:
         skipped_lines: lines of the store's journal that were not records (skipped, counted).
         interrupted: Ctrl-C stopped the sweep before every cell finished.
         total: cells in the sweep.
-        local: cells run in this process before deciding whether a cluster pays (its own local
-            cluster only; all of them when it did not pay).
+        local: cells run in this process (its own local cluster only: before and while the
+            cluster started; all of them when it did not pay).
         batches: cells per Dask task, in the order submitted (empty: no cluster was used).
+        timeline: when the phases of the run happened, s since ``run_sweep`` began, in order:
+            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"on_up done"`` (first
+            batches submitted), ``"handover"`` (this process stops running cells), ``"last
+            record"``, ``"close begin"``, ``"closed"`` (a cluster of its own), ``"tables
+            written"``, ``"done"``; the phases a run did not have are missing.
     """
 
     records: list = field(default_factory=list)
@@ -126,6 +107,7 @@ class SweepResult:
     total: int = 0
     local: int = 0
     batches: list = field(default_factory=list)
+    timeline: dict = field(default_factory=dict)
 
     @property
     def finished(self) -> int:
@@ -207,6 +189,7 @@ def check_scheduler(scheduler) -> None:
 
 
 def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_failed, func) -> SweepResult:
+    start = time.perf_counter()
     cells = spec.cells() if isinstance(spec, SweepSpec) else list(spec)
     if store is not None and isinstance(spec, SweepSpec):
         store.save_spec(spec)
@@ -218,25 +201,30 @@ def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_fail
             todo.append(cell)
     result = SweepResult(total=len(cells), skipped=len(cells) - len(todo),
                          skipped_lines=store.skipped_lines if store is not None else 0)
-    with tqdm(total=len(cells), initial=result.skipped, disable=not progress, desc="sweep", unit="cell") as bar:
-        collector = _Collector(result, store, bar, on_record)
-        try:
-            if workers == 0 and scheduler is None:
-                _run_serial(todo, func, collector)
-            else:
-                per_cell = None
-                if scheduler is None:  # our own cluster: worth starting only for enough work
-                    todo, per_cell = _run_probe(todo, func, collector, workers or os.cpu_count() or 1)
-                if todo and not result.interrupted:
-                    _run_dask(todo, func, collector, workers, scheduler, per_cell)
-        except KeyboardInterrupt:
-            result.interrupted = True
-    by_key = {**done, **{r["key"]: r for r in collector.fresh}}
-    result.records = [{**by_key[c.key], "index": c.index} for c in cells if c.key in by_key]
-    result.failed = sum(r["status"] == "failed" for r in result.records)
-    result.diverged = sum(r["status"] == "diverged" for r in result.records)
-    if store is not None:
-        store.write_tables(r for r in result.records if r["status"] != "interrupted")
+    timeline = []
+    # a cluster of our own still closing is waited for on the way out, whatever happens
+    with contextlib.ExitStack() as closing:
+        with tqdm(total=len(cells), initial=result.skipped, disable=not progress, desc="sweep", unit="cell") as bar:
+            collector = _Collector(result, store, bar, on_record)
+            try:
+                if workers == 0 and scheduler is None:
+                    _run_serial(todo, func, collector)
+                elif scheduler is None:
+                    _run_own_cluster(todo, func, collector, workers or os.cpu_count() or 1, closing, timeline)
+                else:
+                    _run_on(scheduler, todo, func, collector)
+            except KeyboardInterrupt:
+                result.interrupted = True
+        timeline.append(("last record", time.perf_counter()))
+        by_key = {**done, **{r["key"]: r for r in collector.fresh}}
+        result.records = [{**by_key[c.key], "index": c.index} for c in cells if c.key in by_key]
+        result.failed = sum(r["status"] == "failed" for r in result.records)
+        result.diverged = sum(r["status"] == "diverged" for r in result.records)
+        if store is not None:
+            store.write_tables(r for r in result.records if r["status"] != "interrupted")
+        timeline.append(("tables written", time.perf_counter()))
+    timeline.append(("done", time.perf_counter()))
+    result.timeline = {event: t - start for event, t in sorted(timeline, key=lambda e: e[1])}
     return result
 
 
@@ -247,29 +235,71 @@ def _run_serial(cells, func, collector: _Collector) -> None:
             return
 
 
-def _run_probe(cells, func, collector: _Collector, n_workers: int) -> tuple[list, float | None]:
-    """Run cells in this process for :data:`PROBE_SECONDS` (less when the work left repays the
-    cluster :data:`PROBE_MARGIN` times over).
+def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing: contextlib.ExitStack,
+                     timeline: list) -> None:
+    """Run cells in this process, start a local cluster of ``n_workers`` in the background once
+    the work left repays it, and hand it the cells left as soon as it is up.
 
-    Returns:
-        (the cells left for a local cluster of ``n_workers``, the probe's time per cell in s):
-        no cells if the work left would not repay the cluster's start-up (:func:`cluster_pays`),
-        then all ran here. One worker is a cluster asked for as such (its worker process isolates
-        a crash): no probe, (cells, None).
+    The cells run here one at a time (each inside :data:`~.local_cluster.FORK_GATE`); after each,
+    if no cluster is starting and :func:`~.local_cluster.cluster_pays` says the work left (cells
+    left × their mean time here) repays :func:`~.local_cluster.local_cluster_cost`, a
+    :class:`~.local_cluster.BackgroundCluster` starts. The moment its client connects, its thread
+    takes the cells left (under the queue's lock: a cell runs once, here or there) and submits the
+    first batches, sized by the time per cell measured here; this process then finishes the cell
+    it is running and collects the batches (:class:`_Dispatch`). No cluster starts if the work
+    never repays it (a small sweep runs all here, as ``workers=0``); one worker
+    (``n_workers`` = 1, a cluster asked for as such: its process isolates a crash) starts at
+    once and runs every cell. The cluster is stopped in the background once the last batch
+    returned (or on an error or Ctrl-C), and ``closing`` waits for it.
     """
+    # the cells run here are the queue's first ones: once the cluster took the rest, none runs here
+    queue, lock, times, handed = deque(cells), threading.Lock(), [], []
+
+    def on_up(client):  # in the cluster's thread, the moment it is up
+        with lock:
+            if not queue or collector.result.interrupted:
+                return None  # all ran here meanwhile, or the sweep stopped
+            handed.append(True)
+            first = _Dispatch(client, queue, func, collector.result.batches,
+                              statistics.fmean(times) if times else None)
+            first.fill()
+            return first
+
+    cluster = None
     if n_workers < 2:
-        return cells, None
-    queue, start = deque(cells), time.perf_counter()
-    while queue and not collector.result.interrupted:
-        elapsed = time.perf_counter() - start
-        done = len(cells) - len(queue)
-        if done:
-            work_left, cost = elapsed / done * len(queue), local_cluster_cost()
-            if cluster_pays(work_left, n_workers, cost * (1.0 if elapsed >= PROBE_SECONDS else PROBE_MARGIN)):
-                return list(queue), elapsed / done
-        collector.add(_run_one(func, queue.popleft()))
-        collector.result.local += 1
-    return [], None
+        cluster = BackgroundCluster(n_workers, on_up, timeline)
+        closing.callback(cluster.join)
+    try:
+        while n_workers >= 2 and queue and not collector.result.interrupted:
+            if cluster is not None and cluster.up.is_set():
+                break
+            with FORK_GATE:
+                with lock:
+                    if not queue or handed:  # the cells left are the cluster's now
+                        break
+                    cell = queue.popleft()
+                begin = time.perf_counter()
+                record = _run_one(func, cell)
+                times.append(time.perf_counter() - begin)
+                collector.add(record)
+                collector.result.local += 1
+            if cluster is None and cluster_pays(statistics.fmean(times) * len(queue), n_workers,
+                                                local_cluster_cost()):
+                cluster = BackgroundCluster(n_workers, on_up, timeline)
+                closing.callback(cluster.join)
+        if cluster is None or collector.result.interrupted:
+            return
+        with lock:
+            if not queue and not handed:  # every cell ran here: the cluster gets none
+                return
+        cluster.up.wait()
+        if cluster.error is not None:
+            raise cluster.error
+        timeline.append(("handover", time.perf_counter()))
+        cluster.value.collect(collector)
+    finally:
+        if cluster is not None:  # closed in the background; `closing` waits for it
+            cluster.stop()
 
 
 def run_cells(cells, func=run_cell) -> tuple[list, float]:
@@ -314,157 +344,74 @@ def batch_size(left: int, n_workers: int, per_cell: float | None) -> int:
     return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
 
 
-def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
-    """Whether starting a local cluster of ``n_workers`` (≥ 2) for ``work_left`` seconds of serial
-    work saves time: the work the extra workers take over, ``work_left · (1 − 1/n)``, must exceed
-    the cluster's ``cost`` in s (default :data:`LOCAL_START_SECONDS`)."""
-    return work_left * (1 - 1 / n_workers) > (LOCAL_START_SECONDS if cost is None else cost)
+class _Dispatch:
+    """Cells of a queue as Dask tasks of a few cells each (:func:`batch_size`), kept
+    :data:`IN_FLIGHT` per worker thread, their records collected as they return."""
+
+    def __init__(self, client, queue: deque, func, batches: list, per_cell: float | None):
+        """Args:
+            client: a connected ``distributed.Client``.
+            queue: the cells to run (taken from its left as batches are submitted).
+            func: the cell function.
+            batches: a list the size of each batch submitted is appended to.
+            per_cell: time of one cell measured in this process, s (sizes the first batches), or
+                None (single cells until a batch returns).
+        """
+        from dask.distributed import as_completed
+
+        self.client, self.queue, self.func, self.batches = client, queue, func, batches
+        self.n_workers = max(1, sum(client.nthreads().values()))
+        # per batch: its time per cell (s); the one measured here sizes the first batches
+        self.per_cell = [] if per_cell is None else [per_cell]
+        self.futures, self.finished, self.token = {}, as_completed(), uuid.uuid4().hex[:8]
+
+    def fill(self) -> None:
+        """Submit batches until :data:`IN_FLIGHT` per worker are queued or no cell is left."""
+        while self.queue and len(self.futures) < IN_FLIGHT * self.n_workers:
+            # the median over batches: a worker's first task (it may import the package) counts once
+            size = batch_size(len(self.queue), self.n_workers,
+                              statistics.median(self.per_cell) if self.per_cell else None)
+            batch = [self.queue.popleft() for _ in range(min(len(self.queue), size))]
+            future = self.client.submit(run_cells, batch, self.func, pure=False,
+                                        key=f"sweep-{self.token}-{batch[0].key}-{len(batch)}")
+            self.futures[future] = batch
+            self.finished.add(future)
+            self.batches.append(len(batch))
+
+    def collect(self, collector: _Collector) -> None:
+        """Hand each batch's records to ``collector`` as it returns, keeping the workers busy."""
+        for future in self.finished:
+            batch = self.futures.pop(future)
+            try:
+                records, seconds = future.result()
+                self.per_cell.append(seconds / len(batch))
+            except Exception as exc:  # noqa: BLE001 - the task itself failed (worker lost, unpicklable …)
+                records = [failed_record(cell, f"{type(exc).__name__}: {exc}") for cell in batch]
+            self.fill()  # keep the workers busy, then journal
+            for record in records:
+                collector.add(record)
 
 
-def local_cluster_cost() -> float:
-    """What a sweep's own local cluster costs this process, s: :data:`LOCAL_START_SECONDS`, plus
-    :data:`DASK_IMPORT_SECONDS` while ``dask.distributed`` is not imported yet."""
-    return LOCAL_START_SECONDS + (0.0 if "distributed" in sys.modules else DASK_IMPORT_SECONDS)
+def _run_on(scheduler, cells, func, collector: _Collector) -> None:
+    """Run the cells on a running cluster: a ``Client`` or a scheduler's address (connected here)."""
+    from dask.distributed import Client
 
-
-def _run_dask(cells, func, collector: _Collector, workers, scheduler, probe_per_cell: float | None) -> None:
-    from dask.distributed import Client, as_completed
-
-    cluster = None
     if isinstance(scheduler, Client):
         client, own_client = scheduler, False
-    elif scheduler is not None:
+    else:
         try:
             client, own_client = Client(scheduler), True
         except (OSError, ValueError, TimeoutError) as exc:
             raise InvalidParameterError(f"cannot reach the Dask scheduler {scheduler!r}: "
                                         f"{' '.join(str(exc).split()) or type(exc).__name__}") from None
-    else:
-        # the workers inherit SIGINT ignored (Ctrl-C reaches this process only)
-        start_quiet_resource_tracker()
-        with _sigint_ignored():
-            cluster = start_local_cluster(workers or os.cpu_count() or 1)
-        client, own_client = Client(cluster), True
-    token = uuid.uuid4().hex[:8]
-    futures = {}
-    queue = deque(cells)
+    dispatch = None
     try:
-        n_workers = max(1, sum(client.nthreads().values()))
-        # per batch: its time per cell (s); the probe's (run here) sizes the first batches
-        per_cell, finished = [] if probe_per_cell is None else [probe_per_cell], as_completed()
-
-        def submit() -> None:
-            # the median over batches: a worker's first task (it may import the package) counts once
-            size = batch_size(len(queue), n_workers, statistics.median(per_cell) if per_cell else None)
-            batch = [queue.popleft() for _ in range(min(len(queue), size))]
-            future = client.submit(run_cells, batch, func, key=f"sweep-{token}-{batch[0].key}-{len(batch)}",
-                                   pure=False)
-            futures[future] = batch
-            finished.add(future)
-            collector.result.batches.append(len(batch))
-
-        while queue and len(futures) < IN_FLIGHT * n_workers:
-            submit()
-        for future in finished:
-            batch = futures.pop(future)
-            try:
-                records, seconds = future.result()
-                per_cell.append(seconds / len(batch))
-            except Exception as exc:  # noqa: BLE001 - the task itself failed (worker lost, unpicklable …)
-                records = [failed_record(cell, f"{type(exc).__name__}: {exc}") for cell in batch]
-            while queue and len(futures) < IN_FLIGHT * n_workers:  # keep the workers busy, then journal
-                submit()
-            for record in records:
-                collector.add(record)
+        dispatch = _Dispatch(client, deque(cells), func, collector.result.batches, None)
+        dispatch.fill()
+        dispatch.collect(collector)
     finally:
-        with _quiet(*_DASK_LOGGERS):
-            if futures and cluster is None:  # a shared cluster: free its workers (ours is closed)
-                client.cancel(list(futures))
-            if futures and cluster is not None:  # our workers: no warnings about the tasks closing cancels
-                with contextlib.suppress(Exception):
-                    client.run(silence_dask_logs, wait=True)
+        with quiet_loggers(*DASK_LOGGERS):
+            if dispatch is not None and dispatch.futures:  # a shared cluster: free its workers
+                client.cancel(list(dispatch.futures))
             if own_client:
                 client.close()
-            if cluster is not None:
-                cluster.close()
-
-
-def start_local_cluster(n_workers: int):
-    """A Dask ``LocalCluster`` as :func:`run_sweep` starts its own: ``n_workers`` processes of one
-    thread, forked where possible (:data:`START_METHOD`), with :data:`CLUSTER_CONFIG`, bound to
-    127.0.0.1 (its dashboard on a free port). Also the way to keep one running for many sweeps
-    (``run_sweep(…, scheduler=Client(cluster))``).
-
-    Args:
-        n_workers: worker processes (≥ 1).
-
-    Returns:
-        the running ``distributed.LocalCluster`` (close it, or use it as a context manager).
-
-    Raises:
-        InvalidParameterError: n_workers not an integer ≥ 1.
-    """
-    if not isinstance(n_workers, int) or isinstance(n_workers, bool) or n_workers < 1:
-        raise InvalidParameterError(f"n_workers = {n_workers!r} must be a number of worker processes ≥ 1")
-    import dask
-    from dask.distributed import LocalCluster
-
-    with dask.config.set(CLUSTER_CONFIG):
-        return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                            dashboard_address="127.0.0.1:0", silence_logs=logging.WARNING)
-
-
-def silence_dask_logs() -> None:
-    """Silence Dask's loggers in this process for good (run on a sweep's own workers before they close)."""
-    for name in _DASK_LOGGERS:
-        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
-
-
-@contextlib.contextmanager
-def _sigint_ignored():
-    """SIGINT ignored in the block (main thread only): processes started in it inherit that."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-
-
-#: warnings filter of multiprocessing's resource tracker process (its shutdown report)
-TRACKER_QUIET = "ignore::UserWarning:multiprocessing.resource_tracker"
-
-
-def start_quiet_resource_tracker() -> None:
-    """Start multiprocessing's resource tracker (shared by this process and the cluster's worker
-    processes) without its shutdown report: after Ctrl-C stops a sweep, the worker processes die
-    holding a semaphore of the cluster's queues, and the tracker — which still unlinks it — printed
-    "There appear to be 1 leaked semaphore objects" as a Python warning after our one-line message.
-    The filter reaches that process only (PYTHONWARNINGS is set while it starts, then restored)."""
-    from multiprocessing import resource_tracker
-
-    old = os.environ.get("PYTHONWARNINGS")
-    os.environ["PYTHONWARNINGS"] = TRACKER_QUIET if not old else f"{old},{TRACKER_QUIET}"
-    try:
-        resource_tracker.ensure_running()
-    finally:
-        if old is None:
-            del os.environ["PYTHONWARNINGS"]
-        else:
-            os.environ["PYTHONWARNINGS"] = old
-
-
-@contextlib.contextmanager
-def _quiet(*names):
-    """The named loggers silenced (above CRITICAL) in the block."""
-    loggers = [logging.getLogger(n) for n in names]
-    levels = [lg.level for lg in loggers]
-    for lg in loggers:
-        lg.setLevel(logging.CRITICAL + 1)
-    try:
-        yield
-    finally:
-        for lg, level in zip(loggers, levels):
-            lg.setLevel(level)
