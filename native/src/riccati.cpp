@@ -76,8 +76,12 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
   for (long i = N - 1; i >= 0; --i) {
     const Mat &Ai = Abar_[i];
     right_A(P, i, PA_);  // P Ā_i, with Ā_i's structure
-    s_.noalias() = P.lazyProduct(cbar_[i]);
-    s_ -= q;
+    if (form == 3) {  // no affine term: s = P c̄ − q = −q
+      s_ = -q;
+    } else {
+      s_.noalias() = P.lazyProduct(cbar_[i]);
+      s_ -= q;
+    }
     if (i < Nu) {
       const Mat &Bi = Bbar_[i];
       if (tail) {
@@ -94,12 +98,22 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
       llt_.compute(H_);
       if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
       K_[i] = llt_.solve(BPA_);
-      g_.noalias() = Bi.transpose().lazyProduct(s_);
+      if (tail) {  // B̄ᵀ s = Bᵀ s_x + s_u, which are also Āᵀ s's last m rows (B̄ is Ā's last m columns)
+        g_.noalias() = Bn_[i].transpose().lazyProduct(s_.head(n));
+        g_ += s_.tail(m);
+      } else {
+        g_.noalias() = Bi.transpose().lazyProduct(s_);
+      }
       k_[i] = llt_.solve(g_);
       P = M_;
       P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
       q.noalias() = BPA_.transpose().lazyProduct(k_[i]);
-      q.noalias() -= Ai.transpose().lazyProduct(s_);
+      if (tail) {  // Āᵀ s = [Aᵀ s_x; B̄ᵀ s]
+        q.head(n).noalias() -= An_[i].transpose().lazyProduct(s_.head(n));
+        q.tail(m) -= g_;
+      } else {
+        q.noalias() -= Ai.transpose().lazyProduct(s_);
+      }
     } else {
       left_AT(PA_, i, P);
       q.noalias() = -(Ai.transpose().lazyProduct(s_));
