@@ -14,6 +14,7 @@
 
 #include "bindings.hpp"
 #include "riccati.hpp"
+#include "small_solve.hpp"
 #include "stage_model.hpp"
 
 namespace pgpc {
@@ -97,14 +98,14 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
       }
       llt_.compute(H_);
       if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
-      K_[i] = llt_.solve(BPA_);
+      small_solve::llt_solve(llt_, BPA_, K_[i]);
       if (tail) {  // B̄ᵀ s = Bᵀ s_x + s_u, which are also Āᵀ s's last m rows (B̄ is Ā's last m columns)
         g_.noalias() = Bn_[i].transpose().lazyProduct(s_.head(n));
         g_ += s_.tail(m);
       } else {
         g_.noalias() = Bi.transpose().lazyProduct(s_);
       }
-      k_[i] = llt_.solve(g_);
+      small_solve::llt_solve(llt_, g_, k_[i]);
       P = M_;
       P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
       q.noalias() = BPA_.transpose().lazyProduct(k_[i]);
