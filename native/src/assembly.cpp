@@ -37,16 +37,14 @@ Mat columns(const Mat &a, const std::vector<long> &idx) {
 double fast_pinv(const Mat &K, Mat &P) {
   const Index n = K.cols();
   thread_local std::vector<Index> rows;
-  thread_local Mat Ks, inv;
-  thread_local Eigen::PartialPivLU<Mat> lu;
+  thread_local Mat Ks, F, inv;
   rows.clear();
   for (Index i = 0; i < K.rows(); ++i)
     if (!(K.row(i).array() == 0.0).all()) rows.push_back(i);
   if (static_cast<Index>(rows.size()) == n) {
     Ks.resize(n, n);
     for (Index i = 0; i < n; ++i) Ks.row(i) = K.row(rows[i]);
-    lu.compute(Ks);
-    small_solve::lu_inverse(lu, inv);
+    small_solve::lu_inverse(Ks, F, inv);
     P.setZero(n, K.rows());
     for (Index i = 0; i < n; ++i) P.col(rows[i]) = inv.col(i);
   } else if (K.rows() >= n) {

@@ -1,12 +1,15 @@
-// The triangular solves of the small systems in every pre-simulated stage and Riccati step (M_r of a
-// model update, 3×3 … 12×12; the assembly's K, 8×8 … 24×24; R + BᵀPB, m×m) as plain loops, on Eigen's
-// own factorizations (LLT, PartialPivLU). Eigen's solve of a dynamic matrix blocks and packs its operands
-// for large systems: at these sizes that is most of its time (callgrind: docs/performance.md). The
-// arithmetic is the same substitution; only the order of a row's sum may differ (rounding).
+// The small systems of every pre-simulated stage and Riccati step (M_r of a model update, 3×3 … 12×12; the
+// assembly's K, 8×8 … 24×24; R + BᵀPB, m×m) solved by plain loops: Eigen's triangular solve and LU of a
+// dynamic matrix block and pack their operands for large systems, which at these sizes is most of their
+// instructions (callgrind, docs/performance.md#the-nonlinear-step). The arithmetic is the same
+// substitution and elimination (Eigen's LLT factor; the LU's pivots as PartialPivLU's); only the order
+// of a row's sum may differ (rounding).
 #pragma once
 
 #include <Eigen/Cholesky>
-#include <Eigen/LU>
+#include <cmath>
+#include <utility>
+#include <vector>
 
 #include "eigen_types.hpp"
 
@@ -45,10 +48,32 @@ void llt_solve(const Eigen::LLT<Mat> &llt, const B &b, Out &out) {
   upper_in_place(F, out, true);
 }
 
-// inv = A⁻¹ from the factorization P A = L U (A square and invertible): columns of U⁻¹ L⁻¹ P
-inline void lu_inverse(const Eigen::PartialPivLU<Mat> &lu, Mat &inv) {
-  const Mat &F = lu.matrixLU();
-  inv = lu.permutationP() * Mat::Identity(F.rows(), F.cols());
+// inv = A⁻¹ (A square) by Gaussian elimination with partial pivoting (the largest |entry| of the column,
+// as Eigen's PartialPivLU), in the workspace F: P A = L U, then the columns of U⁻¹ L⁻¹ P. A singular A
+// gives inf or NaN entries (the caller's finiteness test decides)
+inline void lu_inverse(const Mat &A, Mat &F, Mat &inv) {
+  const Index n = A.rows();
+  thread_local std::vector<Index> perm;
+  F = A;
+  perm.resize(n);
+  for (Index i = 0; i < n; ++i) perm[i] = i;
+  for (Index k = 0; k < n; ++k) {
+    Index p = k;
+    for (Index i = k + 1; i < n; ++i)
+      if (std::abs(F(i, k)) > std::abs(F(p, k))) p = i;
+    if (p != k) {
+      F.row(k).swap(F.row(p));
+      std::swap(perm[k], perm[p]);
+    }
+    const double pivot = F(k, k);
+    for (Index i = k + 1; i < n; ++i) {
+      const double l = F(i, k) / pivot;
+      F(i, k) = l;
+      for (Index j = k + 1; j < n; ++j) F(i, j) -= l * F(k, j);
+    }
+  }
+  inv.setZero(n, n);
+  for (Index i = 0; i < n; ++i) inv(i, perm[i]) = 1.0;  // P: row i of P A is row perm[i] of A
   lower_in_place(F, inv, true);
   upper_in_place(F, inv, false);
 }
