@@ -85,10 +85,10 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
     }
     if (i < Nu) {
       const Mat &Bi = Bbar_[i];
-      if (tail) {
-        left_AT(PA_, i, M_);  // Ā_iᵀ P Ā_i
-        BPA_ = M_.bottomRows(m);
-        H_ = R_ + M_.bottomRightCorner(m, m);
+      if (tail) {  // B̄ᵀPĀ = the last m rows of ĀᵀPĀ (left_AT's)
+        BPA_ = PA_.bottomRows(m);
+        BPA_.noalias() += Bn_[i].transpose().lazyProduct(PA_.topRows(n));
+        H_ = R_ + BPA_.rightCols(m);
       } else {
         BPA_.noalias() = Bi.transpose().lazyProduct(PA_);
         PB_.noalias() = P.lazyProduct(Bi);
@@ -106,8 +106,17 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
         g_.noalias() = Bi.transpose().lazyProduct(s_);
       }
       small_solve::llt_solve(llt_, g_, k_[i]);
-      P = M_;
-      P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
+      if (tail) {  // P ← ĀᵀPĀ − B̄ᵀPĀᵀ K, symmetric: its lower triangle (ĀᵀPĀ's top-left block AᵀPA, its last
+        // m rows B̄ᵀPĀ), then the upper one mirrored (no averaging below: exactly symmetric)
+        P.topLeftCorner(n, n).triangularView<Eigen::Lower>() = An_[i].transpose().lazyProduct(PA_.topLeftCorner(n, n));
+        P.bottomRows(m) = BPA_;
+        P.triangularView<Eigen::Lower>() -= BPA_.transpose().lazyProduct(K_[i]);
+        for (Index c = 1; c < nz; ++c)
+          for (Index r = 0; r < c; ++r) P(r, c) = P(c, r);
+      } else {
+        P = M_;
+        P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
+      }
       q.noalias() = BPA_.transpose().lazyProduct(k_[i]);
       if (tail) {  // Āᵀ s = [Aᵀ s_x; B̄ᵀ s]
         q.head(n).noalias() -= An_[i].transpose().lazyProduct(s_.head(n));
@@ -119,9 +128,11 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
       left_AT(PA_, i, P);
       q.noalias() = -(Ai.transpose().lazyProduct(s_));
     }
-    T_ = P.transpose();
-    P += T_;
-    P *= 0.5;
+    if (!tail || i >= Nu) {  // the rounding's asymmetry averaged out
+      T_ = P.transpose();
+      P += T_;
+      P *= 0.5;
+    }
     if (i > No) {
       P += CQC_;
       q.noalias() += CQ_.lazyProduct(W.row(i - No - 1).transpose());
