@@ -11,15 +11,21 @@
 
 #include "eigen_types.hpp"
 #include "model_update.hpp"
+#include "small_solve.hpp"
 
 namespace pgpc {
 namespace {
 constexpr double SINGULAR_RCOND = 1e-8;  // assembly.SINGULAR_RCOND
 constexpr double NEWTON_RCOND = 1e-10;   // assembly._NEWTON_RCOND
 
-Mat columns(const Mat &a, const std::vector<long> &idx) {
-  Mat out(a.rows(), static_cast<Index>(idx.size()));
+void columns_into(const Mat &a, const std::vector<long> &idx, Mat &out) {
+  out.resize(a.rows(), static_cast<Index>(idx.size()));
   for (size_t j = 0; j < idx.size(); ++j) out.col(j) = a.col(idx[j]);
+}
+
+Mat columns(const Mat &a, const std::vector<long> &idx) {
+  Mat out;
+  columns_into(a, idx, out);
   return out;
 }
 
@@ -31,16 +37,14 @@ Mat columns(const Mat &a, const std::vector<long> &idx) {
 double fast_pinv(const Mat &K, Mat &P) {
   const Index n = K.cols();
   thread_local std::vector<Index> rows;
-  thread_local Mat Ks, inv;
-  thread_local Eigen::PartialPivLU<Mat> lu;
+  thread_local Mat Ks, F, inv;
   rows.clear();
   for (Index i = 0; i < K.rows(); ++i)
     if (!(K.row(i).array() == 0.0).all()) rows.push_back(i);
   if (static_cast<Index>(rows.size()) == n) {
     Ks.resize(n, n);
     for (Index i = 0; i < n; ++i) Ks.row(i) = K.row(rows[i]);
-    lu.compute(Ks);
-    inv = lu.inverse();
+    small_solve::lu_inverse(Ks, F, inv);
     P.setZero(n, K.rows());
     for (Index i = 0; i < n; ++i) P.col(rows[i]) = inv.col(i);
   } else if (K.rows() >= n) {
@@ -82,7 +86,8 @@ void ModelUpdate::lstsq_z(const Mat &jac, const Vec &res, Vec &out) {
 }
 
 bool ModelUpdate::map_from(const Mat &jac, bool exact) {
-  const Mat Kz = columns(jac, cfg.z_idx);
+  thread_local Mat Kz, Ky, Tz;  // workspaces (every pre-simulated stage comes here: no allocation once sized)
+  columns_into(jac, cfg.z_idx, Kz);
   // fast path accepted when the bound clears Python's rank test; else the SVD decides
   const bool ok = !exact && fast_pinv(Kz, pinv_) > SINGULAR_RCOND;
   if (!ok) {
@@ -95,8 +100,9 @@ bool ModelUpdate::map_from(const Mat &jac, bool exact) {
   if (!kin.task) {
     T_.setZero(nv, n_y);
     for (Index i = 0; i < n_y; ++i) T_(cfg.y_idx[i], i) = 1.0;
-    const Mat Tz = -(pinv_ * columns(jac, cfg.y_idx));
-    for (Index i = 0; i < n_z; ++i) T_.row(cfg.z_idx[i]) = Tz.row(i);
+    columns_into(jac, cfg.y_idx, Ky);
+    Tz.noalias() = pinv_ * Ky;
+    for (Index i = 0; i < n_z; ++i) T_.row(cfg.z_idx[i]) = -Tz.row(i);
   } else {
     T_ = pinv_.rightCols(n_y);
   }

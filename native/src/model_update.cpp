@@ -13,6 +13,7 @@
 
 #include "bindings.hpp"
 #include "model_io.hpp"
+#include "small_solve.hpp"
 #include "pinocchio/algorithm/rnea.hpp"
 
 namespace pgpc {
@@ -66,7 +67,7 @@ void ModelUpdate::bias_rows(const Vec &v) {
 void ModelUpdate::solve_reduced(const Eigen::Ref<const Mat> &A, const Eigen::Ref<const Mat> &B, Mat &out) {
   llt_.compute(A);
   if (llt_.info() == Eigen::Success) {
-    out = llt_.solve(B);
+    small_solve::llt_solve(llt_, B, out);
     return;
   }
   // not numerically SPD: the Python solve (LU, or LinAlgError)

@@ -14,6 +14,7 @@
 
 #include "bindings.hpp"
 #include "riccati.hpp"
+#include "small_solve.hpp"
 #include "stage_model.hpp"
 
 namespace pgpc {
@@ -76,14 +77,18 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
   for (long i = N - 1; i >= 0; --i) {
     const Mat &Ai = Abar_[i];
     right_A(P, i, PA_);  // P Ā_i, with Ā_i's structure
-    s_.noalias() = P.lazyProduct(cbar_[i]);
-    s_ -= q;
+    if (form == 3) {  // no affine term: s = P c̄ − q = −q
+      s_ = -q;
+    } else {
+      s_.noalias() = P.lazyProduct(cbar_[i]);
+      s_ -= q;
+    }
     if (i < Nu) {
       const Mat &Bi = Bbar_[i];
-      if (tail) {
-        left_AT(PA_, i, M_);  // Ā_iᵀ P Ā_i
-        BPA_ = M_.bottomRows(m);
-        H_ = R_ + M_.bottomRightCorner(m, m);
+      if (tail) {  // B̄ᵀPĀ = the last m rows of ĀᵀPĀ (left_AT's)
+        BPA_ = PA_.bottomRows(m);
+        BPA_.noalias() += Bn_[i].transpose().lazyProduct(PA_.topRows(n));
+        H_ = R_ + BPA_.rightCols(m);
       } else {
         BPA_.noalias() = Bi.transpose().lazyProduct(PA_);
         PB_.noalias() = P.lazyProduct(Bi);
@@ -93,20 +98,41 @@ double Riccati::recursion(const double *x0, const double *u0, const double *r, d
       }
       llt_.compute(H_);
       if (llt_.info() != Eigen::Success) throw std::runtime_error("Riccati: R + BᵀPB is not positive definite");
-      K_[i] = llt_.solve(BPA_);
-      g_.noalias() = Bi.transpose().lazyProduct(s_);
-      k_[i] = llt_.solve(g_);
-      P = M_;
-      P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
+      small_solve::llt_solve(llt_, BPA_, K_[i]);
+      if (tail) {  // B̄ᵀ s = Bᵀ s_x + s_u, which are also Āᵀ s's last m rows (B̄ is Ā's last m columns)
+        g_.noalias() = Bn_[i].transpose().lazyProduct(s_.head(n));
+        g_ += s_.tail(m);
+      } else {
+        g_.noalias() = Bi.transpose().lazyProduct(s_);
+      }
+      small_solve::llt_solve(llt_, g_, k_[i]);
+      if (tail) {  // P ← ĀᵀPĀ − B̄ᵀPĀᵀ K, symmetric: its lower triangle (ĀᵀPĀ's top-left block AᵀPA, its last
+        // m rows B̄ᵀPĀ), then the upper one mirrored (no averaging below: exactly symmetric)
+        P.topLeftCorner(n, n).triangularView<Eigen::Lower>() = An_[i].transpose().lazyProduct(PA_.topLeftCorner(n, n));
+        P.bottomRows(m) = BPA_;
+        P.triangularView<Eigen::Lower>() -= BPA_.transpose().lazyProduct(K_[i]);
+        for (Index c = 1; c < nz; ++c)
+          for (Index r = 0; r < c; ++r) P(r, c) = P(c, r);
+      } else {
+        P = M_;
+        P.noalias() -= BPA_.transpose().lazyProduct(K_[i]);
+      }
       q.noalias() = BPA_.transpose().lazyProduct(k_[i]);
-      q.noalias() -= Ai.transpose().lazyProduct(s_);
+      if (tail) {  // Āᵀ s = [Aᵀ s_x; B̄ᵀ s]
+        q.head(n).noalias() -= An_[i].transpose().lazyProduct(s_.head(n));
+        q.tail(m) -= g_;
+      } else {
+        q.noalias() -= Ai.transpose().lazyProduct(s_);
+      }
     } else {
       left_AT(PA_, i, P);
       q.noalias() = -(Ai.transpose().lazyProduct(s_));
     }
-    T_ = P.transpose();
-    P += T_;
-    P *= 0.5;
+    if (!tail || i >= Nu) {  // the rounding's asymmetry averaged out
+      T_ = P.transpose();
+      P += T_;
+      P *= 0.5;
+    }
     if (i > No) {
       P += CQC_;
       q.noalias() += CQ_.lazyProduct(W.row(i - No - 1).transpose());

@@ -28,15 +28,20 @@ Index degree(const std::vector<double> &norms, double norm) {
 }
 
 // F (m, n) = top rows of Σ_(k ≤ K) A^k / k!, A (m, n) the top rows of a matrix whose other rows are zero;
-// the top rows of A^k = (top rows of A^(k−1))[:, :m] · A. P, Pn: workspaces
+// the top rows of A^k = (top rows of A^(k−1))[:, :m] · A. A's leading columns that are zero (a robot's
+// ZOH matrix: nothing depends on the positions, its first n_y columns) are zero in every A^k, k ≥ 1: the
+// products skip them (their terms are exact zeros; half the work of a robot's Taylor sum). P, Pn: workspaces
 void taylor_top(const Mat &A, Index K, const std::vector<double> &inv_fact, Mat &F, Mat &P, Mat &Pn) {
   const Index m = A.rows(), n = A.cols();
+  Index lead = 0;  // leading zero columns among A's first m
+  while (lead < m && (A.col(lead).array() == 0.0).all()) ++lead;
+  const Index live = m - lead;
   F.setZero(m, n);
   F.leftCols(m).setIdentity();
   P = A;
   F += P;
   for (Index k = 2; k <= K; ++k) {
-    Pn.noalias() = P.leftCols(m).lazyProduct(A);
+    Pn.noalias() = P.middleCols(lead, live).lazyProduct(A.middleRows(lead, live));
     P.swap(Pn);
     F += inv_fact[k] * P;
   }

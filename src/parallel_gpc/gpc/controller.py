@@ -37,7 +37,7 @@ from .criterion import Criterion
 from .fallback import APPLIED_LIMIT_RTOL, LIMIT_MARGIN, check_applied, limit_gap, limit_violation, project_on_limits
 from .nmpc import IterationReport, NMPCIterations, riccati_steps
 from .prediction import Prediction, absolute_prediction, incremental_prediction, simulative_prediction
-from .protocol import ControlModel, check_conditioning, conditioning_rule
+from .protocol import ControlModel, check_conditioning, condition_function, conditioning_rule
 from .redundancy import null_basis, remove_null
 from .riccati import RiccatiPath
 from .settings import DEFAULT_BOX_SOLVER, DEFAULT_LIMITED_SOLVER, FORMS, ControllerState, GPCSettings, condensed_default
@@ -133,6 +133,7 @@ class GPCController:
         self._backend, self._backend_name = None, None
         self._apply(settings)
         self._gain = conditioning_rule(model)
+        self._condition = condition_function()  # compiled or not, decided here (checked every step)
         self.reset(u0)
 
     def _apply(self, settings: GPCSettings) -> None:
@@ -344,8 +345,8 @@ class GPCController:
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
-        if gain is not None:  # SingularPoseError at a near-singular pose
-            check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)
+        if gain is not None and not self._condition(gain) <= self.max_condition:  # SingularPoseError at a
+            check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)  # near-singular pose
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
         result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
