@@ -14,6 +14,7 @@ import pytest
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
+from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.solvers import AS_MAX_ITER, AS_WARM_MAX_ITER
 from parallel_gpc.solvers.problem import UNBOUNDED
 from test_stagewise import _condensed, _kkt_residual, _objective
@@ -82,3 +83,47 @@ def test_long_horizon_cold_and_warm_steps_reach_daqp(form):
             assert abs(_objective(full, v) - _objective(full, v_daqp)) <= 1e-10 * scale
             assert np.abs(v - v_daqp).max() <= PLAN_TOL[form] * np.abs(v_daqp).max()
     assert compared >= 1  # DAQP's own check fails on the nonlinear form's warm steps here (the KKT check stands)
+
+
+def test_absolute_warm_steps_leave_limited_arcs_at_their_edges():
+    """The absolute form's warm steps at N = 160 along a closed loop (the benchmark's states: the
+    unconstrained controller on the full plant; τ = half the unconstrained riccati plans' peak) all
+    settle in the active set: a component inside an arc of its box row stays fixed whatever its
+    multiplier, only the arcs' edges leave (solvers/stagewise_active.py). Without that rule one of
+    these 11 steps went to the interior point after 12 sweeps (the arc beyond a moved edge freed at
+    once, 90–313 changes proposed per sweep). The last step equals DAQP's plan and meets the KKT
+    conditions and rows of the condensed problem."""
+    robot = ParallelRobot.load("planar_4rrr")
+    model = ReducedModel(robot)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    H, weights = Horizons(N), Weights(1.0, 1e-5)
+    loop = GPCController.build(model, TS, H, weights)
+    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
+    states = []
+    for k in range(12):
+        w = ref.window(k * TS, TS, N)
+        states.append((plant.X.copy(), w))
+        plant.step(loop.step(plant.X, w).u)
+    free = GPCController.build(model, TS, H, weights, solver="riccati")
+    limits = Limits(torque=0.5 * max(np.abs(free.step(X, w).u).max() for X, w in states))
+    ric = GPCController.build(model, TS, H, weights, solver="riccati", limits=limits)
+    chk = GPCController.build(model, TS, H, weights, limits=limits)
+    sweeps = []
+    for k, (X, w) in enumerate(states):
+        if k == len(states) - 1:
+            chk.restore(ric.state)
+            chk._update_disturbance(X)
+            full, x_daqp = _condensed(chk, X, w)
+        info = ric.step(X, w)
+        solver = ric._riccati.constrained
+        assert info.result.ok, info.result.message
+        if k:
+            assert solver.method == "active-set", (k, solver.iterations, info.result.message)
+            sweeps.append(solver.iterations[0])
+    assert (solver._fixed >= 0).sum() >= 0.9 * solver._fixed.size  # nearly every input on its limit
+    v = ric._v_prev
+    assert _excess(full, v) <= 1e-9 and _kkt_residual(full, v) <= 1e-9
+    assert x_daqp is not None
+    v_daqp = x_daqp[:full.n_decision]
+    assert np.abs(v - v_daqp).max() <= PLAN_TOL["absolute"] * np.abs(v_daqp).max()
+    assert max(sweeps) < AS_WARM_MAX_ITER
