@@ -42,6 +42,7 @@ using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMaj
 
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-6;   // AS_ACCEPT
+constexpr long ARC_MIN = 10;      // ARC_MIN_STAGES
 
 struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   long r, j;
@@ -411,6 +412,7 @@ struct Workspace {
   Outcome out;
   RowMat grad;
   Set fixed, next, brk;  // the set of a sweep (the start on entry), the next one, each component's most broken row
+  Set arc;               // the length of the run of stages each entry of `fixed` lies in (arc_lengths)
   std::vector<Set> seen;  // the sets swept so far: the first n_seen entries
   size_t n_seen = 0;
   std::vector<double> worst;
@@ -449,11 +451,25 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
     }
 }
 
-// component j of v(i) held by a box row (on v alone) that also holds the stages i − 1 and i + 1: inside a
-// limited arc, kept whatever its multiplier (_inside_box_arcs in the Python twin: only the arc's edges leave)
-bool inside_box_arc(const QP &qp, const Set &fixed, long i, long j) {
+// component j of v(i) held by a box row (on v alone) that also holds the stages i − 1 and i + 1, in an arc
+// of at least ARC_MIN stages (arc: each component's run length, arc_lengths): inside a limited arc, kept
+// whatever its multiplier (_inside_box_arcs in the Python twin: only the arc's edges leave)
+bool inside_box_arc(const QP &qp, const Set &fixed, const Set &arc, long i, long j) {
   const int64_t r = fixed(i, j);
-  return r >= 0 && i > 0 && i + 1 < qp.nd && qp.row_box[i * qp.k + r] && fixed(i - 1, j) == r && fixed(i + 1, j) == r;
+  return r >= 0 && i > 0 && i + 1 < qp.nd && qp.row_box[i * qp.k + r] && fixed(i - 1, j) == r &&
+         fixed(i + 1, j) == r && arc(i, j) >= ARC_MIN;
+}
+
+// arc (nd, m) ← the length of the run of equal entries of `fixed` each entry lies in, per component
+void arc_lengths(const Set &fixed, Set &arc) {
+  const long nd = fixed.rows(), m = fixed.cols();
+  arc.resize(nd, m);
+  for (long j = 0; j < m; ++j)
+    for (long s = 0, e; s < nd; s = e) {
+      for (e = s + 1; e < nd && fixed(e, j) == fixed(s, j); ++e) {
+      }
+      for (long i = s; i < e; ++i) arc(i, j) = e - s;
+    }
 }
 
 // from the start ws.fixed (nd, m); warm: a start was given (the cautious update also when the changes
@@ -492,6 +508,7 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
     double broken = 0.0;
     bool any_broken = false;
     ws.inner_kept.clear();
+    arc_lengths(fixed, ws.arc);
     for (long i = 0; i < nd; ++i) {  // the next set (_update)
       std::fill(worst.begin(), worst.end(), 0.0);
       for (long j = 0; j < m; ++j) brk(i, j) = -1;
@@ -511,7 +528,7 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
           next(i, j) = brk(i, j);
         } else if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) {
           next(i, j) = fixed(i, j);
-        } else if (inside_box_arc(qp, fixed, i, j)) {
+        } else if (inside_box_arc(qp, fixed, ws.arc, i, j)) {
           next(i, j) = fixed(i, j);
           ws.inner_kept.push_back(i * m + j);
         } else {
@@ -553,7 +570,7 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
           for (long i = 0; i < nd; ++i)
             for (long j = 0; j < m; ++j)
               if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < -tol_l &&
-                  (with_inner || !inside_box_arc(qp, fixed, i, j)))
+                  (with_inner || !inside_box_arc(qp, fixed, ws.arc, i, j)))
                 negative.push_back({out.lam(i, fixed(i, j)), i * m + j});
         std::stable_sort(negative.begin(), negative.end(),
                          [](const auto &a, const auto &b) { return a.first < b.first; });

@@ -86,6 +86,11 @@ AS_TOL = 1e-10
 #: rounding leaves a free-component gradient of 2e-10–2e-8 of the scale (R v and Bᵀν cancel;
 #: planar_4rrr, Qu = 1e-5, N = 10–20); the excess and the signs already hold to AS_TOL once the set settles.
 AS_ACCEPT = 1e-6
+#: the shortest arc (consecutive stages one box row holds) kept while its edges move
+#: (:func:`_inside_box_arcs`): a short arc may flip to the opposite bound whole (planar_4rrr, N = 12,
+#: arcs of 5–7 stages: 4 sweeps freeing them at once, 12 and unsettled peeled stage by stage); 8–16
+#: measure alike on the long horizons' arcs.
+ARC_MIN_STAGES = 10
 
 
 @dataclass(frozen=True)
@@ -235,7 +240,8 @@ def _next_set(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float,
 
 def _inside_box_arcs(fixed: np.ndarray, box: np.ndarray) -> np.ndarray:
     """(n_decide, m) the components held by a box row (``box`` (n_decide, k): the row's Fz = 0) whose
-    stages before and after are held by the same row: inside a limited arc, which only its edges leave.
+    stages before and after are held by the same row, in an arc of at least :data:`ARC_MIN_STAGES`
+    stages: inside a limited arc, which only its edges leave.
 
     An arc on a box of v (the absolute form's torque, a Δu) shrinks from its edges: after a change at
     one end, the multipliers of the whole arc beyond it can turn negative together (they carry the
@@ -250,7 +256,13 @@ def _inside_box_arcs(fixed: np.ndarray, box: np.ndarray) -> np.ndarray:
     held = (fixed >= 0) & np.take_along_axis(box[:nd], np.maximum(fixed, 0), axis=1)
     same = np.zeros_like(held)
     same[1:-1] = (fixed[:-2] == fixed[1:-1]) & (fixed[2:] == fixed[1:-1])
-    return held & same
+    start = np.ones(fixed.shape, bool)
+    start[1:] = fixed[1:] != fixed[:-1]
+    length = np.empty(fixed.shape, int)
+    for j in range(fixed.shape[1]):
+        run = np.cumsum(start[:, j])
+        length[:, j] = np.bincount(run)[run]
+    return held & same & (length >= ARC_MIN_STAGES)
 
 
 def shift_active_set(fixed: np.ndarray | None, before: np.ndarray | None = None) -> np.ndarray | None:
