@@ -14,10 +14,10 @@ import pytest
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
-from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.solvers import AS_MAX_ITER, AS_WARM_MAX_ITER
 from parallel_gpc.solvers.problem import UNBOUNDED
-from test_stagewise import _condensed, _kkt_residual, _objective
+from closed_loop_states import closed_loop_states
+from test_stagewise import _kkt_residual, _objective, condensed_of_state
 
 TS = 0.002
 N = 160
@@ -58,9 +58,7 @@ def test_long_horizon_cold_and_warm_steps_reach_daqp(form):
     compared = 0
     for k in range(3):
         w = ref.window(k * TS, TS, N)
-        chk.restore(ric.state)  # the same state: the same problem
-        chk._update_disturbance(X)
-        full, x_daqp = _condensed(chk, X, w)
+        full, x_daqp = condensed_of_state(chk, ric, X, w)
         info = ric.step(X, w)
         solver = ric._riccati.constrained
         assert info.result.solver == "riccati" and info.result.ok, info.result.message
@@ -97,13 +95,7 @@ def test_absolute_warm_steps_leave_limited_arcs_at_their_edges():
     model = ReducedModel(robot)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     H, weights = Horizons(N), Weights(1.0, 1e-5)
-    loop = GPCController.build(model, TS, H, weights)
-    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
-    states = []
-    for k in range(12):
-        w = ref.window(k * TS, TS, N)
-        states.append((plant.X.copy(), w))
-        plant.step(loop.step(plant.X, w).u)
+    states = closed_loop_states(robot, model, ref, N, weights, TS)
     free = GPCController.build(model, TS, H, weights, solver="riccati")
     limits = Limits(torque=0.5 * max(np.abs(free.step(X, w).u).max() for X, w in states))
     ric = GPCController.build(model, TS, H, weights, solver="riccati", limits=limits)
@@ -111,9 +103,7 @@ def test_absolute_warm_steps_leave_limited_arcs_at_their_edges():
     sweeps = []
     for k, (X, w) in enumerate(states):
         if k == len(states) - 1:
-            chk.restore(ric.state)
-            chk._update_disturbance(X)
-            full, x_daqp = _condensed(chk, X, w)
+            full, x_daqp = condensed_of_state(chk, ric, X, w)
         info = ric.step(X, w)
         solver = ric._riccati.constrained
         assert info.result.ok, info.result.message
