@@ -27,6 +27,7 @@ from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, Stage
                                    shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
 from parallel_gpc.solvers.problem import UNBOUNDED
+from closed_loop_states import closed_loop_states
 
 TS = 0.002
 FORMS = ["absolute", "incremental", "incremental-delayed", "nonlinear"]
@@ -45,6 +46,14 @@ def _condensed(ctl: GPCController, X, w):
     full = constrain(problem, ctl._stage_rows(pred, X, None), ctl._limits)
     result = make_solver("daqp-direct").solve(full)
     return full, result.v if result.ok else None
+
+
+def condensed_of_state(chk: GPCController, ric: GPCController, X, w):
+    """:func:`_condensed` of the checking controller ``chk`` put in the state of ``ric``: the condensed
+    problem of the step ``ric`` takes next (the same state: the same problem), and DAQP's solution."""
+    chk.restore(ric.state)
+    chk._update_disturbance(X)
+    return _condensed(chk, X, w)
 
 
 def _objective(full, x) -> float:
@@ -203,9 +212,7 @@ def test_warm_started_steps_reach_the_condensed_optimum(form):
     w = np.tile(robot.home_pose + np.array([0.01, 0.0, 0.0]), (10, 1))
     warm = active = 0
     for k in range(5):
-        chk.restore(ric.state)  # the same state: the same problem
-        chk._update_disturbance(X)
-        full, x_daqp = _condensed(chk, X, w)
+        full, x_daqp = condensed_of_state(chk, ric, X, w)
         warm += ric._riccati.constrained._last is not None
         info = ric.step(X, w)
         assert info.result.solver == "riccati" and info.result.ok, info.result.message
@@ -696,9 +703,7 @@ def test_nearly_saturated_warm_steps_settle_in_the_active_set():
     ric = GPCController.build(model, TS, Horizons(N), weights, solver="riccati", limits=limits)
     chk = GPCController.build(model, TS, Horizons(N), weights, solver="qr-first:bvls", limits=limits)
     for k, (X, w) in enumerate(states):
-        chk.restore(ric.state)  # the same state: the same problem
-        chk._update_disturbance(X)
-        full, x_daqp = _condensed(chk, X, w)
+        full, x_daqp = condensed_of_state(chk, ric, X, w)
         info = ric.step(X, w)
         stagewise = ric._riccati.constrained
         assert info.result.ok, info.result.message
@@ -1029,14 +1034,8 @@ def test_incremental_warm_steps_move_the_edges_and_keep_the_plan(monkeypatch):
     model = ReducedModel(robot)
     N, weights = 40, Weights(1.0, 1e-5)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
-    loop = GPCController.build(model, TS, Horizons(N), weights)  # the states: an unlimited closed loop
+    states = closed_loop_states(robot, model, ref, N, weights, TS)
     free = GPCController.build(model, TS, Horizons(N), weights, form="incremental", solver="riccati")
-    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
-    states = []
-    for k in range(12):
-        w = ref.window(k * TS, TS, N)
-        states.append((plant.X.copy(), w))
-        plant.step(loop.step(plant.X, w).u)
     limits = Limits(torque=0.5 * max(float(np.abs(free.step(X, w).u).max()) for X, w in states))
 
     def run():

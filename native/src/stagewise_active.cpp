@@ -2,8 +2,9 @@
 // per iteration one Riccati sweep of the LQ problem with the active rows' components fixed
 // (v_j = σ (f − Fz z): affine in the state, substituted stage by stage; only the stages up to the
 // last one whose set changed are factorized again), one backward pass for the multipliers, the
-// Hintermüller–Ito–Kunisch update of the set or, once that stops shrinking, the cautious one,
-// stopped when the set repeats (KKT verified), cycles or reaches the cap. The Python module is the
+// Hintermüller–Ito–Kunisch update of the set (a box row's limited arc left only at its edges) or, once
+// that stops shrinking, the cautious one, stopped when the set repeats (KKT verified), cycles or
+// reaches the cap. The Python module is the
 // reference; this file follows it function by function (same names). One workspace serves every
 // sweep of a solve and is kept from solve to solve (a controller's steps allocate nothing once the
 // first has sized it); the sweep's and the multipliers' stage products are fixed-size for the stage
@@ -41,6 +42,7 @@ using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMaj
 
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-6;   // AS_ACCEPT
+constexpr long ARC_MIN = 10;      // ARC_MIN_STAGES
 
 struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   long r, j;
@@ -98,6 +100,7 @@ struct QP {  // views of the caller's arrays (no copy)
   std::vector<VMap> c, q;
   std::vector<std::vector<Row>> rows;  // per decision stage
   std::vector<long> row_comp;          // (nd, k): the component of a used row, −1 for the others
+  std::vector<char> row_box;           // (nd, k): a used row on v alone (Fz_r = 0)
   Vec z0;
   Mat R;
   double f_scale = 1e-12;
@@ -409,10 +412,12 @@ struct Workspace {
   Outcome out;
   RowMat grad;
   Set fixed, next, brk;  // the set of a sweep (the start on entry), the next one, each component's most broken row
+  Set arc;               // the length of the run of stages each entry of `fixed` lies in (arc_lengths)
   std::vector<Set> seen;  // the sets swept so far: the first n_seen entries
   size_t n_seen = 0;
   std::vector<double> worst;
   std::vector<std::pair<double, long>> negative;  // (λ, i·m + j) of the fixed components with λ < 0
+  std::vector<long> inner_kept;  // i·m + j of the components with λ < 0 the full update kept inside a box arc
 };
 
 // a start's entries that name no used row on their component: free (as in the Python twin)
@@ -431,6 +436,7 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
     throw std::invalid_argument(std::string(who) + ": inconsistent stage shapes");
   qp.rows.assign(qp.nd, {});
   qp.row_comp.assign(qp.nd * qp.k, -1);
+  qp.row_box.assign(qp.nd * qp.k, 0);
   for (long i = 0; i < qp.N; ++i)
     for (long r = 0; r < qp.k; ++r) {
       const long j = long(comp.data()[i * qp.k + r]);
@@ -440,7 +446,29 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
       const double fr = f.data()[i * qp.k + r];
       qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
       qp.row_comp[i * qp.k + r] = j;
+      qp.row_box[i * qp.k + r] = !qp.rows[i].back().fz;
       qp.f_scale = std::max(qp.f_scale, std::abs(fr));
+    }
+}
+
+// component j of v(i) held by a box row (on v alone) that also holds the stages i − 1 and i + 1, in an arc
+// of at least ARC_MIN stages (arc: each component's run length, arc_lengths): inside a limited arc, kept
+// whatever its multiplier (_inside_box_arcs in the Python twin: only the arc's edges leave)
+bool inside_box_arc(const QP &qp, const Set &fixed, const Set &arc, long i, long j) {
+  const int64_t r = fixed(i, j);
+  return r >= 0 && i > 0 && i + 1 < qp.nd && qp.row_box[i * qp.k + r] && fixed(i - 1, j) == r &&
+         fixed(i + 1, j) == r && arc(i, j) >= ARC_MIN;
+}
+
+// arc (nd, m) ← the length of the run of equal entries of `fixed` each entry lies in, per component
+void arc_lengths(const Set &fixed, Set &arc) {
+  const long nd = fixed.rows(), m = fixed.cols();
+  arc.resize(nd, m);
+  for (long j = 0; j < m; ++j)
+    for (long s = 0, e; s < nd; s = e) {
+      for (e = s + 1; e < nd && fixed(e, j) == fixed(s, j); ++e) {
+      }
+      for (long i = s; i < e; ++i) arc(i, j) = e - s;
     }
 }
 
@@ -479,6 +507,8 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;
     double broken = 0.0;
     bool any_broken = false;
+    ws.inner_kept.clear();
+    arc_lengths(fixed, ws.arc);
     for (long i = 0; i < nd; ++i) {  // the next set (_update)
       std::fill(worst.begin(), worst.end(), 0.0);
       for (long j = 0; j < m; ++j) brk(i, j) = -1;
@@ -494,10 +524,21 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
       }
       for (long j = 0; j < m; ++j) {
         any_broken = any_broken || brk(i, j) >= 0;
-        next(i, j) = brk(i, j) >= 0 ? brk(i, j)
-                     : (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) ? fixed(i, j) : -1;
+        if (brk(i, j) >= 0) {
+          next(i, j) = brk(i, j);
+        } else if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) >= -tol_l) {
+          next(i, j) = fixed(i, j);
+        } else if (inside_box_arc(qp, fixed, ws.arc, i, j)) {
+          next(i, j) = fixed(i, j);
+          ws.inner_kept.push_back(i * m + j);
+        } else {
+          next(i, j) = -1;
+        }
       }
     }
+    // _next_set: the rule would keep the set (the arcs' edges hold, their inside does not): freed as without it
+    if (!ws.inner_kept.empty() && next == fixed)
+      for (long c : ws.inner_kept) next(c / m, c % m) = -1;
     out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / scale,
                              grad.size() ? grad.cwiseAbs().maxCoeff() / scale : 0.0});
     out.iterations = it;
@@ -525,9 +566,12 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
       } else {  // the `frees` most negative multipliers' components freed
         next = fixed;
         negative.clear();
-        for (long i = 0; i < nd; ++i)
-          for (long j = 0; j < m; ++j)
-            if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < -tol_l) negative.push_back({out.lam(i, fixed(i, j)), i * m + j});
+        for (int with_inner = 0; with_inner < 2 && negative.empty(); ++with_inner)  // _next_set: inner ones last
+          for (long i = 0; i < nd; ++i)
+            for (long j = 0; j < m; ++j)
+              if (fixed(i, j) >= 0 && out.lam(i, fixed(i, j)) < -tol_l &&
+                  (with_inner || !inside_box_arc(qp, fixed, ws.arc, i, j)))
+                negative.push_back({out.lam(i, fixed(i, j)), i * m + j});
         std::stable_sort(negative.begin(), negative.end(),
                          [](const auto &a, const auto &b) { return a.first < b.first; });
         for (size_t a = 0; a < negative.size() && long(a) < frees; ++a) next(negative[a].second / m, negative[a].second % m) = -1;

@@ -22,6 +22,11 @@ feasibility, λ ≥ 0, stationarity of the free components, complementarity by c
 then verified, not trusted — or when a set comes back (a cycle) or the cap is reached: status
 ``"unconverged"``, for the caller to hand the problem to the interior point.
 
+A component held by a box row (on v alone, Fz_r = 0: the absolute form's torque, a Δu) whose stages
+before and after the same row holds stays fixed whatever its multiplier: a limited arc is left only
+at its edges (:func:`_inside_box_arcs`) while an edge moves; once none does, the inner ones with a
+negative multiplier are freed as without the rule (:func:`_next_set`).
+
 The full update changes every component at once; with most inputs on a limit (planar_4rrr,
 absolute, N = 160: 637 of 640) it swings without settling (the few free inputs pass far beyond
 their bounds between sweeps: 3 changes, then 30, 61, 34, … on a warm start). A *cautious* update
@@ -57,8 +62,16 @@ __all__ = ["InputRowMap", "ActiveSetSolution", "input_rows_of", "shift_active_se
 
 #: iteration cap (Riccati sweeps); a problem still changing its active set after it is unconverged. A cold
 #: start takes 4–19 sweeps on the controller's torque-limited problems up to N = 80 (planar_4rrr); at
-#: N = 160 with 637 of 640 inputs on their limits it does not settle in 200: the interior point solves
-#: that first step and its active rows start the next.
+#: N = 160 with 637 of 640 inputs on their limits it does not settle in 400: the interior point solves
+#: that first step and its active rows start the next. Measured there (planar_4rrr, Qu = 1e-5, every form,
+#: the cold step and the warm one after the interior point's) and not settling either: block principal
+#: pivoting with a backup count and then the k most violated changes (k halved or doubled), a projected
+#: Newton step along the sweep's plan with the rows clipped, flipping a fixed component with λ < 0 to its
+#: other bound, a start from every component on its nearer bound, a continuation over the rows of the
+#: first 10/20/40/80 stages (settles up to 40–80, not beyond), a proximal term ρ‖v − v_k‖² (84–88 sweeps
+#: at best) and the interior point's set after 4–10 of its iterations. With Qu = 1e-3 the cold absolute
+#: and incremental steps settle (4 and 20 sweeps). The 30 sweeps cost 2.7 ms (absolute) and 10.7 ms
+#: (incremental, nonlinear) of CPU beside the interior point's 9.8 and 21.7 ms there.
 AS_MAX_ITER = 30
 #: the cap from a start (the previous step's set shifted): a start settles in 1–12 sweeps (mean 1.5–3.7 up
 #: to N = 80, ~4.5 at N = 160, planar_4rrr; 3–10 on the random problems of the tests); one that has not
@@ -73,6 +86,11 @@ AS_TOL = 1e-10
 #: rounding leaves a free-component gradient of 2e-10–2e-8 of the scale (R v and Bᵀν cancel;
 #: planar_4rrr, Qu = 1e-5, N = 10–20); the excess and the signs already hold to AS_TOL once the set settles.
 AS_ACCEPT = 1e-6
+#: the shortest arc (consecutive stages one box row holds) kept while its edges move
+#: (:func:`_inside_box_arcs`): a short arc may flip to the opposite bound whole (planar_4rrr, N = 12,
+#: arcs of 5–7 stages: 4 sweeps freeing them at once, 12 and unsettled peeled stage by stage); 8–16
+#: measure alike on the long horizons' arcs.
+ARC_MIN_STAGES = 10
 
 
 @dataclass(frozen=True)
@@ -180,10 +198,11 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     return z, v
 
 
-def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, frees: int | None = None
-            ) -> np.ndarray:
+def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, frees: int | None = None,
+            inner: np.ndarray | None = None) -> np.ndarray:
     """The next active set (n_decide, m): per component, its most broken row if one is broken,
-    else the row fixing it while its multiplier is ≥ −tol_lam, else free. ``broken``: (n_decide, k),
+    else the row fixing it while its multiplier is ≥ −tol_lam or it lies inside an arc of a box
+    (``inner``, :func:`_inside_box_arcs`), else free. ``broken``: (n_decide, k),
     how far each row is broken beyond the tolerance (≤ 0: held). ``frees`` (the cautious update):
     the components with a broken row fixed by it, every other one as it is; only when no row is
     broken, at most ``frees`` of the components whose multiplier is below −tol_lam freed (the most
@@ -197,6 +216,8 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, f
     held = fixed >= 0
     lam_fixed = np.where(held, np.take_along_axis(lam[:nd], np.maximum(fixed, 0), axis=1), 0.0)
     keep = held & (lam_fixed >= -tol_lam)
+    if inner is not None:
+        keep |= inner
     if frees is None:
         return np.where(is_broken, worst, np.where(keep, fixed, -1))
     if is_broken.any():
@@ -205,6 +226,43 @@ def _update(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, f
     negative = np.flatnonzero(held & ~keep)
     new.flat[negative[np.argsort(lam_fixed.flat[negative], kind="stable")[:frees]]] = -1
     return new
+
+
+def _next_set(rows: InputRowMap, fixed: np.ndarray, lam, broken, tol_lam: float, frees: int | None,
+              inner: np.ndarray) -> np.ndarray:
+    """:func:`_update` with the arcs' inner components ``inner`` kept, or without that rule when it
+    would keep the set as it is (the arcs' edges hold, their inside does not: freed as before)."""
+    new = _update(rows, fixed, lam, broken, tol_lam, frees, inner)
+    if inner.any() and np.array_equal(new, fixed):
+        new = _update(rows, fixed, lam, broken, tol_lam, frees)
+    return new
+
+
+def _inside_box_arcs(fixed: np.ndarray, box: np.ndarray) -> np.ndarray:
+    """(n_decide, m) the components held by a box row (``box`` (n_decide, k): the row's Fz = 0) whose
+    stages before and after are held by the same row, in an arc of at least :data:`ARC_MIN_STAGES`
+    stages: inside a limited arc, which only its edges leave.
+
+    An arc on a box of v (the absolute form's torque, a Δu) shrinks from its edges: after a change at
+    one end, the multipliers of the whole arc beyond it can turn negative together (they carry the
+    costate along the arc), and freeing them all swings the plan past the opposite bounds (planar_4rrr,
+    absolute, N = 160: 30, then 90–108 changes proposed on warm steps that end 2 components from their
+    start). Kept, the arc's edges free one stage per sweep at each end, and the inner multipliers
+    still negative once the edges hold are freed then (:func:`_next_set`): warm steps there take 1–5
+    sweeps instead of 1–7 and none goes to the interior point (1 of 12 did). Not rows on the state
+    (the incremental forms' torque on the held input: the arcs there are not those of v, and keeping
+    them costs sweeps)."""
+    nd = fixed.shape[0]
+    held = (fixed >= 0) & np.take_along_axis(box[:nd], np.maximum(fixed, 0), axis=1)
+    same = np.zeros_like(held)
+    same[1:-1] = (fixed[:-2] == fixed[1:-1]) & (fixed[2:] == fixed[1:-1])
+    start = np.ones(fixed.shape, bool)
+    start[1:] = fixed[1:] != fixed[:-1]
+    length = np.empty(fixed.shape, int)
+    for j in range(fixed.shape[1]):
+        run = np.cumsum(start[:, j])
+        length[:, j] = np.bincount(run)[run]
+    return held & same & (length >= ARC_MIN_STAGES)
 
 
 def shift_active_set(fixed: np.ndarray | None, before: np.ndarray | None = None) -> np.ndarray | None:
@@ -314,6 +372,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     if max_iter is None:
         max_iter = AS_MAX_ITER if start is None else AS_WARM_MAX_ITER
     seen = set()
+    box = np.all(qp.Fz == 0.0, axis=2)  # (N, k): the rows of v alone
     fewest, frees, freed = nd * m + 1, None, False  # frees: None while the full update runs
     for it in range(1, max_iter + 1):
         z, v = _sweep(qp, rows, fixed)
@@ -325,7 +384,8 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
         Fx = np.einsum("ikn,in->ik", qp.Fz, z[:N])
         Fx[:nd] += np.einsum("ikm,im->ik", qp.Fv[:nd], v)
         gap = np.where(used, Fx - f, -np.inf)
-        new = _update(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale)
+        inner = _inside_box_arcs(fixed, box)
+        new = _next_set(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, None, inner)
         residual = max(float(np.max(gap, initial=0.0)) / f_scale, float(np.max(-lam, initial=0.0)) / scale,
                        float(np.max(np.abs(grad), initial=0.0)) / scale)
         if np.array_equal(new, fixed):
@@ -345,7 +405,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
             any_broken = bool(np.any(broken > 0.0))
             if freed:
                 frees = max(1, frees // 2) if any_broken else 2 * frees
-            new, freed = _update(rows, fixed, lam, broken, tol * scale, frees), not any_broken
+            new, freed = _next_set(rows, fixed, lam, broken, tol * scale, frees, inner), not any_broken
             if new.tobytes() in seen:
                 return _unsettled(v, z, lam, nu, it, residual, fixed,
                                   f"stage-wise active set: the active set cycles after {it} sweeps")
