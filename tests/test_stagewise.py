@@ -10,11 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import qpsolvers
-from scipy.optimize import nnls
 
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError, SolverError
-from parallel_gpc.gpc.constraints import constrain
 from parallel_gpc.gpc.fallback import limit_gap, limit_violation
 from parallel_gpc.gpc.riccati import RiccatiPath
 from parallel_gpc.gpc.stagewise import StagewiseSolver, input_bounds, step_bounds
@@ -23,11 +21,11 @@ from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
 from parallel_gpc.model.plant import ConstrainedPlant
-from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of, make_solver,
+from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of,
                                    shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
-from parallel_gpc.solvers.problem import UNBOUNDED
 from closed_loop_states import closed_loop_states
+from condensed_oracle import condensed, condensed_of_state, kkt_residual, objective
 
 TS = 0.002
 FORMS = ["absolute", "incremental", "incremental-delayed", "nonlinear"]
@@ -36,56 +34,6 @@ FORMS = ["absolute", "incremental", "incremental-delayed", "nonlinear"]
 @pytest.fixture(scope="module", params=["planar_4rrr", "delta_3rus"])
 def robot(request) -> ParallelRobot:
     return ParallelRobot.load(request.param)
-
-
-def _condensed(ctl: GPCController, X, w):
-    """The controller's condensed problem (with its state rows) and DAQP's solution [v; s] (None
-    when DAQP's answer fails its KKT check)."""
-    pred = ctl.predict(X)
-    problem = ctl._criterion.problem(pred, w[ctl.horizons.No:], ctl._qp_limits, ctl.u_prev)
-    full = constrain(problem, ctl._stage_rows(pred, X, None), ctl._limits)
-    result = make_solver("daqp-direct").solve(full)
-    return full, result.v if result.ok else None
-
-
-def condensed_of_state(chk: GPCController, ric: GPCController, X, w):
-    """:func:`_condensed` of the checking controller ``chk`` put in the state of ``ric``: the condensed
-    problem of the step ``ric`` takes next (the same state: the same problem), and DAQP's solution."""
-    chk.restore(ric.state)
-    chk._update_disturbance(X)
-    return _condensed(chk, X, w)
-
-
-def _objective(full, x) -> float:
-    """‖A x − b‖² + cᵀx of the condensed problem."""
-    return float(np.sum((full.A @ x - full.b) ** 2) + (0.0 if full.c is None else full.c @ x))
-
-
-def _kkt_residual(full, x) -> float:
-    """max |∇f + Σ λ a| over λ ≥ 0 on the active rows (NNLS), relative to the gradient's scale:
-    f = ‖A x − b‖² + cᵀx, rows L x ≤ hi / ≥ lo, boxes lb ≤ x ≤ ub (an independent KKT check)."""
-    g = 2.0 * full.A.T @ (full.A @ x - full.b) + (0.0 if full.c is None else full.c)
-    normals, tol = [], 1e-7
-    if full.L is not None:
-        Lx = full.L @ x
-        for i in range(full.L.shape[0]):
-            scale = 1.0 + abs(full.hi[i] if full.hi[i] < UNBOUNDED else full.lo[i])
-            if full.hi[i] < UNBOUNDED and Lx[i] >= full.hi[i] - tol * scale:
-                normals.append(full.L[i])
-            if full.lo[i] > -UNBOUNDED and Lx[i] <= full.lo[i] + tol * scale:
-                normals.append(-full.L[i])
-    n = len(x)
-    for bound, sign in ((full.ub, 1.0), (full.lb, -1.0)):
-        if bound is None:
-            continue
-        for j in np.flatnonzero(np.abs(bound) < UNBOUNDED):
-            if abs(x[j] - bound[j]) <= tol * (1.0 + abs(bound[j])):
-                normals.append(sign * np.eye(n)[j])
-    if not normals:
-        return float(np.max(np.abs(g))) / max(1.0, float(np.max(np.abs(2.0 * full.A.T @ full.b))))
-    M = np.array(normals).T
-    _, res = nnls(M, -g, maxiter=50 * M.shape[1])
-    return res / max(1.0, float(np.linalg.norm(2.0 * full.A.T @ full.b)))
 
 
 def _x_of(full, v):
@@ -149,16 +97,16 @@ def test_stagewise_equals_daqp_on_the_condensed_problem(robot, form, case):
     ctl, X, w = _setup(robot, form, case)
     path = ctl._riccati
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
-    full, x_ref = _condensed(ctl, X, w)
+    full, x_ref = condensed(ctl, X, w)
     assert result.status == "optimal", result.message
     x = _x_of(full, result.v)
-    kkt = _kkt_residual(full, x)
+    kkt = kkt_residual(full, x)
     assert kkt <= 1e-9, kkt
     if x_ref is not None:  # DAQP's answer passed its own KKT check
         v_ref = x_ref[:full.n_decision]
         err = np.abs(result.v - v_ref).max() / np.abs(v_ref).max()
         assert err <= 1e-8, err
-        assert _objective(full, x) == pytest.approx(_objective(full, x_ref), rel=1e-10)
+        assert objective(full, x) == pytest.approx(objective(full, x_ref), rel=1e-10)
     active = case not in ("torque-inactive",)
     assert result.active_limits is active
 
@@ -168,7 +116,7 @@ def test_stagewise_with_short_control_and_insensitivity_horizons(robot, form):
     ctl, X, w = _setup(robot, form, "torque", N=15, No=2, Nu=5)
     path = ctl._riccati
     result = path.solve(*path.stages(ctl, X, w[ctl.horizons.No:]))
-    full, x_ref = _condensed(ctl, X, w)
+    full, x_ref = condensed(ctl, X, w)
     v_ref = x_ref[:full.n_decision]
     assert result.status == "optimal" and result.active_limits
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
@@ -218,10 +166,10 @@ def test_warm_started_steps_reach_the_condensed_optimum(form):
         assert info.result.solver == "riccati" and info.result.ok, info.result.message
         active += info.result.active_limits
         v = ric._v_prev
-        scale = max(_objective(full, np.zeros_like(v)), 1e-300)
+        scale = max(objective(full, np.zeros_like(v)), 1e-300)
         if x_daqp is not None:
-            assert abs(_objective(full, v) - _objective(full, x_daqp)) <= 1e-9 * scale
-        assert _kkt_residual(full, v) <= 1e-8
+            assert abs(objective(full, v) - objective(full, x_daqp)) <= 1e-9 * scale
+        assert kkt_residual(full, v) <= 1e-8
         X = X + np.concatenate([X[3:] * TS, np.zeros(3)])
     assert warm == 4  # every step after the first started warm
     assert active >= 3  # the torque limit binds
@@ -447,13 +395,13 @@ def test_input_limits_take_the_active_set_and_reach_daqp(name, form, case, horiz
     expected = "active-set"
     assert path.constrained.method == expected
     assert result.status == "optimal" and result.message == "", result.message
-    full, x_ref = _condensed(ctl, X, w)
-    assert _kkt_residual(full, result.v) <= 1e-9
+    full, x_ref = condensed(ctl, X, w)
+    assert kkt_residual(full, result.v) <= 1e-9
     assert x_ref is not None
     v_ref = x_ref[:full.n_decision]
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()
-    scale = max(_objective(full, np.zeros_like(result.v)), 1e-300)
-    assert abs(_objective(full, result.v) - _objective(full, v_ref)) <= 1e-10 * scale
+    scale = max(objective(full, np.zeros_like(result.v)), 1e-300)
+    assert abs(objective(full, result.v) - objective(full, v_ref)) <= 1e-10 * scale
     if expected == "active-set":
         binding = (path.constrained._fixed >= 0).any(axis=1)
         assert binding.sum() >= 2, binding
@@ -710,7 +658,7 @@ def test_nearly_saturated_warm_steps_settle_in_the_active_set():
         if k:
             assert stagewise.method == "active-set", info.result.message
         v = ric._v_prev
-        assert _kkt_residual(full, v) <= 1e-9
+        assert kkt_residual(full, v) <= 1e-9
         assert x_daqp is not None
         assert np.abs(v - x_daqp).max() <= 1e-8 * np.abs(x_daqp).max()
     assert (stagewise._fixed >= 0).mean() > 0.95
@@ -735,7 +683,7 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     assert path.constrained.method == "interior-point after active set"
     assert result.status == "optimal" and "solved by the interior point" in result.message
     assert path.constrained.iterations[0] == 1 and path.constrained.iterations[1] > 0
-    full, x_ref = _condensed(ctl, X, w)
+    full, x_ref = condensed(ctl, X, w)
     assert x_ref is not None
     v_ref = x_ref[:full.n_decision]
     assert np.abs(result.v - v_ref).max() <= 1e-8 * np.abs(v_ref).max()

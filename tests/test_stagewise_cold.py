@@ -17,7 +17,7 @@ from parallel_gpc.limits import Limits
 from parallel_gpc.solvers import AS_MAX_ITER, AS_WARM_MAX_ITER
 from parallel_gpc.solvers.problem import UNBOUNDED
 from closed_loop_states import closed_loop_states
-from test_stagewise import _kkt_residual, _objective, condensed_of_state
+from condensed_oracle import condensed_of_state, kkt_residual, objective
 
 TS = 0.002
 N = 160
@@ -73,12 +73,12 @@ def test_long_horizon_cold_and_warm_steps_reach_daqp(form):
             assert (solver._fixed >= 0).sum() >= 0.9 * solver._fixed.size
         v = ric._v_prev
         assert _excess(full, v) <= 1e-9
-        assert _kkt_residual(full, v) <= 1e-9
+        assert kkt_residual(full, v) <= 1e-9
         compared += x_daqp is not None
         if x_daqp is not None:  # DAQP's answer passed its own KKT check
             v_daqp = x_daqp[:full.n_decision]
-            scale = max(_objective(full, np.zeros_like(v)), 1e-300)
-            assert abs(_objective(full, v) - _objective(full, v_daqp)) <= 1e-10 * scale
+            scale = max(objective(full, np.zeros_like(v)), 1e-300)
+            assert abs(objective(full, v) - objective(full, v_daqp)) <= 1e-10 * scale
             assert np.abs(v - v_daqp).max() <= PLAN_TOL[form] * np.abs(v_daqp).max()
     assert compared >= 1  # DAQP's own check fails on the nonlinear form's warm steps here (the KKT check stands)
 
@@ -112,7 +112,7 @@ def test_absolute_warm_steps_leave_limited_arcs_at_their_edges():
             sweeps.append(solver.iterations[0])
     assert (solver._fixed >= 0).sum() >= 0.9 * solver._fixed.size  # nearly every input on its limit
     v = ric._v_prev
-    assert _excess(full, v) <= 1e-9 and _kkt_residual(full, v) <= 1e-9
+    assert _excess(full, v) <= 1e-9 and kkt_residual(full, v) <= 1e-9
     assert x_daqp is not None
     v_daqp = x_daqp[:full.n_decision]
     assert np.abs(v - v_daqp).max() <= PLAN_TOL["absolute"] * np.abs(v_daqp).max()
