@@ -1,0 +1,38 @@
+// A small persistent pool of worker threads for the compiled per-stage loops (stage_jacobian.cpp):
+// made on first use, grown to the largest number of helpers asked for, never torn down (its threads
+// wait on a condition variable between calls; a forked child makes its own). The caller runs one share
+// of the work itself, so `helpers` extra threads make helpers + 1 workers.
+#pragma once
+
+#include <condition_variable>
+#include <functional>
+#include <mutex>
+
+namespace pgpc {
+
+class ThreadPool {
+ public:
+  // the process's pool (a new one in a forked child: the parent's threads do not exist there)
+  static ThreadPool &shared();
+  // task(0) on the calling thread and task(1..helpers) on the pool's threads at once; returns when all
+  // have returned. task must not throw on a helper (catch and hand the exception over: an exception that
+  // leaves a helper thread ends the process); task(0)'s is rethrown after the helpers are done. Concurrent
+  // calls take turns
+  void run(int helpers, const std::function<void(int)> &task);
+  ThreadPool(const ThreadPool &) = delete;
+  ThreadPool &operator=(const ThreadPool &) = delete;
+
+ private:
+  ThreadPool() = default;
+  void loop(int slot);
+
+  std::mutex turn_;  // one run at a time
+  std::mutex m_;
+  std::condition_variable wake_, done_;
+  int started_ = 0;  // threads started: slots 1..started_
+  const std::function<void(int)> *task_ = nullptr;
+  int helpers_ = 0, pending_ = 0;
+  unsigned long generation_ = 0;
+};
+
+}  // namespace pgpc
