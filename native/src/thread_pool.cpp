@@ -26,12 +26,13 @@ void ThreadPool::loop(int slot) {
     std::unique_lock<std::mutex> lock(m_);
     wake_.wait(lock, [&] { return generation_ != seen; });
     seen = generation_;
-    if (slot > helpers_) continue;  // not asked this time
+    if (closed_ || slot > helpers_) continue;  // woken after the caller finished its share, or not asked
+    ++active_;
     const std::function<void(int)> *task = task_;
     lock.unlock();
     (*task)(slot);
     lock.lock();
-    if (--pending_ == 0) done_.notify_one();
+    if (--active_ == 0) done_.notify_one();
   }
 }
 
@@ -45,7 +46,7 @@ void ThreadPool::run(int helpers, const std::function<void(int)> &task) {
     }
     task_ = &task;
     helpers_ = helpers;
-    pending_ = helpers;
+    closed_ = false;
     ++generation_;
   }
   wake_.notify_all();
@@ -55,8 +56,12 @@ void ThreadPool::run(int helpers, const std::function<void(int)> &task) {
   } catch (...) {
     own = std::current_exception();
   }
+  // a helper the machine has not run yet does not start now (the caller waits only for those at work):
+  // task must leave nothing undone when some helpers never run it (stage_jacobian.cpp hands out its
+  // stages from a shared counter)
   std::unique_lock<std::mutex> lock(m_);
-  done_.wait(lock, [&] { return pending_ == 0; });
+  closed_ = true;
+  done_.wait(lock, [&] { return active_ == 0; });
   task_ = nullptr;
   if (own) std::rethrow_exception(own);
 }

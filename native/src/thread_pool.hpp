@@ -14,8 +14,9 @@ class ThreadPool {
  public:
   // the process's pool (a new one in a forked child: the parent's threads do not exist there)
   static ThreadPool &shared();
-  // task(0) on the calling thread and task(1..helpers) on the pool's threads at once; returns when all
-  // have returned. task must not throw on a helper (catch and hand the exception over: an exception that
+  // task(0) on the calling thread and task(1..helpers) on the pool's threads at once; returns when task(0)
+  // and the helpers that started have returned (a helper that had not started when task(0) returned
+  // skips this call: task(0) must be able to finish the work alone). task must not throw on a helper (catch and hand the exception over: an exception that
   // leaves a helper thread ends the process); task(0)'s is rethrown after the helpers are done. Concurrent
   // calls take turns
   void run(int helpers, const std::function<void(int)> &task);
@@ -31,7 +32,8 @@ class ThreadPool {
   std::condition_variable wake_, done_;
   int started_ = 0;  // threads started: slots 1..started_
   const std::function<void(int)> *task_ = nullptr;
-  int helpers_ = 0, pending_ = 0;
+  int helpers_ = 0, active_ = 0;  // helpers asked, helpers at work
+  bool closed_ = false;           // task(0) has returned: no helper starts any more
   unsigned long generation_ = 0;
 };
 
