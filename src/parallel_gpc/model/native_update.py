@@ -29,8 +29,8 @@ from .forward import CompiledForward, assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
-__all__ = ["compiled_forward", "compiled_model_update", "compiled_threads", "forward_status", "model_update_status",
-           "thread_count", "use_native"]
+__all__ = ["available_cores", "compiled_forward", "compiled_model_update", "compiled_threads", "forward_status",
+           "model_update_status", "thread_count", "use_native"]
 
 #: environment variable: the threads of the compiled model update's per-stage loops (read once per process)
 THREADS_ENV = "PARALLEL_GPC_THREADS"
