@@ -160,11 +160,14 @@ def test_a_bad_thread_count_is_one_clear_error(text):
 
 
 def test_a_bad_variable_stops_the_first_compiled_model_update(threads, compiled, robot4):
-    """Read once, where it enters (the first compiled model update), not in a stage loop later; the
-    Python reference path never reads it."""
+    """Read once, where it enters (the first compiled model update), not in a stage loop later."""
     threads("many")
     with pytest.raises(InvalidParameterError, match="PARALLEL_GPC_THREADS = 'many'"):
         ReducedModel(robot4).discrete(np.r_[robot4.home_pose, np.zeros(robot4.n_y)], TS)
+
+
+def test_the_python_reference_path_never_reads_the_variable(threads, robot4):
+    threads("many")
     reference = ReducedModel(robot4, native=False)
     X0, u = _move(robot4, 3)
     traj = reference.simulate_factorized(X0, u, TS)[3]
