@@ -34,8 +34,14 @@ def threads(monkeypatch):
 
 @pytest.fixture
 def compiled():
-    if not hasattr(native_module(), "stage_jacobians"):
-        pytest.skip("the compiled core has no stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    """The compiled stage loop, on the threads asked even on a loaded machine (which would otherwise run
+    the stages on one thread, ThreadPool::free_cores, and leave the helpers untested)."""
+    module = native_module()
+    if not hasattr(module, "adapt_threads"):
+        pytest.skip("the compiled core has no threaded stage_jacobians (PARALLEL_GPC_NATIVE=0 or an older build)")
+    module.adapt_threads(False)
+    yield
+    module.adapt_threads(True)
 
 
 @pytest.fixture(scope="module")

@@ -180,8 +180,8 @@ void stages_threaded(ModelUpdate &self, const std::vector<const Warm *> &bases, 
 /// ((K − start)·n_x, n_x): rows (i − start)·n_x … hold ∂Φ/∂X at (X(i), u(i)), i = start..K−1; the y-columns
 /// of ∂Z by forward differences along the tangent with step h_j = step·max(1, |y_j(i)|) (the Python rule).
 /// On self.threads threads when every stage has its base in the last pre-simulation (then the stages are
-/// independent), else one after the other on one (a stage without a base starts its assembly's Newton from
-/// the stage before).
+/// independent) and the machine has cores free for them, else one after the other on one (a stage without a
+/// base starts its assembly's Newton from the stage before).
 RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, long start) {
   const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y;
   if (u.shape(1) != size_t(m) || X.shape(1) != size_t(n) || X.shape(0) < size_t(K))
@@ -198,7 +198,8 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
     if (i < static_cast<long>(sim.size()) && sim[i].y == y) bases[i - start] = &sim[i];
     all = all && bases[i - start] != nullptr;
   }
-  const int threads = static_cast<int>(std::min<long>(self.threads, K - start));
+  // no more threads than stages, nor helpers than the machine has free cores now (ThreadPool::free_cores)
+  const int threads = static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
   if (all && threads > 1) {
     stages_threaded(self, bases, X.data(), u.data(), Ts, step, start, K, threads, J.data());
     return J;
@@ -211,6 +212,9 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
 }  // namespace
 
 void bind_stage_jacobian(nb::module_ &m) {
+  m.def("adapt_threads", &ThreadPool::adapt, nb::arg("on"),
+        "True (the default): the per-stage loops run on no more helper threads than the machine has free cores "
+        "at the call (/proc/loadavg); False: on the threads asked, whatever the load (tests, benchmarks)");
   m.def("stage_jacobians", &stage_jacobians, nb::arg("update"), nb::arg("X_seq"), nb::arg("u_seq"), nb::arg("Ts"),
         nb::arg("step"), nb::arg("start") = 0,
         "((K − start)·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), start ≤ i < K: the Fréchet "

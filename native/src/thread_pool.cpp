@@ -1,12 +1,58 @@
 // The persistent worker threads of the compiled per-stage loops (thread_pool.hpp).
 #include "thread_pool.hpp"
 
+#include <atomic>
+#include <chrono>
+#include <climits>
+#include <cstdio>
 #include <exception>
 #include <thread>
 
+#include <sched.h>
 #include <unistd.h>
 
 namespace pgpc {
+
+namespace {
+std::atomic<bool> adapting{true};
+std::atomic<long> sampled_at{LONG_MIN};  // steady clock, µs
+std::atomic<int> sampled_free{INT_MAX};
+
+int runnable_tasks() {  // of /proc/loadavg ("0.52 0.58 0.59 3/146 9061"), or -1
+  std::FILE *f = std::fopen("/proc/loadavg", "r");
+  if (f == nullptr) return -1;
+  double a, b, c;
+  int running = -1, total = 0;
+  if (std::fscanf(f, "%lf %lf %lf %d/%d", &a, &b, &c, &running, &total) != 5) running = -1;
+  std::fclose(f);
+  return running;
+}
+
+int usable_cpus() {
+  cpu_set_t set;
+  if (sched_getaffinity(0, sizeof(set), &set) == 0) return CPU_COUNT(&set);
+  const unsigned n = std::thread::hardware_concurrency();
+  return n > 0 ? static_cast<int>(n) : 1;
+}
+}  // namespace
+
+int ThreadPool::free_cores() {
+  if (!adapting.load(std::memory_order_relaxed)) return INT_MAX;
+  const long now = std::chrono::duration_cast<std::chrono::microseconds>(
+                       std::chrono::steady_clock::now().time_since_epoch()).count();
+  if (now - sampled_at.load(std::memory_order_relaxed) < 10000) return sampled_free.load(std::memory_order_relaxed);
+  static const int cpus = usable_cpus();
+  const int running = runnable_tasks();
+  const int free = running < 0 ? INT_MAX : cpus - running;  // the caller is one of the running
+  sampled_free.store(free, std::memory_order_relaxed);
+  sampled_at.store(now, std::memory_order_relaxed);
+  return free;
+}
+
+void ThreadPool::adapt(bool on) {
+  adapting.store(on);
+  sampled_at.store(LONG_MIN);
+}
 
 ThreadPool &ThreadPool::shared() {
   static std::mutex made;

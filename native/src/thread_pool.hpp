@@ -20,6 +20,13 @@ class ThreadPool {
   // leaves a helper thread ends the process); task(0)'s is rethrown after the helpers are done. Concurrent
   // calls take turns
   void run(int helpers, const std::function<void(int)> &task);
+  // the cores free for helpers now: the CPUs this process may run on less the runnable tasks of the machine
+  // (/proc/loadavg's fourth field, which counts the calling thread), sampled at most every 10 ms; a large
+  // number where that cannot be read, or while adapt(false). A helper that has no core to itself makes a
+  // call slower, not faster: the caller waits for it whenever the machine preempts it within a stage
+  static int free_cores();
+  // false: free_cores() does not look at the machine (tests that must exercise the helpers; benchmarks)
+  static void adapt(bool on);
   ThreadPool(const ThreadPool &) = delete;
   ThreadPool &operator=(const ThreadPool &) = delete;
 
