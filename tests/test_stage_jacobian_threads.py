@@ -187,3 +187,26 @@ def test_the_thread_count_is_read_once(threads, compiled, robot4, monkeypatch):
     assert native_update.compiled_threads() == 2
     ReducedModel(robot4).discrete(np.r_[robot4.home_pose, np.zeros(robot4.n_y)], TS)
 
+
+
+def _child_jacobians(model, traj, u, queue):
+    queue.put(model.stage_jacobians(traj, u, TS))
+
+
+def test_a_forked_child_makes_its_own_threads(threads, compiled):
+    """The pool's threads do not exist in a forked child (multiprocessing's fork, a sweep's workers): the
+    child's threaded call runs (on a pool of its own) and gives the parent's numbers."""
+    import multiprocessing
+    robot = ParallelRobot.load("planar_4rrr")
+    X0, u = _move(robot, 9)
+    threads(2)
+    model = ReducedModel(robot)
+    traj = model.simulate_factorized(X0, u, TS)[3]
+    J = model.stage_jacobians(traj, u, TS)  # the parent's pool is running
+    context = multiprocessing.get_context("fork")
+    queue = context.Queue()
+    child = context.Process(target=_child_jacobians, args=(model, traj, u, queue))
+    child.start()
+    J_child = queue.get(timeout=120)
+    child.join(timeout=60)
+    assert child.exitcode == 0 and np.array_equal(J_child, J)

@@ -8,8 +8,15 @@
 #include <exception>
 #include <thread>
 
-#include <sched.h>
+#if defined(_WIN32)
+#include <process.h>
+#define getpid _getpid
+#else
 #include <unistd.h>
+#endif
+#if defined(__linux__)
+#include <sched.h>
+#endif
 
 namespace pgpc {
 
@@ -18,7 +25,7 @@ std::atomic<bool> adapting{true};
 std::atomic<long> sampled_at{LONG_MIN};  // steady clock, µs
 std::atomic<int> sampled_free{INT_MAX};
 
-int runnable_tasks() {  // of /proc/loadavg ("0.52 0.58 0.59 3/146 9061"), or -1
+int runnable_tasks() {  // of /proc/loadavg ("0.52 0.58 0.59 3/146 9061"), or -1 (not Linux)
   std::FILE *f = std::fopen("/proc/loadavg", "r");
   if (f == nullptr) return -1;
   double a, b, c;
@@ -29,8 +36,10 @@ int runnable_tasks() {  // of /proc/loadavg ("0.52 0.58 0.59 3/146 9061"), or -1
 }
 
 int usable_cpus() {
+#if defined(__linux__)
   cpu_set_t set;
   if (sched_getaffinity(0, sizeof(set), &set) == 0) return CPU_COUNT(&set);
+#endif
   const unsigned n = std::thread::hardware_concurrency();
   return n > 0 ? static_cast<int>(n) : 1;
 }
@@ -57,11 +66,11 @@ void ThreadPool::adapt(bool on) {
 ThreadPool &ThreadPool::shared() {
   static std::mutex made;
   static ThreadPool *pool = nullptr;  // never deleted: no join at exit, while the interpreter winds down
-  static pid_t owner = 0;
+  static long owner = 0;
   std::lock_guard<std::mutex> lock(made);
-  if (pool == nullptr || owner != getpid()) {  // a forked child: the parent's pool is left as it is
+  if (pool == nullptr || owner != static_cast<long>(getpid())) {  // a forked child: the parent's pool is left as it is
     pool = new ThreadPool();
-    owner = getpid();
+    owner = static_cast<long>(getpid());
   }
   return *pool;
 }
