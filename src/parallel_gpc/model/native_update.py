@@ -147,6 +147,8 @@ def compiled_model_update(robot):
         InvalidParameterError: ``PARALLEL_GPC_THREADS`` is not a valid thread count.
     """
     task = robot.task_output
+    threads = compiled_threads()  # validated even where the compiled core predates the threads (one thread)
+    threaded = {"threads": threads} if hasattr(native_module(), "adapt_threads") else {}
     return compiled_part(True, "ModelUpdate", "the compiled model update")(
         model=robot.model.saveToString(),
         closure_frames=[(int(fa), int(fb)) for fa, fb, _ in robot.closure_frames],
@@ -159,7 +161,7 @@ def compiled_model_update(robot):
         branch_q=robot.branch_q_indices, branch=robot.home_branch,
         q_home=robot.q_home, bias_symmetric=bool(robot.bias_symmetric),
         universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
-        degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot), threads=compiled_threads(),
+        degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot), **threaded,
     )
 
 
