@@ -22,7 +22,7 @@ namespace pgpc {
 
 namespace {
 std::atomic<bool> adapting{true};
-std::atomic<long> sampled_at{LONG_MIN};  // steady clock, µs
+std::atomic<long> sampled_at{-1};  // steady clock, µs; −1: not sampled
 std::atomic<int> sampled_free{INT_MAX};
 
 int runnable_tasks() {  // of /proc/loadavg ("0.52 0.58 0.59 3/146 9061"), or -1 (not Linux)
@@ -49,7 +49,8 @@ int ThreadPool::free_cores() {
   if (!adapting.load(std::memory_order_relaxed)) return INT_MAX;
   const long now = std::chrono::duration_cast<std::chrono::microseconds>(
                        std::chrono::steady_clock::now().time_since_epoch()).count();
-  if (now - sampled_at.load(std::memory_order_relaxed) < 10000) return sampled_free.load(std::memory_order_relaxed);
+  const long at = sampled_at.load(std::memory_order_relaxed);
+  if (at >= 0 && now - at < 10000) return sampled_free.load(std::memory_order_relaxed);
   static const int cpus = usable_cpus();
   const int running = runnable_tasks();
   const int free = running < 0 ? INT_MAX : cpus - running;  // the caller is one of the running
@@ -60,7 +61,7 @@ int ThreadPool::free_cores() {
 
 void ThreadPool::adapt(bool on) {
   adapting.store(on);
-  sampled_at.store(LONG_MIN);
+  sampled_at.store(-1);
 }
 
 ThreadPool &ThreadPool::shared() {
