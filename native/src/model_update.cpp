@@ -18,8 +18,10 @@
 
 namespace pgpc {
 
-ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::object handler)
-    : cfg(std::move(cfg_)), kin(load_model(model_str), cfg), handler_(std::move(handler)) {
+ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::object handler, int threads_)
+    : cfg(std::move(cfg_)), kin(load_model(model_str), cfg), threads(threads_), handler_(std::move(handler)),
+      model_str_(model_str) {
+  if (threads < 1) throw std::invalid_argument("ModelUpdate: threads must be >= 1");
   n_y = cfg.n_y;
   n_u = cfg.n_u;
   n_x = 2 * n_y;
@@ -36,6 +38,12 @@ ModelUpdate::ModelUpdate(const std::string &model_str, RobotConfig cfg_, nb::obj
   aug_.block(0, n_y, n_y, n_y).setIdentity();
   expm_.set_table(cfg.degree_norms);
   christoffel_ = christoffel_coriolis(kin.model);
+}
+
+ModelUpdate &ModelUpdate::worker(int k) {
+  if (static_cast<int>(workers_.size()) <= k) workers_.resize(k + 1);
+  if (!workers_[k]) workers_[k] = std::make_unique<ModelUpdate>(model_str_, cfg, handler_);
+  return *workers_[k];
 }
 
 void ModelUpdate::reset() {
@@ -70,7 +78,8 @@ void ModelUpdate::solve_reduced(const Eigen::Ref<const Mat> &A, const Eigen::Ref
     small_solve::llt_solve(llt_, B, out);
     return;
   }
-  // not numerically SPD: the Python solve (LU, or LinAlgError)
+  // not numerically SPD: the Python solve (LU, or LinAlgError); a worker thread takes the GIL for it
+  nb::gil_scoped_acquire gil;
   out = nb::cast<Mat>(handler_.attr("spd_solve")(Mat(A), Mat(B)));
 }
 
@@ -221,7 +230,7 @@ ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>>
                   std::vector<long> z_idx, std::vector<long> drive_idx, long task_frame,
                   std::vector<long> task_rows, Eigen::Matrix3d R_ref, std::vector<long> branch_q, Vec branch,
                   Vec q_home, bool bias_symmetric, std::vector<std::array<long, 2>> universal,
-                  std::vector<double> degree_norms, nb::object handler) {
+                  std::vector<double> degree_norms, nb::object handler, int threads) {
   RobotConfig c;
   c.closure_frames = std::move(closure_frames);
   c.jac_rows = std::move(jac_rows);
@@ -240,18 +249,24 @@ ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>>
   c.bias_symmetric = bias_symmetric;
   c.universal = std::move(universal);
   c.degree_norms = std::move(degree_norms);
-  return new ModelUpdate(model_str, std::move(c), std::move(handler));
+  return new ModelUpdate(model_str, std::move(c), std::move(handler), threads);
 }
 // the instance holds a Python object (the validated path): let the cyclic GC see and break it
 int traverse(PyObject *self, visitproc visit, void *arg) {
   Py_VISIT(Py_TYPE(self));
   if (!nb::inst_ready(self)) return 0;
-  Py_VISIT(nb::inst_ptr<ModelUpdate>(self)->handler().ptr());
+  ModelUpdate *update = nb::inst_ptr<ModelUpdate>(self);
+  Py_VISIT(update->handler().ptr());
+  for (const auto &w : update->workers())  // each holds a reference of its own
+    if (w) Py_VISIT(w->handler().ptr());
   return 0;
 }
 
 int clear(PyObject *self) {
-  nb::inst_ptr<ModelUpdate>(self)->handler() = nb::none();
+  ModelUpdate *update = nb::inst_ptr<ModelUpdate>(self);
+  update->handler() = nb::none();
+  for (const auto &w : update->workers())
+    if (w) w->handler() = nb::none();
   return 0;
 }
 
@@ -268,7 +283,7 @@ void bind_model_update(nb::module_ &m) {
            nb::arg("n_u"), nb::arg("y_q"), nb::arg("y_idx"), nb::arg("z_idx"), nb::arg("drive_idx"),
            nb::arg("task_frame"), nb::arg("task_rows"), nb::arg("R_ref"), nb::arg("branch_q"),
            nb::arg("branch"), nb::arg("q_home"), nb::arg("bias_symmetric"), nb::arg("universal"),
-           nb::arg("degree_norms"), nb::arg("handler"))
+           nb::arg("degree_norms"), nb::arg("handler"), nb::arg("threads") = 1)
       .def("factor_rows", [](ModelUpdate &self, const Vec &X) {
              check_state(self, X);
              return Mat(self.factor_rows(X, nullptr));

@@ -96,7 +96,9 @@ class ModelUpdate {
   friend struct ForwardSolver;
 
  public:
-  ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler);
+  // threads: the threads of the per-stage loops (stage_jacobians), ≥ 1 (validated by the caller,
+  // model/native_update.py: PARALLEL_GPC_THREADS)
+  ModelUpdate(const std::string &model_str, RobotConfig cfg, nb::object handler, int threads = 1);
   // not copyable nor movable: nanobind then compiles no copy/move of the instance (and of Pinocchio's
   // Model and Data inside it), which the Python side never makes (build time, CMakeLists.txt)
   ModelUpdate(const ModelUpdate &) = delete;
@@ -131,10 +133,16 @@ class ModelUpdate {
   const Mat &pinv() const { return pinv_; }
   void reset();
   nb::object &handler() { return handler_; }  // for the cyclic GC (tp_traverse / tp_clear)
+  // the k-th worker (k < threads − 1): a model update of the same robot with its own Pinocchio data and
+  // workspaces, for one thread's share of the independent stages (stage_jacobian.cpp); made on first use
+  // (the GIL held: it shares the handler)
+  ModelUpdate &worker(int k);
+  const std::vector<std::unique_ptr<ModelUpdate>> &workers() const { return workers_; }
 
   RobotConfig cfg;
   Kinematics kin;
   long n_y, n_u, n_x, n_aug, nv, n_z;
+  int threads;
   Vec q_last;
   std::shared_ptr<ForwardSolver> forward_;  // forward kinematics' workspace (forward.cpp), made on first use
 
@@ -166,6 +174,8 @@ class ModelUpdate {
   const Mat &factor_here(const Vec &yd);          // Z_ at q_, T_, pinv_ and ẏ (sets W_)
 
   nb::object handler_;
+  std::string model_str_;  // the model in Pinocchio's serialization: the workers load it
+  std::vector<std::unique_ptr<ModelUpdate>> workers_;
   std::optional<Warm> warm_;
   std::vector<Warm> sim_warm_, sim_next_;
   Vec q_, zero_v_, g_;

@@ -4,9 +4,15 @@
 // (∂E/∂X_k)·[X; u; 1], the second term the Fréchet derivative of the exponential along Ts·∂Z/∂X_k
 // applied to one vector (TopRowsExpmDerivative); ∂Z/∂ẏ exact (Z is linear in ẏ), ∂Z/∂y forward
 // differences of the factor rows Z along the closures' tangent, the velocity map there to first order.
-// The nonlinear MPC iterations (gpc/nmpc.py) linearize with it.
+// The nonlinear MPC iterations (gpc/nmpc.py) linearize with it. The stages are independent given the
+// trajectory and its pre-simulation: they run on the ModelUpdate's threads (thread_pool.hpp), the same
+// numbers bit for bit whatever the split.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
+#include <exception>
+#include <functional>
+#include <mutex>
 #include <stdexcept>
 
 #include <nanobind/eigen/dense.h>
@@ -14,6 +20,7 @@
 
 #include "bindings.hpp"
 #include "model_update.hpp"
+#include "thread_pool.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
 
 namespace pgpc {
@@ -73,59 +80,141 @@ void ModelUpdate::tangent_rates(Mat &P) {
 
 namespace {
 
+// One thread's workspaces of the stage loop: assigned at equal sizes from its second stage on (no allocation).
+struct StageWork {
+  StageWork(const ModelUpdate &self, double Ts)
+      : M_top(Mat::Zero(self.n_x, self.n_aug)),
+        D(self.n_x, Mat::Zero(self.n_x, self.n_aug)),
+        xi(self.n_aug), x(self.n_x), yd(self.n_y), dT(self.n_y), dP(self.n_y) {
+    expm.set_table(self.cfg.degree_norms);
+    M_top.block(0, self.n_y, self.n_y, self.n_y).diagonal().setConstant(Ts);
+    xi[self.n_aug - 1] = 1.0;
+  }
+  TopRowsExpmDerivative expm;
+  Mat M_top, rates, E, dE;
+  std::vector<Mat> D;  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
+  Vec xi, x, q, yd;
+  std::vector<Mat> dT, dP;
+  Mat Zc, T, P, T_s, P_s;
+};
+
+/// ∂Φ/∂X at (x, u) into out (n_x × n_x, row-major), on the model update self (its assembly, Pinocchio data and
+/// workspaces: one per thread); base: x's warm start (the pre-simulation's at x) or null. With a base the
+/// result depends on (x, u, base) alone, not on the stages self computed before: any split of the stages
+/// over threads gives the same numbers.
+void stage_jacobian(ModelUpdate &self, const Warm *base, StageWork &w, const double *x_in, const double *u_in,
+                    double Ts, double step, double *out) {
+  const long n = self.n_x, m = self.n_u, ny = self.n_y, na = self.n_aug;
+  Vec &x = w.x;
+  x = Eigen::Map<const Vec>(x_in, n);
+  w.Zc = self.factor_rates(x, base, w.rates);
+  w.M_top.bottomRightCorner(ny, na - ny) = w.Zc * Ts;
+  for (long j = 0; j < ny; ++j) w.D[ny + j].block(ny, ny, ny, ny) = w.rates.middleCols(j * ny, ny) * Ts;
+  // forward differences along the closures' tangent q + T e_j h (not assembled: the line has the
+  // closures' first derivative; ReducedModel._factor_derivatives), with the first-order velocity map
+  // T + h Ṫ_j, K⁺ + h K̇⁺_j there (Ṫ_j, K̇⁺_j from the rates Φ̇_q(T e_j) that factor_rates left) instead of
+  // a kinematics pass and a factorization of the assembly Jacobian per step
+  w.q = self.q_last;  // X's assembly (factor_rates) and its velocity map
+  w.yd = x.tail(ny);
+  w.T = self.velocity_map();
+  w.P = self.pinv();
+  self.kin.eval_placed();  // Ψ_q at q: factor_rates' rate passes left q's kinematics in the data
+  self.velocity_map_rates(self.kin.jac_, w.T, w.P, self.rate_jacobians(), w.dT, w.dP);
+  for (long j = 0; j < ny; ++j) {
+    const double h = step * std::max(1.0, std::abs(x[j]));
+    w.T_s = w.T + h * w.dT[j];
+    w.P_s = w.P + h * w.dP[j];
+    w.D[j].bottomRightCorner(ny, na - ny) =
+        (self.factor_rows_with(self.kin.integrate(w.q, w.T.col(j) * h), w.T_s, w.P_s, w.yd) - w.Zc) * (Ts / h);
+  }
+  w.xi.head(n) = x;
+  w.xi.segment(n, m) = Eigen::Map<const Vec>(u_in, m);
+  if (!w.expm.run(w.M_top, w.D, w.xi, w.E, w.dE)) {
+    nb::gil_scoped_acquire gil;  // a worker thread's too
+    self.handler().attr("nonfinite")();
+  }
+  Eigen::Map<RowMat>(out, n, n) = w.E.leftCols(n) + w.dE;
+}
+
+/// Stages start..K−2 on self and its workers, threads at once (each its own model update), stage K−1 last on
+/// self (which ends as after the loop on one thread: its warm start is the last stage's); the GIL released.
+/// The stages are handed out one at a time (a thread the machine delays takes fewer); an exception of a stage
+/// is rethrown after all have run, the earliest stage's (the one the loop on one thread would meet).
+void stages_threaded(ModelUpdate &self, const std::vector<const Warm *> &bases, const double *X, const double *u,
+                     double Ts, double step, long start, long K, int threads, double *out) {
+  const long n = self.n_x, m = self.n_u;
+  std::vector<ModelUpdate *> updates{&self};
+  for (int k = 0; k + 1 < threads; ++k) updates.push_back(&self.worker(k));  // the GIL held: made on first use
+  std::atomic<long> next{start};
+  std::mutex failed;
+  long first_failure = K;
+  std::exception_ptr error;
+  const auto fail = [&](long i) {  // i: the stage, start − 1 for a thread's set-up
+    std::lock_guard<std::mutex> lock(failed);
+    if (i < first_failure) first_failure = i, error = std::current_exception();
+  };
+  const auto one = [&](ModelUpdate &update, StageWork &work, long i) {
+    try {
+      stage_jacobian(update, bases[i - start], work, X + i * n, u + i * m, Ts, step, out + (i - start) * n * n);
+    } catch (...) {
+      fail(i);
+    }
+  };
+  const std::function<void(int)> task = [&](int slot) {
+    try {
+      ModelUpdate &update = *updates[slot];
+      StageWork work(update, Ts);
+      for (long i = next++; i < K - 1; i = next++) one(update, work, i);
+      if (slot == 0) one(update, work, K - 1);
+    } catch (...) {
+      fail(start - 1);
+    }
+  };
+  {
+    nb::gil_scoped_release release;
+    ThreadPool::shared().run(threads - 1, task);
+  }
+  if (error) std::rethrow_exception(error);
+}
+
 /// ((K − start)·n_x, n_x): rows (i − start)·n_x … hold ∂Φ/∂X at (X(i), u(i)), i = start..K−1; the y-columns
 /// of ∂Z by forward differences along the tangent with step h_j = step·max(1, |y_j(i)|) (the Python rule).
+/// On self.threads threads when every stage has its base in the last pre-simulation (then the stages are
+/// independent) and the machine has cores free for them, else one after the other on one (a stage without a
+/// base starts its assembly's Newton from the stage before).
 RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, long start) {
-  const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y, na = self.n_aug;
+  const long K = static_cast<long>(u.shape(0)), n = self.n_x, m = self.n_u, ny = self.n_y;
   if (u.shape(1) != size_t(m) || X.shape(1) != size_t(n) || X.shape(0) < size_t(K))
     throw std::invalid_argument("stage_jacobians: X_seq must be (>= K, n_x) and u_seq (K, n_u)");
   if (!(Ts > 0.0) || !(step > 0.0))
     throw std::invalid_argument("stage_jacobians: Ts and step must be > 0");
   if (start < 0 || start > K) throw std::invalid_argument("stage_jacobians: start must be in 0..K");
-  TopRowsExpmDerivative expm;
-  expm.set_table(self.cfg.degree_norms);
   RowMat J((K - start) * n, n);
-  Mat M_top = Mat::Zero(n, na), rates, E, dE;
-  M_top.block(0, ny, ny, ny).diagonal().setConstant(Ts);
-  std::vector<Mat> D(n, Mat::Zero(n, na));  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
-  Vec xi(na), x(n), q, yd(ny);
-  std::vector<Mat> dT(ny), dP(ny);
-  xi[na - 1] = 1.0;
-  Mat Zc, T, P, T_s, P_s;  // workspaces: assigned at equal sizes from the second stage on (no allocation)
   const std::vector<Warm> &sim = self.simulation_warm();  // usually at these very states
+  std::vector<const Warm *> bases(K - start, nullptr);
+  bool all = true;
   for (long i = start; i < K; ++i) {
-    x = Eigen::Map<const Vec>(X.data() + i * n, n);
-    const Warm *base = i < static_cast<long>(sim.size()) && sim[i].y == x.head(ny) ? &sim[i] : nullptr;
-    Zc = self.factor_rates(x, base, rates);
-    M_top.bottomRightCorner(ny, na - ny) = Zc * Ts;
-    for (long j = 0; j < ny; ++j) D[ny + j].block(ny, ny, ny, ny) = rates.middleCols(j * ny, ny) * Ts;
-    // forward differences along the closures' tangent q + T e_j h (not assembled: the line has the
-    // closures' first derivative; ReducedModel._factor_derivatives), with the first-order velocity map
-    // T + h Ṫ_j, K⁺ + h K̇⁺_j there (Ṫ_j, K̇⁺_j from the rates Φ̇_q(T e_j) that factor_rates left) instead of
-    // a kinematics pass and a factorization of the assembly Jacobian per step
-    q = self.q_last;  // X's assembly (factor_rates) and its velocity map
-    yd = x.tail(ny);
-    T = self.velocity_map();
-    P = self.pinv();
-    self.kin.eval_placed();  // Ψ_q at q: factor_rates' rate passes left q's kinematics in the data
-    self.velocity_map_rates(self.kin.jac_, T, P, self.rate_jacobians(), dT, dP);
-    for (long j = 0; j < ny; ++j) {
-      const double h = step * std::max(1.0, std::abs(x[j]));
-      T_s = T + h * dT[j];
-      P_s = P + h * dP[j];
-      D[j].bottomRightCorner(ny, na - ny) =
-          (self.factor_rows_with(self.kin.integrate(q, T.col(j) * h), T_s, P_s, yd) - Zc) * (Ts / h);
-    }
-    xi.head(n) = x;
-    xi.segment(n, m) = Eigen::Map<const Vec>(u.data() + i * m, m);
-    if (!expm.run(M_top, D, xi, E, dE)) self.handler().attr("nonfinite")();
-    J.block((i - start) * n, 0, n, n) = E.leftCols(n) + dE;
+    const Eigen::Map<const Vec> y(X.data() + i * n, ny);
+    if (i < static_cast<long>(sim.size()) && sim[i].y == y) bases[i - start] = &sim[i];
+    all = all && bases[i - start] != nullptr;
   }
+  // no more threads than stages, nor helpers than the machine has free cores now (ThreadPool::free_cores)
+  const int threads = static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
+  if (all && threads > 1) {
+    stages_threaded(self, bases, X.data(), u.data(), Ts, step, start, K, threads, J.data());
+    return J;
+  }
+  StageWork work(self, Ts);
+  for (long i = start; i < K; ++i)
+    stage_jacobian(self, bases[i - start], work, X.data() + i * n, u.data() + i * m, Ts, step, J.data() + (i - start) * n * n);
   return J;
 }
 }  // namespace
 
 void bind_stage_jacobian(nb::module_ &m) {
+  m.def("adapt_threads", &ThreadPool::adapt, nb::arg("on"),
+        "True (the default): the per-stage loops run on no more helper threads than the machine has free cores "
+        "at the call (/proc/loadavg); False: on the threads asked, whatever the load (tests, benchmarks)");
   m.def("stage_jacobians", &stage_jacobians, nb::arg("update"), nb::arg("X_seq"), nb::arg("u_seq"), nb::arg("Ts"),
         nb::arg("step"), nb::arg("start") = 0,
         "((K − start)·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), start ≤ i < K: the Fréchet "

@@ -388,8 +388,10 @@ class ReducedModel:
         visited them, in the compiled core their factorizations too) instead of the 2·n_x
         assembled updates and exponentials of differences of Φ
         (:meth:`stage_jacobians_differences`, the test oracle; they agree to ~3e-9 relative). The
-        compiled core runs all stages in one call (``_native.stage_jacobians``); this method's loop
-        is its reference.
+        compiled core runs all stages in one call (``_native.stage_jacobians``), on
+        ``PARALLEL_GPC_THREADS`` threads when every stage is a state of the last pre-simulation (the
+        stages are then independent: the same numbers bit for bit as on one thread,
+        :func:`~parallel_gpc.model.native_update.compiled_threads`); this method's loop is its reference.
 
         Args:
             X_seq: (≥ K, n_x) states X(0..K−1) (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m);

@@ -9,20 +9,33 @@ converging in a few steps, another branch, a singular K, a non-SPD M_r, NaN/inf)
 into :class:`_ValidatedPath`, the pure-Python code, which raises the package's errors
 (:class:`~parallel_gpc.errors.UnreachablePoseError`, :class:`~parallel_gpc.errors.SingularPoseError`,
 :class:`~parallel_gpc.errors.NonFiniteError`) exactly as the Python model does.
+
+Its per-stage loop of stage Jacobians runs on ``PARALLEL_GPC_THREADS`` threads (:func:`compiled_threads`;
+default min(2, available cores), 1 = one thread): the stages are independent given the trajectory, each
+thread has its own Pinocchio data, and the numbers are the same bit for bit as on one thread.
 """
 
 from __future__ import annotations
 
+import os
+from functools import lru_cache
+
 import numpy as np
 
-from ..errors import NonFiniteError, SingularPoseError
+from ..errors import InvalidParameterError, NonFiniteError, SingularPoseError
 from ..validation import rounded
 from .discretization import DEGREE_NORMS
 from .forward import CompiledForward, assemble_validated
 from .linalg import spd_solve
 from .native import compiled_part, native_module, native_status
 
-__all__ = ["compiled_forward", "compiled_model_update", "forward_status", "model_update_status", "use_native"]
+__all__ = ["available_cores", "compiled_forward", "compiled_model_update", "compiled_threads", "forward_status",
+           "model_update_status", "thread_count", "use_native"]
+
+#: environment variable: the threads of the compiled model update's per-stage loops (read once per process)
+THREADS_ENV = "PARALLEL_GPC_THREADS"
+#: the most threads it may ask for (each holds its own copy of the robot's Pinocchio data)
+MAX_THREADS = 64
 
 
 class _ValidatedPath:
@@ -56,6 +69,41 @@ class _ValidatedPath:
     @staticmethod
     def spd_solve(A: np.ndarray, B: np.ndarray) -> np.ndarray:
         return spd_solve(A, B)
+
+
+def available_cores() -> int:
+    """The CPU cores this process may run on (its affinity mask where the platform has one)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def thread_count(value: str | None) -> int:
+    """The thread count that ``PARALLEL_GPC_THREADS = value`` asks for: min(2, available cores) when
+    unset or blank, else the whole number itself (1 = one thread).
+
+    Raises:
+        InvalidParameterError: value is not a whole number in 1..MAX_THREADS.
+    """
+    if value is None or not value.strip():
+        return min(2, available_cores())
+    text = value.strip()
+    if not (text.isascii() and text.isdigit()) or not 1 <= int(text) <= MAX_THREADS:
+        raise InvalidParameterError(f"{THREADS_ENV} = {value!r}; valid: a whole number 1..{MAX_THREADS} "
+                                    f"(1: one thread; unset: min(2, available cores) = {min(2, available_cores())})")
+    return int(text)
+
+
+@lru_cache(maxsize=1)
+def compiled_threads() -> int:
+    """The threads of the compiled per-stage loops (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`):
+    :func:`thread_count` of ``PARALLEL_GPC_THREADS``, read once per process (at the first compiled model update).
+
+    Raises:
+        InvalidParameterError: the variable is set to anything but a whole number in 1..MAX_THREADS.
+    """
+    return thread_count(os.environ.get(THREADS_ENV))
 
 
 def _output_q_indices(robot) -> list[int]:
@@ -92,8 +140,15 @@ def use_native(native=None) -> bool:
 
 def compiled_model_update(robot):
     """The ``_native.ModelUpdate`` of ``robot`` (the compiled core must be available, see
-    :func:`use_native`): the model in Pinocchio's serialization and the robot's index tables."""
+    :func:`use_native`): the model in Pinocchio's serialization, the robot's index tables and the
+    threads of its per-stage loops (:func:`compiled_threads`).
+
+    Raises:
+        InvalidParameterError: ``PARALLEL_GPC_THREADS`` is not a valid thread count.
+    """
     task = robot.task_output
+    threads = compiled_threads()  # validated even where the compiled core predates the threads (one thread)
+    threaded = {"threads": threads} if hasattr(native_module(), "adapt_threads") else {}
     return compiled_part(True, "ModelUpdate", "the compiled model update")(
         model=robot.model.saveToString(),
         closure_frames=[(int(fa), int(fb)) for fa, fb, _ in robot.closure_frames],
@@ -106,7 +161,7 @@ def compiled_model_update(robot):
         branch_q=robot.branch_q_indices, branch=robot.home_branch,
         q_home=robot.q_home, bias_symmetric=bool(robot.bias_symmetric),
         universal=[(int(j), int(i)) for j, i in robot.universal_joints.columns],
-        degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot),
+        degree_norms=list(DEGREE_NORMS), handler=_ValidatedPath(robot), **threaded,
     )
 
 
