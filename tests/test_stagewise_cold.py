@@ -79,7 +79,8 @@ def test_long_horizon_cold_and_warm_steps_reach_daqp(form):
             v_daqp = x_daqp[:full.n_decision]
             scale = max(objective(full, np.zeros_like(v)), 1e-300)
             assert abs(objective(full, v) - objective(full, v_daqp)) <= 1e-10 * scale
-            assert np.abs(v - v_daqp).max() <= PLAN_TOL[form] * np.abs(v_daqp).max()
+            # on the inputs' scale τ: the nonlinear form's v (increments over the pre-simulated plan) can be ~1e-14
+            assert np.abs(v - v_daqp).max() <= PLAN_TOL[form] * max(np.abs(v_daqp).max(), tau)
     assert compared >= 1  # DAQP's own check fails on the nonlinear form's warm steps here (the KKT check stands)
 
 
