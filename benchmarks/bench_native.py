@@ -24,8 +24,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from parallel_gpc import (  # noqa: E402
-    ConstrainedPlant, GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights,
+    GPCController, Horizons, ParallelRobot, ReducedModel, SCurve, Weights,
 )
+
+from closed_loop import closed_loop_steps  # noqa: E402
 
 TS = 0.002
 N = 20
@@ -72,14 +74,7 @@ def controller_step_times(form: str, native: bool, steps: int = 300, warmup: int
     robot = ParallelRobot.load("planar_4rrr")
     ref = SCurve()
     ctl = GPCController.build(ReducedModel(robot, native=native), TS, Horizons(N), Weights(1.0, 1e-5), form=form)
-    plant = ConstrainedPlant(robot, np.concatenate([ref.pose(0.0), np.zeros(robot.n_y)]), Ts=TS)
-    times = []
-    for k in range(steps):
-        w = ref.window(k * TS, TS, N)
-        t0 = clock()
-        info = ctl.step(plant.X, w)
-        times.append(clock() - t0)
-        plant.step(info.u)
+    times, _ = closed_loop_steps(robot, ref, ctl, N, steps, clock, TS)
     return _median_us(times[warmup:])
 
 

@@ -39,6 +39,8 @@ from parallel_gpc.model.dynamics import ReducedModel
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.model.robot import ParallelRobot
 
+from closed_loop import closed_loop_steps
+
 TS = 0.002
 WEIGHTS = Weights(1.0, 1e-5)
 
@@ -92,24 +94,6 @@ def run_case(name: str, N: int, reps: int, samples: int) -> None:
               f"max|u − u_qr|/max|u_qr| = {diff:.1e}")
 
 
-def _closed_loop(robot, ref, ctl, N: int, samples: int, clock, on_step=None) -> tuple[list, np.ndarray]:
-    """(step times (s, by ``clock``), applied inputs (samples, m)) of ``ctl`` (reset first) in closed loop
-    on the full plant from the reference's initial state; ``on_step(k, ctl)`` after each step."""
-    ctl.reset()
-    plant = ConstrainedPlant(robot, ref.initial_state(), Ts=TS)
-    times, us = [], []
-    for k in range(samples):
-        w = ref.window(k * TS, TS, N)
-        t0 = clock()
-        info = ctl.step(plant.X, w)
-        times.append(clock() - t0)
-        us.append(info.u)
-        if on_step is not None:
-            on_step(k, ctl)
-        plant.step(info.u)
-    return times, np.array(us)
-
-
 def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: list[str],
                 clock=time.perf_counter, closed_loop: bool = False) -> None:
     """``--limited``: the torque-limited step (τ = half the unconstrained run's largest |u|) with
@@ -130,7 +114,7 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
         for form in forms:
             free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
             if closed_loop:
-                tau = 0.5 * np.abs(_closed_loop(robot, ref, free, N, samples, clock)[1]).max()
+                tau = 0.5 * np.abs(closed_loop_steps(robot, ref, free, N, samples, clock, TS)[1]).max()
             else:
                 tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
             configs = {"unconstrained riccati": free}
@@ -151,7 +135,7 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
                 for key, ctl in configs.items():
                     on_step = count if key == "limited riccati" else None
                     if closed_loop:
-                        t, us[key] = _closed_loop(robot, ref, ctl, N, samples, clock, on_step)
+                        t, us[key] = closed_loop_steps(robot, ref, ctl, N, samples, clock, TS, on_step)
                         times[key] += t
                         continue
                     ctl.reset()
