@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from parallel_gpc import ParallelRobot, ReducedModel, cli, load_result
-from parallel_gpc.errors import SingularPoseError, UnreachablePoseError
+from parallel_gpc.errors import FastStateError, InvalidParameterError, SingularPoseError, UnreachablePoseError
 from parallel_gpc.gpc.controller import GPCController
 from parallel_gpc.gpc.criterion import Weights
 from parallel_gpc.gpc.prediction import Horizons
@@ -84,6 +84,33 @@ def test_a_controller_failing_mid_run_keeps_the_samples_before(r4, monkeypatch):
     assert res.diverged and len(res.t) == 5
     assert res.stopped.startswith(f"closed loop diverged at t = {5 * TS:g} s after 5 of 20 samples")
     assert "(cause: SingularPoseError: near-singular pose (test))" in res.stopped
+
+
+def test_a_state_too_fast_for_the_one_sample_model_mid_run_is_a_divergence(r4, monkeypatch):
+    """The controller's conditioning check names a velocity that makes the one-sample model
+    near-singular (FastStateError): a measurement error at the first state — raised, an
+    InvalidParameterError —, a divergence mid-run (a plant moving too fast through a near-singular
+    region: seen on a five-bar with a tight torque limit), whose samples before are kept."""
+    ctrl = controller(r4)
+    real, calls = ctrl.step, []
+
+    def step(X, w):
+        calls.append(1)
+        if len(calls) in (1, 6) and fast[0] == len(calls):
+            X = X.copy()
+            X[r4.n_y] = 1e5  # m/s: the one-sample model's gain is near-singular at this velocity only
+        return real(X, w)
+
+    monkeypatch.setattr(ctrl, "step", step)
+    fast = [6]
+    res = simulate(ctrl, ReducedPlant(r4, X_HOME, Ts=TS), TARGET, 0.1, progress=False)
+    assert res.diverged and len(res.t) == 5
+    assert "(cause: FastStateError: measured velocity" in res.stopped and "too fast" in res.stopped
+    fast[0], calls[:] = 1, []
+    ctrl.reset()
+    with pytest.raises(InvalidParameterError, match="measured velocity") as info:
+        simulate(ctrl, ReducedPlant(r4, X_HOME, Ts=TS), TARGET, 0.1, progress=False)
+    assert isinstance(info.value, FastStateError) and isinstance(info.value, SingularPoseError)
 
 
 def test_a_failure_before_the_first_sample_is_raised(r4, monkeypatch):

@@ -15,6 +15,7 @@ import pytest
 from parallel_gpc.limits import Limits
 from parallel_gpc import ParallelRobot, ReducedModel, cli
 from parallel_gpc.errors import (
+    FastStateError,
     InvalidParameterError,
     NonFiniteError,
     OutputError,
@@ -257,6 +258,7 @@ def test_a_huge_velocity_is_named_not_called_a_singular_pose(robot4):
     with pytest.raises(InvalidParameterError, match=r"measured velocity \[100000.0, 0.0, 0.0\]") as info:
         c.step(np.r_[0.5, 0.5, 0.0, 1e5, 0.0, 0.0], np.tile([0.5, 0.5, 0.0], (5, 1)))
     assert "at rest" in str(info.value) and "singular" not in str(info.value)
+    assert isinstance(info.value, FastStateError)  # also a SingularPoseError: a closed loop keeps its samples
 
 
 # ---------------------------------------------------------------------------- 12. console noise

@@ -54,6 +54,13 @@ class NonFiniteError(InvalidParameterError):
     """A state, measurement or input contains NaN or infinity."""
 
 
+class FastStateError(SingularPoseError, InvalidParameterError):
+    """The pose is fine at rest, but the measured velocity makes the one-sample model near-singular:
+    a measurement or unit error when it is the first state a controller sees; in a closed loop, a
+    plant moving too fast through a near-singular region for its sample time (the run diverged:
+    a :class:`SingularPoseError`, so the loops keep the samples before it)."""
+
+
 class SensorError(InvalidParameterError):
     """A drive reading (or a plant's measurement) is NaN, out of the drive's range, inconsistent
     with every pose, or of the wrong kind; the message names the drive."""

@@ -14,7 +14,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 from scipy.linalg import lapack
 
-from ..errors import InvalidParameterError, SingularPoseError
+from ..errors import FastStateError, SingularPoseError
 from ..model import compiled_part
 
 
@@ -124,8 +124,9 @@ def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_conditi
         max_condition: largest accepted condition number. Ts: sample time (s).
 
     Raises:
-        InvalidParameterError: the pose is fine at rest, the measured velocity is what makes the
-            one-sample model near-singular (a measurement or unit error).
+        FastStateError: the pose is fine at rest, the measured velocity is what makes the one-sample
+            model near-singular (a measurement or unit error, or a closed loop that diverged; both an
+            InvalidParameterError and a SingularPoseError).
         SingularPoseError: the pose itself is near-singular.
     """
     cond = condition_number(gain)
@@ -136,10 +137,11 @@ def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_conditi
         rest = np.concatenate([X[:n_y], np.zeros(n_y)])
         at_rest = condition_number(rule(model.discrete(rest, Ts)[1]))
         if at_rest <= max_condition:
-            raise InvalidParameterError(
+            raise FastStateError(
                 f"measured velocity {np.asarray(X[n_y:]).tolist()} is too large for the one-sample model at "
                 f"pose {np.round(X[:n_y], 6).tolist()}: cond(g) = {cond:.3g} at this velocity, {at_rest:.3g} "
-                f"at rest (max_condition = {max_condition:.3g}); check the measurement and its units")
+                f"at rest (max_condition = {max_condition:.3g}); check the measurement and its units (in a closed "
+                f"loop: the plant moves too fast here for Ts = {Ts:g} s)")
     raise SingularPoseError(
         f"near-singular pose {np.round(X[:n_y], 6).tolist()}: cond(g) = cond(M_r⁻¹ B_r) = {cond:.3g} "
         f"> max_condition = {max_condition:.3g}; the drives cannot move the platform in some "
