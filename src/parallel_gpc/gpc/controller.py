@@ -345,8 +345,8 @@ class GPCController:
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
         pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
-        if gain is not None and not self._condition(gain) <= self.max_condition:  # SingularPoseError at a
-            check_conditioning(self.model, self._gain, X, gain, self.max_condition, self.Ts)  # near-singular pose
+        if gain is not None:  # SingularPoseError at a near-singular pose
+            check_conditioning(self.model, self._gain, X, self._condition(gain), self.max_condition, self.Ts)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
         result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)

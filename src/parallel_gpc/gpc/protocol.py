@@ -111,7 +111,7 @@ def _velocity_rows(n_y: int):
     return gain
 
 
-def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_condition: float, Ts: float) -> None:
+def check_conditioning(model, rule, X: np.ndarray, cond: float, max_condition: float, Ts: float) -> None:
     """Raise :class:`~parallel_gpc.errors.SingularPoseError` when the input gain at X is near-singular.
 
     For a robot, ``gain = B_d[n_y:]`` ≈ Ts·g with g = M_r⁻¹ B_r of eq. (1); its condition
@@ -120,7 +120,8 @@ def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_conditi
 
     Args:
         model: the controller's model; rule: the gain rule of :func:`conditioning_rule`.
-        X: (n_x,) measured state; gain: the checked gain at X.
+        X: (n_x,) measured state; cond: the condition number of the checked gain at X (the
+            controller's :func:`condition_function` of it; NaN fails like inf).
         max_condition: largest accepted condition number. Ts: sample time (s).
 
     Raises:
@@ -129,7 +130,6 @@ def check_conditioning(model, rule, X: np.ndarray, gain: np.ndarray, max_conditi
             InvalidParameterError and a SingularPoseError).
         SingularPoseError: the pose itself is near-singular.
     """
-    cond = condition_number(gain)
     if cond <= max_condition:
         return
     n_y, n_x = model.n_y, model.n_x
