@@ -97,6 +97,30 @@ def test_iterations_decrease_the_true_cost_to_a_stationary_point(robot4):
     assert np.abs(g).max() <= 1e-6 * max(g0, costs[-1])
 
 
+def test_a_step_below_rounding_is_not_tried_shorter(robot4, monkeypatch):
+    """A Gauss–Newton step whose model decrease is below rounding (tolerance 1e-12: the steps reach
+    it) gets one trial, the full step: rejected, the iterations stop converged (J flat) without the
+    halvings, each of which only measures rounding (before: 12 more rollouts of the same J)."""
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    ctrl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=50,
+                               tolerance=1e-12, disturbance_gain=0.0)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+    rollouts, costs, rollout = [], [], ctrl._nmpc._rollout
+
+    def counted(*args):
+        out = rollout(*args)
+        rollouts.append(args[4].copy())
+        costs.append(out[3])
+        return out
+    monkeypatch.setattr(ctrl._nmpc, "_rollout", counted)
+    info = ctrl.step(X, np.tile(target, (N, 1)))
+    assert info.iterations > 2 and info.residual > 1e-12  # stopped by the flat line search, not the step rule
+    assert info.residual <= 1e-6
+    assert len(rollouts) == info.iterations  # one trial per line search: the last one's full step, rejected
+    assert costs[-1] == pytest.approx(info.result.cost, rel=1e-10)  # the rejected trial's J is J(v) to rounding
+
+
 def test_a_terminal_weight_enters_the_true_cost(robot4):
     """Qf weighs the last output in the cost the line search measures and the step reports, as in
     every Gauss–Newton subproblem: the converged plan's cost is the rolled-out J with it."""

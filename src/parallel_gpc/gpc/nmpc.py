@@ -53,7 +53,8 @@ of the problem the Gauss–Newton step is zero: the subproblem's KKT conditions 
 problem's; the accepted plan v is kept, and v⁺, within the tolerance of it, is not rolled out —
 a line search on a step that small only measures rounding), the iteration limit, a failed line
 search or solve (the last accepted plan is kept; a failed line search whose model decrease is
-below rounding, 1e-12·J, counts as converged), or the time budget (the next iteration would end
+below rounding, 1e-12·J, counts as converged: such a line search tries the full step alone, as a shorter
+one's J differs from J(v) by rounding only), or the time budget (the next iteration would end
 past it).
 """
 
@@ -338,6 +339,9 @@ class NMPCIterations:
             else:
                 decrease = max(self._model_merit(y_lin, lin_rows, w, v)
                                - self._model_merit(y_lin + gain(delta), lin_rows, w, v_new), 0.0)
+            # a model decrease below rounding: a rejected full step is not tried shorter (every shorter trial's J
+            # differs from J(v) by rounding alone: measured 13 rollouts of the same J to 1e-12 at an active limit)
+            flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
@@ -353,9 +357,10 @@ class NMPCIterations:
                         or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
                     accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
                     break
+                if flat:
+                    break
                 alpha *= 0.5
             if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
-                flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
             v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
