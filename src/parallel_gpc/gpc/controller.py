@@ -154,7 +154,8 @@ class GPCController:
         self._replacement = None
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
-            self._drives, riccati_steps(settings, criterion, self.model.C), self._qp_limits)
+            self._drives, riccati_steps(settings, criterion, self.model.C), self._qp_limits,
+            self._limit_gap)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property

@@ -72,7 +72,6 @@ from ..solvers import SolveResult
 from .constraints import (STATE_TOL, ConstraintReport, ConstraintRows, DriveKinematics, constrain, hard_excess,
                           hard_violation, report_at, split, stage_constraints)
 from .criterion import Criterion
-from .fallback import limit_gap
 from .prediction import Prediction, deviation_gain, deviation_response
 from .riccati import RiccatiSolver
 from .settings import GPCSettings, iterations_by_riccati
@@ -153,6 +152,9 @@ class NMPCIterations:
         qp_limits: the limits the steps' problems hold (``limits`` tightened by the controller's
             margin), or None: with ``riccati`` and a torque or Δu limit, the steps are solved by the
             stage-wise active set (:attr:`stagewise`).
+        gap: the controller's :func:`~parallel_gpc.gpc.fallback.limit_gap` of ``limits`` and ``qp_limits``
+            (N·m): a limited step whose rows the active set verified within it keeps the true limits
+            (default 0: none beyond its bounds; the others go to the condensed problem).
 
     Attributes:
         stagewise: the :class:`~parallel_gpc.gpc.stagewise.StagewiseSolver` of the limited steps, or None.
@@ -160,14 +162,14 @@ class NMPCIterations:
 
     def __init__(self, model, criterion: Criterion, Ts: float, iterations: int, tolerance: float,
                  time_budget: float | None, limits: Limits | None = None, drives: DriveKinematics | None = None,
-                 riccati: RiccatiSolver | None = None, qp_limits: Limits | None = None):
+                 riccati: RiccatiSolver | None = None, qp_limits: Limits | None = None, gap: float = 0.0):
         self.model, self.criterion, self.Ts = model, criterion, Ts
         self.riccati = riccati
         self.stagewise, self._gap = None, np.inf
         if riccati is not None and qp_limits is not None and qp_limits.needs_qp:
             self.stagewise = StagewiseSolver(riccati.Wy, riccati.Wu, model.C, criterion.horizons, "nonlinear",
                                              qp_limits, Ts)
-            self._gap = limit_gap(limits, qp_limits)  # a verified row excess within it keeps the true limits
+            self._gap = gap  # a verified row excess within it keeps the true limits
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
