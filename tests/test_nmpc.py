@@ -631,3 +631,22 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     reference, _ = _limited_loop(steps, reuse=False, spy=lambda s, kw, sweeps, r: cold.append(sweeps))
     assert len(cold) == len(calls) and sum(cold) > sum(c[1] for c in calls)
     np.testing.assert_allclose(plans, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+
+
+def test_the_compiled_model_update_is_built_with_the_controller(robot4, monkeypatch):
+    """The controller builds its robot model's compiled update (not its first step: the dearest step of
+    a run paid for it); the steps use that one, none other is built."""
+    from parallel_gpc.model import dynamics
+
+    model = ReducedModel(robot4)
+    if not model.native:
+        pytest.skip(model.native_reason)
+    built = []
+    make = dynamics.compiled_model_update
+    monkeypatch.setattr(dynamics, "compiled_model_update", lambda robot: built.append(make(robot)) or built[-1])
+    ctrl = GPCController.build(model, TS, Horizons(10), Weights(QY, QU), form="nonlinear", iterations=5,
+                               limits=Limits(torque=15.0))
+    assert len(built) == 1 and model.compiled_update is built[0]
+    X = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
+    ctrl.step(X, np.tile([0.51, 0.39, 0.12], (10, 1)))
+    assert len(built) == 1 and model.compiled_update is built[0]
