@@ -593,10 +593,11 @@ def _limited_loop(steps, reuse=True, spy=None):
 
 
 def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compiled_stagewise, monkeypatch):
-    """The Gauss–Newton steps of one control step compute the input rows' bounds once (u_sim⁰ and u(k−1)
-    do not change between them) and start each limited step after the first from the last one's active set,
-    not shifted (the first: the last control step's, shifted); the verifying step, whose set is the last
-    one's, takes one Riccati sweep; cold starts (the reference) take more, to the same plans."""
+    """One stage-wise solver per controller: the paper's step (warm: the last control step's converged set,
+    shifted) and the Gauss–Newton steps after it, which compute the input rows' bounds once (u_sim⁰ and u(k−1)
+    do not change between them) and start each from the last solve's active set, not shifted (the first: the
+    paper step's); the verifying step, whose set is the last one's, takes one Riccati sweep; cold starts (the
+    reference) take more, to the same plans."""
     from parallel_gpc.gpc import nmpc as nmpc_module
     from parallel_gpc.gpc import stagewise as stagewise_module
 
@@ -617,13 +618,16 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
 
     steps = 4
     plans, ctrl = _limited_loop(steps, spy=spy)
-    firsts = [i for i, (kw, *_) in enumerate(calls) if kw["start"] is None]
-    assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 2 * steps  # ≥ 2 limited steps per control step
+    assert ctrl._nmpc.stagewise is ctrl._riccati.constrained  # the paper step's solver
+    firsts = [i for i, (kw, *_) in enumerate(calls) if kw.get("start") is None]  # the paper's steps
+    assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 3 * steps  # ≥ 2 limited steps after each
     for first, end in zip(firsts, firsts[1:] + [len(calls)]):
-        assert calls[first][0]["warm"] and calls[first][0]["bounds"] is not None
+        assert calls[first][0]["warm"] == (first > 0)  # the first control step's paper step: no set yet
+        bounds = calls[first + 1][0]["bounds"]
+        assert bounds is not None
         for i in range(first + 1, end):
             kw = calls[i][0]
-            assert not kw["warm"] and kw["start"] is calls[i - 1][3] and kw["bounds"] is calls[first][0]["bounds"]
+            assert not kw["warm"] and kw["start"] is calls[i - 1][3] and kw["bounds"] is bounds
         assert calls[end - 1][1] == 1 and calls[end - 1][2]  # the verifying step: one sweep, the limit binding
     assert counted["nmpc"] == steps  # once per control step (and once more in the paper step's own solver)
     assert counted["solver"] <= steps

@@ -158,7 +158,7 @@ class GPCController:
         self._nmpc = None if settings.iterations == 1 else NMPCIterations(
             self.model, criterion, settings.Ts, settings.iterations, settings.tolerance, settings.time_budget, limits,
             self._drives, riccati_steps(settings, criterion, self.model.C), self._qp_limits,
-            self._limit_gap)
+            self._limit_gap, None if self._riccati is None else self._riccati.constrained)
 
     # ------------------------------------------------------------------ settings (read-only views)
     @property
