@@ -275,9 +275,10 @@ class NMPCIterations:
         the limits' margin (the condensed problem then decides, every limit included).
         w: (n_rows, p) or (n_rows·p,) reference rows (m, rad). start: the active set of this control
         step's last limited step (:attr:`~parallel_gpc.gpc.stagewise.StagewiseSolver.active_set`: the
-        paper's for the first when the solver is shared), or None: the solver's last one, shifted by one stage. bounds: the input rows' bounds of this
-        control step (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps),
-        or None: computed from u_sim and u_prev. Without state limits and with Qu
+        paper's for the first when the solver is shared), or None: the solver's last one, shifted by one
+        stage. bounds: the input rows' bounds of this control step
+        (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps), or None:
+        computed from u_sim and u_prev. Without state limits and with Qu
         nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
         the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
         if self.riccati is None:
