@@ -97,6 +97,30 @@ def test_iterations_decrease_the_true_cost_to_a_stationary_point(robot4):
     assert np.abs(g).max() <= 1e-6 * max(g0, costs[-1])
 
 
+def test_a_step_below_rounding_is_not_tried_shorter(robot4, monkeypatch):
+    """A Gauss–Newton step whose model decrease is below rounding (tolerance 1e-12: the steps reach
+    it) gets one trial, the full step: rejected, the iterations stop converged (J flat) without the
+    halvings, each of which only measures rounding (before: 12 more rollouts of the same J)."""
+    model, X, plan, target = _case("planar_4rrr")
+    N = 10
+    ctrl = GPCController.build(model, TS, Horizons(N), Weights(QY, QU), form="nonlinear", iterations=50,
+                               tolerance=1e-12, disturbance_gain=0.0)
+    ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
+    rollouts, costs, rollout = [], [], ctrl._nmpc._rollout
+
+    def counted(*args):
+        out = rollout(*args)
+        rollouts.append(args[4].copy())
+        costs.append(out[3])
+        return out
+    monkeypatch.setattr(ctrl._nmpc, "_rollout", counted)
+    info = ctrl.step(X, np.tile(target, (N, 1)))
+    assert info.iterations > 2 and info.residual > 1e-12  # stopped by the flat line search, not the step rule
+    assert info.residual <= 1e-6
+    assert len(rollouts) == info.iterations  # one trial per line search: the last one's full step, rejected
+    assert costs[-1] == pytest.approx(info.result.cost, rel=1e-10)  # the rejected trial's J is J(v) to rounding
+
+
 def test_a_terminal_weight_enters_the_true_cost(robot4):
     """Qf weighs the last output in the cost the line search measures and the step reports, as in
     every Gauss–Newton subproblem: the converged plan's cost is the rolled-out J with it."""
@@ -569,10 +593,11 @@ def _limited_loop(steps, reuse=True, spy=None):
 
 
 def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compiled_stagewise, monkeypatch):
-    """The Gauss–Newton steps of one control step compute the input rows' bounds once (u_sim⁰ and u(k−1)
-    do not change between them) and start each limited step after the first from the last one's active set,
-    not shifted (the first: the last control step's, shifted); the verifying step, whose set is the last
-    one's, takes one Riccati sweep; cold starts (the reference) take more, to the same plans."""
+    """One stage-wise solver per controller: the paper's step (warm: the last control step's converged set,
+    shifted) and the Gauss–Newton steps after it, which compute the input rows' bounds once (u_sim⁰ and u(k−1)
+    do not change between them) and start each from the last solve's active set, not shifted (the first: the
+    paper step's); the verifying step, whose set is the last one's, takes one Riccati sweep; cold starts (the
+    reference) take more, to the same plans."""
     from parallel_gpc.gpc import nmpc as nmpc_module
     from parallel_gpc.gpc import stagewise as stagewise_module
 
@@ -593,13 +618,16 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
 
     steps = 4
     plans, ctrl = _limited_loop(steps, spy=spy)
-    firsts = [i for i, (kw, *_) in enumerate(calls) if kw["start"] is None]
-    assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 2 * steps  # ≥ 2 limited steps per control step
+    assert ctrl._nmpc.stagewise is ctrl._riccati.constrained  # the paper step's solver
+    firsts = [i for i, (kw, *_) in enumerate(calls) if kw.get("start") is None]  # the paper's steps
+    assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 3 * steps  # ≥ 2 limited steps after each
     for first, end in zip(firsts, firsts[1:] + [len(calls)]):
-        assert calls[first][0]["warm"] and calls[first][0]["bounds"] is not None
+        assert calls[first][0]["warm"] == (first > 0)  # the first control step's paper step: no set yet
+        bounds = calls[first + 1][0]["bounds"]
+        assert bounds is not None
         for i in range(first + 1, end):
             kw = calls[i][0]
-            assert not kw["warm"] and kw["start"] is calls[i - 1][3] and kw["bounds"] is calls[first][0]["bounds"]
+            assert not kw["warm"] and kw["start"] is calls[i - 1][3] and kw["bounds"] is bounds
         assert calls[end - 1][1] == 1 and calls[end - 1][2]  # the verifying step: one sweep, the limit binding
     assert counted["nmpc"] == steps  # once per control step (and once more in the paper step's own solver)
     assert counted["solver"] <= steps
@@ -607,3 +635,22 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     reference, _ = _limited_loop(steps, reuse=False, spy=lambda s, kw, sweeps, r: cold.append(sweeps))
     assert len(cold) == len(calls) and sum(cold) > sum(c[1] for c in calls)
     np.testing.assert_allclose(plans, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+
+
+def test_the_compiled_model_update_is_built_with_the_controller(robot4, monkeypatch):
+    """The controller builds its robot model's compiled update (not its first step: the dearest step of
+    a run paid for it); the steps use that one, none other is built."""
+    from parallel_gpc.model import dynamics
+
+    model = ReducedModel(robot4)
+    if not model.native:
+        pytest.skip(model.native_reason)
+    built = []
+    make = dynamics.compiled_model_update
+    monkeypatch.setattr(dynamics, "compiled_model_update", lambda robot: built.append(make(robot)) or built[-1])
+    ctrl = GPCController.build(model, TS, Horizons(10), Weights(QY, QU), form="nonlinear", iterations=5,
+                               limits=Limits(torque=15.0))
+    assert len(built) == 1 and model.compiled_update is built[0]
+    X = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
+    ctrl.step(X, np.tile([0.51, 0.39, 0.12], (10, 1)))
+    assert len(built) == 1 and model.compiled_update is built[0]
