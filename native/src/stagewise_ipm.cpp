@@ -431,7 +431,7 @@ struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
   Arr lam, s;
 };
 
-Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
+Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start, double crossover) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
   const Arr &f = qp.f0;
@@ -481,6 +481,16 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
       marked = newton->merit;
       marked_it = it;
     }
+    if (newton->merit <= crossover) {  // the caller's crossover: this iterate (not polished), see the Python twin
+      best.pt = pt;
+      best.pt.lam = where(used && (pt.lam * f_scale > pt.t * scale), pt.lam, 0.0);
+      best.nu = newton->nu;
+      best.merit = newton->merit;
+      best.iterations = it;
+      best.ok = best.merit <= ACCEPT;
+      best.pt.s = where(soft, best.pt.s, 0.0);
+      return best;
+    }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
     // the rounding floor: keep the best iterate (the stopping iterate is never factorized)
     if ((it - marked_it >= STALL && best.merit <= ACCEPT) || (!improved && best.merit <= FLOOR)) break;
@@ -516,7 +526,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
       "stagewise_ipm",
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In3 Fv, In2 f, InB soft, double rho,
          double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
-         std::optional<In2> lam0, std::optional<In2> s0) {
+         std::optional<In2> lam0, std::optional<In2> s0, double crossover) {
         QP qp;
         stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_ipm");
         if (long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k || long(Fv.shape(0)) != qp.N)
@@ -565,7 +575,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
             for (long i = 0; i < qp.nd; ++i) v[i] = Eigen::Map<const Vec>(v0->data() + i * qp.m, qp.m);
             z = simulate(qp, v);
           }
-          res = solve_scaled(qp, z, v, start ? &*start : nullptr);
+          res = solve_scaled(qp, z, v, start ? &*start : nullptr, crossover);
           res.pt.lam *= sigma;
         }
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
@@ -577,7 +587,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
       nb::arg("kappa"), nb::arg("S"), nb::arg("v0") = nb::none(), nb::arg("lam0") = nb::none(),
-      nb::arg("s0") = nb::none(),
+      nb::arg("s0") = nb::none(), nb::arg("crossover") = 0.0,
       "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module); "
       "v0 (n_decide, m) or None, lam0 and s0 (N, k): its StageStart (a warm start), or all None");
 }
