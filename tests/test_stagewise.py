@@ -665,10 +665,11 @@ def test_nearly_saturated_warm_steps_settle_in_the_active_set():
 
 
 @pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
-def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_point(monkeypatch):
+def test_a_compiled_step_that_does_not_settle_goes_to_the_interior_point(monkeypatch):
     """A warm step whose set does not settle within the cap (here a cap of one sweep) is handed to the
-    interior point, warm-started from the compiled step's last solution (its plan and multipliers; no
-    slacks), visibly (method and message), and reaches DAQP's plan on the condensed problem."""
+    interior point (started cold, to its crossover; the active set then verifies the set its iterate
+    names: more sweeps counted), visibly (method and message), and reaches DAQP's plan on the
+    condensed problem."""
     import parallel_gpc.gpc.stagewise as stagewise_module
 
     robot = ParallelRobot.load("planar_4rrr")
@@ -682,7 +683,7 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     result = path.solve(*path.stages(ctl, X, w), warm=True)
     assert path.constrained.method == "interior-point after active set"
     assert result.status == "optimal" and "solved by the interior point" in result.message
-    assert path.constrained.iterations[0] == 1 and path.constrained.iterations[1] > 0
+    assert path.constrained.iterations[0] > 1 and path.constrained.iterations[1] > 0
     full, x_ref = condensed(ctl, X, w)
     assert x_ref is not None
     v_ref = x_ref[:full.n_decision]

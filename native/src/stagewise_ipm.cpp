@@ -48,6 +48,20 @@ struct QP {
 
 using Traj = std::vector<Vec>;
 
+// The temporaries of one stage of a factorization: fixed-size (on the stack, products unrolled) for the
+// stage sizes of stage_arrays::with_stage_sizes, dynamic otherwise (kept in the Riccati workspace)
+template <int NZ, int M>
+struct FactorTemps {
+  Eigen::Matrix<double, NZ, NZ> P, Qi, PA, T;
+  Eigen::Matrix<double, NZ, M> PB;
+  Eigen::Matrix<double, M, M> Hvv;
+  Eigen::Matrix<double, M, NZ> H;
+  void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
+    P.resize(nz, nz), Qi.resize(nz, nz), PA.resize(nz, nz), T.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
+    H.resize(m, nz);
+  }
+};
+
 // The Riccati factorization of one Newton system (row weights W) and its back-substitution. One
 // workspace serves every factorization of a solve: the per-stage matrices are sized once, so the
 // iterations allocate nothing here.
@@ -56,24 +70,26 @@ struct Riccati {
   std::vector<Mat> Pn, Hvz, K;
   std::vector<Eigen::LLT<Mat>> llt;
   double h_max = 0.0;
-  Mat P, WFz, WFv, Qi, PA, PB, Hvv, H, T;
+  Mat WFz, WFv;
+  FactorTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size factorization
   Traj kk;
   Vec p, w, tmp;
 
   explicit Riccati(const QP &qp)
       : qp(qp), Pn(qp.N, Mat(qp.nz, qp.nz)), Hvz(qp.nd, Mat(qp.m, qp.nz)), K(qp.nd, Mat(qp.m, qp.nz)),
-        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), P(qp.nz, qp.nz), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), Qi(qp.nz, qp.nz),
-        PA(qp.nz, qp.nz),
-        PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
-        w(qp.nz), tmp(qp.m) {}
+        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), kk(qp.nd, Vec(qp.m)), p(qp.nz),
+        w(qp.nz), tmp(qp.m) {
+    dyn.resize(qp.nz, qp.m);
+  }
 
-  // stage i's input Hessian (in Hvv) factorized; regularize: see _cholesky in the Python twin
-  void cholesky(long i, const Arr &W, bool regularize) {
-    if (!Hvv.allFinite())
+  // stage i's input Hessian Hv factorized; regularize: see _cholesky in the Python twin
+  template <class MH>
+  void cholesky(long i, const MH &Hv, const Arr &W, bool regularize) {
+    if (!Hv.allFinite())
       throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
                                " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-    const double top = Hvv.diagonal().cwiseAbs().maxCoeff();
-    llt[i].compute(Hvv);
+    const double top = Hv.diagonal().cwiseAbs().maxCoeff();
+    llt[i].compute(Hv);
     double shift = SHIFT * top;
     while (llt[i].info() != Eigen::Success) {
       if (!regularize)
@@ -87,51 +103,73 @@ struct Riccati {
                                  " is singular to working precision " + buf +
                                  ": an ill-conditioned iterate, not the input weight");
       }
-      Mat shifted = Hvv;
+      Mat shifted = Hv;
       shifted.diagonal().array() += shift;
       llt[i].compute(shifted);
       shift *= 10.0;
     }
   }
 
+  // the factorization, with the stage sizes fixed at compile time where with_stage_sizes knows them
+  // (the same operations as the dynamic one; the sums of a product may round in another order)
   void factor(const Arr &W, bool regularize = false) {
+    stage_arrays::with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+      constexpr int NZ = decltype(nz_)::value, M = decltype(m_)::value;
+      if constexpr (NZ == Eigen::Dynamic) {
+        factor_sized(dyn, W, regularize);
+      } else {
+        FactorTemps<NZ, M> t;
+        factor_sized(t, W, regularize);
+      }
+    });
+  }
+
+  template <int NZ, int M>
+  void factor_sized(FactorTemps<NZ, M> &t, const Arr &W, bool regularize) {
+    using MZ = Eigen::Matrix<double, NZ, NZ>;
+    using MZM = Eigen::Matrix<double, NZ, M>;
+    using MMZ = Eigen::Matrix<double, M, NZ>;
+    const long nz = qp.nz, m = qp.m;
     h_max = 0.0;
-    P = qp.Q[qp.N];
+    t.P = qp.Q[qp.N];
     for (long i = qp.N - 1; i >= 0; --i) {
-      const Mat &A = qp.A[i], &Fz = qp.Fz[i];
-      Pn[i] = P;
+      const Eigen::Map<const MZ> A(qp.A[i].data(), nz, nz);
+      const Mat &Fz = qp.Fz[i];
+      Pn[i] = t.P;
       // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
       const bool fz = !qp.fz_zero[i];
-      Qi = qp.Q[i];
+      t.Qi = qp.Q[i];
       if (fz) {
         WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
-        Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+        t.Qi.noalias() += Fz.transpose().lazyProduct(WFz);
       }
-      PA.noalias() = P.lazyProduct(A);
+      t.PA.noalias() = t.P.lazyProduct(A);
       if (i < qp.nd) {
-        const Mat &B = qp.B[i], &Fv = qp.Fv[i];
-        PB.noalias() = P.lazyProduct(B);
+        const Eigen::Map<const MZM> B(qp.B[i].data(), nz, m);
+        const Mat &Fv = qp.Fv[i];
+        t.PB.noalias() = t.P.lazyProduct(B);
         WFv.noalias() = W.row(i).matrix().asDiagonal() * Fv;
-        Hvv = qp.R;
-        Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
-        Hvv.noalias() += B.transpose().lazyProduct(PB);
-        H.noalias() = PB.transpose().lazyProduct(A);
-        if (fz) H.noalias() += Fv.transpose().lazyProduct(WFz);
-        if (qp.has_S) H += qp.S;
-        h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
-        cholesky(i, W, regularize);
-        Hvz[i] = H;
-        K[i] = llt[i].solve(H);
+        t.Hvv = qp.R;
+        t.Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
+        t.Hvv.noalias() += B.transpose().lazyProduct(t.PB);
+        t.H.noalias() = t.PB.transpose().lazyProduct(A);
+        if (fz) t.H.noalias() += Fv.transpose().lazyProduct(WFz);
+        if (qp.has_S) t.H += qp.S;
+        h_max = std::max(h_max, t.Hvv.diagonal().maxCoeff());
+        cholesky(i, t.Hvv, W, regularize);
+        Hvz[i] = t.H;
+        K[i] = llt[i].solve(t.H);
         K[i] *= -1.0;
-        P = Qi;
-        P.noalias() += A.transpose().lazyProduct(PA);
-        P.noalias() += H.transpose().lazyProduct(K[i]);
+        const Eigen::Map<const MMZ> Ki(K[i].data(), m, nz);
+        t.P = t.Qi;
+        t.P.noalias() += A.transpose().lazyProduct(t.PA);
+        t.P.noalias() += t.H.transpose().lazyProduct(Ki);
       } else {
-        P = Qi;
-        P.noalias() += A.transpose().lazyProduct(PA);
+        t.P = t.Qi;
+        t.P.noalias() += A.transpose().lazyProduct(t.PA);
       }
-      T = P.transpose();
-      P = 0.5 * (P + T);
+      t.T = t.P.transpose();
+      t.P = 0.5 * (t.P + t.T);
     }
   }
 
