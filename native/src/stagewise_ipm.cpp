@@ -173,34 +173,47 @@ struct Riccati {
     }
   }
 
+  // the back-substitution of the last factorization (fixed stage sizes as in factor)
   void solve(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) {
-    const long N = qp.N, nd = qp.nd;
+    stage_arrays::with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+      solve_sized<decltype(nz_)::value, decltype(m_)::value>(gz, gv, homogeneous, z, v);
+    });
+  }
+
+  template <int NZ, int M>
+  void solve_sized(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) {
+    using MZ = Eigen::Matrix<double, NZ, NZ>;
+    using MZM = Eigen::Matrix<double, NZ, M>;
+    using MMZ = Eigen::Matrix<double, M, NZ>;
+    const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
     p = gz[N];
     for (long i = N - 1; i >= 0; --i) {
+      const Eigen::Map<const MZ> A(qp.A[i].data(), nz, nz);
       w = p;
-      if (!homogeneous) w.noalias() += Pn[i].lazyProduct(qp.c[i]);
+      if (!homogeneous) w.noalias() += Eigen::Map<const MZ>(Pn[i].data(), nz, nz).lazyProduct(qp.c[i]);
       if (i < nd) {
+        const Eigen::Map<const MZM> B(qp.B[i].data(), nz, m);
         tmp = gv[i];
-        tmp.noalias() += qp.B[i].transpose().lazyProduct(w);
+        tmp.noalias() += B.transpose().lazyProduct(w);
         kk[i] = llt[i].solve(tmp);
         kk[i] *= -1.0;
         p = gz[i];
-        p.noalias() += qp.A[i].transpose().lazyProduct(w);
-        p.noalias() += Hvz[i].transpose().lazyProduct(kk[i]);
+        p.noalias() += A.transpose().lazyProduct(w);
+        p.noalias() += Eigen::Map<const MMZ>(Hvz[i].data(), m, nz).transpose().lazyProduct(kk[i]);
       } else {
         p = gz[i];
-        p.noalias() += qp.A[i].transpose().lazyProduct(w);
+        p.noalias() += A.transpose().lazyProduct(w);
       }
     }
     z.resize(N + 1);
     v.resize(nd);
-    if (homogeneous) z[0].setZero(qp.nz); else z[0] = qp.z0;
+    if (homogeneous) z[0].setZero(nz); else z[0] = qp.z0;
     for (long i = 0; i < N; ++i) {
-      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+      z[i + 1].noalias() = Eigen::Map<const MZ>(qp.A[i].data(), nz, nz).lazyProduct(z[i]);
       if (i < nd) {
-        v[i].noalias() = K[i].lazyProduct(z[i]);
+        v[i].noalias() = Eigen::Map<const MMZ>(K[i].data(), m, nz).lazyProduct(z[i]);
         v[i] += kk[i];
-        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+        z[i + 1].noalias() += Eigen::Map<const MZM>(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
       if (!homogeneous) z[i + 1] += qp.c[i];
     }
