@@ -21,7 +21,7 @@ from parallel_gpc.model.native import native_module
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
 from parallel_gpc.model.plant import ConstrainedPlant
-from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of,
+from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, CROSSOVER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of,
                                    shift_active_set, solve_active_set, solve_stage_qp)
 from parallel_gpc.solvers.stagewise_ipm import costates
 from closed_loop_states import closed_loop_states
@@ -362,6 +362,34 @@ def test_compiled_warm_start_reaches_the_dense_qp(seed):
         assert np.abs(v_c - v).max() <= 1e-8 * max(1.0, np.abs(v).max())
 
 
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("incremental", [False, True])
+def test_crossover_iterate_names_the_set_the_active_set_verifies(seed, incremental):
+    """The interior point stopped at CROSSOVER (Python and compiled): status "crossover" with its merit at
+    most that, fewer iterations than to the tolerance; the set its multipliers name (λ kept on the rows
+    the iterate deems active) settles in the active set on DAQP's plan with its KKT conditions met."""
+    # (no Δu rows with the incremental torque rows: binding together they pin the held input, a problem
+    # with no set of one row per component, which the active set does not settle from any start)
+    qp = _input_row_qp(seed, incremental, du=not incremental)
+    rows = input_rows_of(qp)
+    v_ref, _ = _dense(qp)
+    full = solve_stage_qp(qp)
+    runs = [solve_stage_qp(qp, crossover=CROSSOVER)]
+    if HAS_COMPILED:
+        c = np.ascontiguousarray
+        v, z, s, lam, iterations, _, merit = native_module().stagewise_ipm(
+            c(qp.A), c(qp.B), c(qp.c), c(qp.z0), c(qp.Q), c(qp.q), c(qp.R), qp.n_decide, c(qp.Fz), c(qp.Fv), c(qp.f),
+            c(qp.soft), qp.rho, qp.kappa, np.zeros(0), None, None, None, CROSSOVER)
+        assert merit <= CROSSOVER
+        runs.append(replace(full, v=v, z=z, s=s, lam=lam, iterations=iterations, status="crossover", residual=merit))
+    for cross in runs:
+        assert cross.status == "crossover" and cross.residual <= CROSSOVER
+        assert 0 < cross.iterations < full.iterations
+        sol = solve_active_set(qp, rows, active_set_of(qp, rows, cross.lam))
+        assert sol.status == "optimal" and sol.residual <= 1e-9, sol.message
+        assert np.abs(sol.v - v_ref).max() <= 1e-8 * max(np.abs(v_ref).max(), 1.0)
+
+
 @pytest.mark.skipif(not HAS_COMPILED, reason="the compiled core has no stagewise_ipm")
 def test_compiled_singular_input_weight_is_named():
     qp = _random_stage_qp(0, Fz_zero=True)
@@ -665,10 +693,11 @@ def test_nearly_saturated_warm_steps_settle_in_the_active_set():
 
 
 @pytest.mark.skipif(not (HAS_COMPILED_STEP and HAS_COMPILED), reason="the compiled core has no RiccatiActive")
-def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_point(monkeypatch):
+def test_a_compiled_step_that_does_not_settle_goes_to_the_interior_point(monkeypatch):
     """A warm step whose set does not settle within the cap (here a cap of one sweep) is handed to the
-    interior point, warm-started from the compiled step's last solution (its plan and multipliers; no
-    slacks), visibly (method and message), and reaches DAQP's plan on the condensed problem."""
+    interior point (started cold, to its crossover; the active set then verifies the set its iterate
+    names: more sweeps counted), visibly (method and message), and reaches DAQP's plan on the
+    condensed problem."""
     import parallel_gpc.gpc.stagewise as stagewise_module
 
     robot = ParallelRobot.load("planar_4rrr")
@@ -682,7 +711,7 @@ def test_a_compiled_step_that_does_not_settle_goes_to_the_warm_started_interior_
     result = path.solve(*path.stages(ctl, X, w), warm=True)
     assert path.constrained.method == "interior-point after active set"
     assert result.status == "optimal" and "solved by the interior point" in result.message
-    assert path.constrained.iterations[0] == 1 and path.constrained.iterations[1] > 0
+    assert path.constrained.iterations[0] > 1 and path.constrained.iterations[1] > 0
     full, x_ref = condensed(ctl, X, w)
     assert x_ref is not None
     v_ref = x_ref[:full.n_decision]

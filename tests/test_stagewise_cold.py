@@ -66,8 +66,9 @@ def test_long_horizon_cold_and_warm_steps_reach_daqp(form):
         if solver.method == "active-set":
             assert ipm == 0 and sweeps >= 1
         else:  # visible: the active set's sweeps up to its cap (or a cycle), then the interior point's iterations
+            # and the sweeps of the active set verifying the set they name (the crossover)
             assert solver.method == "interior-point after active set", solver.method
-            assert sweeps == (AS_MAX_ITER if k == 0 else AS_WARM_MAX_ITER) or "cycles" in info.result.message
+            assert sweeps > (AS_MAX_ITER if k == 0 else AS_WARM_MAX_ITER) or "cycles" in info.result.message
             assert ipm >= 1
         if k == 0:  # the hard case: nearly every input on its limit (the cold step goes to the interior point today)
             assert (solver._fixed >= 0).sum() >= 0.9 * solver._fixed.size

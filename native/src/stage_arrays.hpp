@@ -7,6 +7,7 @@
 
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 
 #include "bindings.hpp"
 #include "zoh.hpp"
@@ -49,4 +50,19 @@ void read_lq(QP &qp, const In3 &A, const In3 &B, const In2 &c, const In1 &z0, co
   qp.z0 = Eigen::Map<const Vec>(z0.data(), qp.nz);
   qp.R = CMap(R.data(), qp.m, qp.m);
 }
+
+// f(std::integral_constant<int, NZ>, std::integral_constant<int, M>) with the stage sizes (nz, m) fixed
+// at compile time where they are those of the benchmark's robot (the state without / with the input
+// held in it: planar_4rrr (6, 4), (10, 4)), else Dynamic: the active set's sweep and the interior point's
+// factorization. Each fixed pair costs ~14 s of compile time (stagewise_active.cpp: 22 s dynamic only,
+// 63-78 s with four pairs, which put the core's build past 2.5 min on 2 cores); the 3-drive robots'
+// (6, 3), (9, 3) were dropped for that.
+template <class F>
+decltype(auto) with_stage_sizes(long nz, long m, F &&f) {
+  using std::integral_constant;
+  if (nz == 6 && m == 4) return f(integral_constant<int, 6>(), integral_constant<int, 4>());
+  if (nz == 10 && m == 4) return f(integral_constant<int, 10>(), integral_constant<int, 4>());
+  return f(integral_constant<int, Eigen::Dynamic>(), integral_constant<int, Eigen::Dynamic>());
+}
+
 }  // namespace pgpc::stage_arrays

@@ -34,7 +34,7 @@
 namespace pgpc {
 namespace {
 using stage_arrays::block, stage_arrays::CMap, stage_arrays::In1, stage_arrays::In2, stage_arrays::In3,
-    stage_arrays::RowMat;
+    stage_arrays::RowMat, stage_arrays::with_stage_sizes;
 using InI = nb::ndarray<const int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using OutI = nb::ndarray<int64_t, nb::ndim<2>, nb::c_contig, nb::device::cpu>;
 using Traj = std::vector<Vec>;
@@ -105,19 +105,6 @@ struct QP {  // views of the caller's arrays (no copy)
   Mat R;
   double f_scale = 1e-12;
 };
-
-// f(std::integral_constant<int, NZ>, std::integral_constant<int, M>) with the stage sizes (nz, m) fixed
-// at compile time where they are those of the benchmark's robot (the state without / with the input
-// held in it: planar_4rrr (6, 4), (10, 4)), else Dynamic. Each fixed pair costs ~14 s of compile time
-// (this file: 22 s dynamic only, 63-78 s with four pairs, which put the core's build past 2.5 min on
-// 2 cores); the 3-drive robots' (6, 3), (9, 3) were dropped for that.
-template <class F>
-decltype(auto) with_stage_sizes(long nz, long m, F &&f) {
-  using std::integral_constant;
-  if (nz == 6 && m == 4) return f(integral_constant<int, 6>(), integral_constant<int, 4>());
-  if (nz == 10 && m == 4) return f(integral_constant<int, 10>(), integral_constant<int, 4>());
-  return f(integral_constant<int, Eigen::Dynamic>(), integral_constant<int, Eigen::Dynamic>());
-}
 
 // The temporaries of one sweep's stage: fixed-size (on the stack, products unrolled) for the stage
 // sizes of the common robots (Sweep::run's table), dynamic otherwise (kept in the Sweep: no

@@ -48,6 +48,20 @@ struct QP {
 
 using Traj = std::vector<Vec>;
 
+// The temporaries of one stage of a factorization: fixed-size (on the stack, products unrolled) for the
+// stage sizes of stage_arrays::with_stage_sizes, dynamic otherwise (kept in the Riccati workspace)
+template <int NZ, int M>
+struct FactorTemps {
+  Eigen::Matrix<double, NZ, NZ> P, Qi, PA, T;
+  Eigen::Matrix<double, NZ, M> PB;
+  Eigen::Matrix<double, M, M> Hvv;
+  Eigen::Matrix<double, M, NZ> H;
+  void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
+    P.resize(nz, nz), Qi.resize(nz, nz), PA.resize(nz, nz), T.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
+    H.resize(m, nz);
+  }
+};
+
 // The Riccati factorization of one Newton system (row weights W) and its back-substitution. One
 // workspace serves every factorization of a solve: the per-stage matrices are sized once, so the
 // iterations allocate nothing here.
@@ -56,24 +70,26 @@ struct Riccati {
   std::vector<Mat> Pn, Hvz, K;
   std::vector<Eigen::LLT<Mat>> llt;
   double h_max = 0.0;
-  Mat P, WFz, WFv, Qi, PA, PB, Hvv, H, T;
+  Mat WFz, WFv;
+  FactorTemps<Eigen::Dynamic, Eigen::Dynamic> dyn;  // the temporaries of the sizes without a fixed-size factorization
   Traj kk;
   Vec p, w, tmp;
 
   explicit Riccati(const QP &qp)
       : qp(qp), Pn(qp.N, Mat(qp.nz, qp.nz)), Hvz(qp.nd, Mat(qp.m, qp.nz)), K(qp.nd, Mat(qp.m, qp.nz)),
-        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), P(qp.nz, qp.nz), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), Qi(qp.nz, qp.nz),
-        PA(qp.nz, qp.nz),
-        PB(qp.nz, qp.m), Hvv(qp.m, qp.m), H(qp.m, qp.nz), T(qp.nz, qp.nz), kk(qp.nd, Vec(qp.m)), p(qp.nz),
-        w(qp.nz), tmp(qp.m) {}
+        llt(qp.nd, Eigen::LLT<Mat>(qp.m)), WFz(qp.k, qp.nz), WFv(qp.k, qp.m), kk(qp.nd, Vec(qp.m)), p(qp.nz),
+        w(qp.nz), tmp(qp.m) {
+    dyn.resize(qp.nz, qp.m);
+  }
 
-  // stage i's input Hessian (in Hvv) factorized; regularize: see _cholesky in the Python twin
-  void cholesky(long i, const Arr &W, bool regularize) {
-    if (!Hvv.allFinite())
+  // stage i's input Hessian Hv factorized; regularize: see _cholesky in the Python twin
+  template <class MH>
+  void cholesky(long i, const MH &Hv, const Arr &W, bool regularize) {
+    if (!Hv.allFinite())
       throw std::runtime_error("stage-wise IPM: the Newton system at stage " + std::to_string(i) +
                                " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-    const double top = Hvv.diagonal().cwiseAbs().maxCoeff();
-    llt[i].compute(Hvv);
+    const double top = Hv.diagonal().cwiseAbs().maxCoeff();
+    llt[i].compute(Hv);
     double shift = SHIFT * top;
     while (llt[i].info() != Eigen::Success) {
       if (!regularize)
@@ -87,82 +103,117 @@ struct Riccati {
                                  " is singular to working precision " + buf +
                                  ": an ill-conditioned iterate, not the input weight");
       }
-      Mat shifted = Hvv;
+      Mat shifted = Hv;
       shifted.diagonal().array() += shift;
       llt[i].compute(shifted);
       shift *= 10.0;
     }
   }
 
+  // the factorization, with the stage sizes fixed at compile time where with_stage_sizes knows them
+  // (the same operations as the dynamic one; the sums of a product may round in another order)
   void factor(const Arr &W, bool regularize = false) {
+    stage_arrays::with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+      constexpr int NZ = decltype(nz_)::value, M = decltype(m_)::value;
+      if constexpr (NZ == Eigen::Dynamic) {
+        factor_sized(dyn, W, regularize);
+      } else {
+        FactorTemps<NZ, M> t;
+        factor_sized(t, W, regularize);
+      }
+    });
+  }
+
+  template <int NZ, int M>
+  void factor_sized(FactorTemps<NZ, M> &t, const Arr &W, bool regularize) {
+    using MZ = Eigen::Matrix<double, NZ, NZ>;
+    using MZM = Eigen::Matrix<double, NZ, M>;
+    using MMZ = Eigen::Matrix<double, M, NZ>;
+    const long nz = qp.nz, m = qp.m;
     h_max = 0.0;
-    P = qp.Q[qp.N];
+    t.P = qp.Q[qp.N];
     for (long i = qp.N - 1; i >= 0; --i) {
-      const Mat &A = qp.A[i], &Fz = qp.Fz[i];
-      Pn[i] = P;
+      const Eigen::Map<const MZ> A(qp.A[i].data(), nz, nz);
+      const Mat &Fz = qp.Fz[i];
+      Pn[i] = t.P;
       // the matrices are small (a few rows): coefficient-wise products, no blocked-GEMM dispatch
       const bool fz = !qp.fz_zero[i];
-      Qi = qp.Q[i];
+      t.Qi = qp.Q[i];
       if (fz) {
         WFz.noalias() = W.row(i).matrix().asDiagonal() * Fz;
-        Qi.noalias() += Fz.transpose().lazyProduct(WFz);
+        t.Qi.noalias() += Fz.transpose().lazyProduct(WFz);
       }
-      PA.noalias() = P.lazyProduct(A);
+      t.PA.noalias() = t.P.lazyProduct(A);
       if (i < qp.nd) {
-        const Mat &B = qp.B[i], &Fv = qp.Fv[i];
-        PB.noalias() = P.lazyProduct(B);
+        const Eigen::Map<const MZM> B(qp.B[i].data(), nz, m);
+        const Mat &Fv = qp.Fv[i];
+        t.PB.noalias() = t.P.lazyProduct(B);
         WFv.noalias() = W.row(i).matrix().asDiagonal() * Fv;
-        Hvv = qp.R;
-        Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
-        Hvv.noalias() += B.transpose().lazyProduct(PB);
-        H.noalias() = PB.transpose().lazyProduct(A);
-        if (fz) H.noalias() += Fv.transpose().lazyProduct(WFz);
-        if (qp.has_S) H += qp.S;
-        h_max = std::max(h_max, Hvv.diagonal().maxCoeff());
-        cholesky(i, W, regularize);
-        Hvz[i] = H;
-        K[i] = llt[i].solve(H);
+        t.Hvv = qp.R;
+        t.Hvv.noalias() += Fv.transpose().lazyProduct(WFv);
+        t.Hvv.noalias() += B.transpose().lazyProduct(t.PB);
+        t.H.noalias() = t.PB.transpose().lazyProduct(A);
+        if (fz) t.H.noalias() += Fv.transpose().lazyProduct(WFz);
+        if (qp.has_S) t.H += qp.S;
+        h_max = std::max(h_max, t.Hvv.diagonal().maxCoeff());
+        cholesky(i, t.Hvv, W, regularize);
+        Hvz[i] = t.H;
+        K[i] = llt[i].solve(t.H);
         K[i] *= -1.0;
-        P = Qi;
-        P.noalias() += A.transpose().lazyProduct(PA);
-        P.noalias() += H.transpose().lazyProduct(K[i]);
+        const Eigen::Map<const MMZ> Ki(K[i].data(), m, nz);
+        t.P = t.Qi;
+        t.P.noalias() += A.transpose().lazyProduct(t.PA);
+        t.P.noalias() += t.H.transpose().lazyProduct(Ki);
       } else {
-        P = Qi;
-        P.noalias() += A.transpose().lazyProduct(PA);
+        t.P = t.Qi;
+        t.P.noalias() += A.transpose().lazyProduct(t.PA);
       }
-      T = P.transpose();
-      P = 0.5 * (P + T);
+      t.T = t.P.transpose();
+      t.P = 0.5 * (t.P + t.T);
     }
   }
 
+  // the back-substitution of the last factorization (fixed stage sizes as in factor)
   void solve(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) {
-    const long N = qp.N, nd = qp.nd;
+    stage_arrays::with_stage_sizes(qp.nz, qp.m, [&](auto nz_, auto m_) {
+      solve_sized<decltype(nz_)::value, decltype(m_)::value>(gz, gv, homogeneous, z, v);
+    });
+  }
+
+  template <int NZ, int M>
+  void solve_sized(const Traj &gz, const Traj &gv, bool homogeneous, Traj &z, Traj &v) {
+    using MZ = Eigen::Matrix<double, NZ, NZ>;
+    using MZM = Eigen::Matrix<double, NZ, M>;
+    using MMZ = Eigen::Matrix<double, M, NZ>;
+    const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
     p = gz[N];
     for (long i = N - 1; i >= 0; --i) {
+      const Eigen::Map<const MZ> A(qp.A[i].data(), nz, nz);
       w = p;
-      if (!homogeneous) w.noalias() += Pn[i].lazyProduct(qp.c[i]);
+      if (!homogeneous) w.noalias() += Eigen::Map<const MZ>(Pn[i].data(), nz, nz).lazyProduct(qp.c[i]);
       if (i < nd) {
+        const Eigen::Map<const MZM> B(qp.B[i].data(), nz, m);
         tmp = gv[i];
-        tmp.noalias() += qp.B[i].transpose().lazyProduct(w);
+        tmp.noalias() += B.transpose().lazyProduct(w);
         kk[i] = llt[i].solve(tmp);
         kk[i] *= -1.0;
         p = gz[i];
-        p.noalias() += qp.A[i].transpose().lazyProduct(w);
-        p.noalias() += Hvz[i].transpose().lazyProduct(kk[i]);
+        p.noalias() += A.transpose().lazyProduct(w);
+        p.noalias() += Eigen::Map<const MMZ>(Hvz[i].data(), m, nz).transpose().lazyProduct(kk[i]);
       } else {
         p = gz[i];
-        p.noalias() += qp.A[i].transpose().lazyProduct(w);
+        p.noalias() += A.transpose().lazyProduct(w);
       }
     }
     z.resize(N + 1);
     v.resize(nd);
-    if (homogeneous) z[0].setZero(qp.nz); else z[0] = qp.z0;
+    if (homogeneous) z[0].setZero(nz); else z[0] = qp.z0;
     for (long i = 0; i < N; ++i) {
-      z[i + 1].noalias() = qp.A[i].lazyProduct(z[i]);
+      z[i + 1].noalias() = Eigen::Map<const MZ>(qp.A[i].data(), nz, nz).lazyProduct(z[i]);
       if (i < nd) {
-        v[i].noalias() = K[i].lazyProduct(z[i]);
+        v[i].noalias() = Eigen::Map<const MMZ>(K[i].data(), m, nz).lazyProduct(z[i]);
         v[i] += kk[i];
-        z[i + 1].noalias() += qp.B[i].lazyProduct(v[i]);
+        z[i + 1].noalias() += Eigen::Map<const MZM>(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
       if (!homogeneous) z[i + 1] += qp.c[i];
     }
@@ -431,7 +482,7 @@ struct Start {  // a warm start's row multipliers (scaled) and slacks (N, k)
   Arr lam, s;
 };
 
-Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
+Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start, double crossover) {
   Riccati ric(qp);  // one workspace for every factorization of the solve
   Mask used = qp.used, soft = qp.soft && qp.used;
   const Arr &f = qp.f0;
@@ -481,6 +532,16 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start) {
       marked = newton->merit;
       marked_it = it;
     }
+    if (newton->merit <= crossover) {  // the caller's crossover: this iterate (not polished), see the Python twin
+      best.pt = pt;
+      best.pt.lam = where(used && (pt.lam * f_scale > pt.t * scale), pt.lam, 0.0);
+      best.nu = newton->nu;
+      best.merit = newton->merit;
+      best.iterations = it;
+      best.ok = best.merit <= ACCEPT;
+      best.pt.s = where(soft, best.pt.s, 0.0);
+      return best;
+    }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
     // the rounding floor: keep the best iterate (the stopping iterate is never factorized)
     if ((it - marked_it >= STALL && best.merit <= ACCEPT) || (!improved && best.merit <= FLOOR)) break;
@@ -516,7 +577,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
       "stagewise_ipm",
       [](In3 A, In3 B, In2 c, In1 z0, In3 Q, In2 q, In2 R, long n_decide, In3 Fz, In3 Fv, In2 f, InB soft, double rho,
          double kappa, nb::ndarray<const double, nb::c_contig, nb::device::cpu> S, std::optional<In2> v0,
-         std::optional<In2> lam0, std::optional<In2> s0) {
+         std::optional<In2> lam0, std::optional<In2> s0, double crossover) {
         QP qp;
         stage_arrays::read_lq(qp, A, B, c, z0, Q, q, R, n_decide, Fz, f, "stagewise_ipm");
         if (long(soft.shape(0)) != qp.N || long(soft.shape(1)) != qp.k || long(Fv.shape(0)) != qp.N)
@@ -565,7 +626,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
             for (long i = 0; i < qp.nd; ++i) v[i] = Eigen::Map<const Vec>(v0->data() + i * qp.m, qp.m);
             z = simulate(qp, v);
           }
-          res = solve_scaled(qp, z, v, start ? &*start : nullptr);
+          res = solve_scaled(qp, z, v, start ? &*start : nullptr, crossover);
           res.pt.lam *= sigma;
         }
         RowMat vout(qp.nd, qp.m), zout(qp.N + 1, qp.nz);
@@ -577,7 +638,7 @@ void bind_stagewise_ipm(nb::module_ &m) {
       nb::arg("A"), nb::arg("B"), nb::arg("c"), nb::arg("z0"), nb::arg("Q"), nb::arg("q"), nb::arg("R"),
       nb::arg("n_decide"), nb::arg("Fz"), nb::arg("Fv"), nb::arg("f"), nb::arg("soft"), nb::arg("rho"),
       nb::arg("kappa"), nb::arg("S"), nb::arg("v0") = nb::none(), nb::arg("lam0") = nb::none(),
-      nb::arg("s0") = nb::none(),
+      nb::arg("s0") = nb::none(), nb::arg("crossover") = 0.0,
       "(v, z, s, λ, iterations, ok, merit): solvers.stagewise_ipm.solve_stage_qp compiled (see that module); "
       "v0 (n_decide, m) or None, lam0 and s0 (N, k): its StageStart (a warm start), or all None");
 }

@@ -7,7 +7,9 @@ limits become rows F_i [z(i); v(i)] ≤ f_i of the stage they act on (work linea
 whose rows are all input rows (torque and Δu: each acts on one component of v(i)) is solved by
 the active set of :mod:`parallel_gpc.solvers.stagewise_active` (one Riccati sweep per change of
 the set), any other — and one whose active set does not settle, visibly (the result's message)
-— by the interior point of :mod:`parallel_gpc.solvers.stagewise_ipm`:
+— by the interior point of :mod:`parallel_gpc.solvers.stagewise_ipm` (on input rows from a cold start
+until its iterate names the active set, :data:`~parallel_gpc.solvers.CROSSOVER`, which the active set
+then verifies):
 
 The rows are the ones the condensed layout uses, defined once per kind
 (:func:`~parallel_gpc.gpc.criterion.input_rows`, :func:`~parallel_gpc.gpc.constraints.output_rows`);
@@ -27,7 +29,7 @@ From the controller's second step on, the solve starts from the previous solutio
 stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; for the incremental
 forms, :data:`EDGE_FORMS`, with the edges of the limited arcs that moved from step to step moved
 again while that brought the last step nearer its set; the interior point's plan, multipliers and
-slacks, :class:`~parallel_gpc.solvers.StageStart`).
+slacks, :class:`~parallel_gpc.solvers.StageStart`, on rows other than input rows).
 The nonlinear form's torque rows after Nu (the held deviation plus the pre-simulated input: rows
 on the state alone) bound v(Nu−1) through the held input: stage Nu − 1 keeps the tightest of each
 side (:func:`input_bounds`), and the active set takes them too.
@@ -47,7 +49,7 @@ import numpy as np
 from ..errors import InvalidParameterError, SolverError
 from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
-from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
+from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, CROSSOVER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
                        StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
                        solve_stage_qp)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
@@ -361,10 +363,10 @@ class StagewiseSolver:
         return ActiveSetSolution(v, z, np.zeros(qp.f.shape), lam, None, iterations,
                                  "optimal" if ok else "unconverged", residual, message, fixed)
 
-    def _solve(self, qp: StageQP, start: StageStart | None) -> StageQPSolution:
-        """The compiled interior point, or the Python reference."""
+    def _solve(self, qp: StageQP, start: StageStart | None, crossover: float = 0.0) -> StageQPSolution:
+        """The compiled interior point, or the Python reference (``crossover``: see :func:`solve_stage_qp`)."""
         if self._compiled is None:
-            return solve_stage_qp(qp, start=start)
+            return solve_stage_qp(qp, start=start, crossover=crossover)
         try:
             c = np.ascontiguousarray
             v, z, s, lam, iterations, ok, merit = self._compiled(
@@ -372,13 +374,34 @@ class StagewiseSolver:
                 c(qp.R, float), qp.n_decide, c(qp.Fz, float), c(qp.Fv, float), c(qp.f, float), c(qp.soft, bool),
                 qp.rho, qp.kappa, np.zeros(0) if qp.S is None else c(qp.S, float),
                 *((None, None, None) if start is None else
-                  (None if start.v is None else c(start.v, float), c(start.lam, float), c(start.s, float))))
+                  (None if start.v is None else c(start.v, float), c(start.lam, float), c(start.s, float))),
+                crossover)
         except RuntimeError as exc:
             raise SolverError(str(exc)) from None
-        status = "optimal" if ok else "infeasible"
+        status = "crossover" if merit <= crossover else "optimal" if ok else "infeasible"
         message = "" if ok else (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}): "
                                  "the hard limits cannot all hold (infeasible)")
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
+
+    def _interior(self, qp: StageQP, rows: InputRowMap | None, last: StageQPSolution | None):
+        """The interior point where the active set did not settle (or alone: rows other than input
+        rows, warm-started from ``last``): (its solution, its iterations, the active set's sweeps after it).
+
+        On input rows it starts cold and stops at :data:`~parallel_gpc.solvers.CROSSOVER`; the active
+        set then starts from the set the iterate's multipliers name and verifies it (its KKT
+        conditions; 1–5 sweeps measured). A set that does not settle there: the interior point goes on
+        from its iterate to its own tolerance (its solution; the sweeps counted)."""
+        if rows is None:
+            sol = self._solve(qp, self._start(qp, last))
+            return sol, sol.iterations, 0
+        cross = self._solve(qp, None, CROSSOVER)
+        if cross.status != "crossover":
+            return cross, cross.iterations, 0
+        sol = self._active(qp, rows, active_set_of(qp, rows, cross.lam))
+        if sol.status == "optimal":
+            return sol, cross.iterations, sol.iterations
+        rest = self._solve(qp, StageStart(cross.v, cross.lam, cross.s))
+        return rest, cross.iterations + rest.iterations, sol.iterations
 
     def _failed(self, t0: float, message: str) -> SolveResult:
         """A failed solve's result: a NaN plan (Nu·m,), J = inf, the reason; t0: its start (perf_counter)."""
@@ -506,10 +529,10 @@ class StagewiseSolver:
                 else:
                     self.method, fell_back = "interior-point after active set", sol.message
             if sol is None or sol.status != "optimal":
-                sol = self._solve(qp, self._start(qp, last))
-                self.iterations = (self.iterations[0], sol.iterations)
+                sol, ipm, swept = self._interior(qp, rows, last)
+                self.iterations = (self.iterations[0] + swept, ipm)
                 if rows is not None and sol.status == "optimal":  # its active rows start the next step's set
-                    kept = active_set_of(qp, rows, sol.lam)
+                    kept = sol.fixed if isinstance(sol, ActiveSetSolution) else active_set_of(qp, rows, sol.lam)
         except SolverError as exc:
             self._keep_set(None, False)
             return self._failed(t0, str(exc)), None

@@ -40,12 +40,20 @@ import scipy.linalg as sla
 
 from ..errors import SolverError
 
-__all__ = ["StageQP", "StageStart", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER"]
+__all__ = ["StageQP", "StageStart", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER", "CROSSOVER"]
 
 #: stopping tolerance, relative to the problem's scale (largest gradient/penalty entry, ≥ 1).
 IPM_TOL = 1e-13
 #: iteration cap: a problem still not converged is reported (hard limits infeasible, typically).
 IPM_MAX_ITER = 60
+#: the merit (relative KKT residual) at which a caller that can verify an active set stops the
+#: iterations (``crossover`` of :func:`solve_stage_qp`): the stage-wise active set of input rows, started
+#: from the set the iterate's multipliers name, settles in 1–5 sweeps from a cold start's iterate at 0.1
+#: (planar_4rrr, Qu = 1e-5, N = 160, 637 of 640 inputs on a limit, every form: 10–13 iterations of the
+#: 15–21 plus the polish to the tolerance; at 10 the absolute form's set needs 9 sweeps, at 1, 2–4). Not
+#: from a warm start: its first iterates sit near the shifted set the active set has just failed to
+#: settle from (12 sweeps, unsettled, at every merit down to 1e-3).
+CROSSOVER = 0.1
 #: fraction of the step to the boundary of the positive orthant.
 _TAU = 0.995
 #: iterative-refinement passes per Newton step (one back-substitution each, same factorization).
@@ -132,8 +140,9 @@ class StageQPSolution:
     Attributes:
         v: (n_decide, m); z: (N + 1, nz); s: (N, k) slacks (0 on hard and unused rows);
         lam: (N, k) row multipliers; nu: (N + 1, nz) costates (nu[0] unused: z0 is given);
-        iterations: IPM iterations; status: ``"optimal"`` or ``"infeasible"`` (not converged:
-        hard rows that cannot all hold) — the message says which; residual: the largest KKT
+        iterations: IPM iterations; status: ``"optimal"``, ``"infeasible"`` (not converged:
+        hard rows that cannot all hold) — the message says which — or ``"crossover"`` (stopped at the
+        caller's ``crossover`` merit, see :func:`solve_stage_qp`); residual: the largest KKT
         residual, relative to the scale.
     """
 
@@ -306,7 +315,7 @@ def costates(qp: StageQP, z, v, lam, linear: bool = True, active: tuple | None =
 
 
 def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_ITER,
-                   start: StageStart | None = None) -> StageQPSolution:
+                   start: StageStart | None = None, crossover: float = 0.0) -> StageQPSolution:
     """Solve a :class:`StageQP` by Mehrotra's predictor-corrector, one Riccati factorization per iteration.
 
     The objective is first divided by the largest diagonal entry σ of the unconstrained input
@@ -319,10 +328,14 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
         qp: the problem. tol: stopping tolerance relative to the scale. max_iter: iteration cap.
         start: a guess of the solution (the previous step's, shifted), or None: the iterations
             start from the unconstrained plan.
+        crossover: a relative KKT residual (the iterations' merit) at which to stop early, or 0
+            (never): the first iterate at or below it is returned as it is (not polished), status
+            ``"crossover"``: its multipliers name the active set for a method that verifies it
+            (:data:`CROSSOVER`; gpc/stagewise.py hands it to the active set).
 
     Returns:
         The solution (status ``"infeasible"`` when the iterations stop short: its message names the
-        largest remaining violation of a hard row).
+        largest remaining violation of a hard row; ``"crossover"``: see ``crossover``).
 
     Raises:
         SolverError: a Newton system that is not positive definite (R not ≻ 0, non-finite data).
@@ -342,7 +355,8 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
     if start is not None and start.v is not None:
         v = np.asarray(start.v, float).reshape(v.shape)
         z = simulate(qp, v)
-    sol = _solve_scaled(scaled, z, v, tol, max_iter, None if start is None else (start.lam / sigma, start.s))
+    sol = _solve_scaled(scaled, z, v, tol, max_iter, None if start is None else (start.lam / sigma, start.s),
+                        crossover)
     sol.lam *= sigma
     sol.nu *= sigma
     return sol
@@ -481,9 +495,11 @@ def simulate(qp: StageQP, v: np.ndarray) -> np.ndarray:
     return z
 
 
-def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None) -> StageQPSolution:
+def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None, crossover: float = 0.0
+                  ) -> StageQPSolution:
     """The interior-point iterations on a scaled problem from the plan (z, v) (the unconstrained one,
-    or a warm start whose row multipliers and slacks are ``start`` = (λ, s), scaled)."""
+    or a warm start whose row multipliers and slacks are ``start`` = (λ, s), scaled); ``crossover``:
+    see :func:`solve_stage_qp`."""
     used = np.isfinite(qp.f)
     soft = qp.soft & used
     f = np.where(used, qp.f, 0.0)
@@ -511,6 +527,10 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None) -> S
     marked = (np.inf, 0)  # (merit, iteration) of the last marked improvement
     for it in range(max_iter + 1):
         newton = _Newton(qp, point, used, soft, scale, f_scale, factor=False)
+        if newton.merit <= crossover:  # the caller's crossover: this iterate, λ kept on the rows it deems active
+            z, v, t, lam, s, _ = point
+            lam = np.where(used & (lam * f_scale > t * scale), lam, 0.0)  # (the polish's test)
+            return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, newton.nu, it, "crossover", newton.merit)
         improved = best is None or newton.merit < best[0]
         if improved:
             best = (newton.merit, it, point, newton.nu)
