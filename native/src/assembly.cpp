@@ -123,7 +123,8 @@ void ModelUpdate::velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pi
     if (!zero) rows.push_back(r);
   }
   const Index nr = static_cast<Index>(rows.size());
-  Mat K(nr, n_z), Ps(n_z, nr), dK(nr, n_z), dPs, Q, N;
+  // workspaces allocated once per call, reused for every direction
+  Mat K(nr, n_z), Ps(n_z, nr), dK(nr, n_z), dKP(nr, nr), dPs(n_z, nr), Q, N, dKtN, Ky, dKy, dTz;
   for (Index r = 0; r < nr; ++r) {
     for (Index i = 0; i < n_z; ++i) K(r, i) = jac(rows[r], cfg.z_idx[i]);
     Ps.col(r) = pinv.col(rows[r]);
@@ -134,22 +135,23 @@ void ModelUpdate::velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pi
     N = -K.lazyProduct(Ps);
     N.diagonal().array() += 1.0;
   }
+  if (!kin.task) columns_into(jac, cfg.y_idx, Ky);
   dT.resize(nd);
   dP.resize(nd);
   for (size_t j = 0; j < nd; ++j) {
     for (Index r = 0; r < nr; ++r)
       for (Index i = 0; i < n_z; ++i) dK(r, i) = dPsi[j](rows[r], cfg.z_idx[i]);
-    const Mat dKP = dK.lazyProduct(Ps);
+    dKP.noalias() = dK.lazyProduct(Ps);
     dPs.noalias() = -Ps.lazyProduct(dKP);
     if (!square) {
-      const Mat dKtN = dK.transpose().lazyProduct(N);
+      dKtN.noalias() = dK.transpose().lazyProduct(N);
       dPs.noalias() += Q.lazyProduct(dKtN);
     }
     dP[j].setZero(n_z, jac.rows());
     for (Index r = 0; r < nr; ++r) dP[j].col(rows[r]) = dPs.col(r);
     if (!kin.task) {  // T_z = −K⁺ Ψ_y: Ṫ_z = −(K̇⁺ Ψ_y + K⁺ Ψ̇_y)
-      const Mat Ky = columns(jac, cfg.y_idx), dKy = columns(dPsi[j], cfg.y_idx);
-      Mat dTz = dP[j].lazyProduct(Ky);
+      columns_into(dPsi[j], cfg.y_idx, dKy);
+      dTz.noalias() = dP[j].lazyProduct(Ky);
       dTz.noalias() += pinv.lazyProduct(dKy);
       dT[j].setZero(T.rows(), T.cols());
       for (Index i = 0; i < n_z; ++i) dT[j].row(cfg.z_idx[i]) = -dTz.row(i);

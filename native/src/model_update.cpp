@@ -136,7 +136,8 @@ const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates)
   auto &model = kin.model;
   auto &data = kin.data;
   const Index ny = n_y;
-  Mat P(nv, ny * ny);  // column i·n_y + j: 2 b(T e_i, T e_j)
+  Mat &P = rates_P_;  // column i·n_y + j: 2 b(T e_i, T e_j)
+  P.resize(nv, ny * ny);
   if (christoffel_) {
     tangent_rates(P);  // the same from one kinematics pass
   } else {
@@ -152,19 +153,24 @@ const Mat &ModelUpdate::factor_rates(const Vec &X, const Warm *base, Mat &rates)
         P.col(j * ny + i) = P.col(i * ny + j);
       }
   }
-  Mat Mz(nv, n_z), rhs(nv, ny * ny), Wb(n_z, ny);
-  for (Index i = 0; i < n_z; ++i) Mz.col(i) = M_.col(cfg.z_idx[i]);
+  // block j of the right-hand side: M_z W̄(e_j) − ½ P_j, M_z = M's dependent columns (one rank-1 update per
+  // column, no copy of M_z); the small products coefficient-wise (Eigen's blocked GEMM costs more here)
+  Mat &rhs = rates_rhs_, &Wb = rates_Wb_;
+  rhs.resize(nv, ny * ny);
   for (Index j = 0; j < ny; ++j) {
-    Wb.noalias() = pinv_ * (rate_dPhi_[j] * T_);
+    rates_DT_.noalias() = rate_dPhi_[j].lazyProduct(T_);
+    Wb.noalias() = pinv_.lazyProduct(rates_DT_);
     if (!cfg.bias_symmetric) {  // ½ (W + Φ_z⁺ [Φ̇_q(T e_i) T e_j]_i)
       W2_.resize(kin.rows, ny);
-      for (Index i = 0; i < ny; ++i) W2_.col(i).noalias() = rate_dPhi_[i] * T_.col(j);
-      Wb = 0.5 * (Wb + pinv_ * W2_);
+      for (Index i = 0; i < ny; ++i) W2_.col(i).noalias() = rate_dPhi_[i].lazyProduct(T_.col(j));
+      Wb = 0.5 * (Wb + pinv_.lazyProduct(W2_));
     }
-    rhs.middleCols(j * ny, ny).noalias() = Mz * Wb;
-    rhs.middleCols(j * ny, ny) -= 0.5 * P.middleCols(j * ny, ny);
+    auto block = rhs.middleCols(j * ny, ny);
+    block = -0.5 * P.middleCols(j * ny, ny);
+    for (Index i = 0; i < n_z; ++i) block.noalias() += M_.col(cfg.z_idx[i]) * Wb.row(i);
   }
-  solve_reduced(red_.leftCols(ny), T_.transpose() * rhs, rates);
+  rates_red_.noalias() = T_.transpose().lazyProduct(rhs);
+  solve_reduced(red_.leftCols(ny), rates_red_, rates);
   return Z_;
 }
 

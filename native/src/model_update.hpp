@@ -185,6 +185,9 @@ class ModelUpdate {
   std::vector<std::vector<pinocchio::Force>> tangent_oh_;   // their momenta oY ov
   std::vector<std::vector<pinocchio::Motion>> tangent_dJ_;  // the joints' Jacobian rates ov × J at T e_i
   std::vector<pinocchio::Inertia> tangent_oY_;              // world inertias at q_
+  std::vector<pinocchio::Motion> tangent_a_;                // tangent_rates' polarized accelerations
+  std::vector<pinocchio::Force> tangent_f_;                 // and forces (workspaces)
+  Mat rates_P_, rates_rhs_, rates_Wb_, rates_DT_, rates_red_;  // factor_rates' workspaces
   Mat T_, pinv_, dPhi_, W_, W2_, col_, rhs_, red_, Z_, DT_, M_, K_;
   Eigen::LLT<Mat> llt_;
   Mat aug_, E_;

@@ -57,8 +57,10 @@ void ModelUpdate::tangent_rates(Mat &P) {
     }
     kin.jacobian_rate(q_, T_.col(i), rate_dPhi_[i], true);
   }
-  std::vector<Motion> a(nj, Motion::Zero());
-  std::vector<Force> f(nj);
+  std::vector<Motion> &a = tangent_a_;
+  std::vector<Force> &f = tangent_f_;
+  a.assign(nj, Motion::Zero());
+  f.resize(nj);
   for (Index i = 0; i < ny; ++i)
     for (Index j = i; j < ny; ++j) {
       const auto &vi = tangent_ov_[i], &vj = tangent_ov_[j];

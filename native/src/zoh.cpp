@@ -79,28 +79,47 @@ void TopRowsExpmDerivative::set_table(std::vector<double> degree_norms) {
   inv_fact_ = inverse_factorials(norms_.size() + 5);
 }
 
-void TopRowsExpmDerivative::action(const std::vector<Mat> &D, const Vec &u, Mat &out) {
-  const Index m = A_.rows(), n_dir = static_cast<Index>(D.size()), Kd = K_ + 2;
+void TopRowsExpmDerivative::stack(const std::vector<Mat> &D) {
+  // the rows that are nonzero in some direction (a robot's ZOH directions move only the ẏ rows): the
+  // others give exact zeros in every D_k A^l u, so they are left out of the products
+  const Index m = A_.rows(), n = A_.cols(), n_dir = static_cast<Index>(D.size());
+  live_.clear();
+  for (Index r = 0; r < m; ++r) {
+    bool zero = true;
+    for (Index k = 0; k < n_dir && zero; ++k) zero = (D[k].row(r).array() == 0.0).all();
+    if (!zero) live_.push_back(r);
+  }
+  const Index nr = static_cast<Index>(live_.size());
+  G_.resize(n_dir * nr, n);
+  for (Index k = 0; k < n_dir; ++k)
+    for (Index t = 0; t < nr; ++t) G_.row(k * nr + t) = D[k].row(live_[t]);
+}
+
+void TopRowsExpmDerivative::action(Index n_dir, const Vec &u, Mat &out) {
+  const Index m = A_.rows(), Kd = K_ + 2, nr = static_cast<Index>(live_.size());
   R_.resize(Kd);
-  // R_l (m, n_dir): column k = D_k A^l u; A^l u lives in the top m rows for l ≥ 1
+  // R_l (m, n_dir): column k = D_k A^l u (the directions stacked in G_: one product for all); A^l u lives
+  // in the top m rows for l ≥ 1. Coefficient-wise products: Eigen's GEMV/GEMM cost more than they save here
   for (Index l = 0; l < Kd; ++l) {
-    R_[l].resize(m, n_dir);
     if (l == 0) {
-      for (Index k = 0; k < n_dir; ++k) R_[0].col(k).noalias() = D[k] * u;
-      w_.noalias() = A_ * u;
+      g_.noalias() = G_.lazyProduct(u);
+      w_.noalias() = A_.lazyProduct(u);
     } else {
-      for (Index k = 0; k < n_dir; ++k) R_[l].col(k).noalias() = D[k].leftCols(m) * w_;
-      wn_.noalias() = A_.leftCols(m) * w_;
+      g_.noalias() = G_.leftCols(m).lazyProduct(w_);
+      wn_.noalias() = A_.leftCols(m).lazyProduct(w_);
       w_.swap(wn_);
     }
+    R_[l].setZero(m, n_dir);
+    for (Index k = 0; k < n_dir; ++k)
+      for (Index t = 0; t < nr; ++t) R_[l](live_[t], k) = g_[k * nr + t];
   }
   // Σ_(i+l<Kd) A^i R_l / (i+l+1)!, Horner over i
   out = inv_fact_[Kd] * R_[0];
   for (Index i = Kd - 2; i >= 0; --i) {
     S_ = inv_fact_[i + 1] * R_[0];
     for (Index l = 1; l < Kd - i; ++l) S_ += inv_fact_[i + l + 1] * R_[l];
-    Y_.noalias() = A_.leftCols(m) * out;
-    out = S_ + Y_;
+    S_.noalias() += A_.leftCols(m).lazyProduct(out);
+    out.swap(S_);
   }
 }
 
@@ -114,14 +133,16 @@ bool TopRowsExpmDerivative::run(const Mat &M_top, const std::vector<Mat> &D, con
   K_ = degree(norms_, norm * scale);
   taylor_top(A_, K_, inv_fact_, F_, P_, Pn_);
   // the derivative is linear in the directions: run on D and scale the sum once (no scaled copies of D)
+  stack(D);
+  const Index n_dir = static_cast<Index>(D.size());
   u_ = xi;
-  action(D, u_, dE);
+  action(n_dir, u_, dE);
   for (long r = 1; r < (1L << s); ++r) {  // d(F^p ξ) = Σ_r F^(p−1−r) dF F^r ξ, Horner over r
-    wn_.noalias() = F_ * u_;
+    wn_.noalias() = F_.lazyProduct(u_);
     u_.head(m) = wn_;
-    action(D, u_, acc_);
-    Y_.noalias() = F_.leftCols(m) * dE;
-    dE = Y_ + acc_;
+    action(n_dir, u_, acc_);
+    acc_.noalias() += F_.leftCols(m).lazyProduct(dE);
+    dE.swap(acc_);
   }
   dE *= scale;
   E = F_;

@@ -35,12 +35,15 @@ class TopRowsExpmDerivative {
   bool run(const Mat &M_top, const std::vector<Mat> &D, const Vec &xi, Mat &E, Mat &dE);
 
  private:
+  // the directions' rows that are not zero in all of them, stacked direction by direction into G_
+  void stack(const std::vector<Mat> &D);
   // dF u / 2^-s for every direction D_k (m, n_dir), F = e^A, A = M/2^s (dF along 2^-s D_k: linear in D_k)
-  void action(const std::vector<Mat> &D, const Vec &u, Mat &out);
+  void action(Index n_dir, const Vec &u, Mat &out);
   std::vector<double> norms_, inv_fact_;
   std::vector<Mat> R_;
-  Mat A_, P_, Pn_, F_, E2_, Y_, S_, acc_;
-  Vec u_, w_, wn_;
+  std::vector<Index> live_;  // rows of the directions that are not zero in all of them
+  Mat A_, P_, Pn_, F_, E2_, G_, S_, acc_;
+  Vec u_, w_, wn_, g_;
   Index K_ = 0;
 };
 }  // namespace pgpc
