@@ -1,5 +1,5 @@
 // The small systems of every pre-simulated stage and Riccati step (M_r of a model update, 3×3 … 12×12; the
-// assembly's K, 8×8 … 24×24; R + BᵀPB, m×m) solved by plain loops: Eigen's triangular solve and LU of a
+// assembly's K, 8×8 … 24×24; R + BᵀPB, m×m, also the active set's free inputs' block) solved by plain loops: Eigen's triangular solve and LU of a
 // dynamic matrix block and pack their operands for large systems, which at these sizes is most of their
 // instructions (callgrind, docs/performance.md#the-nonlinear-step). The arithmetic is the same
 // substitution and elimination (Eigen's LLT factor; the LU's pivots as PartialPivLU's); only the order
@@ -39,13 +39,39 @@ void upper_in_place(const F &U, X &x, bool transposed) {
     }
 }
 
+// X ← A⁻¹ X from the Cholesky factor L of A = L Lᵀ (the lower triangle of F); X a matrix or a vector
+template <class F, class X>
+void llt_solve_in_place(const F &L, X &x) {
+  lower_in_place(L, x, false);
+  upper_in_place(L, x, true);
+}
+
 // out = A⁻¹ B from the Cholesky factorization A = L Lᵀ (llt.info() == Success); out a matrix or a vector
 template <class B, class Out>
 void llt_solve(const Eigen::LLT<Mat> &llt, const B &b, Out &out) {
-  const Mat &F = llt.matrixLLT();  // L in its lower triangle
   out = b;
-  lower_in_place(F, out, false);
-  upper_in_place(F, out, true);
+  llt_solve_in_place(llt.matrixLLT(), out);  // L in its lower triangle
+}
+
+// F ← the Cholesky factor L of the symmetric positive definite F (its lower triangle read and written:
+// A = L Lᵀ, Eigen's LLT factor); false (F left part-way) when a pivot is not positive (or NaN). Plain loops:
+// at a few inputs, with the size known at compile time, unrolled (the stage-wise active set's R + BᵀPB).
+template <class F>
+bool cholesky_in_place(F &L) {
+  const Index n = L.rows();
+  for (Index j = 0; j < n; ++j) {
+    double t = L(j, j);
+    for (Index c = 0; c < j; ++c) t -= L(j, c) * L(j, c);
+    if (!(t > 0.0)) return false;
+    const double l = std::sqrt(t);
+    L(j, j) = l;
+    for (Index r = j + 1; r < n; ++r) {
+      double x = L(r, j);
+      for (Index c = 0; c < j; ++c) x -= L(r, c) * L(j, c);
+      L(r, j) = x / l;
+    }
+  }
+  return true;
 }
 
 // inv = A⁻¹ (A square) by Gaussian elimination with partial pivoting (the largest |entry| of the column,

@@ -27,6 +27,7 @@
 #include <vector>
 
 #include "bindings.hpp"
+#include "small_solve.hpp"
 #include "stage_arrays.hpp"
 #include "stage_model.hpp"
 #include "zoh.hpp"
@@ -51,48 +52,6 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
 };
 
 using VMap = Eigen::Map<const Vec>;
-
-// X ← −(L Lᵀ)⁻¹ X for the Cholesky factor L (lower triangle of `L`) of a few free inputs and the
-// reciprocals of its diagonal d: plain substitution (Eigen's triangular solve packs its operands for a
-// blocked product, slower at these sizes)
-template <class ML, class VD, class M>
-void neg_chol_solve(const ML &L, const VD &d, M &X) {
-  const long n = L.rows();
-  for (long c = 0; c < X.cols(); ++c) {
-    for (long a = 0; a < n; ++a) {
-      double t = X(a, c);
-      for (long b = 0; b < a; ++b) t -= L(a, b) * X(b, c);
-      X(a, c) = t * d(a);
-    }
-    for (long a = n - 1; a >= 0; --a) {  // the solved entries below a are already negated
-      double t = X(a, c);
-      for (long b = a + 1; b < n; ++b) t += L(b, a) * X(b, c);
-      X(a, c) = -t * d(a);
-    }
-  }
-}
-
-// L ← the Cholesky factor (its lower triangle) of the symmetric positive definite L (read: the lower
-// triangle), d ← the reciprocals of its diagonal; false (L left part-way) when a pivot is not positive
-// (or NaN). Plain loops: at a few inputs, with the size known at compile time, unrolled.
-template <class ML, class VD>
-bool cholesky_lower(ML &L, VD &d) {
-  const long n = L.rows();
-  for (long j = 0; j < n; ++j) {
-    double t = L(j, j);
-    for (long c = 0; c < j; ++c) t -= L(j, c) * L(j, c);
-    if (!(t > 0.0)) return false;
-    const double l = std::sqrt(t);
-    L(j, j) = l;
-    d(j) = 1.0 / l;
-    for (long r = j + 1; r < n; ++r) {
-      double x = L(r, j);
-      for (long c = 0; c < j; ++c) x -= L(r, c) * L(j, c);
-      L(r, j) = x * d(j);
-    }
-  }
-  return true;
-}
 
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
@@ -122,11 +81,11 @@ struct SweepTemps {
   MM Hvv, Hww;  // Hww: the free inputs' Hessian, the fixed ones' rows and columns those of the identity
   MMZ Hvz, Hz, Hwz;
   VZ p, lin, w;
-  VM gv, gw, vf, dinv;
+  VM gv, gw, vf;
   void resize(long nz, long m) {  // the dynamic ones' sizes (fixed: no-ops of the same size)
     P.resize(nz, nz), Pz.resize(nz, nz), PA.resize(nz, nz), PB.resize(nz, m), Hvv.resize(m, m);
     Hww.resize(m, m), Hvz.resize(m, nz), Hz.resize(m, nz), Hwz.resize(m, nz), p.resize(nz), lin.resize(nz);
-    w.resize(nz), gv.resize(m), gw.resize(m), vf.resize(m), dinv.resize(m);
+    w.resize(nz), gv.resize(m), gw.resize(m), vf.resize(m);
   }
 };
 
@@ -196,7 +155,7 @@ struct Sweep {
     auto &Hvv = t.Hvv, &Hww = t.Hww;
     auto &Hvz = t.Hvz, &Hz = t.Hz, &Hwz = t.Hwz;
     auto &p = t.p, &lin = t.lin, &w = t.w;
-    auto &gv = t.gv, &gw = t.gw, &dinv = t.dinv;
+    auto &gv = t.gv, &gw = t.gw;
     auto Pi = [&](long i) { return ZZ(Ps.data() + i * nz * nz, nz, nz); };
     auto pi = [&](long i) { return ZW(ps.data() + i * nz, nz); };
     long top = N - 1;  // the last stage to redo
@@ -277,16 +236,16 @@ struct Sweep {
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          if (!cholesky_lower(Hww, dinv))
+          if (!small_solve::cholesky_in_place(Hww))
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
           GM Ki(K.data() + i * m * nz, m, nz);
           GV ki(k.data() + i * m, m);
-          Ki = Hwz;
-          neg_chol_solve(Hww, dinv, Ki);
-          ki = gw;
-          neg_chol_solve(Hww, dinv, ki);
+          Ki = -Hwz;  // K = −Hww⁻¹ Hwz, k = −Hww⁻¹ gw
+          small_solve::llt_solve_in_place(Hww, Ki);
+          ki = -gw;
+          small_solve::llt_solve_in_place(Hww, ki);
           Pz.noalias() += Hwz.transpose().lazyProduct(Ki);
           lin.noalias() += Hwz.transpose().lazyProduct(ki);
         }

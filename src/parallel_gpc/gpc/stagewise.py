@@ -27,7 +27,7 @@ this module only places them on the stages:
 
 From the controller's second step on, the solve starts from the previous solution shifted by one
 stage (the active set's rows, :func:`~parallel_gpc.solvers.shift_active_set`; for the incremental
-forms, :data:`EDGE_FORMS`, with the edges of the limited arcs that moved from step to step moved
+forms and the nonlinear one, :data:`EDGE_FORMS`, with the edges of the limited arcs that moved from step to step moved
 again while that brought the last step nearer its set; the interior point's plan, multipliers and
 slacks, :class:`~parallel_gpc.solvers.StageStart`, on rows other than input rows).
 The nonlinear form's torque rows after Nu (the held deviation plus the pre-simulated input: rows
@@ -63,10 +63,13 @@ __all__ = ["StagewiseSolver", "stage_problem", "input_bounds", "step_bounds", "t
 STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 #: the forms whose next active set moves the last step's moving arc edges again
 #: (:func:`~parallel_gpc.solvers.shift_active_set` with the set before): their torque rows act on the
-#: held input, whose limited arcs grow or shrink smoothly from step to step (planar_4rrr, incremental,
-#: N = 160: 3 sweeps a step → 1). Not the absolute and nonlinear forms: their limited inputs switch
-#: between the bounds, and a move repeated there costs more sweeps (N = 160: 3–7 → up to 12).
-EDGE_FORMS = ("incremental", "incremental-delayed")
+#: held input (the nonlinear form's, after Nu, on the held deviation), whose limited arcs grow or shrink
+#: smoothly from step to step (planar_4rrr, incremental, N = 160: 3 sweeps a step → 1; nonlinear, N = 80:
+#: 3.9 → 1.2–1.7, the pre-simulated inputs' arcs moving by 1–4 stages a step). A moved start that does
+#: not settle is followed by the plain shift before the interior point (:meth:`StagewiseSolver._plain_after`).
+#: Not the absolute form: its limited inputs switch between the bounds, and a move repeated there costs
+#: more sweeps (N = 160: 3–7 → up to 12).
+EDGE_FORMS = ("incremental", "incremental-delayed", "nonlinear")
 #: the shortest control horizon Nu whose steps move the edges: the prediction and its check cost ~30 µs
 #: of Python a step, a sweep saved pays that from N ≈ 80 (planar_4rrr, incremental, limited/unconstrained:
 #: N = 160 1.55–1.94 → 1.10–1.26; N = 20 1.24–1.27 → 1.37–1.42 with it).
@@ -329,14 +332,29 @@ class StagewiseSolver:
         self._starts = (plain, moved)
         return moved if self._edges and moved is not None else plain
 
+    def _plain_after(self, start: np.ndarray | None) -> np.ndarray | None:
+        """The plain shift of this step's starts (:meth:`_next_start`) when ``start`` was the moved
+        edges' one and differs from it, else None: the start to try next when the moved one did not
+        settle, before the interior point (a mispredicted move: planar_4rrr, nonlinear, N = 160, a
+        step of 12 sweeps and 27 interior-point iterations that the plain shift settles in 3)."""
+        if self._starts is None or start is None:
+            return None
+        plain, moved = self._starts
+        return plain if moved is not None and start is moved and not np.array_equal(plain, moved) else None
+
     def _keep_set(self, fixed: np.ndarray | None, warm: bool) -> None:
         """Keep ``fixed`` (the step's active set, or None) as the next step's, the last one as the set
         before (warm: a step after the last; else None), and whether the next step starts from the
-        moved edges: when this step's set is nearer (fewer components differing) its moved start than
-        the plain shift (an edge moving steadily; not one that turns back or moves every other step)."""
+        moved edges: when this step's set is at most half as far (components differing) from its moved
+        start as from the plain shift (an edge moving steadily; not one that turns back or moves every
+        other step, nor sets changing all along the horizon: planar_4rrr, nonlinear, N = 160, moved
+        4 and 8 components off where the plain shift was 7, a moved start that then failed to settle)."""
         plain, moved = self._starts if warm and self._starts is not None else (None, None)
-        self._edges = (fixed is not None and moved is not None
-                       and np.count_nonzero(moved != fixed) < np.count_nonzero(plain != fixed))
+        if fixed is not None and moved is not None:
+            off_moved, off_plain = np.count_nonzero(moved != fixed), np.count_nonzero(plain != fixed)
+            self._edges = off_plain > 0 and 2 * off_moved <= off_plain
+        else:
+            self._edges = False
         self._before, self._fixed, self._starts = (self._fixed if warm else None), fixed, None
 
     def _input_rows(self, qp: StageQP) -> InputRowMap | None:
@@ -440,6 +458,11 @@ class StagewiseSolver:
         try:
             _, J, _, _, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f, shift, v,
                                                                              lam, fixed)
+            plain = None if ok else self._plain_after(start)
+            if plain is not None:  # the moved edges' start did not settle: the plain shift's next
+                _, J, _, _, more, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, plain, cap, f, False, v,
+                                                                           lam, fixed)
+                iterations += more
         except RuntimeError as exc:
             self._last = None
             self._keep_set(None, False)
@@ -523,6 +546,10 @@ class StagewiseSolver:
                 self._unsettled = None
             elif rows is not None:
                 sol = self._active(qp, rows, fixed_start)
+                plain = None if sol.status == "optimal" else self._plain_after(fixed_start)
+                if plain is not None:  # the moved edges' start did not settle: the plain shift's next
+                    swept, sol = sol.iterations, self._active(qp, rows, plain)
+                    sol.iterations += swept
                 self.iterations = (sol.iterations, 0)
                 if sol.status == "optimal":
                     self.method, kept = "active-set", sol.fixed
