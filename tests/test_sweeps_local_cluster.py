@@ -46,7 +46,8 @@ def _sleeping(cell):
 
 def _scripted(cell):
     """:func:`_where`; the cell ``_SCRIPT["at"]``, run in this process's main thread, releases the
-    cluster's start and returns only once the cluster took the cells left (or after 60 s)."""
+    cluster's start and returns only once the cluster submitted its first batches, or found no cell
+    left (or after 60 s)."""
     if cell.index == _SCRIPT["at"] and threading.current_thread() is threading.main_thread():
         _SCRIPT["go"].set()
         _SCRIPT["taken"].wait(60)
@@ -54,31 +55,36 @@ def _scripted(cell):
 
 
 def _threads_in_process_cluster(n_workers):
-    """A cluster of 2 worker threads in this process (cells visible by thread), started on ``go``."""
+    """A cluster of ``n_workers`` worker threads in this process (cells visible by thread), started on ``go``."""
     _SCRIPT["go"].wait(60)
     from dask.distributed import LocalCluster
 
-    return LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None)
 
 
 @pytest.fixture
 def scripted(monkeypatch):
     """run_sweep's own cluster made of threads of this process, coming up when the script says:
-    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; once
-    it took the cells left (``_SCRIPT["taken"]``) it is seen up only 0.3 s later (this process
-    finishes its cell meanwhile, and must not take another)."""
+    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; it
+    says when it submitted its first batches, or found no cell left (``_SCRIPT["taken"]``)."""
     class Recorded(BackgroundCluster):
         def __init__(self, n_workers, on_up, timeline=None):
-            def taken_then_slow(client):
-                value = on_up(client)
-                _SCRIPT["taken"].set()
-                time.sleep(0.3)
-                return value
+            def then_taken(client):
+                try:
+                    return on_up(client)
+                finally:
+                    _SCRIPT["taken"].set()
 
             _SCRIPT["clusters"].append(self)
-            super().__init__(n_workers, taken_then_slow, timeline)
+            super().__init__(n_workers, then_taken, timeline)
+
+    class FirstFill(runner._Dispatch):
+        def fill(self):
+            super().fill()
+            _SCRIPT["taken"].set()
 
     monkeypatch.setattr(runner, "BackgroundCluster", Recorded)
+    monkeypatch.setattr(runner, "_Dispatch", FirstFill)
     monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
     monkeypatch.setattr(local_cluster, "start_local_cluster", _threads_in_process_cluster)
     _SCRIPT["go"].clear()
@@ -97,21 +103,26 @@ def _no_sweep_thread():
     return not any(t.name == "sweep cluster" for t in threading.enumerate())
 
 
-def test_the_cluster_coming_up_mid_cell_takes_the_cells_left_once(scripted):
-    """The cluster comes up while the third cell runs here: its thread takes the 17 cells left (its
-    first batches, the rest as they return), this process finishes its cell and runs no other, even
-    before it sees the cluster up; every cell runs once, records in order."""
+def test_the_cluster_coming_up_mid_cell_shares_the_cells_left(scripted):
+    """The cluster (one worker: this process is the other stream of workers=2) comes up while the
+    third cell runs here: it submits its first batches from the queue's left, sized by the time
+    measured here; this process finishes its cell and goes on with the cells after them while the
+    batches run; every cell runs once, here or there, records in order."""
     cells = _cells(20)
     scripted["at"] = 2
     result = run_sweep(cells, workers=2, progress=False, func=_scripted)
-    assert (result.ran, result.local, sum(result.batches)) == (20, 3, 17)
+    assert result.ran == 20 and result.local + sum(result.batches) == 20
     assert [r["key"] for r in result.records] == [c.key for c in cells]
     assert [r["index"] for r in result.records] == list(range(20))
-    assert _where_ran(result) == ["here"] * 3 + ["cluster"] * 17
-    assert all(size > 1 for size in result.batches[:2])  # sized by the time measured here
+    where = _where_ran(result)
+    first = sum(result.batches[:runner.IN_FLIGHT])  # the batches of the first fill, a worker's share
+    assert all(size > 1 for size in result.batches[:runner.IN_FLIGHT])  # sized by the time measured here
+    assert where[:3 + first] == ["here"] * 3 + ["cluster"] * first
+    assert where.count("here") == result.local
+    assert len({r["error"] for r in result.records if where[r["index"]] == "cluster"}) == 1  # one worker
     events = list(result.timeline)
-    assert events.index("cluster start") < events.index("on_up done") < events.index("handover")
-    assert events.index("handover") < events.index("closed") < events.index("done") == len(events) - 1
+    assert events.index("cluster start") < events.index("first batches") < events.index("local done")
+    assert events.index("on_up done") < events.index("closed") < events.index("done") == len(events) - 1
     assert _no_sweep_thread()
 
 
