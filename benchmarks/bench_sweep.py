@@ -35,6 +35,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from parallel_gpc.sweeps import TIMING_COLUMNS, failed_record, load_spec, run_cell  # noqa: E402
+from parallel_gpc.model import available_cores  # noqa: E402
 from parallel_gpc.sweeps import run_sweep, start_local_cluster  # noqa: E402
 
 
@@ -152,7 +153,7 @@ def instrument(result, cpu, serial_cpu):
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--workers", type=int, default=available_cores())
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
     args = parser.parse_args()

@@ -5,6 +5,7 @@ forks kept out of a running cell, Ctrl-C kept from the workers."""
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -75,6 +76,7 @@ def scripted(monkeypatch):
                 finally:
                     _SCRIPT["taken"].set()
 
+            self.n_workers = n_workers
             _SCRIPT["clusters"].append(self)
             super().__init__(n_workers, then_taken, timeline)
 
@@ -120,6 +122,7 @@ def test_the_cluster_coming_up_mid_cell_shares_the_cells_left(scripted):
     assert where[:3 + first] == ["here"] * 3 + ["cluster"] * first
     assert where.count("here") == result.local
     assert len({r["error"] for r in result.records if where[r["index"]] == "cluster"}) == 1  # one worker
+    assert [cluster.n_workers for cluster in scripted["clusters"]] == [1]
     events = list(result.timeline)
     assert events.index("cluster start") < events.index("first batches") < events.index("local done")
     assert events.index("on_up done") < events.index("closed") < events.index("done") == len(events) - 1
@@ -134,6 +137,42 @@ def test_a_cluster_up_after_the_last_cell_gets_none_and_is_stopped(scripted):
     assert _where_ran(result) == ["here"] * 5
     assert [r["key"] for r in result.records] == [c.key for c in cells]
     assert "closed" in result.timeline and _no_sweep_thread()
+
+
+@pytest.mark.parametrize("workers, cores", [(3, None), (None, 4)])
+def test_n_streams_are_this_process_and_n_minus_1_workers_by_default_the_cores_it_may_use(
+        scripted, monkeypatch, workers, cores):
+    """workers=3, or workers=None on a process that may use 4 cores (available_cores, the
+    project's one count of cores): the cluster started has 2, resp. 3 workers, their first fill
+    IN_FLIGHT batches each, each batch at most the cells left / (SHARES · streams)."""
+    import parallel_gpc.model as model
+
+    if cores is not None:
+        monkeypatch.setattr(model, "available_cores", lambda: cores)
+    streams = workers or cores
+    scripted["at"] = 1
+    result = run_sweep(_cells(60), workers=workers, progress=False, func=_scripted)
+    assert result.ran == 60 and result.local + sum(result.batches) == 60
+    assert [cluster.n_workers for cluster in scripted["clusters"]] == [streams - 1]
+    left = 60 - 2
+    for size in result.batches[:runner.IN_FLIGHT * (streams - 1)]:  # the first fill, sized from cells 0 and 1
+        assert 1 < size <= math.ceil(left / (runner.SHARES * streams))
+        left -= size
+    assert _where_ran(result)[:2] == ["here"] * 2 and _no_sweep_thread()
+
+
+def test_a_cluster_that_fails_to_start_is_one_error_and_the_cells_run_here_are_kept(monkeypatch, tmp_path):
+    """The start of the sweep's own cluster raises: run_sweep raises that error (no cell waits for a
+    cluster that will not come), the cells run here meanwhile are in the store, no thread is left."""
+    def no_ports(n_workers):
+        raise OSError("no free port on 127.0.0.1")
+
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
+    monkeypatch.setattr(local_cluster, "start_local_cluster", no_ports)
+    with pytest.raises(OSError, match="no free port"):
+        run_sweep(_cells(200), workers=2, progress=False, func=_sleeping, store=tmp_path)
+    saved = run_sweep(_cells(200), workers=0, progress=False, func=_where, store=tmp_path)
+    assert 1 <= saved.skipped < 200 and _no_sweep_thread()
 
 
 def test_forks_wait_for_the_cell_running_in_the_gate_and_go_before_the_next():

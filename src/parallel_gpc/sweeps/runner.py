@@ -3,39 +3,48 @@
 ``run_sweep(spec_or_cells, workers=…, scheduler=…, store=…)``:
 
 * ``workers=0`` — serial, in this process (debugging; exceptions show where they happen);
-* ``workers=None`` or n ≥ 1 — a local Dask cluster (``LocalCluster``: n worker processes, one
-  thread each, bound to 127.0.0.1 (its HTTP port too); default n = CPU cores), started and closed here;
+* ``workers=None`` or n ≥ 2 — n streams of cells: this process and a local Dask cluster
+  (``LocalCluster``: n − 1 worker processes, one thread each, bound to 127.0.0.1 (its HTTP port
+  too)), started and closed here; default n = the cores this process may run on
+  (:func:`~parallel_gpc.model.native_update.available_cores`); ``workers=1`` — one worker process
+  runs every cell (a cell that crashes it does not end the sweep);
 * ``scheduler="tcp://HOST:PORT"`` (or a ``distributed.Client``) — an existing cluster whose
   workers can import ``parallel_gpc`` and read the robot files.
 
 Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: on
 a running cluster the first tasks are single cells; then a batch holds about
 :data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
-share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
-together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task once per ten cells, not
-once per cell. The records of a batch are journalled as it returns.
+share of the cells left (:data:`SHARES` per stream; :data:`IN_FLIGHT` batches queued per worker),
+so that the streams finish together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task
+once per ten cells, not once per cell. The records of a batch are journalled as it returns.
 
-A sweep on a local cluster it starts itself (:mod:`.local_cluster`) runs its first cells in this
-process and starts the cluster in the background once the work left (cells left × their mean
-time here) repays its cost (:func:`~.local_cluster.cluster_pays`, per the time the extra workers
-save); the cells keep running here while the workers start, and the cells left go to the cluster
-the moment it is up, its first batches sized by the time per cell measured here (no single-cell
-tasks). A small sweep never starts it: it is never slower than a serial one. The cluster is closed
-in the background after the last batch returned, while the records and tables are assembled, and
-``run_sweep`` returns once it is closed.
+A sweep on a local cluster of its own (:mod:`.local_cluster`) runs cells in this process from
+start to end, one at a time, and starts the cluster of n − 1 workers in the background once the
+work left (cells left × their mean time here) repays its cost
+(:func:`~.local_cluster.cluster_pays`, per the time the extra workers save). The moment it is up,
+its workers take batches from the same queue (a cell runs once, here or there), the first ones
+sized by the time per cell measured here (no single-cell tasks); this process journals their
+records between two of its cells. This process is one of the n streams because it is there
+anyway: a cluster of n workers would add a process, its fork, heartbeats and twice the Dask tasks
+(per sweep of 64 cells on 2 cores, 0.37–0.51 CPU-s outside the cells instead of 0.24–0.31), CPU
+taken from the cells on a machine with one core per stream. A small sweep never starts the
+cluster: it is never slower than a serial one. The cluster is closed in the background after the
+last batch returned, while the records and tables are assembled, and ``run_sweep`` returns once
+it is closed.
 
-Local workers are forked from this process where the platform allows it (:data:`~.local_cluster.START_METHOD`,
-Linux): they start with the modules the first cells imported (the package, Pinocchio, the compiled
-core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
-checks run seldom (:data:`~.local_cluster.CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
+Local workers are forked from this process where the platform allows it
+(:data:`~.local_cluster.START_METHOD`, Linux): they start with the modules the first cells
+imported (the package, Pinocchio, the compiled core) instead of importing them again (spawned:
+~1.7 CPU-s per worker), and Dask's periodic checks run seldom
+(:data:`~.local_cluster.CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
 ``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
-workers too. A progress bar shows done / failed / ETA as cells (batches) finish
-(``distributed.as_completed``). A cell that fails is a record with its error, a cell whose
-closed loop diverged a record of the part run; the sweep goes on. Ctrl-C cancels the cells not
-yet finished and keeps the finished ones (already journalled in the store; a batch still
-running is lost, at most :data:`BATCH_SECONDS` per worker of work), so a rerun resumes; the
-local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is
-quiet. A store is locked while the sweep runs: a second sweep into the same folder is refused.
+workers too. A progress bar shows done / failed / ETA as cells (batches) finish. A cell that
+fails is a record with its error, a cell whose closed loop diverged a record of the part run; the
+sweep goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
+journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
+of work), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the sweep stops them)
+and the cluster's shutdown is quiet. A store is locked while the sweep runs: a second sweep into
+the same folder is refused.
 """
 
 from __future__ import annotations
@@ -48,8 +57,8 @@ import threading
 import time
 import uuid
 from collections import deque
-from queue import Empty, SimpleQueue
 from dataclasses import dataclass, field
+from queue import Empty, SimpleQueue
 
 from tqdm import tqdm
 
@@ -95,14 +104,15 @@ class SweepResult:
         skipped_lines: lines of the store's journal that were not records (skipped, counted).
         interrupted: Ctrl-C stopped the sweep before every cell finished.
         total: cells in the sweep.
-        local: cells run in this process (its own local cluster only: before and while the
-            cluster started; all of them when it did not pay).
+        local: cells run in this process (its own local cluster only; all of them when the
+            cluster did not pay).
         batches: cells per Dask task, in the order submitted (empty: no cluster was used).
         timeline: when the phases of the run happened, s since ``run_sweep`` began, in order:
-            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"on_up done"`` (first
-            batches submitted), ``"handover"`` (this process stops running cells), ``"last
-            record"``, ``"close begin"``, ``"closed"`` (a cluster of its own), ``"tables
-            written"``, ``"done"``; the phases a run did not have are missing.
+            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"first batches"``
+            (submitted), ``"local done"`` (this process ran its last cell), ``"on_up done"`` (the
+            cluster's last batch returned), ``"last record"``, ``"close begin"``, ``"closed"``
+            (a cluster of its own), ``"tables written"``, ``"done"``; the phases a run did not
+            have are missing.
     """
 
     records: list = field(default_factory=list)
@@ -160,7 +170,8 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
 
     Args:
         spec: a :class:`~parallel_gpc.sweeps.spec.SweepSpec` or a list of cells.
-        workers: 0 = serial in-process; n ≥ 1 = a LocalCluster of n processes; None = CPU cores.
+        workers: 0 = serial in-process; n ≥ 2 = this process and a LocalCluster of n − 1
+            processes; 1 = a LocalCluster of one process; None = the cores this process may use.
         scheduler: address ``"tcp://HOST:PORT"`` of a running Dask scheduler, or a Client
             (then ``workers`` is ignored).
         store: a :class:`~parallel_gpc.sweeps.store.SweepStore`, a folder path, or None
