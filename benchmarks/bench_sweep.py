@@ -5,8 +5,8 @@ Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR]
 (PYTHONPATH=src or the package installed). Two sweeps on planar_3rrr (S-curve over 80 % of the run,
 Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass scales, 0.5 s runs,
 ~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
-round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (its own
-LocalCluster: start-up, the cells run here while it starts, and shutdown included) and on a
+round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (this process and
+its own LocalCluster of W − 1 workers: start-up and shutdown included) and on a
 running LocalCluster (``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
 the three rotates from round to round; every path runs the same cells, one cell runs in this
 process before the first round so that no path pays the first imports), and checks that every
@@ -19,7 +19,8 @@ the cells against the same cells serially, Dask's own CPU (this process: schedul
 nannies; the workers beyond their cells), each worker's idle time (before its first cell, between
 cells, after its last), the tasks' sizes, the bytes of the records returned; and when the phases
 of ``run_sweep``'s own cluster happened (``SweepResult.timeline``: the cluster's start in the
-background, up, the hand-over of the cells left, the last record, closed, done). The tables go to
+background, up, its first batches, this process's last cell, the cluster's last batch, the last
+record, closed, done). The tables go to
 DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
 """
 
@@ -208,7 +209,8 @@ def main() -> int:
         serial = statistics.median(t["serial"])
         rows.append((f"{name} ({failed[name]} failed; mean cell {cell_means[name]:.3f} s serial)", ""))
         rows.append(("  serial (workers=0)", f"{serial:.2f} s"))
-        for key, label in (("own", f"run_sweep(workers={w}): own LocalCluster, start-up and shutdown included"),
+        for key, label in (("own", f"run_sweep(workers={w}): this process + own LocalCluster({w - 1}), start-up and "
+                                   "shutdown included"),
                            ("running", f"running LocalCluster({w})")):
             ratios = [s / d for s, d in zip(t["serial"], t[key])]
             speedup = statistics.median(ratios)
