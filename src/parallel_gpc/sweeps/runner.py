@@ -26,8 +26,9 @@ its workers take batches from the same queue (a cell runs once, here or there), 
 sized by the time per cell measured here (no single-cell tasks); this process journals their
 records between two of its cells. This process is one of the n streams because it is there
 anyway: a cluster of n workers would add a process, its fork, heartbeats and twice the Dask tasks
-(per sweep of 64 cells on 2 cores, 0.37–0.51 CPU-s outside the cells instead of 0.24–0.31), CPU
-taken from the cells on a machine with one core per stream. A small sweep never starts the
+(64 cells of 0.1 s on 2 cores: 0.41–0.58 CPU-s outside the cells instead of 0.24–0.37,
+``benchmarks/bench_sweep.py --overhead``), CPU taken from the cells on a machine with one core per
+stream. A small sweep never starts the
 cluster: it is never slower than a serial one. The cluster is closed in the background after the
 last batch returned, while the records and tables are assembled, and ``run_sweep`` returns once
 it is closed.
