@@ -69,7 +69,7 @@ def scripted(monkeypatch):
     a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; it
     says when it submitted its first batches, or found no cell left (``_SCRIPT["taken"]``)."""
     class Recorded(BackgroundCluster):
-        def __init__(self, n_workers, on_up, timeline=None):
+        def __init__(self, n_workers, on_up, timeline=None, **options):
             def then_taken(client):
                 try:
                     return on_up(client)
@@ -78,7 +78,7 @@ def scripted(monkeypatch):
 
             self.n_workers = n_workers
             _SCRIPT["clusters"].append(self)
-            super().__init__(n_workers, then_taken, timeline)
+            super().__init__(n_workers, then_taken, timeline, **options)
 
     class FirstFill(runner._Dispatch):
         def fill(self):

@@ -183,7 +183,7 @@ class BackgroundCluster:
             (workers running), ``"client up"``, ``"on_up done"``, ``"close begin"``, ``"closed"``.
     """
 
-    def __init__(self, n_workers: int, on_up, timeline: list | None = None):
+    def __init__(self, n_workers: int, on_up, timeline: list | None = None, *, close_after_on_up: bool = False):
         """Start the thread.
 
         Args:
@@ -191,11 +191,15 @@ class BackgroundCluster:
             on_up: called in the thread with the connected ``distributed.Client``; its result is
                 :attr:`value`.
             timeline: a list the events are appended to (a new one if None).
+            close_after_on_up: close the cluster as soon as ``on_up`` returned (it used the cluster
+                for all it had to do), not only once :meth:`stop` is called.
         """
         self.up, self.value, self.error = threading.Event(), None, None
         self.timeline = [] if timeline is None else timeline
         self._on_up, self._n_workers = on_up, n_workers
         self._stop = threading.Event()
+        if close_after_on_up:
+            self._stop.set()
         self._thread = threading.Thread(target=self._run, name="sweep cluster", daemon=True)
         self._thread.start()
 

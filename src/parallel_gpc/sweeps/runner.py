@@ -299,7 +299,7 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
 
     cluster, busy = None, True  # busy: the cluster's side has batches to return (or may take some)
     if not here:
-        cluster = BackgroundCluster(1, on_up, timeline)
+        cluster = BackgroundCluster(1, on_up, timeline, close_after_on_up=True)
         closing.callback(cluster.join)
     try:
         while here and not collector.result.interrupted:
@@ -318,7 +318,8 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
                 collector.result.local += 1
             if cluster is None and cluster_pays(statistics.fmean(times) * len(queue), n_workers,
                                                 local_cluster_cost()):
-                cluster = BackgroundCluster(n_workers - 1, on_up, timeline)
+                # closed once its last batch returned: while this process may still run a cell
+                cluster = BackgroundCluster(n_workers - 1, on_up, timeline, close_after_on_up=True)
                 closing.callback(cluster.join)
         timeline.append(("local done", time.perf_counter()))
         if cluster is None or collector.result.interrupted:
