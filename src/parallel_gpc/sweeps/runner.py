@@ -28,10 +28,10 @@ records between two of its cells. This process is one of the n streams because i
 anyway: a cluster of n workers would add a process, its fork, heartbeats and twice the Dask tasks
 (64 cells of 0.1 s on 2 cores: 0.41–0.58 CPU-s outside the cells instead of 0.24–0.37,
 ``benchmarks/bench_sweep.py --overhead``), CPU taken from the cells on a machine with one core per
-stream. A small sweep never starts the
-cluster: it is never slower than a serial one. The cluster is closed in the background after the
-last batch returned, while the records and tables are assembled, and ``run_sweep`` returns once
-it is closed.
+stream. A small sweep never starts the cluster: it is never slower than a serial one. The cluster
+is closed in the background as soon as its last batch returned (while this process may still run
+its last cell, and while the records and tables are assembled), and ``run_sweep`` returns once it
+is closed.
 
 Local workers are forked from this process where the platform allows it
 (:data:`~.local_cluster.START_METHOD`, Linux): they start with the modules the first cells
@@ -85,7 +85,8 @@ IN_FLIGHT = 2
 #: A batch holds at most the cells left / (SHARES · streams): a worker's batches in flight
 #: (:data:`IN_FLIGHT`) and one share more, so that what a worker still holds when no cell is left
 #: is about what this process or another worker still runs (64 cells of 0.1 s, this process and
-#: one worker: the worker finished 0.3–0.47 s after this process with 2 shares, 0.02–0.12 s with 3).
+#: one worker: the worker finished 0.3–0.47 s after this process with 2 shares, 0.01–0.32 s with 3,
+#: median 0.1 s).
 SHARES = IN_FLIGHT + 1
 #: How often this process, waiting for its own cluster's last batches, checks that the cluster
 #: has not failed, s.
@@ -273,13 +274,13 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
     repays :func:`~.local_cluster.local_cluster_cost`, a :class:`~.local_cluster.BackgroundCluster`
     of ``n_workers`` − 1 processes starts. The moment its client connects, its thread submits the
     first batches from the same queue (under its lock: a cell runs once, here or there), sized by
-    the time per cell measured here and shared with this process (:class:`_Dispatch`), and a thread
-    of its own hands the batches' records back as they return; this process keeps running cells,
+    the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
+    the batches' records back as they return (``results``); this process keeps running cells,
     journals those records between two cells, and once the queue is empty waits for the batches
     still running. No cluster starts if the work never repays it (a small sweep runs all here, as
     ``workers=0``). ``n_workers`` = 1 (a cluster asked for as such: its process isolates a crash)
-    starts one worker at once, and it runs every cell. The cluster is stopped in the background once
-    the last batch returned (or on an error or Ctrl-C), and ``closing`` waits for it.
+    starts one worker at once, and it runs every cell. The cluster closes in the background once
+    its last batch returned (or on an error or Ctrl-C), and ``closing`` waits for it.
     """
     here = n_workers >= 2  # this process is one of the streams
     queue, lock, times, taken = deque(cells), threading.Lock(), [], []
