@@ -129,6 +129,30 @@ def test_the_cluster_coming_up_mid_cell_shares_the_cells_left(scripted):
     assert _no_sweep_thread()
 
 
+def _until_closed(cell):
+    """:func:`_where`; cell 2, run in this process's main thread, releases the cluster's start and
+    returns only once that cluster is closed (or after 30 s)."""
+    if cell.index == 2 and threading.current_thread() is threading.main_thread():
+        _SCRIPT["go"].set()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(
+                "closed" in [event for event, _ in cluster.timeline] for cluster in _SCRIPT["clusters"]):
+            time.sleep(0.01)
+    return _where(cell)
+
+
+def test_the_cluster_closes_once_its_last_batch_returned_while_a_cell_runs_here(scripted):
+    """The cluster takes every cell after the third while the third runs here, and is closed as
+    soon as its last batch returned, while that cell still runs: its close does not wait for it."""
+    cells = _cells(20)
+    result = run_sweep(cells, workers=2, progress=False, func=_until_closed)
+    assert (result.ran, result.local, sum(result.batches)) == (20, 3, 17)
+    assert _where_ran(result) == ["here"] * 3 + ["cluster"] * 17
+    events = list(result.timeline)
+    assert events.index("on_up done") < events.index("closed") < events.index("local done")
+    assert _no_sweep_thread()
+
+
 def test_a_cluster_up_after_the_last_cell_gets_none_and_is_stopped(scripted):
     cells = _cells(5)
     scripted["at"] = 4  # the cluster comes up while the last cell runs here: nothing is left for it
