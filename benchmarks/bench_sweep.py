@@ -1,12 +1,12 @@
 #!/usr/bin/env python3
 """Benchmark sweeps: serial in-process vs Dask (a LocalCluster), 64 cells of ~0.2 s and 16 of ~0.1 s.
 
-Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR]``
+Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR] [--overhead K]``
 (PYTHONPATH=src or the package installed). Two sweeps on planar_3rrr (S-curve over 80 % of the run,
 Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass scales, 0.5 s runs,
 ~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
-round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (its own
-LocalCluster: start-up, the cells run here while it starts, and shutdown included) and on a
+round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (this process and
+its own LocalCluster of W − 1 workers: start-up and shutdown included) and on a
 running LocalCluster (``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
 the three rotates from round to round; every path runs the same cells, one cell runs in this
 process before the first round so that no path pays the first imports), and checks that every
@@ -19,8 +19,12 @@ the cells against the same cells serially, Dask's own CPU (this process: schedul
 nannies; the workers beyond their cells), each worker's idle time (before its first cell, between
 cells, after its last), the tasks' sizes, the bytes of the records returned; and when the phases
 of ``run_sweep``'s own cluster happened (``SweepResult.timeline``: the cluster's start in the
-background, up, the hand-over of the cells left, the last record, closed, done). The tables go to
-DIR/bench_sweep.md (default benchmarks/results). See benchmarks/README.md.
+background, up, its first batches, this process's last cell, the cluster's last batch, the last
+record, closed, done). The tables go to
+DIR/bench_sweep.md (default benchmarks/results). ``--overhead K`` instead runs K sweeps of 64 cells that
+sleep 0.1 s through ``run_sweep``'s own cluster and prints the CPU spent outside the cells (this
+process, the workers): what the cells lose to Dask on a machine with one core per stream, measured
+in CPU seconds, which load does not stretch. See benchmarks/README.md.
 """
 
 import os
@@ -35,6 +39,7 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from parallel_gpc.sweeps import TIMING_COLUMNS, failed_record, load_spec, run_cell  # noqa: E402
+from parallel_gpc.model import available_cores  # noqa: E402
 from parallel_gpc.sweeps import run_sweep, start_local_cluster  # noqa: E402
 
 
@@ -81,6 +86,44 @@ def noop(cell):
     record = failed_record(cell, "")
     record["status"] = "ok"
     return record
+
+
+#: Length of a :func:`sleeping` cell, s, and the cells of the ``--overhead`` sweep.
+SLEEP_SECONDS, SLEEP_CELLS = 0.1, 64
+
+
+def sleeping(cell):
+    """A cell that sleeps :data:`SLEEP_SECONDS` (no CPU): in a sweep of these, every CPU-second is overhead."""
+    time.sleep(SLEEP_SECONDS)
+    return noop(cell)
+
+
+def overhead(workers: int, repeats: int) -> list:
+    """CPU outside the cells of :data:`SLEEP_CELLS` sleeping cells through ``run_sweep(workers=…)``
+    (its own cluster), ``repeats`` times: robust under load, where wall-clock speed-ups are not.
+
+    Returns:
+        rows (run, CPU-s here, CPU-s of the workers (reaped children), tasks, cells here, the
+        cluster's last batch after this process's last cell in s, wall s).
+    """
+    import resource
+
+    from parallel_gpc.sweeps import Cell
+
+    cells = [Cell(i, {"sleep": SLEEP_SECONDS, "i": i}) for i in range(SLEEP_CELLS)]
+    rows = []
+    for run in range(repeats):
+        before = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+        start = time.perf_counter()
+        result = run_sweep(cells, workers=workers, progress=False, func=sleeping)
+        wall = time.perf_counter() - start
+        after = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+        here, kids = (a.ru_utime + a.ru_stime - b.ru_utime - b.ru_stime for a, b in zip(after, before))
+        phases = result.timeline
+        tail = phases["on_up done"] - phases["local done"] if {"on_up done", "local done"} <= phases.keys() else float("nan")
+        rows.append((str(run + 1), f"{here:.3f}", f"{kids:.3f}", f"{here + kids:.3f}", str(len(result.batches)),
+                     str(result.local), f"{tail:.2f}", f"{wall:.2f}"))
+    return rows
 
 
 def _bare(x):
@@ -152,11 +195,24 @@ def instrument(result, cpu, serial_cpu):
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--workers", type=int, default=os.cpu_count())
+    parser.add_argument("--workers", type=int, default=available_cores())
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    parser.add_argument("--overhead", type=int, default=0, metavar="K",
+                        help=f"only: K sweeps of {SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s through the own "
+                             "cluster, their CPU outside the cells")
     args = parser.parse_args()
     from dask.distributed import Client, as_completed
+
+    if args.overhead:
+        import dask.distributed  # noqa: F401 - imported, as in a process's second sweep
+
+        load = os.getloadavg()[0]
+        text = table(("run", "CPU-s here", "CPU-s workers", "CPU-s outside cells", "tasks", "cells here",
+                      "last batch after this process's last cell, s", "wall, s"), overhead(args.workers, args.overhead))
+        print(f"{text}\n\n{SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s, run_sweep(workers={args.workers}); "
+              f"1-min load avg {load:.2f} before, {os.getloadavg()[0]:.2f} after")
+        return 0
 
     sweeps = {"64 cells of ~0.2 s": spec_64().cells(), "16 cells of ~0.1 s": spec_16().cells()}
     load_before = os.getloadavg()
@@ -207,7 +263,8 @@ def main() -> int:
         serial = statistics.median(t["serial"])
         rows.append((f"{name} ({failed[name]} failed; mean cell {cell_means[name]:.3f} s serial)", ""))
         rows.append(("  serial (workers=0)", f"{serial:.2f} s"))
-        for key, label in (("own", f"run_sweep(workers={w}): own LocalCluster, start-up and shutdown included"),
+        for key, label in (("own", f"run_sweep(workers={w}): this process + own LocalCluster({w - 1}), start-up and "
+                                   "shutdown included"),
                            ("running", f"running LocalCluster({w})")):
             ratios = [s / d for s, d in zip(t["serial"], t[key])]
             speedup = statistics.median(ratios)

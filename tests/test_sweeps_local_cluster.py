@@ -5,6 +5,7 @@ forks kept out of a running cell, Ctrl-C kept from the workers."""
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import sys
@@ -46,7 +47,8 @@ def _sleeping(cell):
 
 def _scripted(cell):
     """:func:`_where`; the cell ``_SCRIPT["at"]``, run in this process's main thread, releases the
-    cluster's start and returns only once the cluster took the cells left (or after 60 s)."""
+    cluster's start and returns only once the cluster submitted its first batches, or found no cell
+    left (or after 60 s)."""
     if cell.index == _SCRIPT["at"] and threading.current_thread() is threading.main_thread():
         _SCRIPT["go"].set()
         _SCRIPT["taken"].wait(60)
@@ -54,31 +56,37 @@ def _scripted(cell):
 
 
 def _threads_in_process_cluster(n_workers):
-    """A cluster of 2 worker threads in this process (cells visible by thread), started on ``go``."""
+    """A cluster of ``n_workers`` worker threads in this process (cells visible by thread), started on ``go``."""
     _SCRIPT["go"].wait(60)
     from dask.distributed import LocalCluster
 
-    return LocalCluster(n_workers=2, threads_per_worker=1, processes=False, dashboard_address=None)
+    return LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=False, dashboard_address=None)
 
 
 @pytest.fixture
 def scripted(monkeypatch):
     """run_sweep's own cluster made of threads of this process, coming up when the script says:
-    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; once
-    it took the cells left (``_SCRIPT["taken"]``) it is seen up only 0.3 s later (this process
-    finishes its cell meanwhile, and must not take another)."""
+    a cluster is worth starting after the first cell; its start waits for ``_SCRIPT["go"]``; it
+    says when it submitted its first batches, or found no cell left (``_SCRIPT["taken"]``)."""
     class Recorded(BackgroundCluster):
-        def __init__(self, n_workers, on_up, timeline=None):
-            def taken_then_slow(client):
-                value = on_up(client)
-                _SCRIPT["taken"].set()
-                time.sleep(0.3)
-                return value
+        def __init__(self, n_workers, on_up, timeline=None, **options):
+            def then_taken(client):
+                try:
+                    return on_up(client)
+                finally:
+                    _SCRIPT["taken"].set()
 
+            self.n_workers = n_workers
             _SCRIPT["clusters"].append(self)
-            super().__init__(n_workers, taken_then_slow, timeline)
+            super().__init__(n_workers, then_taken, timeline, **options)
+
+    class FirstFill(runner._Dispatch):
+        def fill(self):
+            super().fill()
+            _SCRIPT["taken"].set()
 
     monkeypatch.setattr(runner, "BackgroundCluster", Recorded)
+    monkeypatch.setattr(runner, "_Dispatch", FirstFill)
     monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
     monkeypatch.setattr(local_cluster, "start_local_cluster", _threads_in_process_cluster)
     _SCRIPT["go"].clear()
@@ -97,21 +105,51 @@ def _no_sweep_thread():
     return not any(t.name == "sweep cluster" for t in threading.enumerate())
 
 
-def test_the_cluster_coming_up_mid_cell_takes_the_cells_left_once(scripted):
-    """The cluster comes up while the third cell runs here: its thread takes the 17 cells left (its
-    first batches, the rest as they return), this process finishes its cell and runs no other, even
-    before it sees the cluster up; every cell runs once, records in order."""
+def test_the_cluster_coming_up_mid_cell_shares_the_cells_left(scripted):
+    """The cluster (one worker: this process is the other stream of workers=2) comes up while the
+    third cell runs here: it submits its first batches from the queue's left, sized by the time
+    measured here; this process finishes its cell and goes on with the cells after them while the
+    batches run; every cell runs once, here or there, records in order."""
     cells = _cells(20)
     scripted["at"] = 2
     result = run_sweep(cells, workers=2, progress=False, func=_scripted)
-    assert (result.ran, result.local, sum(result.batches)) == (20, 3, 17)
+    assert result.ran == 20 and result.local + sum(result.batches) == 20
     assert [r["key"] for r in result.records] == [c.key for c in cells]
     assert [r["index"] for r in result.records] == list(range(20))
-    assert _where_ran(result) == ["here"] * 3 + ["cluster"] * 17
-    assert all(size > 1 for size in result.batches[:2])  # sized by the time measured here
+    where = _where_ran(result)
+    first = sum(result.batches[:runner.IN_FLIGHT])  # the batches of the first fill, a worker's share
+    assert all(size > 1 for size in result.batches[:runner.IN_FLIGHT])  # sized by the time measured here
+    assert where[:3 + first] == ["here"] * 3 + ["cluster"] * first
+    assert where.count("here") == result.local
+    assert len({r["error"] for r in result.records if where[r["index"]] == "cluster"}) == 1  # one worker
+    assert [cluster.n_workers for cluster in scripted["clusters"]] == [1]
     events = list(result.timeline)
-    assert events.index("cluster start") < events.index("on_up done") < events.index("handover")
-    assert events.index("handover") < events.index("closed") < events.index("done") == len(events) - 1
+    assert events.index("cluster start") < events.index("first batches") < events.index("local done")
+    assert events.index("on_up done") < events.index("closed") < events.index("done") == len(events) - 1
+    assert _no_sweep_thread()
+
+
+def _until_closed(cell):
+    """:func:`_where`; cell 2, run in this process's main thread, releases the cluster's start and
+    returns only once that cluster is closed (or after 30 s)."""
+    if cell.index == 2 and threading.current_thread() is threading.main_thread():
+        _SCRIPT["go"].set()
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and not any(
+                "closed" in [event for event, _ in cluster.timeline] for cluster in _SCRIPT["clusters"]):
+            time.sleep(0.01)
+    return _where(cell)
+
+
+def test_the_cluster_closes_once_its_last_batch_returned_while_a_cell_runs_here(scripted):
+    """The cluster takes every cell after the third while the third runs here, and is closed as
+    soon as its last batch returned, while that cell still runs: its close does not wait for it."""
+    cells = _cells(20)
+    result = run_sweep(cells, workers=2, progress=False, func=_until_closed)
+    assert (result.ran, result.local, sum(result.batches)) == (20, 3, 17)
+    assert _where_ran(result) == ["here"] * 3 + ["cluster"] * 17
+    events = list(result.timeline)
+    assert events.index("on_up done") < events.index("closed") < events.index("local done")
     assert _no_sweep_thread()
 
 
@@ -123,6 +161,42 @@ def test_a_cluster_up_after_the_last_cell_gets_none_and_is_stopped(scripted):
     assert _where_ran(result) == ["here"] * 5
     assert [r["key"] for r in result.records] == [c.key for c in cells]
     assert "closed" in result.timeline and _no_sweep_thread()
+
+
+@pytest.mark.parametrize("workers, cores", [(3, None), (None, 4)])
+def test_n_streams_are_this_process_and_n_minus_1_workers_by_default_the_cores_it_may_use(
+        scripted, monkeypatch, workers, cores):
+    """workers=3, or workers=None on a process that may use 4 cores (available_cores, the
+    project's one count of cores): the cluster started has 2, resp. 3 workers, their first fill
+    IN_FLIGHT batches each, each batch at most the cells left / (SHARES · streams)."""
+    import parallel_gpc.model as model
+
+    if cores is not None:
+        monkeypatch.setattr(model, "available_cores", lambda: cores)
+    streams = workers or cores
+    scripted["at"] = 1
+    result = run_sweep(_cells(60), workers=workers, progress=False, func=_scripted)
+    assert result.ran == 60 and result.local + sum(result.batches) == 60
+    assert [cluster.n_workers for cluster in scripted["clusters"]] == [streams - 1]
+    left = 60 - 2
+    for size in result.batches[:runner.IN_FLIGHT * (streams - 1)]:  # the first fill, sized from cells 0 and 1
+        assert 1 < size <= math.ceil(left / (runner.SHARES * streams))
+        left -= size
+    assert _where_ran(result)[:2] == ["here"] * 2 and _no_sweep_thread()
+
+
+def test_a_cluster_that_fails_to_start_is_one_error_and_the_cells_run_here_are_kept(monkeypatch, tmp_path):
+    """The start of the sweep's own cluster raises: run_sweep raises that error (no cell waits for a
+    cluster that will not come), the cells run here meanwhile are in the store, no thread is left."""
+    def no_ports(n_workers):
+        raise OSError("no free port on 127.0.0.1")
+
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
+    monkeypatch.setattr(local_cluster, "start_local_cluster", no_ports)
+    with pytest.raises(OSError, match="no free port"):
+        run_sweep(_cells(200), workers=2, progress=False, func=_sleeping, store=tmp_path)
+    saved = run_sweep(_cells(200), workers=0, progress=False, func=_where, store=tmp_path)
+    assert 1 <= saved.skipped < 200 and _no_sweep_thread()
 
 
 def test_forks_wait_for_the_cell_running_in_the_gate_and_go_before_the_next():

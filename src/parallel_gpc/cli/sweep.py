@@ -82,7 +82,8 @@ def register_sweep(sub) -> None:
     p.add_argument("spec", help="sweep spec (TOML), e.g. examples/sweep_tuning.toml")
     p.add_argument("--out", default=None, help="output folder (default out/sweep/<spec name>)")
     p.add_argument("--workers", type=int, default=None,
-                   help="local worker processes (default: CPU cores); 0 = serial in this process")
+                   help="processes running cells: this one and a local cluster of WORKERS - 1 "
+                        "(default: the cores this process may use); 1 = one worker process; 0 = serial in this process")
     p.add_argument("--scheduler", default=None, help="address tcp://HOST:PORT of a running Dask scheduler")
     p.add_argument("--retry-failed", action="store_true", help="run the cells recorded as failed again")
     p.add_argument("--trajectories", action="store_true", help="also save each cell's time histories (.npz)")

@@ -11,6 +11,7 @@ from .description import (DEFAULT_ROBOT, SIDECAR_KEYS, Closure, RobotDescription
 _PUBLIC = {
     "read_text_bounded": "file_checks", "read_bounded": "file_checks", "drive_resolution": "forward", "export_mjcf": "mjcf_export",
     "compiled_part": "native", "native_module": "native", "native_status": "native", "forward_status": "native_update",
+    "available_cores": "native_update",
     "saturation_limit": "plant", "output_joint_ids": "skeleton", "output_world_axes": "skeleton", "stick_figure": "skeleton",
     "cached_identity": "discretization",
     "TaskOutput": "outputs", "ClosureKinematics": "robot", "ParallelRobot": "robot",

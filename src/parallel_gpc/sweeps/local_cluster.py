@@ -40,10 +40,10 @@ from ..errors import InvalidParameterError
 #: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
 #: Cost of a sweep's own local cluster, s: its start-up and shutdown plus the workers' imports,
-#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6:
-#: forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned 3.4–4.8 s start,
-#: 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close. A cluster is
-#: started only if the time its extra workers save repays it (:func:`cluster_pays`).
+#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6
+#: (two workers): forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned
+#: 3.4–4.8 s start, 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close.
+#: A cluster is started only if the time its workers save repays it (:func:`cluster_pays`).
 LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
 #: Time to import ``dask.distributed`` in a process that has not yet, s (0.54–0.61 CPU-s measured,
 #: 2 cores): paid by the first sweep of a process that starts a cluster (:func:`local_cluster_cost`).
@@ -128,9 +128,10 @@ FORK_GATE = ForkGate()
 
 
 def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
-    """Whether starting a local cluster of ``n_workers`` (≥ 2) for ``work_left`` seconds of serial
-    work saves time: the work the extra workers take over, ``work_left · (1 − 1/n)``, must exceed
-    the cluster's ``cost`` in s (default :data:`LOCAL_START_SECONDS`)."""
+    """Whether running ``work_left`` seconds of serial work on ``n_workers`` (≥ 2) streams — this
+    process and a local cluster of ``n_workers`` − 1 workers started for it — saves time: the work
+    the cluster takes over, ``work_left · (1 − 1/n)``, must exceed the cluster's ``cost`` in s
+    (default :data:`LOCAL_START_SECONDS`)."""
     return work_left * (1 - 1 / n_workers) > (LOCAL_START_SECONDS if cost is None else cost)
 
 
@@ -170,9 +171,10 @@ class BackgroundCluster:
 
     The thread (SIGINT blocked, see the module docstring) starts the cluster
     (:func:`start_local_cluster`) and a ``Client``, calls ``on_up(client)`` (e.g. to submit the
-    first tasks as soon as the workers are there), sets :attr:`up`, then waits for :meth:`stop`
-    and closes the client and the cluster, its workers' Dask loggers silenced first. Whoever
-    creates one must :meth:`join` it: then no worker process, Dask thread or this thread is left.
+    first tasks as soon as the workers are there, and collect them as they return), sets
+    :attr:`up`, then waits for :meth:`stop` and closes the client and the cluster, its workers'
+    Dask loggers silenced first. Whoever creates one must :meth:`join` it: then no worker process,
+    Dask thread or this thread is left.
 
     Attributes:
         up: ``threading.Event`` set once ``on_up`` returned (or the start failed: :attr:`error`).
@@ -181,7 +183,7 @@ class BackgroundCluster:
             (workers running), ``"client up"``, ``"on_up done"``, ``"close begin"``, ``"closed"``.
     """
 
-    def __init__(self, n_workers: int, on_up, timeline: list | None = None):
+    def __init__(self, n_workers: int, on_up, timeline: list | None = None, *, close_after_on_up: bool = False):
         """Start the thread.
 
         Args:
@@ -189,11 +191,15 @@ class BackgroundCluster:
             on_up: called in the thread with the connected ``distributed.Client``; its result is
                 :attr:`value`.
             timeline: a list the events are appended to (a new one if None).
+            close_after_on_up: close the cluster as soon as ``on_up`` returned (it used the cluster
+                for all it had to do), not only once :meth:`stop` is called.
         """
         self.up, self.value, self.error = threading.Event(), None, None
         self.timeline = [] if timeline is None else timeline
         self._on_up, self._n_workers = on_up, n_workers
         self._stop = threading.Event()
+        if close_after_on_up:
+            self._stop.set()
         self._thread = threading.Thread(target=self._run, name="sweep cluster", daemon=True)
         self._thread.start()
 

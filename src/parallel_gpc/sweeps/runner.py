@@ -3,46 +3,55 @@
 ``run_sweep(spec_or_cells, workers=…, scheduler=…, store=…)``:
 
 * ``workers=0`` — serial, in this process (debugging; exceptions show where they happen);
-* ``workers=None`` or n ≥ 1 — a local Dask cluster (``LocalCluster``: n worker processes, one
-  thread each, bound to 127.0.0.1 (its HTTP port too); default n = CPU cores), started and closed here;
+* ``workers=None`` or n ≥ 2 — n streams of cells: this process and a local Dask cluster
+  (``LocalCluster``: n − 1 worker processes, one thread each, bound to 127.0.0.1 (its HTTP port
+  too)), started and closed here; default n = the cores this process may run on
+  (:func:`~parallel_gpc.model.native_update.available_cores`); ``workers=1`` — one worker process
+  runs every cell (a cell that crashes it does not end the sweep);
 * ``scheduler="tcp://HOST:PORT"`` (or a ``distributed.Client``) — an existing cluster whose
   workers can import ``parallel_gpc`` and read the robot files.
 
 Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as the sweep runs: on
 a running cluster the first tasks are single cells; then a batch holds about
 :data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
-share of the cells left (:data:`IN_FLIGHT` batches queued per worker), so the workers finish
-together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task once per ten cells, not
-once per cell. The records of a batch are journalled as it returns.
+share of the cells left (:data:`SHARES` per stream; :data:`IN_FLIGHT` batches queued per worker),
+so that the streams finish together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task
+once per ten cells, not once per cell. The records of a batch are journalled as it returns.
 
-A sweep on a local cluster it starts itself (:mod:`.local_cluster`) runs its first cells in this
-process and starts the cluster in the background once the work left (cells left × their mean
-time here) repays its cost (:func:`~.local_cluster.cluster_pays`, per the time the extra workers
-save); the cells keep running here while the workers start, and the cells left go to the cluster
-the moment it is up, its first batches sized by the time per cell measured here (no single-cell
-tasks). A small sweep never starts it: it is never slower than a serial one. The cluster is closed
-in the background after the last batch returned, while the records and tables are assembled, and
-``run_sweep`` returns once it is closed.
+A sweep on a local cluster of its own (:mod:`.local_cluster`) runs cells in this process from
+start to end, one at a time, and starts the cluster of n − 1 workers in the background once the
+work left (cells left × their mean time here) repays its cost
+(:func:`~.local_cluster.cluster_pays`, per the time the extra workers save). The moment it is up,
+its workers take batches from the same queue (a cell runs once, here or there), the first ones
+sized by the time per cell measured here (no single-cell tasks); this process journals their
+records between two of its cells. This process is one of the n streams because it is there
+anyway: a cluster of n workers would add a process, its fork, heartbeats and twice the Dask tasks
+(64 cells of 0.1 s on 2 cores: 0.41–0.58 CPU-s outside the cells instead of 0.24–0.37,
+``benchmarks/bench_sweep.py --overhead``), CPU taken from the cells on a machine with one core per
+stream. A small sweep never starts the cluster: it is never slower than a serial one. The cluster
+is closed in the background as soon as its last batch returned (while this process may still run
+its last cell, and while the records and tables are assembled), and ``run_sweep`` returns once it
+is closed.
 
-Local workers are forked from this process where the platform allows it (:data:`~.local_cluster.START_METHOD`,
-Linux): they start with the modules the first cells imported (the package, Pinocchio, the compiled
-core) instead of importing them again (spawned: ~1.7 CPU-s per worker), and Dask's periodic
-checks run seldom (:data:`~.local_cluster.CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
+Local workers are forked from this process where the platform allows it
+(:data:`~.local_cluster.START_METHOD`, Linux): they start with the modules the first cells
+imported (the package, Pinocchio, the compiled core) instead of importing them again (spawned:
+~1.7 CPU-s per worker), and Dask's periodic checks run seldom
+(:data:`~.local_cluster.CLUSTER_CONFIG`). Elsewhere they are spawned and get this process's
 ``sys.path``, so a package found through ``PYTHONPATH`` or an editable install is found by the
-workers too. A progress bar shows done / failed / ETA as cells (batches) finish
-(``distributed.as_completed``). A cell that fails is a record with its error, a cell whose
-closed loop diverged a record of the part run; the sweep goes on. Ctrl-C cancels the cells not
-yet finished and keeps the finished ones (already journalled in the store; a batch still
-running is lost, at most :data:`BATCH_SECONDS` per worker of work), so a rerun resumes; the
-local cluster's workers ignore Ctrl-C (the sweep stops them) and the cluster's shutdown is
-quiet. A store is locked while the sweep runs: a second sweep into the same folder is refused.
+workers too. A progress bar shows done / failed / ETA as cells (batches) finish. A cell that
+fails is a record with its error, a cell whose closed loop diverged a record of the part run; the
+sweep goes on. Ctrl-C cancels the cells not yet finished and keeps the finished ones (already
+journalled in the store; a batch still running is lost, at most :data:`BATCH_SECONDS` per worker
+of work), so a rerun resumes; the local cluster's workers ignore Ctrl-C (the sweep stops them)
+and the cluster's shutdown is quiet. A store is locked while the sweep runs: a second sweep into
+the same folder is refused.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import os
 import re
 import statistics
 import threading
@@ -50,6 +59,7 @@ import time
 import uuid
 from collections import deque
 from dataclasses import dataclass, field
+from queue import Empty, SimpleQueue
 
 from tqdm import tqdm
 
@@ -72,6 +82,15 @@ SCHEDULER_ADDRESS = re.compile(r"^[a-z][a-z0-9+.-]*://\S+:\d{1,5}$")
 BATCH_SECONDS = 1.0
 #: Batches queued per worker (one running, the next ready: no idle gap between two).
 IN_FLIGHT = 2
+#: A batch holds at most the cells left / (SHARES · streams): a worker's batches in flight
+#: (:data:`IN_FLIGHT`) and one share more, so that what a worker still holds when no cell is left
+#: is about what this process or another worker still runs (64 cells of 0.1 s, this process and
+#: one worker: the worker finished 0.3–0.47 s after this process with 2 shares, 0.01–0.32 s with 3,
+#: median 0.1 s).
+SHARES = IN_FLIGHT + 1
+#: How often this process, waiting for its own cluster's last batches, checks that the cluster
+#: has not failed, s.
+RESULT_POLL_SECONDS = 0.2
 
 
 @dataclass
@@ -87,14 +106,15 @@ class SweepResult:
         skipped_lines: lines of the store's journal that were not records (skipped, counted).
         interrupted: Ctrl-C stopped the sweep before every cell finished.
         total: cells in the sweep.
-        local: cells run in this process (its own local cluster only: before and while the
-            cluster started; all of them when it did not pay).
+        local: cells run in this process (its own local cluster only; all of them when the
+            cluster did not pay).
         batches: cells per Dask task, in the order submitted (empty: no cluster was used).
         timeline: when the phases of the run happened, s since ``run_sweep`` began, in order:
-            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"on_up done"`` (first
-            batches submitted), ``"handover"`` (this process stops running cells), ``"last
-            record"``, ``"close begin"``, ``"closed"`` (a cluster of its own), ``"tables
-            written"``, ``"done"``; the phases a run did not have are missing.
+            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"first batches"``
+            (submitted), ``"local done"`` (this process ran its last cell), ``"on_up done"`` (the
+            cluster's last batch returned), ``"last record"``, ``"close begin"``, ``"closed"``
+            (a cluster of its own), ``"tables written"``, ``"done"``; the phases a run did not
+            have are missing.
     """
 
     records: list = field(default_factory=list)
@@ -140,6 +160,11 @@ class _Collector:
         if self.on_record is not None:
             self.on_record(record)
 
+    def add_all(self, records) -> None:
+        """:meth:`add` each of ``records`` in turn."""
+        for record in records:
+            self.add(record)
+
 
 def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, progress: bool = True,
               on_record=None, retry_failed: bool = False, func=run_cell) -> SweepResult:
@@ -147,7 +172,8 @@ def run_sweep(spec, *, workers: int | None = None, scheduler=None, store=None, p
 
     Args:
         spec: a :class:`~parallel_gpc.sweeps.spec.SweepSpec` or a list of cells.
-        workers: 0 = serial in-process; n ≥ 1 = a LocalCluster of n processes; None = CPU cores.
+        workers: 0 = serial in-process; n ≥ 2 = this process and a LocalCluster of n − 1
+            processes; 1 = a LocalCluster of one process; None = the cores this process may use.
         scheduler: address ``"tcp://HOST:PORT"`` of a running Dask scheduler, or a Client
             (then ``workers`` is ignored).
         store: a :class:`~parallel_gpc.sweeps.store.SweepStore`, a folder path, or None
@@ -210,7 +236,9 @@ def _run_locked(spec, workers, scheduler, store, progress, on_record, retry_fail
                 if workers == 0 and scheduler is None:
                     _run_serial(todo, func, collector)
                 elif scheduler is None:
-                    _run_own_cluster(todo, func, collector, workers or os.cpu_count() or 1, closing, timeline)
+                    from ..model import available_cores
+
+                    _run_own_cluster(todo, func, collector, workers or available_cores(), closing, timeline)
                 else:
                     _run_on(scheduler, todo, func, collector)
             except KeyboardInterrupt:
@@ -237,45 +265,51 @@ def _run_serial(cells, func, collector: _Collector) -> None:
 
 def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing: contextlib.ExitStack,
                      timeline: list) -> None:
-    """Run cells in this process, start a local cluster of ``n_workers`` in the background once
-    the work left repays it, and hand it the cells left as soon as it is up.
+    """Run ``n_workers`` streams of cells: this process and a local cluster of ``n_workers`` − 1
+    workers, started in the background once the work left repays it.
 
-    The cells run here one at a time (each inside :data:`~.local_cluster.FORK_GATE`); after each,
-    if no cluster is starting and :func:`~.local_cluster.cluster_pays` says the work left (cells
-    left × their mean time here) repays :func:`~.local_cluster.local_cluster_cost`, a
-    :class:`~.local_cluster.BackgroundCluster` starts. The moment its client connects, its thread
-    takes the cells left (under the queue's lock: a cell runs once, here or there) and submits the
-    first batches, sized by the time per cell measured here; this process then finishes the cell
-    it is running and collects the batches (:class:`_Dispatch`). No cluster starts if the work
-    never repays it (a small sweep runs all here, as ``workers=0``); one worker
-    (``n_workers`` = 1, a cluster asked for as such: its process isolates a crash) starts at
-    once and runs every cell. The cluster is stopped in the background once the last batch
-    returned (or on an error or Ctrl-C), and ``closing`` waits for it.
+    The cells run here one at a time from the queue's left (each inside
+    :data:`~.local_cluster.FORK_GATE`); after each, if no cluster is starting and
+    :func:`~.local_cluster.cluster_pays` says the work left (cells left × their mean time here)
+    repays :func:`~.local_cluster.local_cluster_cost`, a :class:`~.local_cluster.BackgroundCluster`
+    of ``n_workers`` − 1 processes starts. The moment its client connects, its thread submits the
+    first batches from the same queue (under its lock: a cell runs once, here or there), sized by
+    the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
+    the batches' records back as they return (``results``); this process keeps running cells,
+    journals those records between two cells, and once the queue is empty waits for the batches
+    still running. No cluster starts if the work never repays it (a small sweep runs all here, as
+    ``workers=0``). ``n_workers`` = 1 (a cluster asked for as such: its process isolates a crash)
+    starts one worker at once, and it runs every cell. The cluster closes in the background once
+    its last batch returned (or on an error or Ctrl-C), and ``closing`` waits for it.
     """
-    # the cells run here are the queue's first ones: once the cluster took the rest, none runs here
-    queue, lock, times, handed = deque(cells), threading.Lock(), [], []
+    here = n_workers >= 2  # this process is one of the streams
+    queue, lock, times, taken = deque(cells), threading.Lock(), [], []
+    results = SimpleQueue()  # from the cluster's side: lists of records, an exception, None at the end
 
     def on_up(client):  # in the cluster's thread, the moment it is up
         with lock:
             if not queue or collector.result.interrupted:
                 return None  # all ran here meanwhile, or the sweep stopped
-            handed.append(True)
-            first = _Dispatch(client, queue, func, collector.result.batches,
-                              statistics.fmean(times) if times else None)
-            first.fill()
-            return first
+            dispatch = _Dispatch(client, queue, func, collector.result.batches,
+                                 statistics.fmean(times) if times else None, lock=lock, streams_here=int(here))
+            taken.append(dispatch)
+        dispatch.fill()
+        timeline.append(("first batches", time.perf_counter()))
+        dispatch.feed(results)  # until the last batch returned (or the sweep stopped)
+        return dispatch
 
-    cluster = None
-    if n_workers < 2:
-        cluster = BackgroundCluster(n_workers, on_up, timeline)
+    cluster, busy = None, True  # busy: the cluster's side has batches to return (or may take some)
+    if not here:
+        cluster = BackgroundCluster(1, on_up, timeline, close_after_on_up=True)
         closing.callback(cluster.join)
     try:
-        while n_workers >= 2 and queue and not collector.result.interrupted:
-            if cluster is not None and cluster.up.is_set():
-                break
+        while here and not collector.result.interrupted:
+            if cluster is not None and cluster.error is not None:
+                raise cluster.error
+            busy = busy and _add_returned(results, collector, cluster, block=False)
             with FORK_GATE:
                 with lock:
-                    if not queue or handed:  # the cells left are the cluster's now
+                    if not queue:
                         break
                     cell = queue.popleft()
                 begin = time.perf_counter()
@@ -285,21 +319,47 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
                 collector.result.local += 1
             if cluster is None and cluster_pays(statistics.fmean(times) * len(queue), n_workers,
                                                 local_cluster_cost()):
-                cluster = BackgroundCluster(n_workers, on_up, timeline)
+                # closed once its last batch returned: while this process may still run a cell
+                cluster = BackgroundCluster(n_workers - 1, on_up, timeline, close_after_on_up=True)
                 closing.callback(cluster.join)
+        timeline.append(("local done", time.perf_counter()))
         if cluster is None or collector.result.interrupted:
             return
         with lock:
-            if not queue and not handed:  # every cell ran here: the cluster gets none
+            if not taken and not queue:  # every cell ran here: the cluster gets none
                 return
-        cluster.up.wait()
-        if cluster.error is not None:
-            raise cluster.error
-        timeline.append(("handover", time.perf_counter()))
-        cluster.value.collect(collector)
+        while busy and not collector.result.interrupted:
+            busy = _add_returned(results, collector, cluster, block=True)
     finally:
+        with lock:
+            dispatches = list(taken)
+        for dispatch in dispatches:  # Ctrl-C or an error: no more batches, the ones queued cancelled
+            dispatch.stop()
         if cluster is not None:  # closed in the background; `closing` waits for it
             cluster.stop()
+
+
+def _add_returned(results: SimpleQueue, collector: _Collector, cluster: BackgroundCluster | None,
+                  block: bool) -> bool:
+    """Hand the records of the batches returned from ``cluster`` to ``collector``: those already
+    there, or (``block``) the next batch's, waiting for it. Returns False once the cluster's side
+    is done; raises what it raised, or the error that stopped the cluster's start."""
+    while True:
+        try:
+            item = results.get(timeout=RESULT_POLL_SECONDS) if block else results.get_nowait()
+        except Empty:
+            if not block:
+                return True
+            if cluster.error is not None:
+                raise cluster.error from None
+            continue
+        if item is None:
+            return False
+        if isinstance(item, BaseException):
+            raise item
+        collector.add_all(item)
+        if block:
+            return True
 
 
 def run_cells(cells, func=run_cell) -> tuple[list, float]:
@@ -325,22 +385,23 @@ def _run_one(func, cell) -> dict:
         return failed_record(cell, f"{type(exc).__name__}: {' '.join(str(exc).split())}")
 
 
-def batch_size(left: int, n_workers: int, per_cell: float | None) -> int:
+def batch_size(left: int, streams: int, per_cell: float | None) -> int:
     """Cells in the next Dask task of a sweep (guided self-scheduling).
 
     Args:
         left: cells not yet submitted (≥ 1).
-        n_workers: worker threads of the cluster (≥ 1).
+        streams: cells that run at once: the cluster's worker threads, plus this process when it
+            runs cells from the same queue (≥ 1).
         per_cell: measured time of one cell in s, or None before any batch returned.
 
     Returns:
         1 before any measurement; else :data:`BATCH_SECONDS` of work, at most the cells left /
-        (:data:`IN_FLIGHT` · workers) so that the last batches shrink and the workers finish
+        (:data:`SHARES` · streams) so that the last batches shrink and the streams finish
         together; at least 1.
     """
     if per_cell is None:
         return 1
-    share = math.ceil(left / (IN_FLIGHT * n_workers))
+    share = math.ceil(left / (SHARES * streams))
     return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
 
 
@@ -348,7 +409,8 @@ class _Dispatch:
     """Cells of a queue as Dask tasks of a few cells each (:func:`batch_size`), kept
     :data:`IN_FLIGHT` per worker thread, their records collected as they return."""
 
-    def __init__(self, client, queue: deque, func, batches: list, per_cell: float | None):
+    def __init__(self, client, queue: deque, func, batches: list, per_cell: float | None, *,
+                 lock: threading.Lock | None = None, streams_here: int = 0):
         """Args:
             client: a connected ``distributed.Client``.
             queue: the cells to run (taken from its left as batches are submitted).
@@ -356,40 +418,68 @@ class _Dispatch:
             batches: a list the size of each batch submitted is appended to.
             per_cell: time of one cell measured in this process, s (sizes the first batches), or
                 None (single cells until a batch returns).
+            lock: held while cells are taken from ``queue`` (this process takes cells from it too).
+            streams_here: cells run at the same time in this process from the same queue (its
+                share of the cells left counts in the batches' sizes).
         """
         from dask.distributed import as_completed
 
         self.client, self.queue, self.func, self.batches = client, queue, func, batches
+        self.lock = contextlib.nullcontext() if lock is None else lock
         self.n_workers = max(1, sum(client.nthreads().values()))
+        self.streams = self.n_workers + streams_here
         # per batch: its time per cell (s); the one measured here sizes the first batches
         self.per_cell = [] if per_cell is None else [per_cell]
         self.futures, self.finished, self.token = {}, as_completed(), uuid.uuid4().hex[:8]
+        self.stopped = False
 
     def fill(self) -> None:
         """Submit batches until :data:`IN_FLIGHT` per worker are queued or no cell is left."""
-        while self.queue and len(self.futures) < IN_FLIGHT * self.n_workers:
+        while not self.stopped and len(self.futures) < IN_FLIGHT * self.n_workers:
             # the median over batches: a worker's first task (it may import the package) counts once
-            size = batch_size(len(self.queue), self.n_workers,
-                              statistics.median(self.per_cell) if self.per_cell else None)
-            batch = [self.queue.popleft() for _ in range(min(len(self.queue), size))]
+            per_cell = statistics.median(self.per_cell) if self.per_cell else None
+            with self.lock:
+                if not self.queue:
+                    return
+                size = batch_size(len(self.queue), self.streams, per_cell)
+                batch = [self.queue.popleft() for _ in range(min(len(self.queue), size))]
             future = self.client.submit(run_cells, batch, self.func, pure=False,
                                         key=f"sweep-{self.token}-{batch[0].key}-{len(batch)}")
             self.futures[future] = batch
             self.finished.add(future)
             self.batches.append(len(batch))
 
-    def collect(self, collector: _Collector) -> None:
-        """Hand each batch's records to ``collector`` as it returns, keeping the workers busy."""
+    def collect(self, handle) -> None:
+        """Hand each batch's records (a list, in cell order) to ``handle`` as it returns, keeping
+        the workers busy, until every batch returned or :meth:`stop` was called."""
         for future in self.finished:
             batch = self.futures.pop(future)
+            if self.stopped:
+                return
             try:
                 records, seconds = future.result()
                 self.per_cell.append(seconds / len(batch))
             except Exception as exc:  # noqa: BLE001 - the task itself failed (worker lost, unpicklable …)
                 records = [failed_record(cell, f"{type(exc).__name__}: {exc}") for cell in batch]
             self.fill()  # keep the workers busy, then journal
-            for record in records:
-                collector.add(record)
+            handle(records)
+
+    def feed(self, results: SimpleQueue) -> None:
+        """:meth:`collect` into ``results`` (run in a thread other than the one journalling): each
+        batch's records, then None, or the exception raised."""
+        try:
+            self.collect(results.put)
+        except BaseException as exc:  # noqa: BLE001 - handed to the thread that journals
+            results.put(exc)
+        else:
+            results.put(None)
+
+    def stop(self) -> None:
+        """Submit no more batches and cancel the ones not returned (Ctrl-C, an error)."""
+        self.stopped = True
+        if self.futures:
+            with quiet_loggers(*DASK_LOGGERS):
+                self.client.cancel(list(self.futures))
 
 
 def _run_on(scheduler, cells, func, collector: _Collector) -> None:
@@ -408,10 +498,10 @@ def _run_on(scheduler, cells, func, collector: _Collector) -> None:
     try:
         dispatch = _Dispatch(client, deque(cells), func, collector.result.batches, None)
         dispatch.fill()
-        dispatch.collect(collector)
+        dispatch.collect(collector.add_all)
     finally:
-        with quiet_loggers(*DASK_LOGGERS):
-            if dispatch is not None and dispatch.futures:  # a shared cluster: free its workers
-                client.cancel(list(dispatch.futures))
-            if own_client:
+        if dispatch is not None:  # a shared cluster: free its workers
+            dispatch.stop()
+        if own_client:
+            with quiet_loggers(*DASK_LOGGERS):
                 client.close()
