@@ -295,6 +295,12 @@ auto where(const Mask &mask, const E &a, double other) {
   return mask.select(a, Arr::Constant(a.rows(), a.cols(), other));
 }
 
+// the rows the iterate pt deems active: λ and t each against its own scale (the polish's first set, the
+// crossover's multipliers; the Python twin's _deemed_active)
+Mask deemed_active(const Point &pt, const Mask &used, double scale, double f_scale) {
+  return used && (pt.lam * f_scale > pt.t * scale);
+}
+
 // The Newton system of the iterate pt (a reference: an iteration moves pt and evaluates again,
 // every buffer keeping its storage)
 struct Newton {
@@ -413,7 +419,7 @@ struct Result {
 
 bool polish(const QP &qp, Riccati &ric, const Point &point, const Mask &used, const Mask &soft, double scale,
             double f_scale, double merit, Result &out) {
-  Mask active = used && (point.lam * f_scale > point.t * scale);
+  Mask active = deemed_active(point, used, scale, f_scale);
   const Arr &f = qp.f0;
   Point cur;
   Mask keep_soft;
@@ -534,7 +540,7 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start, double cro
     }
     if (newton->merit <= crossover) {  // the caller's crossover: this iterate (not polished), see the Python twin
       best.pt = pt;
-      best.pt.lam = where(used && (pt.lam * f_scale > pt.t * scale), pt.lam, 0.0);
+      best.pt.lam = where(deemed_active(pt, used, scale, f_scale), pt.lam, 0.0);
       best.nu = newton->nu;
       best.merit = newton->merit;
       best.iterations = it;

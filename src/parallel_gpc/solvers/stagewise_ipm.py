@@ -442,6 +442,12 @@ class _Newton:
                 np.where(soft, pi + alpha * dp, 1.0))
 
 
+def _deemed_active(point: tuple, used: np.ndarray, scale: float, f_scale: float) -> np.ndarray:
+    """(N, k) the used rows that the iterate ``point`` deems active: λ/scale > t/f_scale, λ and the row's
+    slack t each against its own scale (the polish's first set, the crossover's multipliers)."""
+    return used & (point[3] * f_scale > point[2] * scale)
+
+
 def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float, merit: float):
     """Newton steps (σ = 0, full length) with the rows that are inactive at ``point`` dropped
     (λ/scale < t/f_scale): their barrier no longer pushes the plan along the problem's flat
@@ -449,7 +455,7 @@ def _polish(qp: StageQP, point: tuple, used, soft, scale: float, f_scale: float,
     plan breaks is kept, and the step is retaken (at most :data:`_POLISH_ROUNDS` times). The
     result is kept when every row holds, the multipliers are ≥ 0 and the KKT residual of the full
     problem does not grow; else None."""
-    active = used & (point[3] * f_scale > point[2] * scale)  # λ and t each against its own scale
+    active = _deemed_active(point, used, scale, f_scale)
     f = np.where(used, qp.f, 0.0)
     for _ in range(_POLISH_ROUNDS):
         keep_soft = soft & active
@@ -528,8 +534,8 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None, cros
     for it in range(max_iter + 1):
         newton = _Newton(qp, point, used, soft, scale, f_scale, factor=False)
         if newton.merit <= crossover:  # the caller's crossover: this iterate, λ kept on the rows it deems active
-            z, v, t, lam, s, _ = point
-            lam = np.where(used & (lam * f_scale > t * scale), lam, 0.0)  # (the polish's test)
+            z, v, _, lam, s, _ = point
+            lam = np.where(_deemed_active(point, used, scale, f_scale), lam, 0.0)
             return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, newton.nu, it, "crossover", newton.merit)
         improved = best is None or newton.merit < best[0]
         if improved:
