@@ -377,6 +377,39 @@ def test_drive_rows_are_the_inverse_kinematics_to_first_order(model4):
                                atol=2e-3 * np.abs(q1 - q_prev).max())
 
 
+def test_a_predicted_pose_beyond_the_workspace_is_linearized_at_the_last_one_that_assembles(model4):
+    """A long prediction may leave the workspace (found on a hand-written biglide: the planner's first
+    prediction of 120 samples reached past the rods' reach and `plan` stopped with exit 2): the drive rows of
+    such a pose are the first-order extension from the pose before it that assembles, or from y(k)."""
+    from parallel_gpc.errors import AssemblyError
+    from parallel_gpc.gpc.constraints import DriveKinematics, linearization_points
+
+    robot = model4.robot
+    p = robot.n_y
+    y0 = robot.home_pose
+    far = y0 + np.array([5.0, 0.0, 0.0])[:p]  # metres beyond any reach
+    kin = DriveKinematics(robot)
+    with pytest.raises(AssemblyError):
+        kin(far)
+    poses = np.array([far, y0 + 0.01, far, far, y0 - 0.01])
+    points, qj = linearization_points(kin, poses, y0)
+    np.testing.assert_array_equal(points, [y0, y0 + 0.01, y0 + 0.01, y0 + 0.01, y0 - 0.01])
+    for (q, J), y in zip(qj, points):
+        q_ref, J_ref = DriveKinematics(robot)(y)
+        np.testing.assert_allclose(q, q_ref, atol=1e-10)
+        np.testing.assert_allclose(J, J_ref, atol=1e-8)
+    # the rows of a prediction through such poses: built (the old code raised), each the extension from its point
+    H = Horizons(len(poses))
+    n = 2
+    pred = Prediction(poses.reshape(-1), np.zeros((len(poses) * p, n)), np.zeros(0), np.zeros((0, 0)), H,
+                      "simulative")
+    lim = Limits(drive_position=[-10.0, 10.0]).for_drives(robot.n_u, p)
+    rows = stage_constraints(pred, lim, TS, y0, drives=DriveKinematics(robot))
+    hi = np.flatnonzero(rows.kind == "drive_position")[: len(poses) * robot.n_u].reshape(len(poses), -1)
+    for i, (y, (q, J)) in enumerate(zip(poses, qj)):
+        np.testing.assert_allclose(10.0 - rows.h[hi[i]], q + J @ (y - points[i]), atol=1e-9)
+
+
 # ---------------------------------------------------------------------------- passive joint ranges
 def test_joint_rows_are_the_closure_solution_to_first_order(model4):
     """joint_position rows against the robot's own assembly (Newton on the closures) at the

@@ -31,13 +31,13 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ..errors import InvalidParameterError
+from ..errors import AssemblyError, InvalidParameterError, SingularPoseError
 from ..limits import KINEMATIC_KINDS, SOFT_QUADRATIC, STATE_KINDS, Limits
 from ..solvers import LeastSquaresProblem, SolveResult, with_equalities, with_inequalities
 from .prediction import Prediction
 
 __all__ = ["DriveKinematics", "ConstraintRows", "OutputRows", "output_rows", "ConstraintReport", "stage_constraints",
-           "terminal_rows", "constrain",
+           "terminal_rows", "constrain", "linearization_points",
            "report", "report_at", "split", "hard_violation", "hard_excess", "STATE_TOL"]
 
 #: a row counts as active when its (slack-relaxed) value is within this of its bound (units of the limit).
@@ -265,6 +265,38 @@ def stage_constraints(pred: Prediction, limits: Limits, Ts: float, y_now: np.nda
                           np.concatenate(slack_of).astype(int), n_slack)
 
 
+def linearization_points(drives: DriveKinematics, poses: np.ndarray, y_now: np.ndarray):
+    """The poses the kinematic limits are linearized at, and the drive kinematics there.
+
+    A predicted pose is a point of a linear (or pre-simulated) prediction: far along a long horizon it may
+    lie beyond the workspace or at a singular pose, where no assembly exists. Such a row is linearized at
+    the last pose before it that assembles (the row before, or the measured pose y_now for the first):
+    q(ŷ) ≈ q(ȳ) + J(ȳ)(ŷ − ȳ), a first-order extension of the limit past the workspace's edge, re-linearized
+    at every step as the prediction comes back.
+
+    Args:
+        drives: the robot's :class:`DriveKinematics`. poses: (n_rows, p) predicted poses (m, rad).
+        y_now: (p,) measured pose (m, rad).
+
+    Returns:
+        ((n_rows, p) linearization points, [(positions, Jacobian)] per row as ``drives`` gives them).
+
+    Raises:
+        AssemblyError, SingularPoseError: y_now itself cannot be assembled (needed only when the first
+            predicted pose cannot).
+    """
+    points, out, last = np.array(poses, dtype=float), [], None
+    for i, y in enumerate(points):
+        try:
+            last = (y, drives(y))
+        except (AssemblyError, SingularPoseError):
+            if last is None:
+                last = (np.asarray(y_now, dtype=float), drives(np.asarray(y_now, dtype=float)))
+            points[i] = last[0]
+        out.append(last[1])
+    return points, out
+
+
 def _kinematic_rows(limits: Limits, H, Ts: float, y_now, f_rows, y_lin, drives) -> list[OutputRows]:
     """The :class:`OutputRows` of drive_position, joint_position and drive_rate, linearized at the
     poses y_lin ((n_rows·p,), default the free response f_rows (n_rows, p)) through ``drives``."""
@@ -276,8 +308,8 @@ def _kinematic_rows(limits: Limits, H, Ts: float, y_now, f_rows, y_lin, drives) 
         raise InvalidParameterError(f"the kinematics give the joints {list(drives.joints)}; the joint_position "
                                     f"limits name {list(joints)}")
     n_rows, p = f_rows.shape
-    ybar = (f_rows if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(n_rows, p)
-    qj = [drives(y) for y in ybar]
+    ybar, qj = linearization_points(drives, (f_rows if y_lin is None else np.asarray(y_lin, dtype=float)).reshape(
+        n_rows, p), y_now)
     qall = np.array([a for a, _ in qj])
     jall = np.array([J for _, J in qj])  # (n_rows, n_u + n_j, p)
     n_u = qall.shape[1] - len(drives.joints)
