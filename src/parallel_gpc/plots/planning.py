@@ -131,14 +131,18 @@ def plot_fig3(results: list[PlanResult], robot=None, n_markers: int = 11,
             for pose in (res.start, res.target):
                 ax.add_patch(Polygon(_pose_marker(*pose[cols], pose[yaw], 2 * size), closed=True,
                                      fill=False, ec="k", lw=1.0, ls=":"))
+        # each label on the side away from the other point (A and B may be close, in any direction)
+        away = np.sign([res.target[c] - res.start[c] for c in cols]) if not over_time else np.ones(2)
+        away[away == 0] = 1.0
         for pose, name, mk in ((res.start, "A", "o"), (res.target, "B", "*")):
             text = ", ".join(f"{space.name(i)} {pose[i]:.3g} m" if not space.angular[i]
                              else f"{space.name(i)} {math.degrees(pose[i]):.0f}°" for i in range(space.n_y))
             where = ([res.t[0] if name == "A" else res.t[-1]] if over_time else []) + [pose[c] for c in cols]
             ax.plot(*([v] for v in where), mk, color="k", ms=11 if mk == "*" else 8, zorder=5)
             if len(where) == 2:
-                ax.annotate(f"{name} [{text}]", where, xytext=(10, -16) if name == "A" else (-10, 14),
-                            textcoords="offset points", fontsize=9, ha="left" if name == "A" else "right")
+                sx, sy = away if name == "B" else -away
+                ax.annotate(f"{name} [{text}]", where, xytext=(10 * sx, 10 if sy > 0 else -18),
+                            textcoords="offset points", fontsize=9, ha="left" if sx > 0 else "right")
             else:
                 ax.text(*where, f" {name}", fontsize=9)
         pos, ang = res.end_error
