@@ -128,9 +128,11 @@ class GPCController:
                 raise InvalidParameterError(f"model {type(model).__name__} has no {name!r}: a controller's model "
                                             f"implements parallel_gpc.gpc.ControlModel")
         self.model = model
-        # a robot model's compiled update (ReducedModel.compiled_update) is built here, with the controller, not in
-        # its first step (~1.7 ms on planar_4rrr: the first step of a run was the dearest)
-        getattr(model, "compiled_update", None)
+        # what a model builds at first use (a robot model's compiled update, ReducedModel.prepare) is built here, with
+        # the controller, not in its first step (~1.7 ms on planar_4rrr: the first step of a run was the dearest)
+        prepare = getattr(model, "prepare", None)  # optional: a user's ControlModel need not have it
+        if prepare is not None:
+            prepare()
         self.n_y, self.n_u, self.n_x = model.n_y, model.n_u, model.n_x
         check_sample_time(model, settings.Ts, "model", "the controller's", required=False)  # once, here
         self._backend, self._backend_name = None, None

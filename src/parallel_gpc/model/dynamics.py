@@ -146,6 +146,13 @@ class ReducedModel:
         its own work (the nonlinear form's Riccati step, :mod:`parallel_gpc.gpc.riccati`)."""
         return self._native if self.native else None
 
+    def prepare(self) -> None:
+        """Build now what the first pre-simulation would build (the compiled model update), so that the first
+        control step costs what every step costs; a controller calls it at construction. Nothing on the Python
+        reference path; calling it again does nothing."""
+        if self.native:
+            self._native  # noqa: B018 (the property builds it)
+
     # -------------------------------------------------------------- kinematics
     def _kinematics(self, y: np.ndarray, base=None):
         """(q, T, Φ_z⁺) at platform pose y: warm-started assembly and velocity map.
