@@ -526,6 +526,12 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start, double cro
   Point next, aff, step;  // storage kept from iteration to iteration
   for (int it = 0; it <= MAX_ITER; ++it) {
     if (it) newton->evaluate();
+    if (newton->merit <= crossover) {  // the caller's crossover: this iterate (not polished), see the Python twin
+      Result out{pt, newton->nu, newton->merit, it, newton->merit <= ACCEPT};
+      out.pt.lam = where(deemed_active(pt, used, scale, f_scale), pt.lam, 0.0);
+      out.pt.s = where(soft, pt.s, 0.0);
+      return out;
+    }
     const bool improved = !have || newton->merit < best.merit;
     if (improved) {
       best.pt = pt;  // assignments: the best iterate's storage is reused
@@ -537,16 +543,6 @@ Result solve_scaled(const QP &qp, Traj z, Traj v, const Start *start, double cro
     if (newton->merit < PROGRESS * marked) {
       marked = newton->merit;
       marked_it = it;
-    }
-    if (newton->merit <= crossover) {  // the caller's crossover: this iterate (not polished), see the Python twin
-      best.pt = pt;
-      best.pt.lam = where(deemed_active(pt, used, scale, f_scale), pt.lam, 0.0);
-      best.nu = newton->nu;
-      best.merit = newton->merit;
-      best.iterations = it;
-      best.ok = best.merit <= ACCEPT;
-      best.pt.s = where(soft, best.pt.s, 0.0);
-      return best;
     }
     if (newton->merit <= IPM_TOL || it == MAX_ITER) break;
     // the rounding floor: keep the best iterate (the stopping iterate is never factorized)
