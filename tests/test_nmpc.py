@@ -392,6 +392,15 @@ def compiled_stagewise(monkeypatch):
     monkeypatch.setattr(settings_module, "stagewise_compiled", lambda limited: True)
 
 
+def _between_converged(a, b) -> float:
+    """The largest difference (N·m) two converged plans a, b (StepInfo) of one problem may show: each is within its
+    last Gauss–Newton step, residual·(1 + ‖v‖∞), of the optimum (a rounding-limited stop ends above the
+    tolerance), plus 1e-8 relative for the two solvers' rounding (issue 23's agreement with the condensed problem).
+    Measured: delta_3rus 5.2e-9 relative with residuals ~1e-12; Nu < N, No > 0 1.1e-7 with residuals 3.7e-8."""
+    scale = float(np.abs(b.result.v).max())
+    return (a.residual + b.residual) * (1.0 + scale) + 1e-8 * scale
+
+
 @pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus"])
 def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name, compiled_stagewise):
     """The steps by the Riccati recursion (the default without state limits, Qu nonsingular: the
@@ -404,8 +413,8 @@ def test_riccati_steps_converge_to_the_condensed_back_ends_plan(name, compiled_s
     assert ctrl.solver == ctrl.settings.step_solver == "riccati"  # what the steps report, not the condensed back end
     assert ctrl.settings.solver != "riccati"  # the condensed back end of a limit-breaking minimizer
     assert fast.residual <= 1e-6 and condensed.residual <= 1e-6 and not fast.fallback  # (rounding-limited stop)
-    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
-    np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=1e-9 * np.abs(condensed.u).max())
+    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=_between_converged(fast, condensed))
+    np.testing.assert_allclose(fast.u, condensed.u, rtol=0, atol=_between_converged(fast, condensed))
 
 
 def _limited_case(kind):
@@ -554,7 +563,8 @@ def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4, com
         infos.append(ctrl.step(X, np.tile(target, (10, 1))))
     fast, condensed = infos
     assert fast.result.solver == "riccati" and condensed.result.solver == "qr" and fast.residual <= 1e-6
-    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=1e-9 * np.abs(condensed.result.v).max())
+    assert condensed.residual <= 1e-6
+    np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=_between_converged(fast, condensed))
 
 
 def _limited_loop(steps, reuse=True, spy=None):
