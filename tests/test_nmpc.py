@@ -371,6 +371,10 @@ class _Fenced:
             raise UnreachablePoseError(f"inputs beyond {self.bound} N·m")
         return self._model.simulate_factorized(X0, u_seq, Ts, offset)
 
+    def simulate_linearized(self, X0, u_seq, Ts, offset=None, start=0):
+        traj = self.simulate_factorized(X0, u_seq, Ts, offset)  # the fence first, as the fused call's rollout
+        return *traj, self._model.stage_jacobians(traj[3], u_seq, Ts, start=start)
+
 
 def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):
     model, X, plan, target = _case("planar_4rrr")

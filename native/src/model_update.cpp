@@ -186,12 +186,13 @@ void ModelUpdate::discrete(const Vec &X, double Ts, double *out) {
 }
 
 void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es,
-                           double *Xs) {
+                           double *Xs, RolloutProgress *progress) {
   Eigen::Map<RowMat> X(Xs, K + 1, n_x);
   X.row(0) = X0.transpose();
   // the warm starts of this run go into the storage of the run before last (copy-assigned at equal
   // sizes: no allocation), then the two swap
   sim_next_.resize(K);
+  if (progress != nullptr) progress->warm.store(sim_next_.data(), std::memory_order_relaxed);  // done publishes it
   Vec x(n_x), xu(n_aug);
   xu[n_aug - 1] = 1.0;
   for (long i = 0; i < K; ++i) {
@@ -211,6 +212,7 @@ void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, co
     xu.segment(n_x, n_u) = Eigen::Map<const Vec>(u + i * n_u, n_u);
     X.row(i + 1) = (E_ * xu).transpose();
     if (offset != nullptr) X.row(i + 1) += offset->transpose();
+    if (progress != nullptr) progress->done.store(i + 1, std::memory_order_release);  // stage i: warm, X(i + 1)
   }
   sim_warm_.swap(sim_next_);
 }
