@@ -108,8 +108,8 @@ def test_a_step_below_rounding_is_not_tried_shorter(robot4, monkeypatch):
     ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
     rollouts, costs, rollout = [], [], ctrl._nmpc._rollout
 
-    def counted(*args):
-        out = rollout(*args)
+    def counted(*args, **kw):
+        out = rollout(*args, **kw)
         rollouts.append(args[4].copy())
         costs.append(out[3])
         return out

@@ -10,12 +10,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from parallel_gpc import ParallelRobot, ReducedModel
+from parallel_gpc import ControllerState, GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError, UnreachablePoseError
+from parallel_gpc.limits import Limits
 from parallel_gpc.model import native_update
 from parallel_gpc.model.native import native_module
 
 TS = 0.002
+N_STEPS = 4
 
 
 @pytest.fixture
@@ -123,3 +125,55 @@ def test_bad_start_is_one_clear_error():
     X0, u, offset = _move(robot, 3)
     with pytest.raises(InvalidParameterError, match="start = 4 is not a stage"):
         ReducedModel(robot).simulate_linearized(X0, u, TS, None, start=4)
+
+
+class _TwoCalls:
+    """A user's model without simulate_linearized (the protocol's optional member): the iterations call
+    simulate_factorized then stage_jacobians."""
+
+    def __init__(self, model):
+        self._model = model
+
+    def __getattr__(self, name):
+        if name == "simulate_linearized":
+            raise AttributeError(name)
+        return getattr(self._model, name)
+
+
+class _Counted(_TwoCalls):
+    """The model with simulate_linearized, counting its calls."""
+
+    def __init__(self, model):
+        super().__init__(model)
+        self.fused = 0
+
+    def simulate_linearized(self, *args, **kw):
+        self.fused += 1
+        return self._model.simulate_linearized(*args, **kw)
+
+
+@pytest.mark.parametrize("limits", [Limits(), Limits(torque=15.0)])
+def test_nmpc_iterations_apply_the_inputs_of_the_two_calls(limits, threads, on_threads):
+    """Closed loops in lockstep on planar_4rrr (converged NMPC, N = 10, from a fast state): the controller
+    whose model rolls out and linearizes in one call applies the inputs of the one that makes the two calls
+    (to rounding), and the fused call is what its iterations use."""
+    robot = ParallelRobot.load("planar_4rrr")
+    threads(2)
+    X = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
+    N, target = 10, np.array([0.51, 0.39, 0.12])
+    plan = np.tile([1.0, -1.0, 0.5, 0.2], (N, 1))
+    models = [_Counted(ReducedModel(robot)), _TwoCalls(ReducedModel(robot))]
+    ctrls = []
+    for model in models:
+        ctrl = GPCController.build(model, TS, Horizons(N), Weights(1.0, 1e-3), form="nonlinear", iterations=20,
+                                   tolerance=1e-10, limits=limits, disturbance_gain=0.0)
+        ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(2 * robot.n_y)))
+        ctrls.append(ctrl)
+    plant = ReducedModel(robot, native=False)
+    for _ in range(N_STEPS):
+        fused, two = (ctrl.step(X, np.tile(target, (N, 1))) for ctrl in ctrls)
+        assert fused.iterations == two.iterations > 1
+        assert np.abs(fused.u - two.u).max() <= 1e-9 * max(1.0, np.abs(two.u).max())
+        A, B, c = plant.discrete(X, TS)
+        X = A @ X + B @ two.u + c
+    assert models[0].fused > 0
