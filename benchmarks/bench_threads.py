@@ -2,7 +2,8 @@
 """The compiled stage Jacobians on 1 and 2 threads (``PARALLEL_GPC_THREADS``, docs/performance.md#threads),
 interleaved in one process so that both see the same machine: ``ReducedModel.stage_jacobians`` of 19 stages
 (planar_4rrr, delta_3rus; blocks of 20 calls), the rollout of 20 stages and its Jacobians as two calls and as one
-(``simulate_linearized``: the Jacobians on the second thread during the rollout), then the converged NMPC step of bench_nmpc's planar case
+(``simulate_linearized``: the Jacobians on the second thread during the rollout), then the converged NMPC step of
+bench_nmpc's planar case
 (planar_4rrr, N = 20, Ts = 2 ms, S-curve, torque limit 15 N·m), two closed loops in lockstep, one per thread
 count. Medians of wall (perf_counter) and CPU time (process_time: every thread of the process).
 

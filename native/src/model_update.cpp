@@ -1,6 +1,7 @@
 // The compiled model update: ReducedModel._factor_rows, discrete and simulate_factorized of
 // model/dynamics.py in C++ (eq. (3), (4), (10)), and its nanobind binding.
 #include "model_update.hpp"
+#include "numpy_array.hpp"
 
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
@@ -222,16 +223,6 @@ void check_state(const ModelUpdate &self, const Vec &X) {
   if (X.size() != self.n_x) throw std::invalid_argument("the state X must have n_x = 2 n_y entries");
 }
 
-using Array = nb::ndarray<nb::numpy, double>;
-
-Array new_array(std::initializer_list<size_t> shape, double **data) {
-  size_t n = 1;
-  for (size_t d : shape) n *= d;
-  double *buf = new double[n > 0 ? n : 1];
-  nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-  *data = buf;
-  return Array(buf, shape.size(), shape.begin(), owner);
-}
 
 ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>> closure_frames,
                   std::vector<long> jac_rows, long n_y, long n_u, std::vector<long> y_q, std::vector<long> y_idx,

@@ -23,22 +23,12 @@
 
 #include "bindings.hpp"
 #include "model_update.hpp"
+#include "numpy_array.hpp"
 #include "thread_pool.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
 
 namespace pgpc {
 
-namespace {
-using Array = nb::ndarray<nb::numpy, double>;
-
-Array new_array(std::initializer_list<size_t> shape) {  // a NumPy array owning a new buffer
-  size_t count = 1;
-  for (size_t d : shape) count *= d;
-  double *buf = new double[count > 0 ? count : 1];
-  nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-  return Array(buf, shape.size(), shape.begin(), owner);
-}
-}  // namespace
 
 void ModelUpdate::tangent_rates(Mat &P) {
   // computeJointJacobiansTimeVariation and RNEA without their kinematics passes: with the world Jacobian J
@@ -238,12 +228,14 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
 void simulate_linearized(ModelUpdate &self, const Vec &X0, const double *u, long K, double Ts, const Vec *offset,
                          double step, long start, double *Es, double *Xs, double *J) {
   const long n = self.n_x, m = self.n_u;
-  const int threads = static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
+  const int threads =
+      static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
   if (threads <= 1) {
     self.simulate(X0, u, K, Ts, offset, Es, Xs);
     const std::vector<Warm> &sim = self.simulation_warm();
     StageWork work(self, Ts);
-    for (long i = start; i < K; ++i) stage_jacobian(self, &sim[i], work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
+    for (long i = start; i < K; ++i)
+      stage_jacobian(self, &sim[i], work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
     return;
   }
   std::vector<ModelUpdate *> updates{&self};
@@ -328,11 +320,11 @@ void bind_stage_jacobian(nb::module_ &m) {
         if (offset && offset->size() != n) throw std::invalid_argument("simulate_linearized: offset must be (n_x,)");
         if (!(Ts > 0.0) || !(step > 0.0)) throw std::invalid_argument("simulate_linearized: Ts and step must be > 0");
         if (start < 0 || start > K) throw std::invalid_argument("simulate_linearized: start must be in 0..K");
-        Array E = new_array({size_t(K), size_t(n), size_t(self.n_aug)});
-        Array X = new_array({size_t(K + 1), size_t(n)});
-        Array J = new_array({size_t(K - start), size_t(n), size_t(n)});
-        simulate_linearized(self, X0, u.data(), K, Ts, offset ? &*offset : nullptr, step, start, E.data(), X.data(),
-                            J.data());
+        double *Es, *Xs, *Js;
+        Array E = new_array({size_t(K), size_t(n), size_t(self.n_aug)}, &Es);
+        Array X = new_array({size_t(K + 1), size_t(n)}, &Xs);
+        Array J = new_array({size_t(K - start), size_t(n), size_t(n)}, &Js);
+        simulate_linearized(self, X0, u.data(), K, Ts, offset ? &*offset : nullptr, step, start, Es, Xs, Js);
         return nb::make_tuple(E, X, J);
       },
       nb::arg("update"), nb::arg("X0"), nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(), nb::arg("step"),

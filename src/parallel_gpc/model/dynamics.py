@@ -86,6 +86,16 @@ class ReducedTerms:
         return np.linalg.solve(self.M_r, self.B_r @ u - self.h_r)
 
 
+def _check_start(start: int, K: int) -> None:
+    """The first linearized stage of K (stage_jacobians, simulate_linearized) is one of 0..K.
+
+    Raises:
+        InvalidParameterError: it is not.
+    """
+    if not 0 <= start <= K:
+        raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
+
+
 class ReducedModel:
     """Reduced ODE ``ÿ = f(y, ẏ) + g(y) u`` of a :class:`ParallelRobot`.
 
@@ -404,8 +414,7 @@ class ReducedModel:
         """
         X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
         K, n, ny = len(u_seq), self.n_x, self.n_y
-        if not 0 <= start <= K:
-            raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
+        _check_start(start, K)
         compiled = native_module() if self.native else None
         if compiled is not None and hasattr(compiled, "stage_jacobians"):
             return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
@@ -546,8 +555,7 @@ class ReducedModel:
         Ts = positive("Ts", Ts, " s")
         u_seq = np.ascontiguousarray(u_seq, dtype=float)
         K, nx, nu = u_seq.shape[0], self.n_x, self.n_u
-        if not 0 <= start <= K:
-            raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
+        _check_start(start, K)
         Es, Xs, JX = compiled.simulate_linearized(self._native, np.asarray(X0, dtype=float), u_seq, Ts,
                                                   None if offset is None else np.asarray(offset, dtype=float),
                                                   step, start)
