@@ -26,8 +26,10 @@ as after the paper's) and to cost one Jacobian more, the dearest part of an iter
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
 (Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
 factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, forward differences
-of Z in y, n_y model updates per stage in one compiled call, none at stage 0 whose state is fixed; the
-frozen A_d misses
+of Z in y, n_y model updates per stage in one compiled call, none at stage 0 whose state is fixed; a
+trial that will be linearized if accepted is rolled out with its Jacobians in one call,
+:meth:`~parallel_gpc.model.ReducedModel.simulate_linearized`, their stages on the second core while the
+rollout goes on; the frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
 optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
