@@ -191,9 +191,11 @@ class NMPCIterations:
         trajectory = simulate_factorized's output; JX: with ``linearize``, the stage Jacobians ∂Φ/∂X at
         stages 1..N−1 of this trajectory ((N − 1, n_x, n_x), the model's ``simulate_linearized``: computed
         on a second core while the rollout goes on, the compiled core's), else None. A trial the line search
-        rejects drops its JX: on one core that is a stage_jacobians call wasted (≈ twice a rollout), on two
-        the second core's time, the rollout's end being waited for anyway. Where the fused call fails the
-        trial is rolled out alone (JX None), so that a failing Jacobian stops the iterations as in ``run``."""
+        rejects drops its JX: on one core a stage_jacobians call wasted (≈ twice a rollout), on two the
+        second core's time and the stages still left when the rollout ends (the calling thread joins them);
+        hence ``run`` asks for JX only where the trial is likely kept (not on a flat line search, whose
+        full step is mostly rejected). Where the fused call fails the trial is rolled out alone (JX None),
+        so that a failing Jacobian stops the iterations as in ``run``."""
         H, m = self.criterion.horizons, self.model.n_u
         u = (u0 + u_map @ v).reshape(-1, m)
         JX = None
@@ -376,8 +378,10 @@ class NMPCIterations:
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
                 try:
+                    # with its Jacobians unless it is the last allowed iteration's or flat (then mostly rejected)
                     traj, u_traj, y_rows, trial_cost, trial_JX = self._rollout(
-                        X, w, u0, u_map, trial, disturbance, linearize=report["iterations"] < self.iterations)
+                        X, w, u0, u_map, trial, disturbance,
+                        linearize=report["iterations"] < self.iterations and not flat)
                     trial_rows = self._true_rows(y_rows, y_now)
                 except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
                     alpha *= 0.5
