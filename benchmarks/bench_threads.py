@@ -1,7 +1,9 @@
 #!/usr/bin/env python3
 """The compiled stage Jacobians on 1 and 2 threads (``PARALLEL_GPC_THREADS``, docs/performance.md#threads),
 interleaved in one process so that both see the same machine: ``ReducedModel.stage_jacobians`` of 19 stages
-(planar_4rrr, delta_3rus; blocks of 20 calls), then the converged NMPC step of bench_nmpc's planar case
+(planar_4rrr, delta_3rus; blocks of 20 calls), the rollout of 20 stages and its Jacobians as two calls and as one
+(``simulate_linearized``: the Jacobians on the second thread during the rollout), then the converged NMPC step of
+bench_nmpc's planar case
 (planar_4rrr, N = 20, Ts = 2 ms, S-curve, torque limit 15 N·m), two closed loops in lockstep, one per thread
 count. Medians of wall (perf_counter) and CPU time (process_time: every thread of the process).
 
@@ -79,6 +81,21 @@ def main(argv=None) -> int:
                 res[n].append((w / 20, c / 20))
         for n in (1, 2):
             print(line(f"{name} stage_jacobians, 19 stages, {n} thread{'s' if n > 1 else ''}", res[n]), flush=True)
+        # the rollout and its Jacobians: two calls vs the fused one (Jacobians during the rollout), interleaved;
+        # two plans 0.1 % apart in turn, as a line search's trials (the same plan again would reuse every
+        # factorization of the rollout before)
+        plans = [u, u * 1.001]
+        fused = {(n, f): [] for n in (1, 2) for f in (False, True)}
+        for _ in range(args.rounds):
+            for (n, f), samples in fused.items():
+                m = models[n]
+                call = (lambda p: m.simulate_linearized(X, p, TS, None, start=1)) if f else \
+                    (lambda p: m.stage_jacobians(m.simulate_factorized(X, p, TS)[3], p, TS, start=1))
+                w, c = timed(lambda: [call(plans[j % 2]) for j in range(20)])
+                samples.append((w / 20, c / 20))
+        for (n, f), samples in fused.items():
+            what = "simulate_linearized" if f else "simulate_factorized + stage_jacobians"
+            print(line(f"{name} {what}, 20 stages, {n} thread{'s' if n > 1 else ''}", samples), flush=True)
     robot = ParallelRobot.load("planar_4rrr")
     ref = reference_for("s-curve", robot, 1.0)
     loops = {n: (gpc_method(model_with(robot, n), TS, N, TORQUE, 50),

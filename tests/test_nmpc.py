@@ -108,8 +108,8 @@ def test_a_step_below_rounding_is_not_tried_shorter(robot4, monkeypatch):
     ctrl.restore(ControllerState(plan[0], plan[:N], np.zeros(model.n_x)))
     rollouts, costs, rollout = [], [], ctrl._nmpc._rollout
 
-    def counted(*args):
-        out = rollout(*args)
+    def counted(*args, **kw):
+        out = rollout(*args, **kw)
         rollouts.append(args[4].copy())
         costs.append(out[3])
         return out
@@ -370,6 +370,10 @@ class _Fenced:
         if np.abs(u_seq).max() > self.bound:
             raise UnreachablePoseError(f"inputs beyond {self.bound} N·m")
         return self._model.simulate_factorized(X0, u_seq, Ts, offset)
+
+    def simulate_linearized(self, X0, u_seq, Ts, offset=None, start=0):
+        traj = self.simulate_factorized(X0, u_seq, Ts, offset)  # the fence first, as the fused call's rollout
+        return *traj, self._model.stage_jacobians(traj[3], u_seq, Ts, start=start)
 
 
 def test_a_trial_beyond_the_models_domain_shortens_the_step(robot4):

@@ -1,6 +1,7 @@
 // The compiled model update: ReducedModel._factor_rows, discrete and simulate_factorized of
 // model/dynamics.py in C++ (eq. (3), (4), (10)), and its nanobind binding.
 #include "model_update.hpp"
+#include "numpy_array.hpp"
 
 #include <Eigen/Cholesky>
 #include <nanobind/eigen/dense.h>
@@ -186,12 +187,13 @@ void ModelUpdate::discrete(const Vec &X, double Ts, double *out) {
 }
 
 void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es,
-                           double *Xs) {
+                           double *Xs, RolloutProgress *progress) {
   Eigen::Map<RowMat> X(Xs, K + 1, n_x);
   X.row(0) = X0.transpose();
   // the warm starts of this run go into the storage of the run before last (copy-assigned at equal
   // sizes: no allocation), then the two swap
   sim_next_.resize(K);
+  if (progress != nullptr) progress->warm.store(sim_next_.data(), std::memory_order_relaxed);  // done publishes it
   Vec x(n_x), xu(n_aug);
   xu[n_aug - 1] = 1.0;
   for (long i = 0; i < K; ++i) {
@@ -211,6 +213,7 @@ void ModelUpdate::simulate(const Vec &X0, const double *u, long K, double Ts, co
     xu.segment(n_x, n_u) = Eigen::Map<const Vec>(u + i * n_u, n_u);
     X.row(i + 1) = (E_ * xu).transpose();
     if (offset != nullptr) X.row(i + 1) += offset->transpose();
+    if (progress != nullptr) progress->done.store(i + 1, std::memory_order_release);  // stage i: warm, X(i + 1)
   }
   sim_warm_.swap(sim_next_);
 }
@@ -220,16 +223,6 @@ void check_state(const ModelUpdate &self, const Vec &X) {
   if (X.size() != self.n_x) throw std::invalid_argument("the state X must have n_x = 2 n_y entries");
 }
 
-using Array = nb::ndarray<nb::numpy, double>;
-
-Array new_array(std::initializer_list<size_t> shape, double **data) {
-  size_t n = 1;
-  for (size_t d : shape) n *= d;
-  double *buf = new double[n > 0 ? n : 1];
-  nb::capsule owner(buf, [](void *p) noexcept { delete[] static_cast<double *>(p); });
-  *data = buf;
-  return Array(buf, shape.size(), shape.begin(), owner);
-}
 
 ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>> closure_frames,
                   std::vector<long> jac_rows, long n_y, long n_u, std::vector<long> y_q, std::vector<long> y_idx,

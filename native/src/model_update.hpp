@@ -3,6 +3,8 @@
 // The Python modules are the reference; each function here names the Python function it ports.
 #pragma once
 
+#include <atomic>
+
 #include <array>
 #include <memory>
 #include <optional>
@@ -92,6 +94,15 @@ class Kinematics {
 
 struct ForwardSolver;  // forward kinematics from drive readings (forward.cpp)
 
+// A simulate run as another thread sees it while it goes on (pipe14: the fused rollout and linearization,
+// stage_jacobian.cpp): warm = the run's warm starts (one per stage, valid until the next simulate), done = the
+// stages finished (their warm start and the next state written; stored with release, read with acquire)
+struct RolloutProgress {
+  std::atomic<const Warm *> warm{nullptr};
+  std::atomic<long> done{0};
+  std::atomic<bool> failed{false};  // set by the driver when the run threw: nothing more is coming
+};
+
 class ModelUpdate {
   friend struct ForwardSolver;
 
@@ -123,8 +134,11 @@ class ModelUpdate {
   const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
   void discrete(const Vec &X, double Ts, double *out);
-  // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major
-  void simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es, double *Xs);
+  // ReducedModel.simulate_factorized: Es (K, n_x, n_aug) and Xs (K+1, n_x), row-major; progress (or null):
+  // where another thread follows the run stage by stage (the fused rollout and linearization, pipe14,
+  // stage_jacobian.cpp)
+  void simulate(const Vec &X0, const double *u, long K, double Ts, const Vec *offset, double *Es, double *Xs,
+                RolloutProgress *progress = nullptr);
   // ConstrainedPlant._project: (q, v) onto Ψ = 0 keeping the output pose, v = T ẏ keeping ẏ;
   // pinv_hint: K⁺ of the previous projection (or null). False when the warm Newton meets anything
   // unusual (the caller takes the validated path); else T and K⁺ at q_out in velocity_map/pinv

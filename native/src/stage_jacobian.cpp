@@ -13,17 +13,22 @@
 #include <exception>
 #include <functional>
 #include <mutex>
+#include <optional>
 #include <stdexcept>
+#include <thread>
 
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
+#include <nanobind/stl/optional.h>
 
 #include "bindings.hpp"
 #include "model_update.hpp"
+#include "numpy_array.hpp"
 #include "thread_pool.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
 
 namespace pgpc {
+
 
 void ModelUpdate::tangent_rates(Mat &P) {
   // computeJointJacobiansTimeVariation and RNEA without their kinematics passes: with the world Jacobian J
@@ -211,6 +216,90 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
     stage_jacobian(self, bases[i - start], work, X.data() + i * n, u.data() + i * m, Ts, step, J.data() + (i - start) * n * n);
   return J;
 }
+
+/// The rollout of simulate (Es, Xs as ModelUpdate::simulate) and the stage Jacobians of its states start..K−1 (J,
+/// rows as stage_jacobians) in one call: the calling thread runs the rollout stage by stage (the GIL held, as
+/// simulate: its handler calls need it), the pool's threads compute the Jacobians of the stages it has finished
+/// meanwhile (each stage's state, input and warm start published by the rollout's progress), then the calling
+/// thread, the GIL released, takes the stages left and stage K−1 last on self (which ends as after the two calls).
+/// A stage's Jacobian depends on (X(i), u(i), its warm start) alone: the same numbers bit for bit as simulate then
+/// stage_jacobians. An exception of the rollout is the call's (the Jacobians computed meanwhile are dropped);
+/// else the earliest failing stage's. On one thread (or no free core): the two calls one after the other.
+void simulate_linearized(ModelUpdate &self, const Vec &X0, const double *u, long K, double Ts, const Vec *offset,
+                         double step, long start, double *Es, double *Xs, double *J) {
+  const long n = self.n_x, m = self.n_u;
+  const int threads =
+      static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
+  if (threads <= 1) {
+    self.simulate(X0, u, K, Ts, offset, Es, Xs);
+    const std::vector<Warm> &sim = self.simulation_warm();
+    StageWork work(self, Ts);
+    for (long i = start; i < K; ++i)
+      stage_jacobian(self, &sim[i], work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
+    return;
+  }
+  std::vector<ModelUpdate *> updates{&self};
+  for (int k = 0; k + 1 < threads; ++k) updates.push_back(&self.worker(k));  // the GIL held: made on first use
+  RolloutProgress progress;
+  std::atomic<long> next{start};
+  std::mutex failed;
+  long first_failure = K;
+  std::exception_ptr error, rollout_error;
+  const auto fail = [&](long i) {  // i: the stage, start − 1 for a thread's set-up
+    std::lock_guard<std::mutex> lock(failed);
+    if (i < first_failure) first_failure = i, error = std::current_exception();
+  };
+  // stage i once the rollout has finished it (its warm start, and X(i) written by stage i − 1); false: it never will
+  const auto ready = [&](long i) {
+    for (;;) {
+      if (progress.done.load(std::memory_order_acquire) > i) return true;
+      if (progress.failed.load(std::memory_order_acquire)) return false;
+      std::this_thread::yield();
+    }
+  };
+  const auto one = [&](ModelUpdate &update, StageWork &work, long i) {
+    try {
+      const Warm *base = progress.warm.load(std::memory_order_relaxed) + i;  // published with done (acquire)
+      stage_jacobian(update, base, work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
+    } catch (...) {
+      fail(i);
+    }
+  };
+  const std::function<void(int)> task = [&](int slot) {
+    try {
+      ModelUpdate &update = *updates[slot];
+      if (slot == 0) {
+        {
+          nb::gil_scoped_acquire gil;  // the rollout's handler calls (assembly fallback, nonfinite) as in simulate
+          try {
+            self.simulate(X0, u, K, Ts, offset, Es, Xs, &progress);
+          } catch (...) {
+            rollout_error = std::current_exception();
+            progress.failed.store(true, std::memory_order_release);
+            return;
+          }
+        }
+        StageWork work(update, Ts);
+        for (long i = next++; i < K - 1; i = next++) one(update, work, i);
+        one(update, work, K - 1);
+        return;
+      }
+      StageWork work(update, Ts);
+      for (long i = next++; i < K - 1; i = next++) {
+        if (!ready(i)) return;
+        one(update, work, i);
+      }
+    } catch (...) {
+      fail(start - 1);
+    }
+  };
+  {
+    nb::gil_scoped_release release;  // a helper's nonfinite/spd_solve takes the GIL: free while the caller waits
+    ThreadPool::shared().run(threads - 1, task);
+  }
+  if (rollout_error) std::rethrow_exception(rollout_error);
+  if (error) std::rethrow_exception(error);
+}
 }  // namespace
 
 void bind_stage_jacobian(nb::module_ &m) {
@@ -222,5 +311,25 @@ void bind_stage_jacobian(nb::module_ &m) {
         "((K − start)·n_x, n_x) ∂Φ/∂X of the ZOH stage map of a ModelUpdate at (X_seq[i], u_seq[i]), start ≤ i < K: the Fréchet "
         "derivative of the exponential, ẏ-derivatives of the factor rows exact, y-derivatives by forward "
         "differences along the closures' tangent with step·max(1, |y_j|)");
+  m.def(
+      "simulate_linearized",
+      [](ModelUpdate &self, const Vec &X0, In2 u, double Ts, std::optional<Vec> offset, double step, long start) {
+        const long K = static_cast<long>(u.shape(0)), n = self.n_x;
+        if (u.shape(1) != size_t(self.n_u) || X0.size() != n)
+          throw std::invalid_argument("simulate_linearized: X0 must be (n_x,) and u_seq (K, n_u)");
+        if (offset && offset->size() != n) throw std::invalid_argument("simulate_linearized: offset must be (n_x,)");
+        if (!(Ts > 0.0) || !(step > 0.0)) throw std::invalid_argument("simulate_linearized: Ts and step must be > 0");
+        if (start < 0 || start > K) throw std::invalid_argument("simulate_linearized: start must be in 0..K");
+        double *Es, *Xs, *Js;
+        Array E = new_array({size_t(K), size_t(n), size_t(self.n_aug)}, &Es);
+        Array X = new_array({size_t(K + 1), size_t(n)}, &Xs);
+        Array J = new_array({size_t(K - start), size_t(n), size_t(n)}, &Js);
+        simulate_linearized(self, X0, u.data(), K, Ts, offset ? &*offset : nullptr, step, start, Es, Xs, Js);
+        return nb::make_tuple(E, X, J);
+      },
+      nb::arg("update"), nb::arg("X0"), nb::arg("u_seq"), nb::arg("Ts"), nb::arg("offset").none(), nb::arg("step"),
+      nb::arg("start") = 0,
+      "(E (K, n_x, n_aug), X (K + 1, n_x), J (K − start, n_x, n_x)): ModelUpdate.simulate and stage_jacobians of its "
+      "states in one call, the Jacobians of the finished stages on the pool's threads while the rollout goes on");
 }
 }  // namespace pgpc

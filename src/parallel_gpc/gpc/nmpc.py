@@ -26,8 +26,10 @@ as after the paper's) and to cost one Jacobian more, the dearest part of an iter
 linearizes Φ along the trajectory of the current plan with its true Jacobians — ∂Φ/∂u = B_d(X)
 (Φ is affine in u) and ∂Φ/∂X, the Fréchet derivative of the ZOH exponential along ∂Z/∂X of the
 factor rows (:meth:`~parallel_gpc.model.ReducedModel.stage_jacobians`, exact in ẏ, forward differences
-of Z in y, n_y model updates per stage in one compiled call, none at stage 0 whose state is fixed; the
-frozen A_d misses
+of Z in y, n_y model updates per stage in one compiled call, none at stage 0 whose state is fixed; a
+trial that will be linearized if accepted is rolled out with its Jacobians in one call,
+:meth:`~parallel_gpc.model.ReducedModel.simulate_linearized`, their stages on the second core while the
+rollout goes on; the frozen A_d misses
 ∂A_d/∂X·X + ∂B_d/∂X·u + ∂c_d/∂X, and Gauss–Newton with it stops at a fixed point that is not the
 optimum) — rebuilds the state limits' rows along that trajectory (exact at the current plan: the
 drive limits linearized at its poses) and solves the same least-squares/QP problem for the total
@@ -184,14 +186,30 @@ class NMPCIterations:
         self.drives = drives
 
     # -------------------------------------------------------------- the true problem
-    def _rollout(self, X, w, u0, u_map, v, d):
-        """(trajectory, inputs (N, m), outputs (n_rows·p,), J(v)) on the nonlinear model;
-        trajectory = simulate_factorized's output."""
+    def _rollout(self, X, w, u0, u_map, v, d, linearize: bool = False):
+        """(trajectory, inputs (N, m), outputs (n_rows·p,), J(v), JX) on the nonlinear model;
+        trajectory = simulate_factorized's output; JX: with ``linearize``, the stage Jacobians ∂Φ/∂X at
+        stages 1..N−1 of this trajectory ((N − 1, n_x, n_x), the model's ``simulate_linearized``: computed
+        on a second core while the rollout goes on, the compiled core's), else None. A trial the line search
+        rejects drops its JX: on one core a stage_jacobians call wasted (≈ twice a rollout), on two the
+        second core's time and the stages still left when the rollout ends (the calling thread joins them);
+        hence ``run`` asks for JX only where the trial is likely kept (not on a flat line search, whose
+        full step is mostly rejected). Where the fused call fails the trial is rolled out alone (JX None),
+        so that a failing Jacobian stops the iterations as in ``run``."""
         H, m = self.criterion.horizons, self.model.n_u
         u = (u0 + u_map @ v).reshape(-1, m)
-        traj = self.model.simulate_factorized(X, u, self.Ts, d)
+        JX = None
+        fused = getattr(self.model, "simulate_linearized", None) if linearize else None
+        try:
+            traj = None if fused is None else fused(X, u, self.Ts, d, start=1)
+        except MODEL_ERRORS:  # the rollout's or a Jacobian's: tell them apart by the rollout alone
+            traj = None
+        if traj is None:
+            traj = self.model.simulate_factorized(X, u, self.Ts, d)
+        else:
+            traj, JX = traj[:4], traj[4]
         y = (traj[3][1:] @ self.model.C.T)[H.No:].reshape(-1)
-        return traj, u, y, self._cost(y, w, v)
+        return traj, u, y, self._cost(y, w, v), JX
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
         """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,)), the
@@ -360,7 +378,10 @@ class NMPCIterations:
             for _ in range(BACKTRACKS + 1):
                 trial = v + alpha * delta
                 try:
-                    traj, u_traj, y_rows, trial_cost = self._rollout(X, w, u0, u_map, trial, disturbance)
+                    # with its Jacobians unless it is the last allowed iteration's or flat (then mostly rejected)
+                    traj, u_traj, y_rows, trial_cost, trial_JX = self._rollout(
+                        X, w, u0, u_map, trial, disturbance,
+                        linearize=report["iterations"] < self.iterations and not flat)
                     trial_rows = self._true_rows(y_rows, y_now)
                 except MODEL_ERRORS:  # the trial plan leaves the model's domain (workspace): shorter step
                     alpha *= 0.5
@@ -369,7 +390,7 @@ class NMPCIterations:
                 trial_excess = self._hard(trial_rows)
                 if (trial_excess <= max(excess, STATE_TOL) and trial_merit <= merit - ARMIJO * alpha * decrease) \
                         or (excess > 0.0 and trial_excess <= (1.0 - ARMIJO * alpha) * excess):
-                    accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows)
+                    accepted = (trial, traj, u_traj, y_rows, trial_merit, trial_excess, trial_rows, trial_JX)
                     break
                 if flat:
                     break
@@ -377,7 +398,7 @@ class NMPCIterations:
             if accepted is None:  # no decrease measurable above rounding (and feasible): as good as converged
                 report.update(stop="converged" if flat else "line search", converged=flat)
                 break
-            v, traj, u_traj, y_rows, merit, excess, true_rows = accepted
+            v, traj, u_traj, y_rows, merit, excess, true_rows, JX_tail = accepted
             if report["iterations"] >= self.iterations:
                 break
             now = time.perf_counter()
@@ -388,8 +409,9 @@ class NMPCIterations:
             A_seq, B_seq, _, X_seq = traj
             JX = np.empty_like(A_seq)
             JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
-            try:
-                JX[1:] = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
+            try:  # the trial's own when it was rolled out with them (_rollout)
+                JX[1:] = JX_tail if JX_tail is not None else self.model.stage_jacobians(X_seq, u_traj, self.Ts,
+                                                                                        start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break

@@ -33,6 +33,10 @@ class ControlModel(Protocol):
       bounds by ``max_condition`` at every step (None: no check). Without it, a model whose
       state is X = [y, ẏ] with C = [I 0] (the mechanical convention) has the velocity rows
       ``B_d[n_y:]`` ≈ Ts·g checked; any other model is not checked.
+    * ``simulate_linearized(X0, u_seq, Ts, offset, start=1) -> (A_seq, B_seq, c_seq, X_seq, JX)``: the
+      nonlinear MPC iterations' rollout (:meth:`simulate_factorized`) and the stage Jacobians ∂Φ/∂X of its
+      states start..K−1 (``JX`` (K − start, n_x, n_x), ``stage_jacobians``) in one call. Without it the
+      iterations call ``simulate_factorized`` then ``stage_jacobians(X_seq, u_seq, Ts, start=1)``.
     """
 
     n_x: int

@@ -86,6 +86,16 @@ class ReducedTerms:
         return np.linalg.solve(self.M_r, self.B_r @ u - self.h_r)
 
 
+def _check_start(start: int, K: int) -> None:
+    """The first linearized stage of K (stage_jacobians, simulate_linearized) is one of 0..K.
+
+    Raises:
+        InvalidParameterError: it is not.
+    """
+    if not 0 <= start <= K:
+        raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
+
+
 class ReducedModel:
     """Reduced ODE ``ÿ = f(y, ẏ) + g(y) u`` of a :class:`ParallelRobot`.
 
@@ -411,8 +421,7 @@ class ReducedModel:
         """
         X_seq, u_seq = np.asarray(X_seq, dtype=float), np.asarray(u_seq, dtype=float)
         K, n, ny = len(u_seq), self.n_x, self.n_y
-        if not 0 <= start <= K:
-            raise InvalidParameterError(f"start = {start!r} is not a stage of the {K} given; valid: 0..{K}")
+        _check_start(start, K)
         compiled = native_module() if self.native else None
         if compiled is not None and hasattr(compiled, "stage_jacobians"):
             return compiled.stage_jacobians(self._native, np.ascontiguousarray(X_seq[:K]), np.ascontiguousarray(u_seq),
@@ -523,6 +532,42 @@ class ReducedModel:
         return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs
 
     # -------------------------------------------------------------- Jacobian linearization
+    def simulate_linearized(self, X0: np.ndarray, u_seq: np.ndarray, Ts: float, offset=None,
+                            step: float = TANGENT_STEP, start: int = 0):
+        """:meth:`simulate_factorized` and :meth:`stage_jacobians` of its states in one call (the
+        nonlinear MPC iterations' rollout of a plan they will linearize, gpc/nmpc.py).
+
+        The compiled core (``_native.simulate_linearized``) runs the rollout on the calling thread and
+        the Jacobians of the stages it has finished on ``PARALLEL_GPC_THREADS`` − 1 more threads
+        meanwhile (the same numbers bit for bit as the two calls: a stage's Jacobian depends on its
+        state, input and warm start alone); on one thread, on the Python path and where the compiled
+        core predates it, the two calls one after the other (this method's reference).
+
+        Args:
+            X0: (n_x,) initial state (m, rad, m/s, rad/s); u_seq: (K, n_u) inputs (N·m); Ts: sample
+                time (s); offset: (n_x,) constant d added to every step, or None; step: relative
+                forward-difference step of the y-derivatives of Z; start: the first stage linearized (0..K).
+
+        Returns:
+            (A_seq (K, n_x, n_x), B_seq (K, n_x, n_u), c_seq (K, n_x) without the offset,
+            X_seq (K + 1, n_x) with X_seq[0] = X0, JX (K − start, n_x, n_x) ∂Φ/∂X at stages start..K−1).
+
+        Raises:
+            the errors of :meth:`simulate_factorized` (the rollout's first), else of :meth:`stage_jacobians`.
+        """
+        compiled = native_module() if self.native else None
+        if compiled is None or not hasattr(compiled, "simulate_linearized"):
+            A_seq, B_seq, c_seq, X_seq = self.simulate_factorized(X0, u_seq, Ts, offset)
+            return A_seq, B_seq, c_seq, X_seq, self.stage_jacobians(X_seq, u_seq, Ts, step, start)
+        Ts = positive("Ts", Ts, " s")
+        u_seq = np.ascontiguousarray(u_seq, dtype=float)
+        K, nx, nu = u_seq.shape[0], self.n_x, self.n_u
+        _check_start(start, K)
+        Es, Xs, JX = compiled.simulate_linearized(self._native, np.asarray(X0, dtype=float), u_seq, Ts,
+                                                  None if offset is None else np.asarray(offset, dtype=float),
+                                                  step, start)
+        return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs, JX
+
     def linearize(self, X: np.ndarray, u: np.ndarray, eps: float = 1e-6):
         """Jacobian linearization about (X̄, ū): ``Ẋ ≈ A X + B u + c`` (central differences).
 

@@ -12,7 +12,9 @@ into :class:`_ValidatedPath`, the pure-Python code, which raises the package's e
 
 Its per-stage loop of stage Jacobians runs on ``PARALLEL_GPC_THREADS`` threads (:func:`compiled_threads`;
 default min(2, available cores), 1 = one thread): the stages are independent given the trajectory, each
-thread has its own Pinocchio data, and the numbers are the same bit for bit as on one thread.
+thread has its own Pinocchio data, and the numbers are the same bit for bit as on one thread. Its
+fused rollout and Jacobians (``simulate_linearized``) compute the Jacobians of the stages the rollout has
+finished on those threads while the rollout goes on.
 """
 
 from __future__ import annotations
