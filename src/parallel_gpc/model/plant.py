@@ -23,6 +23,7 @@ from .dynamics import ReducedModel
 from .native_plant import compiled_plant
 from .native_update import compiled_model_update, use_native
 from .robot import ParallelRobot
+from .singular_kkt import SingularMassKKT, singular_mass_matrix
 from ..errors import InvalidParameterError, NonFiniteError
 from ..limits import Limits, symmetric_limit
 from ..validation import all_finite, finite_vector, positive
@@ -84,8 +85,9 @@ class _PlantBase:
         if not all(all_finite(x) for x in state):
             raise NonFiniteError(
                 f"the plant diverged within one sample Ts = {self.Ts:g} s (its state is no longer finite) under drive "
-                f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; check the "
-                "forces and torques applied")
+                f"torques u = {u.tolist()} N·m and platform_force = {self.platform_force.tolist()}; likely causes: "
+                "forces or torques too large for Ts, or a singular closed chain (dependent closures at this "
+                "configuration, or moving bodies without mass or inertia whose closed chain has none either)")
 
 
 class ConstrainedPlant(_PlantBase):
@@ -133,10 +135,16 @@ class ConstrainedPlant(_PlantBase):
             self.cds.append(cm.createData())
         pin.initConstraintDynamics(model, self.data, self.cms, self.cds)
         self.prox = pin.ProximalSettings(*_PROXIMAL)
-        self.compiled = compiled_plant(robot, baumgarte, _PROXIMAL, native)
-        self._forces = self.cds  # where constraint_forces() reads: the last dynamics call's
         X0 = finite_vector("X0", X0, 2 * self.n_y)
         self.q = robot.assemble(X0[: self.n_y])
+        #: the KKT solver of a robot whose open-tree mass matrix is singular (massless moving bodies), or None
+        self.kkt = SingularMassKKT(robot, self.cms, self.q) if singular_mass_matrix(robot, self.q) else None
+        if self.kkt is not None and native:
+            raise InvalidParameterError("native=True: the compiled plant integrates pin.constraintDynamics, which "
+                                        "needs a positive definite open-tree mass matrix; this robot's is singular "
+                                        "(massless moving bodies): use native=None or False (the Python KKT solve)")
+        self.compiled = None if self.kkt is not None else compiled_plant(robot, baumgarte, _PROXIMAL, native)
+        self._forces = self.cds  # where constraint_forces() reads: the last dynamics call's
         self._T, self._pinv = robot.velocity_map_nocopy(self.q)  # K⁺: the next projection's preconditioner
         self.v = self._T @ X0[self.n_y:]
         self._S = robot.drive_selection
@@ -158,12 +166,17 @@ class ConstrainedPlant(_PlantBase):
         elif np.any(self.platform_force):  # a force f on y acts as Hᵀ f (H T = I)
             tau += self.robot.output_jacobian(q).T @ self.platform_force
         self._forces = self.cds
+        if self.kkt is not None:
+            self._forces = self.kkt
+            return self.kkt.accelerations(q, v, tau)
         return pin.constraintDynamics(self.robot.model, self.data, q, v, tau, self.cms, self.cds, self.prox)
 
     def constraint_forces(self) -> np.ndarray:
         """(3 k,) linear closure forces (N) of the last dynamics call, stacked (k closures)."""
         if self._forces is None:
             return self.compiled.contact_forces()
+        if self._forces is self.kkt:
+            return self.kkt.forces.copy()
         return np.concatenate([np.asarray(cd.contact_force.linear) for cd in self.cds])
 
     def step(self, u) -> np.ndarray:
@@ -174,7 +187,7 @@ class ConstrainedPlant(_PlantBase):
             h = Ts / self.substeps
             for _ in range(self.substeps):
                 q, v = self._rk4(q, v, u, h)
-            self._forces = self.cds
+            self._forces = self.cds if self.kkt is None else self.kkt
         else:
             q, v = self._compiled_sample(u, Ts)
         self._check_finite((q, v), u)
