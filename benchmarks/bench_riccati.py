@@ -4,6 +4,7 @@
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
 ``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear] [--cpu] [--closed-loop]``
 ``python benchmarks/bench_riccati.py --trace incremental:160 [--samples 12] [--robot planar_4rrr]``
+``valgrind --tool=callgrind python benchmarks/bench_riccati.py --count incremental:80 --steps K [--samples 12] [--free]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
 absolute form, on the full plant) are recorded; then every configuration steps through the same
@@ -20,6 +21,11 @@ steps every ``--limited`` configuration through its own closed loop on the full 
 reference's initial state; the plant is not timed) instead of the recorded states: the delayed form
 applies the u(k) it decided at k − 1, and on states that do not follow its inputs its plan swings from
 step to step (planar_4rrr, N = 160: every other step's active set far from the one before).
+``--count form:N --steps K``: for instruction counts (the machine's load does not change them): the
+states recorded as for ``--limited`` (``--samples`` of them), τ as there, then only the limited step
+(``--free``: the unconstrained one) on the first K states, the active set's sweeps per step printed.
+The instructions of a warm step: (Ir at K = samples − Ir at K = 3) / (samples − 3), with
+``PYTHONHASHSEED=0 PARALLEL_GPC_THREADS=1 OPENBLAS_NUM_THREADS=1`` (both runs do the same work but those steps).
 """
 
 from __future__ import annotations
@@ -196,6 +202,28 @@ def run_trace(name: str, form: str, N: int, samples: int) -> None:
                       f"{stagewise.iterations}  {held}")
 
 
+def run_count(name: str, form: str, N: int, samples: int, steps: int, free_only: bool) -> None:
+    """``--count form:N --steps K``: the limited (or, ``free_only``, the unconstrained) step on the first
+    ``steps`` recorded states and nothing else after the recording, for callgrind's instruction counts."""
+    robot = ParallelRobot.load(name)
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    model = ReducedModel(robot)
+    Xs, ws = _states(robot, ref, N, samples)
+    free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
+    tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
+    free.reset()
+    limited = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati",
+                                  limits=Limits(torque=tau))
+    ctl = free if free_only else limited
+    sweeps = []
+    for X, w in list(zip(Xs, ws))[:steps]:
+        ctl.step(X, w)
+        if not free_only:
+            sweeps.append(limited._riccati.constrained.iterations[0])
+    print(f"{name} {form} N = {N}: {'unconstrained' if free_only else 'limited'} steps on {steps} of {samples} "
+          f"recorded states, τ = {tau:.4g}; sweeps per step {sweeps}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--reps", type=int, default=7)
@@ -209,7 +237,14 @@ def main() -> None:
     parser.add_argument("--cpu", action="store_true", help="--limited: time the steps by CPU time, not wall time")
     parser.add_argument("--closed-loop", action="store_true",
                         help="--limited: each configuration in its own closed loop on the plant, not the recorded states")
+    parser.add_argument("--count", metavar="FORM:N", help="only the limited steps of one form and N (callgrind)")
+    parser.add_argument("--steps", type=int, default=12, help="--count: the steps on the first recorded states")
+    parser.add_argument("--free", action="store_true", help="--count: the unconstrained step instead")
     args = parser.parse_args()
+    if args.count:
+        form, N = args.count.split(":")
+        run_count(args.robot, form, int(N), args.samples, args.steps, args.free)
+        return
     if args.trace:
         form, N = args.trace.split(":")
         run_trace(args.robot, form, int(N), args.samples)
