@@ -171,19 +171,27 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
             print(f"{form:11s} {key:22s} time ∝ N^{slope:.2f} over N = {horizons}")
 
 
-def run_trace(name: str, form: str, N: int, samples: int) -> None:
-    """``--trace form:N``: the limited step of :func:`run_limited` step by step (one pass after a
-    warm-up pass, the unconstrained step timed on the same state right after): µs of each, what
-    solved it (active set, or the interior point after it), the active set's sweeps and the
-    interior point's iterations, how many components the solution's set holds on a limit."""
+def _limited_pair(name: str, form: str, N: int, samples: int):
+    """(recorded states, reference rows, the unconstrained and the torque-limited controllers, τ (N·m)) of one form
+    and N on the S-curve: τ is half the unconstrained step's peak over the recorded states (the limit binds)."""
     robot = ParallelRobot.load(name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     model = ReducedModel(robot)
     Xs, ws = _states(robot, ref, N, samples)
     free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
     tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
+    free.reset()
     limited = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati",
                                   limits=Limits(torque=tau))
+    return Xs, ws, free, limited, tau
+
+
+def run_trace(name: str, form: str, N: int, samples: int) -> None:
+    """``--trace form:N``: the limited step of :func:`run_limited` step by step (one pass after a
+    warm-up pass, the unconstrained step timed on the same state right after): µs of each, what
+    solved it (active set, or the interior point after it), the active set's sweeps and the
+    interior point's iterations, how many components the solution's set holds on a limit."""
+    Xs, ws, free, limited, tau = _limited_pair(name, form, N, samples)
     print(f"{name} {form} N = {N}, τ = {tau:.3g} N·m: step, limited µs, unconstrained µs, method, "
           "(sweeps, interior-point iterations), components on a limit")
     for rep in range(2):
@@ -205,15 +213,7 @@ def run_trace(name: str, form: str, N: int, samples: int) -> None:
 def run_count(name: str, form: str, N: int, samples: int, steps: int, free_only: bool) -> None:
     """``--count form:N --steps K``: the limited (or, ``free_only``, the unconstrained) step on the first
     ``steps`` recorded states and nothing else after the recording, for callgrind's instruction counts."""
-    robot = ParallelRobot.load(name)
-    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
-    model = ReducedModel(robot)
-    Xs, ws = _states(robot, ref, N, samples)
-    free = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati")
-    tau = 0.5 * max(np.abs(free.step(X, w).u).max() for X, w in zip(Xs, ws))
-    free.reset()
-    limited = GPCController.build(model, TS, Horizons(N), WEIGHTS, form=form, solver="riccati",
-                                  limits=Limits(torque=tau))
+    Xs, ws, free, limited, tau = _limited_pair(name, form, N, samples)
     ctl = free if free_only else limited
     sweeps = []
     for X, w in list(zip(Xs, ws))[:steps]:

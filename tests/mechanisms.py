@@ -531,3 +531,16 @@ def assert_stage_jacobians_match_differences(model, traj, u, Ts: float, stages: 
     assert np.abs(J - J_ref).max() <= 1e-7 * np.abs(J_ref).max()
     A_d = model.simulate_factorized(traj[0], u, Ts)[0]
     assert np.abs(J_ref - A_d).max() > 1e-3 * np.abs(J_ref - np.eye(model.n_x)).max()
+
+
+def fast_move(robot, K: int):
+    """(X0, u (K, n_u)) of a fast move with inputs that vary along the horizon (planar_4rrr, or any robot near
+    its home pose): the trajectories of the stage-Jacobian and rollout tests."""
+    if robot.name == "planar_4rrr":
+        X0 = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
+    else:
+        X0 = np.concatenate([robot.home_pose + 0.01 * np.sin(np.arange(robot.n_y) + 1.0),
+                             0.3 * np.cos(np.arange(robot.n_y))])
+    ramp = np.linspace(-1.0, 1.0, K)[:, None] * np.linspace(0.5, 1.5, robot.n_u)[None, :]
+    scale = 1.0 if robot.name == "planar_4rrr" else 0.3
+    return X0, scale * (np.cos(np.arange(robot.n_u))[None, :] + ramp)

@@ -10,6 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import mechanisms as mech
+
 from parallel_gpc import ControllerState, GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.errors import InvalidParameterError, UnreachablePoseError
 from parallel_gpc.limits import Limits
@@ -42,17 +44,10 @@ def on_threads():
         yield
 
 
-def _move(robot, K, scale=1.0):
-    """(X0, u (K, n_u), offset) of a fast move with inputs that vary along the horizon."""
-    if robot.name == "planar_4rrr":
-        X0 = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
-    else:
-        X0 = np.concatenate([robot.home_pose + 0.01 * np.sin(np.arange(robot.n_y) + 1.0),
-                             0.3 * np.cos(np.arange(robot.n_y))])
-    ramp = np.linspace(-1.0, 1.0, K)[:, None] * np.linspace(0.5, 1.5, robot.n_u)[None, :]
-    base = 1.0 if robot.name == "planar_4rrr" else 0.3
-    offset = 1e-5 * np.cos(np.arange(2 * robot.n_y))
-    return X0, scale * base * (np.cos(np.arange(robot.n_u))[None, :] + ramp), offset
+def _move(robot, K):
+    """(X0, u (K, n_u), offset) of a fast move with inputs that vary along the horizon (mechanisms.fast_move)."""
+    X0, u = mech.fast_move(robot, K)
+    return X0, u, 1e-5 * np.cos(np.arange(2 * robot.n_y))
 
 
 def _two_calls(model, X0, u, offset, start):

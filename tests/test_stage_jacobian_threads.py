@@ -53,18 +53,6 @@ def universal_ups(tmp_path_factory):
                                          ".urdf", ".yaml"))
 
 
-def _move(robot, K):
-    """(X0, u (K, n_u)) of a fast move with inputs that vary along the horizon."""
-    if robot.name == "planar_4rrr":
-        X0 = np.array([0.5, 0.4, 0.1, 0.8, -0.5, 1.0])
-    else:
-        X0 = np.concatenate([robot.home_pose + 0.01 * np.sin(np.arange(robot.n_y) + 1.0),
-                             0.3 * np.cos(np.arange(robot.n_y))])
-    ramp = np.linspace(-1.0, 1.0, K)[:, None] * np.linspace(0.5, 1.5, robot.n_u)[None, :]
-    scale = 1.0 if robot.name == "planar_4rrr" else 0.3
-    return X0, scale * (np.cos(np.arange(robot.n_u))[None, :] + ramp)
-
-
 def _robots(universal_ups):
     return [ParallelRobot.load(name) for name in ("planar_4rrr", "delta_3rus", "hexapod_6ups")] + [universal_ups]
 
@@ -84,7 +72,7 @@ def test_threaded_stage_jacobians_equal_one_thread_bit_for_bit(K, start, threads
     universal base joints): every Jacobian equal to the last bit, at every call (the split differs
     from call to call), and the model update's warm start after the call as on one thread."""
     for robot in _robots(universal_ups):
-        X0, u = _move(robot, K)
+        X0, u = mech.fast_move(robot, K)
         # a robot's first assembly from home may take its validated path (the robot's own warm start):
         # after it, every new model pre-simulates the same trajectory to the last bit
         ReducedModel(robot).simulate_factorized(X0, u, TS)
@@ -105,7 +93,7 @@ def test_threaded_stage_jacobians_equal_the_python_reference(threads, compiled):
     """Not only consistent: the threaded Jacobians equal the Python loop (the reference) to the
     rounding of two paths, as the compiled one-thread ones do (tests/test_nmpc.py)."""
     robot = ParallelRobot.load("delta_3rus")
-    X0, u = _move(robot, 9)
+    X0, u = mech.fast_move(robot, 9)
     threads(3)
     model = ReducedModel(robot)
     traj = model.simulate_factorized(X0, u, TS)[3]
@@ -118,7 +106,7 @@ def test_states_off_the_presimulation_run_on_one_thread(threads, compiled):
     """States that are not the last pre-simulation's (each assembly starts from the stage before):
     the loop on one thread, the same numbers with any thread count."""
     robot = ParallelRobot.load("planar_4rrr")
-    X0, u = _move(robot, 6)
+    X0, u = mech.fast_move(robot, 6)
     out = {}
     for n in (1, 2):
         threads(n)
@@ -133,7 +121,7 @@ def test_a_stage_error_on_a_worker_thread_is_raised_as_on_one_thread(threads, co
     threads, which take the GIL for it): one NonFiniteError as on one thread, and the threads serve
     the next call as before."""
     robot = ParallelRobot.load("planar_4rrr")
-    X0, u = _move(robot, 8)
+    X0, u = mech.fast_move(robot, 8)
     ReducedModel(robot).simulate_factorized(X0, u, TS)  # the robot's first assembly (see above)
     out = {}
     for n in (1, 4):
@@ -175,7 +163,7 @@ def test_a_bad_variable_stops_the_first_compiled_model_update(threads, compiled,
 def test_the_python_reference_path_never_reads_the_variable(threads, robot4):
     threads("many")
     reference = ReducedModel(robot4, native=False)
-    X0, u = _move(robot4, 3)
+    X0, u = mech.fast_move(robot4, 3)
     traj = reference.simulate_factorized(X0, u, TS)[3]
     assert reference.stage_jacobians(traj, u, TS).shape == (3, 6, 6)
 
@@ -198,7 +186,7 @@ def test_a_forked_child_makes_its_own_threads(threads, compiled):
     child's threaded call runs (on a pool of its own) and gives the parent's numbers."""
     import multiprocessing
     robot = ParallelRobot.load("planar_4rrr")
-    X0, u = _move(robot, 9)
+    X0, u = mech.fast_move(robot, 9)
     threads(2)
     model = ReducedModel(robot)
     traj = model.simulate_factorized(X0, u, TS)[3]
