@@ -138,7 +138,8 @@ class ConstrainedPlant(_PlantBase):
         X0 = finite_vector("X0", X0, 2 * self.n_y)
         self.q = robot.assemble(X0[: self.n_y])
         #: the KKT solver of a robot whose open-tree mass matrix is singular (massless moving bodies), or None
-        self.kkt = SingularMassKKT(robot, self.cms, self.q) if singular_mass_matrix(robot, self.q) else None
+        self.kkt = SingularMassKKT(robot, self.cms, self.q, self.prox) if singular_mass_matrix(robot, self.q) \
+            else None
         if self.kkt is not None and native:
             raise InvalidParameterError("native=True: the compiled plant integrates pin.constraintDynamics, which "
                                         "needs a positive definite open-tree mass matrix; this robot's is singular "

@@ -58,12 +58,13 @@ class SingularMassKKT:
         robot: the plant's :class:`~parallel_gpc.model.robot.ParallelRobot`.
         cms: the plant's ``pin.RigidConstraintModel`` closures (with their Baumgarte gains).
         q: a configuration to initialize Pinocchio's constraint data at.
+        prox: the plant's ``pin.ProximalSettings`` (the twin's constraintDynamics uses the same).
 
     Attributes:
         forces: (3 k,) linear closure forces (N) of the last :meth:`accelerations` call.
     """
 
-    def __init__(self, robot, cms, q):
+    def __init__(self, robot, cms, q, prox):
         self.model = robot.model
         self.data = self.model.createData()
         self.twin = _regularized_twin(self.model)
@@ -73,8 +74,10 @@ class SingularMassKKT:
         for cm in cms:
             self.cds.append(cm.createData())
         pin.initConstraintDynamics(self.twin, self.twin_data, self.cms, self.cds)
-        self.prox = pin.ProximalSettings(1e-12, 1e-10, 50)
-        self._linear = np.concatenate([np.arange(3 if cm.type == pin.ContactType.CONTACT_3D else 6) < 3 for cm in cms])  # linear rows of each closure
+        self.prox = prox
+        # the linear rows of each closure (3 of a point closure's 3, of a weld's 6)
+        self._linear = np.concatenate([np.arange(3 if cm.type == pin.ContactType.CONTACT_3D else 6) < 3
+                                       for cm in cms])
         self.forces = np.zeros(int(self._linear.sum()))
 
     def accelerations(self, q, v, tau) -> np.ndarray:
