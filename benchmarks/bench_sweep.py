@@ -1,10 +1,12 @@
 #!/usr/bin/env python3
 """Benchmark sweeps: serial in-process vs Dask (a LocalCluster), 64 cells of ~0.2 s and 16 of ~0.1 s.
 
-Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR] [--overhead K]``
+Usage: ``python benchmarks/bench_sweep.py [--workers 2] [--rounds 3] [--out DIR] [--fixed] [--overhead K]``
 (PYTHONPATH=src or the package installed). Two sweeps on planar_3rrr (S-curve over 80 % of the run,
 Ts = 5 ms): 64 cells (2 forms × 4 horizons × 4 input weights × 2 plant mass scales, 0.5 s runs,
-~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Each
+~0.2 s each) and 16 cells (2 forms × 4 horizons × 2 input weights, 0.25 s runs, ~0.1 s each). Unless
+``--fixed``, the runs' duration is first calibrated so that a cell costs ≈ 0.2 s resp. ≈ 0.1 s of CPU
+on this machine (8 probe cells, :func:`calibrate`; printed and recorded). Each
 round runs every sweep serially (``workers=0``), through ``run_sweep(workers=W)`` (this process and
 its own LocalCluster of W − 1 workers: start-up and shutdown included) and on a
 running LocalCluster (``start_local_cluster(W)``, ``scheduler=client``, workers warmed up), interleaved (the order of
@@ -70,6 +72,39 @@ def spec_16(duration: float = 0.25):
                  "duration": duration, "Ts": 0.005},
         "grid": {"form": ["absolute", "nonlinear"], "N": [4, 8, 12, 16], "Qu": [1e-5, 1e-4]},
     })
+
+
+#: Cell CPU times the two sweeps are sized to, s (the issue's "64 cells of ~0.2 s", "16 cells of 0.1 s").
+TARGET_64, TARGET_16 = 0.2, 0.1
+#: Closed-loop step of the bench's cells, s (calibrated durations are whole multiples of it).
+BENCH_TS = 0.005
+
+
+def cell_cpu(cells) -> float:
+    """Mean CPU time of ``cells`` run in this process, s (process CPU: load does not stretch it)."""
+    start = time.process_time()
+    for cell in cells:
+        run_cell(cell)
+    return (time.process_time() - start) / len(cells)
+
+
+def calibrate(make_spec, duration: float, target: float, probes: int = 8, passes: int = 4) -> tuple:
+    """The closed-loop duration (s) at which a cell of ``make_spec(duration)`` costs ≈ ``target`` s of CPU.
+
+    Runs ``probes`` cells spread over the grid and scales the duration by target / measured mean (a
+    cell's cost grows about linearly with its steps) until the mean is within 5 % of the target (at
+    most ``passes`` measurements; the fixed part, setup and model, makes one pass short), rounded to
+    whole steps of :data:`BENCH_TS`. Returns (duration s, mean CPU s of the probes at that duration)."""
+    for _ in range(passes):
+        cells = make_spec(duration).cells()
+        mean = cell_cpu(cells[::max(1, len(cells) // probes)][:probes])
+        if abs(mean / target - 1) <= 0.05:
+            break
+        duration = round(max(10, round(duration * target / mean / BENCH_TS)) * BENCH_TS, 6)
+    else:  # not converged: the mean at the duration returned
+        cells = make_spec(duration).cells()
+        mean = cell_cpu(cells[::max(1, len(cells) // probes)][:probes])
+    return duration, mean
 
 
 def traced(cell):
@@ -198,6 +233,9 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=available_cores())
     parser.add_argument("--rounds", type=int, default=3, help="interleaved rounds (default 3)")
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent / "results"))
+    parser.add_argument("--fixed", action="store_true",
+                        help="cells at the fixed settings (0.5 s resp. 0.25 s runs) instead of sized to "
+                             f"{TARGET_64} s resp. {TARGET_16} s of CPU on this machine")
     parser.add_argument("--overhead", type=int, default=0, metavar="K",
                         help=f"only: K sweeps of {SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s through the own "
                              "cluster, their CPU outside the cells")
@@ -214,7 +252,14 @@ def main() -> int:
               f"1-min load avg {load:.2f} before, {os.getloadavg()[0]:.2f} after")
         return 0
 
-    sweeps = {"64 cells of ~0.2 s": spec_64().cells(), "16 cells of ~0.1 s": spec_16().cells()}
+    traced(spec_16().cells()[0])  # the first imports and caches of this process, outside the calibration
+    d64, d16 = 0.5, 0.25
+    if not args.fixed:
+        d64, c64 = calibrate(spec_64, d64, TARGET_64)
+        d16, c16 = calibrate(spec_16, d16, TARGET_16)
+        print(f"cells sized: 64 cells of {c64:.3f} s CPU ({d64:.3f} s runs), 16 cells of {c16:.3f} s CPU "
+              f"({d16:.3f} s runs), means over 8 probe cells each")
+    sweeps = {"64 cells of ~0.2 s": spec_64(d64).cells(), "16 cells of ~0.1 s": spec_16(d16).cells()}
     load_before = os.getloadavg()
     traced(sweeps["16 cells of ~0.1 s"][0])  # the first imports and caches of this process, outside the timing
     start = time.perf_counter()
@@ -281,6 +326,8 @@ def main() -> int:
          f"{t_noop:.3f} s = {1e3 * t_noop / 64:.2f} ms per cell"),
         (f"64 no-op client.submit + as_completed (median of {REPEATS})",
          f"{t_bare:.3f} s = {1e3 * t_bare / 64:.2f} ms per task"),
+        ("cells' closed-loop duration (64 / 16 cells)",
+         f"{d64:.3f} s / {d16:.3f} s ({'fixed' if args.fixed else 'sized by measured CPU'})"),
         ("every path gives the serial metrics", str(same)),
         ("machine", f"{platform.machine()}, {os.cpu_count()} cores, 1-min load avg {load_before[0]:.2f} before, "
                     f"{os.getloadavg()[0]:.2f} after; {args.rounds} interleaved rounds"),
