@@ -114,7 +114,7 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
     and condensed runs, each with its own history (u(k−1), warm starts; in closed loop its own states): the
     incremental forms' histories part ways on ill-conditioned steps (incremental-delayed N = 160, Qu = 1e-5: 0.12 on
     the recorded states, 2.0 in closed loop while the inputs ring between the limits), while from the same controller
-    state both solve each step alike (0 at every one of 60 steps, round 11, /tmp/co/delayed_check.py)."""
+    state both solve each step alike (0 at every one of 60 recorded steps: restore one from the other's state, round 11)."""
     robot = ParallelRobot.load(name)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
     model = ReducedModel(robot)
