@@ -45,6 +45,13 @@ def _sleeping(cell):
     return _where(cell)
 
 
+def _slow_cell(cell):
+    """The real cell (its record) after 0.25 s: 12 of them outlast the cluster's start even on a loaded machine (a
+    loaded run had all 12 tiny cells done here before the worker was up)."""
+    time.sleep(0.25)
+    return runner.run_cell(cell)
+
+
 def _scripted(cell):
     """:func:`_where`; the cell ``_SCRIPT["at"]``, run in this process's main thread, releases the
     cluster's start and returns only once the cluster submitted its first batches, or found no cell
@@ -268,7 +275,9 @@ def _leftovers(before_children, before_threads):
 
     tracker = getattr(resource_tracker._resource_tracker, "_pid", None)
     children = {p.pid for p in psutil.Process().children(recursive=True)} - before_children - {tracker}
-    threads = {t for t in threading.enumerate() if not t.name.startswith("Dask-Offload")} - before_threads
+    # Dask's offload pool and tqdm's monitor (started by any tqdm, a disabled closed-loop bar included; it ends itself
+    # 10 s after the last bar) are process-wide daemons of those libraries, not a sweep's
+    threads = {t for t in threading.enumerate() if not t.name.startswith(("Dask-Offload", "tqdm_monitor"))} - before_threads
     return children, threads
 
 
@@ -290,8 +299,8 @@ def test_the_own_cluster_gives_the_serial_records_and_leaves_nothing_on_success_
     monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
     before = ({p.pid for p in psutil.Process().children(recursive=True)}, set(threading.enumerate()))
     cells = _cells(12)
-    serial = run_sweep(cells, workers=0, progress=False).frame()
-    parallel = run_sweep(cells, workers=2, progress=False)
+    serial = run_sweep(cells, workers=0, progress=False, func=_slow_cell).frame()
+    parallel = run_sweep(cells, workers=2, progress=False, func=_slow_cell)
     frame = parallel.frame()
     assert parallel.ran == 12 and parallel.local + sum(parallel.batches) == 12 and parallel.batches
     deterministic = [c for c in frame.columns if c not in TIMING_COLUMNS]
