@@ -9,8 +9,11 @@ the closure frames (so MuJoCo does not infer the anchors from qpos0); every driv
 timesteps) and the timestep small (Ts / 20 by default), contacts are off.
 
 MuJoCo refuses moving bodies without mass or inertia; the Pinocchio models have massless
-intermediate bodies (e.g. the x and y slides of a planar platform), so the compiler is told
-``boundmass`` = 1e-9 kg and ``boundinertia`` = 1e-12 kg·m²: a bound far below the robot's masses.
+intermediate bodies (e.g. the x and y slides of a planar platform), and published URDFs massless
+links, so the compiler is told ``boundmass`` and ``boundinertia`` (:func:`inertia_bounds`):
+``BOUND_RATIO`` = 1e-5 of the robot's largest body mass and principal moment of inertia. A fixed
+1e-9 kg / 1e-12 kg·m² (before) let MuJoCo diverge on a five-bar with a massless distal link (155 mm
+RMS on a hold step where our plant tracks to 5.55 mm; with the relative bounds MuJoCo gives 5.55 mm too).
 """
 
 from __future__ import annotations
@@ -22,9 +25,8 @@ import pinocchio as pin
 
 from ..errors import RobotFormatError
 
-#: MuJoCo's lower bounds on body mass (kg) and inertia (kg·m²) of the exported model
-BOUND_MASS = 1e-9
-BOUND_INERTIA = 1e-12
+#: MuJoCo's lower bounds on body mass and inertia of the exported model, relative to the robot's largest
+BOUND_RATIO = 1e-5
 #: impedance of the loop constraints (MuJoCo ``solimp``): 0.9999 of the constraint is enforced
 SOLIMP = (0.9999, 0.9999, 0.001, 0.5, 2.0)
 _AXES = {"X": "1 0 0", "Y": "0 1 0", "Z": "0 0 1"}
@@ -49,6 +51,15 @@ def _joint_xml(model, j: int) -> str:
             return f'<joint name={name} type="{kind}" axis="{_vec(model.joints[j].axis)}"/>'
     raise RobotFormatError(f"MJCF export supports 1-DOF revolute and prismatic joints; joint {model.names[j]!r} "
                            f"is a {short}")
+
+
+def inertia_bounds(model) -> tuple[float, float]:
+    """(boundmass in kg, boundinertia in kg·m²) of a Pinocchio model's export: BOUND_RATIO of its largest body
+    mass and of its largest principal moment of inertia (about the body's centre of mass)."""
+    bodies = [model.inertias[j] for j in range(1, model.njoints)]
+    mass = max((b.mass for b in bodies), default=1.0)
+    moment = max((float(np.linalg.eigvalsh(b.inertia)[-1]) for b in bodies), default=1.0)
+    return BOUND_RATIO * (mass if mass > 0 else 1.0), BOUND_RATIO * (moment if moment > 0 else 1.0)
 
 
 def export_mjcf(robot, timestep: float = 1e-4, solref_steps: float = 4.0, torque_limit=None) -> str:
@@ -114,10 +125,11 @@ def export_mjcf(robot, timestep: float = 1e-4, solref_steps: float = 4.0, torque
     world += site_lines(0, "    ")
     for c in children[0]:
         world += body(c, "    ")
+    bound_mass, bound_inertia = inertia_bounds(model)
     return "\n".join([
         f"<mujoco model={quoteattr(robot.name)}>",
-        f'  <compiler angle="radian" inertiafromgeom="false" boundmass="{BOUND_MASS!r}" '
-        f'boundinertia="{BOUND_INERTIA!r}" autolimits="true"/>',
+        f'  <compiler angle="radian" inertiafromgeom="false" boundmass="{bound_mass!r}" '
+        f'boundinertia="{bound_inertia!r}" autolimits="true"/>',
         f'  <option timestep="{timestep!r}" integrator="RK4" gravity="{_vec(model.gravity.linear)}" '
         'tolerance="1e-12" iterations="100">',
         '    <flag contact="disable"/>',
