@@ -223,7 +223,6 @@ void check_state(const ModelUpdate &self, const Vec &X) {
   if (X.size() != self.n_x) throw std::invalid_argument("the state X must have n_x = 2 n_y entries");
 }
 
-
 ModelUpdate *make(const std::string &model_str, std::vector<std::array<long, 2>> closure_frames,
                   std::vector<long> jac_rows, long n_y, long n_u, std::vector<long> y_q, std::vector<long> y_idx,
                   std::vector<long> z_idx, std::vector<long> drive_idx, long task_frame,

@@ -3,9 +3,8 @@
 // The Python modules are the reference; each function here names the Python function it ports.
 #pragma once
 
-#include <atomic>
-
 #include <array>
+#include <atomic>
 #include <memory>
 #include <optional>
 #include <string>

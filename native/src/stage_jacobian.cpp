@@ -29,7 +29,6 @@
 
 namespace pgpc {
 
-
 void ModelUpdate::tangent_rates(Mat &P) {
   // computeJointJacobiansTimeVariation and RNEA without their kinematics passes: with the world Jacobian J
   // at q, a joint's world velocity at v is ov_k = ov_parent + J_k v_k and dJ_k = ov_k × J_k (Pinocchio's
@@ -143,12 +142,34 @@ void stage_jacobian(ModelUpdate &self, const Warm *base, StageWork &w, const dou
   Eigen::Map<RowMat>(out, n, n) = w.E.leftCols(n) + w.dE;
 }
 
+/// Threads for the stages start..K−1: no more than the stages, nor helpers than the machine has free cores now
+/// (ThreadPool::free_cores), nor than self.threads.
+int stage_threads(const ModelUpdate &self, long stages) {
+  return static_cast<int>(std::min<long>({self.threads, stages, 1L + std::max(0, ThreadPool::free_cores())}));
+}
+
+/// Stages start..K−1 one after the other on self (the base of stage i: base(i)).
+template <class Base>
+void stages_serial(ModelUpdate &self, const Base &base, const double *X, const double *u, double Ts, double step,
+                   long start, long K, double *out) {
+  const long n = self.n_x, m = self.n_u;
+  StageWork work(self, Ts);
+  for (long i = start; i < K; ++i)
+    stage_jacobian(self, base(i), work, X + i * n, u + i * m, Ts, step, out + (i - start) * n * n);
+}
+
 /// Stages start..K−2 on self and its workers, threads at once (each its own model update), stage K−1 last on
 /// self (which ends as after the loop on one thread: its warm start is the last stage's); the GIL released.
-/// The stages are handed out one at a time (a thread the machine delays takes fewer); an exception of a stage
-/// is rethrown after all have run, the earliest stage's (the one the loop on one thread would meet).
-void stages_threaded(ModelUpdate &self, const std::vector<const Warm *> &bases, const double *X, const double *u,
-                     double Ts, double step, long start, long K, int threads, double *out) {
+/// The stages are handed out one at a time (a thread the machine delays takes fewer); returns the exception of the
+/// earliest failing stage (the one the loop on one thread would meet), caught while all run, or null.
+/// base(i): stage i's warm start. lead (or null): run by the calling thread (slot 0) before it takes stages, e.g.
+/// the rollout that produces them; false: no stage is computed by it. ready(i) (or null): called by a pool thread
+/// before stage i, waits until the stage can be computed; false: it never will (the thread stops).
+template <class Base>
+std::exception_ptr stages_threaded(ModelUpdate &self, const Base &base, const double *X, const double *u, double Ts,
+                                   double step, long start, long K, int threads, double *out,
+                                   const std::function<bool()> &lead = nullptr,
+                                   const std::function<bool(long)> &ready = nullptr) {
   const long n = self.n_x, m = self.n_u;
   std::vector<ModelUpdate *> updates{&self};
   for (int k = 0; k + 1 < threads; ++k) updates.push_back(&self.worker(k));  // the GIL held: made on first use
@@ -162,26 +183,30 @@ void stages_threaded(ModelUpdate &self, const std::vector<const Warm *> &bases, 
   };
   const auto one = [&](ModelUpdate &update, StageWork &work, long i) {
     try {
-      stage_jacobian(update, bases[i - start], work, X + i * n, u + i * m, Ts, step, out + (i - start) * n * n);
+      stage_jacobian(update, base(i), work, X + i * n, u + i * m, Ts, step, out + (i - start) * n * n);
     } catch (...) {
       fail(i);
     }
   };
   const std::function<void(int)> task = [&](int slot) {
     try {
+      if (slot == 0 && lead && !lead()) return;
       ModelUpdate &update = *updates[slot];
       StageWork work(update, Ts);
-      for (long i = next++; i < K - 1; i = next++) one(update, work, i);
+      for (long i = next++; i < K - 1; i = next++) {
+        if (slot != 0 && ready && !ready(i)) return;
+        one(update, work, i);
+      }
       if (slot == 0) one(update, work, K - 1);
     } catch (...) {
       fail(start - 1);
     }
   };
   {
-    nb::gil_scoped_release release;
+    nb::gil_scoped_release release;  // a helper's nonfinite/spd_solve takes the GIL: free while the caller waits
     ThreadPool::shared().run(threads - 1, task);
   }
-  if (error) std::rethrow_exception(error);
+  return error;
 }
 
 /// ((K − start)·n_x, n_x): rows (i − start)·n_x … hold ∂Φ/∂X at (X(i), u(i)), i = start..K−1; the y-columns
@@ -205,15 +230,14 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
     if (i < static_cast<long>(sim.size()) && sim[i].y == y) bases[i - start] = &sim[i];
     all = all && bases[i - start] != nullptr;
   }
-  // no more threads than stages, nor helpers than the machine has free cores now (ThreadPool::free_cores)
-  const int threads = static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
+  const auto base = [&](long i) { return bases[i - start]; };
+  const int threads = stage_threads(self, K - start);
   if (all && threads > 1) {
-    stages_threaded(self, bases, X.data(), u.data(), Ts, step, start, K, threads, J.data());
-    return J;
+    if (const auto error = stages_threaded(self, base, X.data(), u.data(), Ts, step, start, K, threads, J.data()))
+      std::rethrow_exception(error);
+  } else {
+    stages_serial(self, base, X.data(), u.data(), Ts, step, start, K, J.data());
   }
-  StageWork work(self, Ts);
-  for (long i = start; i < K; ++i)
-    stage_jacobian(self, bases[i - start], work, X.data() + i * n, u.data() + i * m, Ts, step, J.data() + (i - start) * n * n);
   return J;
 }
 
@@ -227,27 +251,25 @@ RowMat stage_jacobians(ModelUpdate &self, In2 X, In2 u, double Ts, double step, 
 /// else the earliest failing stage's. On one thread (or no free core): the two calls one after the other.
 void simulate_linearized(ModelUpdate &self, const Vec &X0, const double *u, long K, double Ts, const Vec *offset,
                          double step, long start, double *Es, double *Xs, double *J) {
-  const long n = self.n_x, m = self.n_u;
-  const int threads =
-      static_cast<int>(std::min<long>({self.threads, K - start, 1L + std::max(0, ThreadPool::free_cores())}));
+  const int threads = stage_threads(self, K - start);
   if (threads <= 1) {
     self.simulate(X0, u, K, Ts, offset, Es, Xs);
     const std::vector<Warm> &sim = self.simulation_warm();
-    StageWork work(self, Ts);
-    for (long i = start; i < K; ++i)
-      stage_jacobian(self, &sim[i], work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
+    stages_serial(self, [&](long i) { return &sim[i]; }, Xs, u, Ts, step, start, K, J);
     return;
   }
-  std::vector<ModelUpdate *> updates{&self};
-  for (int k = 0; k + 1 < threads; ++k) updates.push_back(&self.worker(k));  // the GIL held: made on first use
   RolloutProgress progress;
-  std::atomic<long> next{start};
-  std::mutex failed;
-  long first_failure = K;
-  std::exception_ptr error, rollout_error;
-  const auto fail = [&](long i) {  // i: the stage, start − 1 for a thread's set-up
-    std::lock_guard<std::mutex> lock(failed);
-    if (i < first_failure) first_failure = i, error = std::current_exception();
+  std::exception_ptr rollout_error;
+  const auto lead = [&] {
+    nb::gil_scoped_acquire gil;  // the rollout's handler calls (assembly fallback, nonfinite) as in simulate
+    try {
+      self.simulate(X0, u, K, Ts, offset, Es, Xs, &progress);
+      return true;
+    } catch (...) {
+      rollout_error = std::current_exception();
+      progress.failed.store(true, std::memory_order_release);
+      return false;
+    }
   };
   // stage i once the rollout has finished it (its warm start, and X(i) written by stage i − 1); false: it never will
   const auto ready = [&](long i) {
@@ -257,47 +279,10 @@ void simulate_linearized(ModelUpdate &self, const Vec &X0, const double *u, long
       std::this_thread::yield();
     }
   };
-  const auto one = [&](ModelUpdate &update, StageWork &work, long i) {
-    try {
-      const Warm *base = progress.warm.load(std::memory_order_relaxed) + i;  // published with done (acquire)
-      stage_jacobian(update, base, work, Xs + i * n, u + i * m, Ts, step, J + (i - start) * n * n);
-    } catch (...) {
-      fail(i);
-    }
-  };
-  const std::function<void(int)> task = [&](int slot) {
-    try {
-      ModelUpdate &update = *updates[slot];
-      if (slot == 0) {
-        {
-          nb::gil_scoped_acquire gil;  // the rollout's handler calls (assembly fallback, nonfinite) as in simulate
-          try {
-            self.simulate(X0, u, K, Ts, offset, Es, Xs, &progress);
-          } catch (...) {
-            rollout_error = std::current_exception();
-            progress.failed.store(true, std::memory_order_release);
-            return;
-          }
-        }
-        StageWork work(update, Ts);
-        for (long i = next++; i < K - 1; i = next++) one(update, work, i);
-        one(update, work, K - 1);
-        return;
-      }
-      StageWork work(update, Ts);
-      for (long i = next++; i < K - 1; i = next++) {
-        if (!ready(i)) return;
-        one(update, work, i);
-      }
-    } catch (...) {
-      fail(start - 1);
-    }
-  };
-  {
-    nb::gil_scoped_release release;  // a helper's nonfinite/spd_solve takes the GIL: free while the caller waits
-    ThreadPool::shared().run(threads - 1, task);
-  }
-  if (rollout_error) std::rethrow_exception(rollout_error);
+  // published with done (read after ready's acquire, or by the calling thread after its rollout)
+  const auto base = [&](long i) { return progress.warm.load(std::memory_order_relaxed) + i; };
+  const auto error = stages_threaded(self, base, Xs, u, Ts, step, start, K, threads, J, lead, ready);
+  if (rollout_error) std::rethrow_exception(rollout_error);  // the rollout's first, as the two calls would
   if (error) std::rethrow_exception(error);
 }
 }  // namespace
