@@ -95,15 +95,12 @@ def calibrate(make_spec, duration: float, target: float, probes: int = 8, passes
     cell's cost grows about linearly with its steps) until the mean is within 5 % of the target (at
     most ``passes`` measurements; the fixed part, setup and model, makes one pass short), rounded to
     whole steps of :data:`BENCH_TS`. Returns (duration s, mean CPU s of the probes at that duration)."""
-    for _ in range(passes):
+    for measured in range(1, passes + 2):  # the last measurement: the mean at the duration returned
         cells = make_spec(duration).cells()
         mean = cell_cpu(cells[::max(1, len(cells) // probes)][:probes])
-        if abs(mean / target - 1) <= 0.05:
+        if abs(mean / target - 1) <= 0.05 or measured > passes:
             break
         duration = round(max(10, round(duration * target / mean / BENCH_TS)) * BENCH_TS, 6)
-    else:  # not converged: the mean at the duration returned
-        cells = make_spec(duration).cells()
-        mean = cell_cpu(cells[::max(1, len(cells) // probes)][:probes])
     return duration, mean
 
 
@@ -252,7 +249,7 @@ def main() -> int:
               f"1-min load avg {load:.2f} before, {os.getloadavg()[0]:.2f} after")
         return 0
 
-    traced(spec_16().cells()[0])  # the first imports and caches of this process, outside the calibration
+    traced(spec_16().cells()[0])  # the first imports and caches of this process, outside calibration and timing
     d64, d16 = 0.5, 0.25
     if not args.fixed:
         d64, c64 = calibrate(spec_64, d64, TARGET_64)
@@ -261,7 +258,6 @@ def main() -> int:
               f"({d16:.3f} s runs), means over 8 probe cells each")
     sweeps = {"64 cells of ~0.2 s": spec_64(d64).cells(), "16 cells of ~0.1 s": spec_16(d16).cells()}
     load_before = os.getloadavg()
-    traced(sweeps["16 cells of ~0.1 s"][0])  # the first imports and caches of this process, outside the timing
     start = time.perf_counter()
     cluster = start_local_cluster(args.workers)
     client = Client(cluster)
