@@ -34,6 +34,7 @@ _PUBLIC = {
     "available_solvers": "solvers", "MinNormOf": "solvers",
     # gpc
     "Horizons": "gpc", "Weights": "gpc", "GPCController": "gpc", "FORMS": "gpc", "StepInfo": "gpc",
+    "closed_loop_poles": "gpc", "spectral_radius": "gpc",
     "Prediction": "gpc", "build_problem": "gpc", "PlanSettings": "gpc", "PlanResult": "gpc",
     "plan_point_to_point": "gpc", "Reference": "gpc", "SCurve": "gpc", "Hold": "gpc",
     "SampledTrajectory": "gpc", "Helix": "gpc", "OutputPath": "gpc", "reference_for": "gpc",

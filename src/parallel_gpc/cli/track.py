@@ -10,6 +10,8 @@ comparison's defaults.
 
 from __future__ import annotations
 
+import cmath
+import math
 import sys
 from pathlib import Path
 
@@ -115,6 +117,9 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     for form, res in results.items():
         print(f"solvers, {form}: {res.solver_summary()}")
         res.save(out / f"track_{form}.npz")
+    note = undamped_note({form: res.meta.get("closed_loop_pole") for form, res in results.items()}, settings.Ts)
+    if note:
+        print(note)
     paths = [save_figure(plot_paths(results, f"{title}: path"), out / "track_path.png"),
              save_figure(plot_time_histories(results, f"{title}: error, velocity, drive effort"),
                          out / "track_time.png")]
@@ -123,6 +128,24 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     flags = saturation_flags(last.u, settings.limits, rtol=1e-5)
     show_trajectory(args, robot, last.t, last.q, reference=last.reference, saturated=flags)
     return outcome_code(results.values())
+
+
+def undamped_note(poles: dict, Ts: float) -> str:
+    """One line naming the forms whose unconstrained loop's dominant pole ([Re, Im], or None) is not
+    inside the unit circle (:mod:`~parallel_gpc.gpc.stability`), else ""."""
+    from ..gpc.stability import STABLE_MARGIN
+
+    flagged = {form: complex(*pole) for form, pole in poles.items()
+               if pole is not None and abs(complex(*pole)) >= 1.0 - STABLE_MARGIN}
+    if not flagged:
+        return ""
+    z = max(flagged.values(), key=abs)
+    where = f"{z.real:+.5f}" if abs(z.imag) <= 1e-9 * abs(z) else f"{z.real:+.5f} {'+-'[z.imag < 0]} {abs(z.imag):.5f}j"
+    hz = abs(cmath.phase(z)) / (2.0 * math.pi * Ts)
+    return (f"note ({', '.join(flagged)}): the unconstrained loop at the start has a pole at z = {where} "
+            f"(|z| = {abs(z):.6f}): an undamped {hz:.4g} Hz oscillation of inputs and velocities that the sampled "
+            f"error hides (at Qu = 0 the dead-beat law cancels the sampled plant's zero at z = −1); a small Qu > 0 "
+            f"damps it (docs/controller.md, 'Qu = 0 and the zero at z = −1')")
 
 
 def outcome_code(results) -> int:

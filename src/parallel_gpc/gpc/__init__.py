@@ -14,6 +14,7 @@ from .robot_references import (REFERENCE_KINDS, check_reference, check_times, is
 from .planning import MODES, PlanComparison, PlanResult, PlanSettings, deadbeat_inputs, plan_modes, plan_point_to_point
 from .plan_result import plan_table
 from .plan_settings import INTERRUPTED
+from .stability import closed_loop_poles, spectral_radius
 
 __all__ = [
     "pose_error_norms", "check_times", "is_file_reference", "PAPER_FORMS", "TERMINALS", "unit_interval", "INTERRUPTED",
@@ -24,4 +25,5 @@ __all__ = [
     "FORMS", "GPCController", "StepInfo", "Helix", "Hold", "OutputPath", "Reference", "SampledTrajectory", "SCurve",
     "path_for", "REFERENCE_KINDS", "check_reference", "reference_for", "workspace_radius", "PlanResult",
     "PlanSettings", "deadbeat_inputs", "plan_point_to_point", "MODES", "PlanComparison", "plan_modes", "plan_table",
+    "closed_loop_poles", "spectral_radius",
 ]

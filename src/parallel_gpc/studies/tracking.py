@@ -33,6 +33,7 @@ from ..limits import STATE_KINDS, Limits, as_limits, symmetric_limit
 from ..model import ReducedModel, ConstrainedPlant, DEFAULT_ROBOT, ParallelRobot
 from ..validation import finite_vector, positive
 from ..estimation import StateEstimator, SensedPlant, Sensors
+from ..gpc.stability import LINEAR_FORMS, closed_loop_poles
 from .loop import run_loop
 from .simulation import SimulationResult, simulate
 from .tables import (FORM_WIDTH, Column, effort_columns, error_columns, gain_column, output_space_of, solver_column,
@@ -313,7 +314,10 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
 
     A form whose closed loop diverges keeps its samples up to there (``result.diverged``) and the
     next form runs (each form is an independent run); Ctrl-C keeps the forms finished so far and
-    the samples of the current one, and stops.
+    the samples of the current one, and stops. The linear forms' results carry
+    ``meta["closed_loop_pole"]``: [Re, Im] of the dominant pole of their unconstrained closed loop
+    on the controller's model at the start (:func:`~parallel_gpc.gpc.stability.closed_loop_poles`;
+    |z| ≥ 1: not asymptotically stable, e.g. the dead-beat law's z = −1 at Qu = 0).
 
     Raises:
         InvalidParameterError: an unknown form, or settings a form refuses (a du limit with the
@@ -342,6 +346,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     results = {}
     machine = settings.sensors != "full" or settings.plant != "own"
     sensors = check_machine(settings) if machine else None
+    X_start = np.concatenate([start, np.zeros(robot.n_y)])
+    poles = {form: closed_loop_poles(controllers[form], X_start) for form in forms if form in LINEAR_FORMS}
     for form in forms:
         try:
             if machine:
@@ -353,6 +359,9 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
                 raise
             break
         results[form] = res
+        if form in poles:  # the unconstrained loop's dominant pole at the start, for the report
+            pole = poles[form][np.argmax(np.abs(poles[form]))]
+            res.meta["closed_loop_pole"] = [float(pole.real), float(pole.imag)]
         if res.interrupted:
             break
     return results
