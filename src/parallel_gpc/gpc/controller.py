@@ -314,6 +314,7 @@ class GPCController:
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         y_sim = X_sim[1:] @ C.T
         self._presimulated = (A_seq, B_seq, y_sim)  # the NMPC iterations' first linearization
+        self._u_sim = u_sim  # (N, m): the input rows' origin of this step's limited solves
         self._null = null  # null(B_d) of this step (False: computed on first use)
         return A_seq, B_seq, C, y_sim, u_sim
 
@@ -349,13 +350,15 @@ class GPCController:
         constraint_report, rows, problem = None, None, None
         self._update_disturbance(X)
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
+        # the input rows' bounds of the limited stage-wise solves of this step (the paper's and the iterations')
+        bounds = None if stages is None or self._nmpc is None else self._nmpc.step_bounds(self._u_sim, self.u_prev)
         pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
         if gain is not None:  # SingularPoseError at a near-singular pose
             check_conditioning(self.model, self._gain, X, self._condition(gain), self.max_condition, self.Ts)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
-        result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
+        result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None, bounds=bounds)
         if result is not None and result.ok:  # checked here: one beyond the limits is replaced like a failed one
             pred = self._riccati.input_map(self, stages)
             if not self._riccati.excess <= self._limit_gap:  # not already verified by the solver (active set's KKT)
@@ -382,7 +385,7 @@ class GPCController:
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: every linearization's input map)
             result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0, rows, self.u_prev, self._presimulated)
+                self._backend.solve, self.disturbance, t0, rows, self.u_prev, self._presimulated, bounds)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
         if not staged or self._nmpc is not None:  # a dense or iterated solution; a stage-wise one is checked above

@@ -184,6 +184,18 @@ class NMPCIterations:
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
+        # what every rollout, cost and step of a control step would otherwise look up again (fixed for the controller)
+        self._m, self._p, self._No = model.n_u, criterion.n_outputs, criterion.horizons.No
+        self._Ct = model.C.T  # (n_x, p): outputs X C^T of a trajectory's states
+        self._wy, self._qu = criterion.wy, criterion.qu_diag  # the diagonal weights as vectors, or None
+
+    def step_bounds(self, u_sim: np.ndarray, u_prev: np.ndarray | None) -> np.ndarray | None:
+        """The input rows' bounds of a control step for :attr:`stagewise`
+        (:func:`~parallel_gpc.gpc.stagewise.step_bounds` of its pre-simulated inputs u_sim (N, m) and u(k−1) (m,),
+        N·m): the same in each of its limited steps, the paper's included when the same solver solves it (the
+        controller computes them once and passes them to both, :meth:`run`); None without :attr:`stagewise`."""
+        return None if self.stagewise is None else step_bounds(self.stagewise.limits, self.criterion.horizons,
+                                                                u_sim, u_prev)
 
     # -------------------------------------------------------------- the true problem
     def _rollout(self, X, w, u0, u_map, v, d, linearize: bool = False):
@@ -196,8 +208,7 @@ class NMPCIterations:
         hence ``run`` asks for JX only where the trial is likely kept (not on a flat line search, whose
         full step is mostly rejected). Where the fused call fails the trial is rolled out alone (JX None),
         so that a failing Jacobian stops the iterations as in ``run``."""
-        H, m = self.criterion.horizons, self.model.n_u
-        u = (u0 + u_map @ v).reshape(-1, m)
+        u = (u0 + u_map @ v).reshape(-1, self._m)
         JX = None
         fused = getattr(self.model, "simulate_linearized", None) if linearize else None
         try:
@@ -208,23 +219,22 @@ class NMPCIterations:
             traj = self.model.simulate_factorized(X, u, self.Ts, d)
         else:
             traj, JX = traj[:4], traj[4]
-        y = (traj[3][1:] @ self.model.C.T)[H.No:].reshape(-1)
+        y = (traj[3][1:] @ self._Ct)[self._No:].reshape(-1)
         return traj, u, y, self._cost(y, w, v), JX
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
         """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,)), the
         last row weighed diag(Qf) Qy like the condensed problem's
         (:meth:`~parallel_gpc.gpc.criterion.Criterion.problem`); diagonal weights as vectors."""
-        c = self.criterion
         r = y_rows - w
-        if c.wy is not None:
-            e = c.wy * r
+        if self._wy is not None:
+            e = self._wy * r
         else:
-            p = c.n_outputs
+            c, p = self.criterion, self._p
             e = (r.reshape(-1, p) @ c.Wy.T).reshape(-1)
             if c.Wf is not None:
                 e[-p:] = c.Wf @ r[-p:]
-        q = v * c.qu_diag if c.qu_diag is not None else c.Qu_block @ v
+        q = v * self._qu if self._qu is not None else self.criterion.Qu_block @ v
         return float(e @ e + q @ q)
 
     # -------------------------------------------------------------- state limits
@@ -301,17 +311,18 @@ class NMPCIterations:
         the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
         if self.riccati is None:
             return None
-        targets = (np.reshape(w, -1) - f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
+        targets = (np.reshape(w, -1) - f).reshape(-1, self._p)  # w − (ŷ(v) − G v): from 0
         if self.stagewise is None:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
         new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
-                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev,
+                                      u_sim=np.reshape(u_sim, (-1, self._m)), u_prev=u_prev,
                                       warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
 
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
-            rows: ConstraintRows | None = None, u_prev: np.ndarray | None = None, presimulated: tuple | None = None):
+            rows: ConstraintRows | None = None, u_prev: np.ndarray | None = None, presimulated: tuple | None = None,
+            bounds: np.ndarray | None = None):
         """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
@@ -327,6 +338,9 @@ class NMPCIterations:
             u_prev: (m,) u(k−1) (N·m), the Δu rows' origin (needed by the stage-wise limited steps).
             presimulated: (A_seq (N, n_x, n_x), B_seq (N, n_x, m), y_sim (N, p)) of the step's
                 pre-simulation (the paper's linearization), needed when ``pred`` is not condensed.
+            bounds: the limited steps' input-row bounds of this control step (:meth:`step_bounds` of its
+                pre-simulated inputs and ``u_prev``, which the paper's step took too), or None: computed here
+                at the first limited step.
 
         Returns:
             (its result with v the accepted plan, :class:`IterationReport`). Every linearization maps
@@ -338,7 +352,7 @@ class NMPCIterations:
         H, C = self.criterion.horizons, self.model.C
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
-        v = np.zeros_like(result.v)
+        v = np.zeros(result.v.shape)
         # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows; whether `result`
         # is a stage-wise solve (its J, the criterion along the stage models, is the model's J at result.v)
         staged = not pred.G.size
@@ -352,9 +366,9 @@ class NMPCIterations:
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
-        # the limited steps' input-row bounds; the last one's active set: first the paper step's when it was solved
-        # stage-wise by the same solver (else None: the solver's last set, shifted)
-        bounds, active = None, self.stagewise.active_set if staged and self._shared else None
+        # the limited steps' input-row bounds (given or computed at the first); the last one's active set: first the
+        # paper step's when it was solved stage-wise by the same solver (else None: the solver's last set, shifted)
+        active = self.stagewise.active_set if staged and self._shared else None
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
@@ -407,20 +421,20 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
-            JX = np.empty_like(A_seq)
-            JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
             try:  # the trial's own when it was rolled out with them (_rollout)
-                JX[1:] = JX_tail if JX_tail is not None else self.model.stage_jacobians(X_seq, u_traj, self.Ts,
-                                                                                        start=1)
+                if JX_tail is None:
+                    JX_tail = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
+            # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G (A_d there stands in)
+            JX = np.concatenate((A_seq[:1], JX_tail))
             y_lin, lin = y_rows, None  # ŷ(v + δ) ≈ y_rows + G δ along this plan's trajectory
             result = None
             if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
                 if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
-                    bounds = step_bounds(self.stagewise.limits, H, u0.reshape(-1, self.model.n_u), u_prev)
+                    bounds = self.step_bounds(u0.reshape(-1, self._m), u_prev)
                 result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds)
                 active = None if self.stagewise is None else self.stagewise.active_set  # the next one's start
             staged = result is not None
