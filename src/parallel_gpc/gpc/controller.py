@@ -47,6 +47,9 @@ __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "DEFA
 
 # LIMIT_MARGIN and APPLIED_LIMIT_RTOL live in .fallback; re-exported here (tests import them from this module).
 
+#: the iterations' report of a step without them (the paper's single step; frozen: one for every step).
+SINGLE_STEP = IterationReport()
+
 
 @dataclass
 class StepInfo:
@@ -381,7 +384,7 @@ class GPCController:
                     result = replace(result, status="limits violated",
                                      message=f"{result.status}, but a hard state limit is exceeded by {excess:.3g}")
             result, _ = split(full, result)
-        iterations = IterationReport()
+        iterations = SINGLE_STEP
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: every linearization's input map)
             result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),

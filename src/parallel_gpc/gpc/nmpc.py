@@ -293,7 +293,7 @@ class NMPCIterations:
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
                      u_sim: np.ndarray, u_prev: np.ndarray | None, start: np.ndarray | None = None,
-                     bounds: np.ndarray | None = None) -> SolveResult | None:
+                     bounds: np.ndarray | None = None, y_now: np.ndarray | None = None) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
         m and rad) solved stage-wise when :attr:`riccati` is set: by the Riccati recursion, or with
@@ -306,16 +306,18 @@ class NMPCIterations:
         paper's for the first when the solver is shared), or None: the solver's last one, shifted by one
         stage. bounds: the input rows' bounds of this control step
         (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps), or None:
-        computed from u_sim and u_prev. Without state limits and with Qu
-        nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
-        the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
+        computed from u_sim and u_prev. y_now: C X (p,) (m, rad) when the caller has it, else None.
+        Without state limits and with Qu nonsingular (:func:`riccati_steps`) the subproblem's minimizer is
+        unique: the recursion's, the active set's and the condensed back end's agree to rounding (the back
+        ends' tolerances)."""
         if self.riccati is None:
             return None
         targets = (np.reshape(w, -1) - f).reshape(-1, self._p)  # w − (ŷ(v) − G v): from 0
         if self.stagewise is None:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
-        new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
+        y_now = self.model.C @ X if y_now is None else y_now
+        new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, y_now,
                                       u_sim=np.reshape(u_sim, (-1, self._m)), u_prev=u_prev,
                                       warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
@@ -435,7 +437,7 @@ class NMPCIterations:
                 gain = partial(deviation_response, JX, B_seq, C, H)
                 if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
                     bounds = self.step_bounds(u0.reshape(-1, self._m), u_prev)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds, y_now)
                 active = None if self.stagewise is None else self.stagewise.active_set  # the next one's start
             staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's
