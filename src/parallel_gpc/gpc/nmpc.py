@@ -42,9 +42,9 @@ of the deviation model, :func:`~parallel_gpc.gpc.prediction.deviation_response`,
 recursion without input limits, with torque/Δu limits by the stage-wise active set
 (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`, the controller's own, which solved the paper's step:
 one compiled call per step; the input rows u = u_sim⁰ + u_map v are the same in every step of a control
-step: their bounds are computed once, and every limited step starts from the last one's active set as
-it is, the first from the paper step's, which started from the last control step's converged set
-shifted — the verifying step, whose set is the last one's, takes one sweep); a
+step: their bounds are computed once, the paper step's included, and every limited step starts from the
+last one's active set as it is, the first from the paper step's, which started from the last control
+step's converged set shifted — the verifying step, whose set is the last one's, takes one sweep); a
 limited step that the active set does not verify within the limits' margin goes to the condensed
 problem (G condensed) and the back end, the reference. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
