@@ -287,7 +287,7 @@ class GPCController:
     def _applicable(self, projected: np.ndarray, decided: np.ndarray) -> np.ndarray:
         """The input without its null(B_d) part if it respects the torque limit, else as decided."""
         tau = self._qp_limits.torque
-        if tau is None or np.all(np.abs(projected) <= tau):
+        if tau is None or (np.abs(projected) <= tau).all():
             return projected
         return decided
 

@@ -235,7 +235,7 @@ class NMPCIterations:
             if c.Wf is not None:
                 e[-p:] = c.Wf @ r[-p:]
         q = v * self._qu if self._qu is not None else self.criterion.Qu_block @ v
-        return float(e @ e + q @ q)
+        return float(e.dot(e)) + float(q.dot(q))  # (the dots of e @ e, q @ q without matmul's dispatch)
 
     # -------------------------------------------------------------- state limits
     def _rows(self, lin: Prediction, y_lin: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
