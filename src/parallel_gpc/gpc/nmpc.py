@@ -208,7 +208,7 @@ class NMPCIterations:
         hence ``run`` asks for JX only where the trial is likely kept (not on a flat line search, whose
         full step is mostly rejected). Where the fused call fails the trial is rolled out alone (JX None),
         so that a failing Jacobian stops the iterations as in ``run``."""
-        u = (u0 + u_map @ v).reshape(-1, self._m)
+        u = (u0 + u_map.dot(v)).reshape(-1, self._m)  # (ndarray.dot: the product of @ without matmul's dispatch)
         JX = None
         fused = getattr(self.model, "simulate_linearized", None) if linearize else None
         try:
@@ -219,7 +219,7 @@ class NMPCIterations:
             traj = self.model.simulate_factorized(X, u, self.Ts, d)
         else:
             traj, JX = traj[:4], traj[4]
-        y = (traj[3][1:] @ self._Ct)[self._No:].reshape(-1)
+        y = traj[3][1:].dot(self._Ct)[self._No:].reshape(-1)
         return traj, u, y, self._cost(y, w, v), JX
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
@@ -312,13 +312,13 @@ class NMPCIterations:
         ends' tolerances)."""
         if self.riccati is None:
             return None
-        targets = (np.reshape(w, -1) - f).reshape(-1, self._p)  # w − (ŷ(v) − G v): from 0
+        targets = (np.asarray(w).reshape(-1) - f).reshape(-1, self._p)  # w − (ŷ(v) − G v): from 0
         if self.stagewise is None:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
         y_now = self.model.C @ X if y_now is None else y_now
         new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, y_now,
-                                      u_sim=np.reshape(u_sim, (-1, self._m)), u_prev=u_prev,
+                                      u_sim=np.asarray(u_sim).reshape(-1, self._m), u_prev=u_prev,
                                       warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
 
