@@ -651,6 +651,24 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     np.testing.assert_allclose(plans, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
 
 
+def test_the_paper_step_solves_with_the_iterations_bounds(compiled_stagewise):
+    """The input rows' bounds of a control step are computed once (NMPCIterations.step_bounds): the paper's
+    stage-wise step takes the very array the Gauss–Newton steps after it take (before, its solver computed them a
+    second time), equal to step_bounds of the step's pre-simulated inputs and u(k−1) (the reference)."""
+    from parallel_gpc.gpc.stagewise import step_bounds
+
+    calls = []
+    _, ctrl = _limited_loop(3, spy=lambda solver, kw, sweeps, result: calls.append(kw))
+    firsts = [i for i, kw in enumerate(calls) if kw.get("start") is None]  # the paper's steps (u_sim, u_prev given)
+    assert len(firsts) == 3
+    for first, end in zip(firsts, firsts[1:] + [len(calls)]):
+        paper = calls[first]
+        assert end > first + 1 and paper.get("bounds") is not None
+        assert all(calls[i]["bounds"] is paper["bounds"] for i in range(first + 1, end))
+        reference = step_bounds(ctrl._nmpc.stagewise.limits, ctrl.horizons, paper["u_sim"], paper["u_prev"])
+        np.testing.assert_array_equal(paper["bounds"], reference)
+
+
 def test_the_compiled_model_update_is_built_with_the_controller(robot4, monkeypatch):
     """The controller builds its robot model's compiled update (not its first step: the dearest step of
     a run paid for it); the steps use that one, none other is built."""

@@ -47,6 +47,9 @@ __all__ = ["GPCController", "StepInfo", "FORMS", "DEFAULT_LIMITED_SOLVER", "DEFA
 
 # LIMIT_MARGIN and APPLIED_LIMIT_RTOL live in .fallback; re-exported here (tests import them from this module).
 
+#: the iterations' report of a step without them (the paper's single step; frozen: one for every step).
+SINGLE_STEP = IterationReport()
+
 
 @dataclass
 class StepInfo:
@@ -284,7 +287,7 @@ class GPCController:
     def _applicable(self, projected: np.ndarray, decided: np.ndarray) -> np.ndarray:
         """The input without its null(B_d) part if it respects the torque limit, else as decided."""
         tau = self._qp_limits.torque
-        if tau is None or np.all(np.abs(projected) <= tau):
+        if tau is None or (np.abs(projected) <= tau).all():
             return projected
         return decided
 
@@ -314,6 +317,7 @@ class GPCController:
         self._one_step = (A_seq[0], B_seq[0], c_seq[0] + self.disturbance, u_sim[0])
         y_sim = X_sim[1:] @ C.T
         self._presimulated = (A_seq, B_seq, y_sim)  # the NMPC iterations' first linearization
+        self._u_sim = u_sim  # (N, m): the input rows' origin of this step's limited solves
         self._null = null  # null(B_d) of this step (False: computed on first use)
         return A_seq, B_seq, C, y_sim, u_sim
 
@@ -349,13 +353,15 @@ class GPCController:
         constraint_report, rows, problem = None, None, None
         self._update_disturbance(X)
         stages = None if self._riccati is None else self._riccati.stages(self, X, w)  # no condensing
+        # the input rows' bounds of the limited stage-wise solves of this step (the paper's and the iterations')
+        bounds = None if stages is None or self._nmpc is None else self._nmpc.step_bounds(self._u_sim, self.u_prev)
         pred = self.predict(X) if stages is None else None
         gain = None if self._gain is None else self._gain(self._one_step[1])
         if gain is not None:  # SingularPoseError at a near-singular pose
             check_conditioning(self.model, self._gain, X, self._condition(gain), self.max_condition, self.Ts)
         t1 = time.perf_counter()
         u_now = self._u_now if self.form == "incremental-delayed" else None
-        result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None)
+        result = None if stages is None else self._riccati.solve(*stages, warm=self._v_prev is not None, bounds=bounds)
         if result is not None and result.ok:  # checked here: one beyond the limits is replaced like a failed one
             pred = self._riccati.input_map(self, stages)
             if not self._riccati.excess <= self._limit_gap:  # not already verified by the solver (active set's KKT)
@@ -378,11 +384,11 @@ class GPCController:
                     result = replace(result, status="limits violated",
                                      message=f"{result.status}, but a hard state limit is exceeded by {excess:.3g}")
             result, _ = split(full, result)
-        iterations = IterationReport()
+        iterations = SINGLE_STEP
         if self._nmpc is not None:  # iterated to the NMPC optimum (pred: every linearization's input map)
             result, iterations = self._nmpc.run(
                 X, w, pred, result, lambda p: self._criterion.problem(p, w, self._qp_limits, self.u_prev),
-                self._backend.solve, self.disturbance, t0, rows, self.u_prev, self._presimulated)
+                self._backend.solve, self.disturbance, t0, rows, self.u_prev, self._presimulated, bounds)
             if iterations.constraints is not None:  # the state limits along the applied plan's trajectory
                 constraint_report = iterations.constraints
         if not staged or self._nmpc is not None:  # a dense or iterated solution; a stage-wise one is checked above
@@ -400,7 +406,7 @@ class GPCController:
         elif pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
         else:
-            u_seq = (pred.u_base + pred.u_map @ result.v).reshape(-1, self.n_u)
+            u_seq = (pred.u_base + pred.u_map.dot(result.v)).reshape(-1, self.n_u)  # (the product of @)
         if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
             u_seq = np.vstack([u_now, u_seq])[:self.horizons.N]
         if self.form in ("incremental", "nonlinear"):  # a null(B_d(X)) part of Δu(k) only serves

@@ -42,9 +42,9 @@ of the deviation model, :func:`~parallel_gpc.gpc.prediction.deviation_response`,
 recursion without input limits, with torque/Δu limits by the stage-wise active set
 (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`, the controller's own, which solved the paper's step:
 one compiled call per step; the input rows u = u_sim⁰ + u_map v are the same in every step of a control
-step: their bounds are computed once, and every limited step starts from the last one's active set as
-it is, the first from the paper step's, which started from the last control step's converged set
-shifted — the verifying step, whose set is the last one's, takes one sweep); a
+step: their bounds are computed once, the paper step's included, and every limited step starts from the
+last one's active set as it is, the first from the paper step's, which started from the last control
+step's converged set shifted — the verifying step, whose set is the last one's, takes one sweep); a
 limited step that the active set does not verify within the limits' margin goes to the condensed
 problem (G condensed) and the back end, the reference. A
 backtracking line search on the true J (each trial one pre-simulation; soft state limits enter J
@@ -184,6 +184,18 @@ class NMPCIterations:
         self.iterations, self.tolerance, self.time_budget = iterations, tolerance, time_budget
         self.limits = limits if limits is not None and limits.has_state_limits else None
         self.drives = drives
+        # what every rollout, cost and step of a control step would otherwise look up again (fixed for the controller)
+        self._m, self._p, self._No = model.n_u, criterion.n_outputs, criterion.horizons.No
+        self._Ct = model.C.T  # (n_x, p): outputs X C^T of a trajectory's states
+        self._wy, self._qu = criterion.wy, criterion.qu_diag  # the diagonal weights as vectors, or None
+
+    def step_bounds(self, u_sim: np.ndarray, u_prev: np.ndarray | None) -> np.ndarray | None:
+        """The input rows' bounds of a control step for :attr:`stagewise`
+        (:func:`~parallel_gpc.gpc.stagewise.step_bounds` of its pre-simulated inputs u_sim (N, m) and u(k−1) (m,),
+        N·m): the same in each of its limited steps, the paper's included when the same solver solves it (the
+        controller computes them once and passes them to both, :meth:`run`); None without :attr:`stagewise`."""
+        return None if self.stagewise is None else step_bounds(self.stagewise.limits, self.criterion.horizons,
+                                                                u_sim, u_prev)
 
     # -------------------------------------------------------------- the true problem
     def _rollout(self, X, w, u0, u_map, v, d, linearize: bool = False):
@@ -196,8 +208,7 @@ class NMPCIterations:
         hence ``run`` asks for JX only where the trial is likely kept (not on a flat line search, whose
         full step is mostly rejected). Where the fused call fails the trial is rolled out alone (JX None),
         so that a failing Jacobian stops the iterations as in ``run``."""
-        H, m = self.criterion.horizons, self.model.n_u
-        u = (u0 + u_map @ v).reshape(-1, m)
+        u = (u0 + u_map.dot(v)).reshape(-1, self._m)  # (ndarray.dot: the product of @ without matmul's dispatch)
         JX = None
         fused = getattr(self.model, "simulate_linearized", None) if linearize else None
         try:
@@ -208,24 +219,23 @@ class NMPCIterations:
             traj = self.model.simulate_factorized(X, u, self.Ts, d)
         else:
             traj, JX = traj[:4], traj[4]
-        y = (traj[3][1:] @ self.model.C.T)[H.No:].reshape(-1)
+        y = traj[3][1:].dot(self._Ct)[self._No:].reshape(-1)
         return traj, u, y, self._cost(y, w, v), JX
 
     def _cost(self, y_rows: np.ndarray, w: np.ndarray, v: np.ndarray) -> float:
         """J = Σ‖Qy (y − w)‖² + ‖kron(I, Qu) v‖² over the penalized rows (stacked, (n_rows·p,)), the
         last row weighed diag(Qf) Qy like the condensed problem's
         (:meth:`~parallel_gpc.gpc.criterion.Criterion.problem`); diagonal weights as vectors."""
-        c = self.criterion
         r = y_rows - w
-        if c.wy is not None:
-            e = c.wy * r
+        if self._wy is not None:
+            e = self._wy * r
         else:
-            p = c.n_outputs
+            c, p = self.criterion, self._p
             e = (r.reshape(-1, p) @ c.Wy.T).reshape(-1)
             if c.Wf is not None:
                 e[-p:] = c.Wf @ r[-p:]
-        q = v * c.qu_diag if c.qu_diag is not None else c.Qu_block @ v
-        return float(e @ e + q @ q)
+        q = v * self._qu if self._qu is not None else self.criterion.Qu_block @ v
+        return float(e.dot(e)) + float(q.dot(q))  # (the dots of e @ e, q @ q without matmul's dispatch)
 
     # -------------------------------------------------------------- state limits
     def _rows(self, lin: Prediction, y_lin: np.ndarray, y_now: np.ndarray) -> ConstraintRows | None:
@@ -283,7 +293,7 @@ class NMPCIterations:
     # -------------------------------------------------------------- the iterations
     def riccati_step(self, X: np.ndarray, JX: np.ndarray, B_seq: np.ndarray, f: np.ndarray, w: np.ndarray,
                      u_sim: np.ndarray, u_prev: np.ndarray | None, start: np.ndarray | None = None,
-                     bounds: np.ndarray | None = None) -> SolveResult | None:
+                     bounds: np.ndarray | None = None, y_now: np.ndarray | None = None) -> SolveResult | None:
         """The Gauss–Newton subproblem of the linearization ŷ = f + G v at X (n_x,) (stage models JX (N, n_x, n_x),
         B_seq (N, n_x, m); the paper's step: the pre-simulation's A_d, B_d; f: (n_rows·p,) its free response,
         m and rad) solved stage-wise when :attr:`riccati` is set: by the Riccati recursion, or with
@@ -296,22 +306,25 @@ class NMPCIterations:
         paper's for the first when the solver is shared), or None: the solver's last one, shifted by one
         stage. bounds: the input rows' bounds of this control step
         (:func:`~parallel_gpc.gpc.stagewise.step_bounds`: the same in each of its steps), or None:
-        computed from u_sim and u_prev. Without state limits and with Qu
-        nonsingular (:func:`riccati_steps`) the subproblem's minimizer is unique: the recursion's,
-        the active set's and the condensed back end's agree to rounding (the back ends' tolerances)."""
+        computed from u_sim and u_prev. y_now: C X (p,) (m, rad) when the caller has it, else None.
+        Without state limits and with Qu nonsingular (:func:`riccati_steps`) the subproblem's minimizer is
+        unique: the recursion's, the active set's and the condensed back end's agree to rounding (the back
+        ends' tolerances)."""
         if self.riccati is None:
             return None
-        targets = (np.reshape(w, -1) - f).reshape(-1, self.criterion.n_outputs)  # w − (ŷ(v) − G v): from 0
+        targets = (np.asarray(w).reshape(-1) - f).reshape(-1, self._p)  # w − (ŷ(v) − G v): from 0
         if self.stagewise is None:
             new = self.riccati.solve(JX, B_seq, None, X, None, targets)  # (the deviation starts at 0, not X)
             return new if new.ok else None
-        new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, self.model.C @ X,
-                                      u_sim=np.reshape(u_sim, (-1, self.model.n_u)), u_prev=u_prev,
+        y_now = self.model.C @ X if y_now is None else y_now
+        new, _ = self.stagewise.solve((JX, B_seq, None, X, None), targets, y_now,
+                                      u_sim=np.asarray(u_sim).reshape(-1, self._m), u_prev=u_prev,
                                       warm=start is None, start=start, bounds=bounds)
         return new if new.ok and self.stagewise.excess <= self._gap else None
 
     def run(self, X, w, pred: Prediction, result: SolveResult, problem_of, solve, disturbance, start: float,
-            rows: ConstraintRows | None = None, u_prev: np.ndarray | None = None, presimulated: tuple | None = None):
+            rows: ConstraintRows | None = None, u_prev: np.ndarray | None = None, presimulated: tuple | None = None,
+            bounds: np.ndarray | None = None):
         """Continue from the paper's step (``pred``, its solve ``result``) to the optimum.
 
         Args:
@@ -327,6 +340,9 @@ class NMPCIterations:
             u_prev: (m,) u(k−1) (N·m), the Δu rows' origin (needed by the stage-wise limited steps).
             presimulated: (A_seq (N, n_x, n_x), B_seq (N, n_x, m), y_sim (N, p)) of the step's
                 pre-simulation (the paper's linearization), needed when ``pred`` is not condensed.
+            bounds: the limited steps' input-row bounds of this control step (:meth:`step_bounds` of its
+                pre-simulated inputs and ``u_prev``, which the paper's step took too), or None: computed here
+                at the first limited step.
 
         Returns:
             (its result with v the accepted plan, :class:`IterationReport`). Every linearization maps
@@ -338,7 +354,7 @@ class NMPCIterations:
         H, C = self.criterion.horizons, self.model.C
         y_now = C @ X
         u0, u_map = pred.u_base, pred.u_map
-        v = np.zeros_like(result.v)
+        v = np.zeros(result.v.shape)
         # the linearization that produced `result`: its outputs at v, x ↦ G x, its rows; whether `result`
         # is a stage-wise solve (its J, the criterion along the stage models, is the model's J at result.v)
         staged = not pred.G.size
@@ -352,9 +368,9 @@ class NMPCIterations:
         merit = self._cost(y_lin, w, v) + self._penalty(true_rows, NO_DECISION)
         excess = self._hard(true_rows)
         report = dict(iterations=0, residual=float("nan"), stop="iterations", budget_hit=False, converged=False)
-        # the limited steps' input-row bounds; the last one's active set: first the paper step's when it was solved
-        # stage-wise by the same solver (else None: the solver's last set, shifted)
-        bounds, active = None, self.stagewise.active_set if staged and self._shared else None
+        # the limited steps' input-row bounds (given or computed at the first); the last one's active set: first the
+        # paper step's when it was solved stage-wise by the same solver (else None: the solver's last set, shifted)
+        active = self.stagewise.active_set if staged and self._shared else None
         last = time.perf_counter()
         while True:
             report["iterations"] += 1
@@ -376,7 +392,7 @@ class NMPCIterations:
             flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
-                trial = v + alpha * delta
+                trial = v + delta if alpha == 1.0 else v + alpha * delta  # (1.0·δ is δ: one product less)
                 try:
                     # with its Jacobians unless it is the last allowed iteration's or flat (then mostly rejected)
                     traj, u_traj, y_rows, trial_cost, trial_JX = self._rollout(
@@ -407,21 +423,21 @@ class NMPCIterations:
                 break
             last = now
             A_seq, B_seq, _, X_seq = traj
-            JX = np.empty_like(A_seq)
-            JX[0] = A_seq[0]  # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G
             try:  # the trial's own when it was rolled out with them (_rollout)
-                JX[1:] = JX_tail if JX_tail is not None else self.model.stage_jacobians(X_seq, u_traj, self.Ts,
-                                                                                        start=1)
+                if JX_tail is None:
+                    JX_tail = self.model.stage_jacobians(X_seq, u_traj, self.Ts, start=1)
             except MODEL_ERRORS:  # a difference step leaves the workspace: keep the accepted plan
                 report["stop"] = "jacobian failed"
                 break
+            # X(0) is fixed: ∂Φ/∂X at stage 0 multiplies a zero deviation, never enters G (A_d there stands in)
+            JX = np.concatenate((A_seq[:1], JX_tail))
             y_lin, lin = y_rows, None  # ŷ(v + δ) ≈ y_rows + G δ along this plan's trajectory
             result = None
             if self.riccati is not None and self.limits is None:  # stage-wise: G v alone, not G
                 gain = partial(deviation_response, JX, B_seq, C, H)
                 if self.stagewise is not None and bounds is None:  # u_sim⁰, u(k−1): the same in every step
-                    bounds = step_bounds(self.stagewise.limits, H, u0.reshape(-1, self.model.n_u), u_prev)
-                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds)
+                    bounds = self.step_bounds(u0.reshape(-1, self._m), u_prev)
+                result = self.riccati_step(X, JX, B_seq, y_rows - gain(v), w, u0, u_prev, active, bounds, y_now)
                 active = None if self.stagewise is None else self.stagewise.active_set  # the next one's start
             staged = result is not None
             if result is None:  # G itself: the condensed subproblem with every limit, the back end's

@@ -230,18 +230,20 @@ class RiccatiPath:
             return A, B, c, X, _null_result(null)
         return simulate
 
-    def solve(self, A, B, c, x0, u0, r, warm: bool = False) -> SolveResult:
+    def solve(self, A, B, c, x0, u0, r, warm: bool = False, bounds: np.ndarray | None = None) -> SolveResult:
         """:meth:`RiccatiSolver.solve`, or with limits the stage-wise active set or interior point
         (:class:`~parallel_gpc.gpc.stagewise.StagewiseSolver`; :attr:`report` set), warm-started
         from its last solution when ``warm`` (the controller's next step); the stages of a fused
-        nonlinear step (:meth:`stages`) were solved in its call already (:meth:`planned_inputs`)."""
+        nonlinear step (:meth:`stages`) were solved in its call already (:meth:`planned_inputs`).
+        ``bounds``: the nonlinear form's input-row bounds of this step when the caller keeps them
+        (:func:`~parallel_gpc.gpc.stagewise.step_bounds` of its pre-simulated inputs and u(k−1)), else None."""
         planned, self._planned, self._solved = self._planned, None, (None, None)
         if planned is not None and planned[0] is A:  # the fused step planned these stages already
             self._solved = planned[1:]
             return planned[1]
         if self.constrained is None:
             return self.solver.solve(A, B, c, x0, u0, r)
-        result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, **self._extra)
+        result, self.report = self.constrained.solve((A, B, c, x0, u0), r, warm=warm, bounds=bounds, **self._extra)
         return result
 
     def planned_inputs(self, result: SolveResult) -> np.ndarray | None:
