@@ -110,21 +110,25 @@ bool ModelUpdate::map_from(const Mat &jac, bool exact) {
 }
 
 void ModelUpdate::velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pinv, const std::vector<Mat> &dPsi,
-                                     std::vector<Mat> &dT, std::vector<Mat> &dP) const {
+                                     std::vector<Mat> &dT, std::vector<Mat> &dP) {
   // K̇⁺ = −K⁺ K̇ K⁺ + K⁺K⁺ᵀ K̇ᵀ (I − K K⁺) (full column rank) on the rows of K that are not identically zero
   // in K and every K̇ (planar point closures' z rows): the others hold zero columns of K⁺ and K̇⁺ and add
   // nothing; the second term vanishes when the remaining K is square. The small products coefficient-wise,
   // each factor evaluated once (Eigen's blocked GEMM costs more than it saves here)
   const size_t nd = dPsi.size();
-  std::vector<Index> rows;
+  // the workspaces are the model update's (map_rates_): assigned at equal sizes from the second call on
+  std::vector<Index> &rows = map_rates_.rows;
+  rows.clear();
   for (Index r = 0; r < jac.rows(); ++r) {
     bool zero = (jac.row(r).array() == 0.0).all();
     for (size_t j = 0; j < nd && zero; ++j) zero = (dPsi[j].row(r).array() == 0.0).all();
     if (!zero) rows.push_back(r);
   }
   const Index nr = static_cast<Index>(rows.size());
-  // workspaces allocated once per call, reused for every direction
-  Mat K(nr, n_z), Ps(n_z, nr), dK(nr, n_z), dKP(nr, nr), dPs(n_z, nr), Q, N, dKtN, Ky, dKy, dTz;
+  auto &[K, Ps, dK, dKP, dPs, Q, N, dKtN, Ky, dKy, dTz] = map_rates_.mats;
+  K.resize(nr, n_z);
+  Ps.resize(n_z, nr);
+  dK.resize(nr, n_z);
   for (Index r = 0; r < nr; ++r) {
     for (Index i = 0; i < n_z; ++i) K(r, i) = jac(rows[r], cfg.z_idx[i]);
     Ps.col(r) = pinv.col(rows[r]);

@@ -14,4 +14,5 @@ void bind_stagewise_active(nb::module_ &m);  // stagewise_active.cpp
 void bind_kalman(nb::module_ &m);        // kalman.cpp
 void bind_input_svd(nb::module_ &m);     // input_svd.cpp
 void bind_deviation(nb::module_ &m);     // deviation.cpp
+void bind_zoh(nb::module_ &m);           // zoh.cpp (zoh15: the exponential kernels' test entry points)
 }  // namespace pgpc

@@ -128,7 +128,7 @@ class ModelUpdate {
   // (Ṫ_j, K̇⁺_j) of the velocity map (T, K⁺) of map_from along motions δ_j: jac = Ψ_q at q, dPsi[j] = Ψ̇_q(q, δ_j);
   // exact for K = Ψ_q's dependent columns of full column rank (AssemblyMixin.velocity_map_rate)
   void velocity_map_rates(const Mat &jac, const Mat &T, const Mat &pinv, const std::vector<Mat> &dPsi,
-                          std::vector<Mat> &dT, std::vector<Mat> &dP) const;
+                          std::vector<Mat> &dT, std::vector<Mat> &dP);
   // the warm starts of the last pre-simulation, one per state X_sim(0..K−1)
   const std::vector<Warm> &simulation_warm() const { return sim_warm_; }
   // exp of the ZOH matrix at X, the n_x top rows (n_x × (n_x + n_u + 1)), row-major out
@@ -205,6 +205,13 @@ class ModelUpdate {
   Eigen::LLT<Mat> llt_;
   Mat aug_, E_;
   TopRowsExpm expm_;
+  // velocity_map_rates' workspaces (zoh15: kept between calls, no allocation per stage Jacobian)
+  struct MapRatesWork {
+    std::vector<Index> rows;  // the rows of K that are not zero in K and every K̇
+    struct {
+      Mat K, Ps, dK, dKP, dPs, Q, N, dKtN, Ky, dKy, dTz;
+    } mats;
+  } map_rates_;
 };
 
 // the forward-kinematics methods of the ModelUpdate class (forward.cpp)

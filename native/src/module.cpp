@@ -15,4 +15,5 @@ NB_MODULE(_native, m) {
   pgpc::bind_kalman(m);
   pgpc::bind_input_svd(m);
   pgpc::bind_deviation(m);
+  pgpc::bind_zoh(m);  // zoh15
 }

@@ -43,9 +43,11 @@ void ModelUpdate::tangent_rates(Mat &P) {
   const int nj = model.njoints;
   const Index ny = n_y;
   pinocchio::computeJointJacobians(model, data, q_);  // oMi and J at q_ (eval_placed reads them too)
-  tangent_ov_.resize(ny, std::vector<Motion>(nj, Motion::Zero()));
-  tangent_oh_.resize(ny, std::vector<Force>(nj, Force::Zero()));
-  tangent_dJ_.resize(ny, std::vector<Motion>(nj, Motion::Zero()));
+  if (static_cast<Index>(tangent_ov_.size()) != ny) {  // sized once (a fill value per call would allocate)
+    tangent_ov_.assign(ny, std::vector<Motion>(nj, Motion::Zero()));
+    tangent_oh_.assign(ny, std::vector<Force>(nj, Force::Zero()));
+    tangent_dJ_.assign(ny, std::vector<Motion>(nj, Motion::Zero()));
+  }
   tangent_oY_.resize(nj);
   rate_dPhi_.resize(ny);
   for (int k = 1; k < nj; ++k) tangent_oY_[k] = data.oMi[k].act(model.inertias[k]);
@@ -90,7 +92,7 @@ namespace {
 struct StageWork {
   StageWork(const ModelUpdate &self, double Ts)
       : M_top(Mat::Zero(self.n_x, self.n_aug)),
-        D(self.n_x, Mat::Zero(self.n_x, self.n_aug)),
+        D(Mat::Zero(self.n_x * self.n_y, self.n_aug)),
         xi(self.n_aug), x(self.n_x), yd(self.n_y), dT(self.n_y), dP(self.n_y) {
     expm.set_table(self.cfg.degree_norms);
     M_top.block(0, self.n_y, self.n_y, self.n_y).diagonal().setConstant(Ts);
@@ -98,7 +100,8 @@ struct StageWork {
   }
   TopRowsExpmDerivative expm;
   Mat M_top, rates, E, dE;
-  std::vector<Mat> D;  // Ts·∂(ZOH matrix)/∂X_k, top rows: only the ẏ rows move
+  // Ts·∂(ZOH matrix)/∂X_k, its ẏ rows n_y..n_x (the others do not move), stacked: rows k·n_y.. (TopRowsExpmDerivative)
+  Mat D;
   Vec xi, x, q, yd;
   std::vector<Mat> dT, dP;
   Mat Zc, T, P, T_s, P_s;
@@ -115,7 +118,7 @@ void stage_jacobian(ModelUpdate &self, const Warm *base, StageWork &w, const dou
   x = Eigen::Map<const Vec>(x_in, n);
   w.Zc = self.factor_rates(x, base, w.rates);
   w.M_top.bottomRightCorner(ny, na - ny) = w.Zc * Ts;
-  for (long j = 0; j < ny; ++j) w.D[ny + j].block(ny, ny, ny, ny) = w.rates.middleCols(j * ny, ny) * Ts;
+  for (long j = 0; j < ny; ++j) w.D.block((ny + j) * ny, ny, ny, ny) = w.rates.middleCols(j * ny, ny) * Ts;
   // forward differences along the closures' tangent q + T e_j h (not assembled: the line has the
   // closures' first derivative; ReducedModel._factor_derivatives), with the first-order velocity map
   // T + h Ṫ_j, K⁺ + h K̇⁺_j there (Ṫ_j, K̇⁺_j from the rates Φ̇_q(T e_j) that factor_rates left) instead of
@@ -130,12 +133,12 @@ void stage_jacobian(ModelUpdate &self, const Warm *base, StageWork &w, const dou
     const double h = step * std::max(1.0, std::abs(x[j]));
     w.T_s = w.T + h * w.dT[j];
     w.P_s = w.P + h * w.dP[j];
-    w.D[j].bottomRightCorner(ny, na - ny) =
+    w.D.block(j * ny, ny, ny, na - ny) =
         (self.factor_rows_with(self.kin.integrate(w.q, w.T.col(j) * h), w.T_s, w.P_s, w.yd) - w.Zc) * (Ts / h);
   }
   w.xi.head(n) = x;
   w.xi.segment(n, m) = Eigen::Map<const Vec>(u_in, m);
-  if (!w.expm.run(w.M_top, w.D, w.xi, w.E, w.dE)) {
+  if (!w.expm.run(w.M_top, w.D, ny, ny, w.xi, w.E, w.dE)) {
     nb::gil_scoped_acquire gil;  // a worker thread's too
     self.handler().attr("nonfinite")();
   }

@@ -24,26 +24,28 @@ class TopRowsExpm {
   Mat M_, P_, Pn_, E2_;
 };
 
-// The derivatives of e^M ξ along directions D_k, M and each D_k with only their top m rows nonzero
-// (discretization.expm_derivative_action, the reference): the Fréchet derivative of the exponential
-// applied to one vector, by Horner sums of the Taylor polynomial of e^(M/2^s) and of its squarings.
+// The derivatives of e^M ξ along directions D_k, M and each D_k with only their top m rows nonzero, each D_k
+// only on the rows row0..row0+nr (discretization.expm_derivative_action, the reference): the Fréchet derivative
+// of the exponential applied to one vector, by Horner on the Taylor polynomial of the block matrix
+// [[M/2^s, D_k], [0, M/2^s]] applied to [0; ξ] and on the squarings of e^(M/2^s).
 class TopRowsExpmDerivative {
  public:
   void set_table(std::vector<double> degree_norms);
-  // E (m, n) = top rows of e^M, dE (m, n_dir): column k = d/dt e^(M + t D_k) ξ at t = 0 (top rows);
-  // M_top (m, n), D[k] (m, n); false if M has NaN/inf
-  bool run(const Mat &M_top, const std::vector<Mat> &D, const Vec &xi, Mat &E, Mat &dE);
+  // E (m, n) = top rows of e^M, dE (m, n_dir): column k = d/dt e^(M + t D_k) ξ at t = 0 (top rows); M_top (m, n);
+  // G (n_dir·nr, n): rows k·nr.. = rows row0..row0+nr of D_k (its other rows zero); false if M has NaN/inf;
+  // std::invalid_argument if the sizes do not fit
+  bool run(const Mat &M_top, const Mat &G, Index row0, Index nr, const Vec &xi, Mat &E, Mat &dE);
 
  private:
-  // the directions' rows that are not zero in all of them, stacked direction by direction into G_
-  void stack(const std::vector<Mat> &D);
-  // dF u / 2^-s for every direction D_k (m, n_dir), F = e^A, A = M/2^s (dF along 2^-s D_k: linear in D_k)
-  void action(Index n_dir, const Vec &u, Mat &out);
+  // dF u / 2^-s for every direction D_k (m, n_dir), F = e^A, A = M/2^s (dF along 2^-s D_k: linear in D_k);
+  // ROWS: m fixed at compile time, or 0 (zoh.cpp)
+  template <int ROWS>
+  void action(const Vec &u, Mat &out);
   std::vector<double> norms_, inv_fact_;
-  std::vector<Mat> R_;
-  std::vector<Index> live_;  // rows of the directions that are not zero in all of them
-  Mat A_, P_, Pn_, F_, E2_, G_, S_, acc_;
-  Vec u_, w_, wn_, g_;
+  const Mat *G_ = nullptr;  // run's directions, while it runs
+  Index row0_ = 0, nr_ = 0, lead_ = 0, glead_ = 0;  // G's rows; A's and G's leading zero columns
+  Mat A_, P_, Pn_, F_, E2_, S_, acc_;
+  Vec u_, w_, wn_, g_, ab_, gb_, Fu_;
   Index K_ = 0;
 };
 }  // namespace pgpc
