@@ -277,8 +277,8 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
     repays :func:`~.local_cluster.local_cluster_cost`, a :class:`~.local_cluster.BackgroundCluster`
     of ``n_workers`` − 1 processes starts, and this process waits for its workers' forks
     (:meth:`~.local_cluster.BackgroundCluster.wait_forked`) before its next cell. The moment its
-    client connects, its thread submits the first batches from the same queue (under its lock: a cell runs once, here or there), sized by
-    the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
+    client connects, its thread submits the first batches from the same queue (under its lock: a
+    cell runs once, here or there), sized by the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
     the batches' records back as they return (``results``); this process keeps running cells,
     journals those records between two cells, and once the queue is empty waits for the batches
     still running. No cluster starts if the work never repays it (a small sweep runs all here, as
