@@ -113,7 +113,8 @@ class SweepResult:
             cluster did not pay).
         batches: cells per Dask task, in the order submitted (empty: no cluster was used).
         timeline: when the phases of the run happened, s since ``run_sweep`` began, in order:
-            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"first batches"``
+            ``"cluster start"``, ``"forked"`` (its workers, before this process's next cell),
+            ``"cluster up"``, ``"client up"``, ``"first batches"``
             (submitted), ``"local done"`` (this process ran its last cell), ``"on_up done"`` (the
             cluster's last batch returned), ``"last record"``, ``"close begin"``, ``"closed"``
             (a cluster of its own), ``"tables written"``, ``"done"``; the phases a run did not
