@@ -23,10 +23,11 @@ cells, after its last), the tasks' sizes, the bytes of the records returned; and
 of ``run_sweep``'s own cluster happened (``SweepResult.timeline``: the cluster's start in the
 background, up, its first batches, this process's last cell, the cluster's last batch, the last
 record, closed, done). The tables go to
-DIR/bench_sweep.md (default benchmarks/results). ``--overhead K`` instead runs K sweeps of 64 cells that
-sleep 0.1 s through ``run_sweep``'s own cluster and prints the CPU spent outside the cells (this
+DIR/bench_sweep.md (default benchmarks/results). ``--overhead K`` instead runs K sweeps of 64 and K of 16
+cells that sleep 0.1 s through ``run_sweep``'s own cluster and prints the CPU spent outside the cells (this
 process, the workers): what the cells lose to Dask on a machine with one core per stream, measured
-in CPU seconds, which load does not stretch. See benchmarks/README.md.
+in CPU seconds, which load does not stretch; and the speed-up over serial of these sleeping cells
+(the scheduling alone: start, hand-over, tail), which load stretches little. See benchmarks/README.md.
 """
 
 import os
@@ -34,6 +35,7 @@ import os
 os.environ["OPENBLAS_NUM_THREADS"] = "1"  # one BLAS thread per process: the workers are the parallelism
 
 import argparse  # noqa: E402
+import math  # noqa: E402
 import pickle  # noqa: E402
 import platform  # noqa: E402
 import statistics  # noqa: E402
@@ -120,8 +122,8 @@ def noop(cell):
     return record
 
 
-#: Length of a :func:`sleeping` cell, s, and the cells of the ``--overhead`` sweep.
-SLEEP_SECONDS, SLEEP_CELLS = 0.1, 64
+#: Length of a :func:`sleeping` cell, s, and the cells of the ``--overhead`` sweeps.
+SLEEP_SECONDS, SLEEP_CELLS = 0.1, (64, 16)
 
 
 def sleeping(cell):
@@ -131,30 +133,36 @@ def sleeping(cell):
 
 
 def overhead(workers: int, repeats: int) -> list:
-    """CPU outside the cells of :data:`SLEEP_CELLS` sleeping cells through ``run_sweep(workers=…)``
-    (its own cluster), ``repeats`` times: robust under load, where wall-clock speed-ups are not.
+    """CPU outside the cells of sweeps of :data:`SLEEP_CELLS` sleeping cells through
+    ``run_sweep(workers=…)`` (its own cluster), ``repeats`` times each, alternated: robust under
+    load, where wall-clock speed-ups of computing cells are not. So is the speed-up over a serial
+    run of sleeping cells (cells × :data:`SLEEP_SECONDS` / wall): it measures the scheduling alone —
+    the cluster's start, the hand-over, the tail — since a sleeping cell needs no core.
 
     Returns:
-        rows (run, CPU-s here, CPU-s of the workers (reaped children), tasks, cells here, the
-        cluster's last batch after this process's last cell in s, wall s).
+        rows (sweep and run, CPU-s here, CPU-s of the workers (reaped children), their sum, tasks,
+        cells here, the cluster's first batches since the start in s, the cluster's last batch
+        after this process's last cell in s, wall s, speed-up over serial).
     """
     import resource
 
     from parallel_gpc.sweeps import Cell
 
-    cells = [Cell(i, {"sleep": SLEEP_SECONDS, "i": i}) for i in range(SLEEP_CELLS)]
     rows = []
     for run in range(repeats):
-        before = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
-        start = time.perf_counter()
-        result = run_sweep(cells, workers=workers, progress=False, func=sleeping)
-        wall = time.perf_counter() - start
-        after = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
-        here, kids = (a.ru_utime + a.ru_stime - b.ru_utime - b.ru_stime for a, b in zip(after, before))
-        phases = result.timeline
-        tail = phases["on_up done"] - phases["local done"] if {"on_up done", "local done"} <= phases.keys() else float("nan")
-        rows.append((str(run + 1), f"{here:.3f}", f"{kids:.3f}", f"{here + kids:.3f}", str(len(result.batches)),
-                     str(result.local), f"{tail:.2f}", f"{wall:.2f}"))
+        for n in SLEEP_CELLS:
+            cells = [Cell(i, {"sleep": SLEEP_SECONDS, "i": i}) for i in range(n)]
+            before = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+            start = time.perf_counter()
+            result = run_sweep(cells, workers=workers, progress=False, func=sleeping)
+            wall = time.perf_counter() - start
+            after = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+            here, kids = (a.ru_utime + a.ru_stime - b.ru_utime - b.ru_stime for a, b in zip(after, before))
+            phases = result.timeline
+            tail = phases.get("on_up done", math.nan) - phases.get("local done", math.nan)
+            rows.append((f"{n} cells, {run + 1}", f"{here:.3f}", f"{kids:.3f}", f"{here + kids:.3f}",
+                         str(len(result.batches)), str(result.local), f"{phases.get('first batches', math.nan):.2f}",
+                         f"{tail:.2f}", f"{wall:.2f}", f"{n * SLEEP_SECONDS / wall:.2f}×"))
     return rows
 
 
@@ -234,8 +242,8 @@ def main() -> int:
                         help="cells at the fixed settings (0.5 s resp. 0.25 s runs) instead of sized to "
                              f"{TARGET_64} s resp. {TARGET_16} s of CPU on this machine")
     parser.add_argument("--overhead", type=int, default=0, metavar="K",
-                        help=f"only: K sweeps of {SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s through the own "
-                             "cluster, their CPU outside the cells")
+                        help=f"only: K sweeps of each of {SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s through "
+                             "the own cluster, their CPU outside the cells and their speed-up")
     args = parser.parse_args()
     from dask.distributed import Client, as_completed
 
@@ -243,10 +251,11 @@ def main() -> int:
         import dask.distributed  # noqa: F401 - imported, as in a process's second sweep
 
         load = os.getloadavg()[0]
-        text = table(("run", "CPU-s here", "CPU-s workers", "CPU-s outside cells", "tasks", "cells here",
-                      "last batch after this process's last cell, s", "wall, s"), overhead(args.workers, args.overhead))
-        print(f"{text}\n\n{SLEEP_CELLS} sleeping cells of {SLEEP_SECONDS} s, run_sweep(workers={args.workers}); "
-              f"1-min load avg {load:.2f} before, {os.getloadavg()[0]:.2f} after")
+        text = table(("sweep, run", "CPU-s here", "CPU-s workers", "CPU-s outside cells", "tasks", "cells here",
+                      "first batches, s", "last batch after this process's last cell, s", "wall, s",
+                      "speed-up"), overhead(args.workers, args.overhead))
+        print(f"{text}\n\n{' and '.join(map(str, SLEEP_CELLS))} sleeping cells of {SLEEP_SECONDS} s, "
+              f"run_sweep(workers={args.workers}); 1-min load avg {load:.2f} before, {os.getloadavg()[0]:.2f} after")
         return 0
 
     traced(spec_16().cells()[0])  # the first imports and caches of this process, outside calibration and timing

@@ -291,6 +291,16 @@ def test_batch_size_holds_a_second_of_work_and_shrinks_at_the_tail(streams, per_
         assert size + 1 > min(runner.BATCH_SECONDS / max(per_cell, 1e-6), left / (runner.SHARES * streams))
 
 
+def test_one_batch_per_worker_is_queued_once_the_cells_left_are_the_last_single_cell_shares():
+    assert runner.in_flight(100, 2, 1) == runner.IN_FLIGHT == 2  # one running, the next ready
+    assert runner.in_flight(100, 4, 3) == 2 * 3
+    # 2 streams × 3 shares: from 6 cells left on, a worker gets its next cell only once free
+    assert runner.in_flight(7, 2, 1) == 2 and runner.in_flight(6, 2, 1) == 1 and runner.in_flight(0, 2, 1) == 1
+    assert runner.in_flight(12, 4, 3) == 3
+    for left in range(0, 40):  # queued ahead only while the batch after would be larger than one cell
+        assert (runner.in_flight(left, 2, 1) > 1) == (batch_size(max(left, 1), 2, 1e-3) > 1)
+
+
 def test_sixty_four_cells_go_in_batches_of_a_second():
     assert runner.BATCH_SECONDS == 1.0 and runner.IN_FLIGHT == 2 and runner.SHARES == 3
     assert batch_size(60, 2, 0.1) == 10 and batch_size(60, 2, 0.2) == 5
@@ -298,12 +308,16 @@ def test_sixty_four_cells_go_in_batches_of_a_second():
 
 
 def test_a_local_cluster_is_started_only_when_it_repays_its_start_up(monkeypatch):
-    start = local_cluster.LOCAL_START_SECONDS
-    assert not cluster_pays(15 * 0.1, 2)  # 16 cells of 0.1 s, one run here first
+    start, cost = local_cluster.LOCAL_START_SECONDS, local_cluster.LOCAL_COST_SECONDS
+    assert cluster_pays(15 * 0.1, 2)  # 16 cells of 0.1 s (one run here first): the cluster starts
+    assert not cluster_pays(5 * 0.1, 2)  # 6 cells of 0.1 s do not
     assert cluster_pays(60 * 0.2, 2)  # 64 cells of 0.2 s
-    assert not cluster_pays(1.99 * start, 2) and cluster_pays(2.01 * start, 2)  # 2 workers save half the work
-    assert not cluster_pays(1.49 * start, 3) and cluster_pays(1.51 * start, 3)
-    assert not cluster_pays(1.99 * 1.5, 2, cost=1.5) and cluster_pays(2.01 * 1.5, 2, cost=1.5)
+    # the work left once the cluster is up: 2 workers save half of it, 3 two thirds
+    assert not cluster_pays(start + 1.99 * cost, 2) and cluster_pays(start + 2.01 * cost, 2)
+    assert not cluster_pays(start + 1.49 * cost, 3) and cluster_pays(start + 1.51 * cost, 3)
+    slow = local_cluster.ClusterCost(start=2.0, cost=1.5)
+    assert not cluster_pays(2.0 + 1.99 * 1.5, 2, slow) and cluster_pays(2.0 + 2.01 * 1.5, 2, slow)
+    assert not cluster_pays(1.9, 2, local_cluster.ClusterCost(start=2.0, cost=0.0))  # done before it is up
 
     def no_cluster(*args, **kwargs):
         raise AssertionError("a LocalCluster was started for a sweep too small to repay it")
@@ -332,19 +346,20 @@ def _sleep_cells(n):
     return [Cell(i, {**TINY, "Qu": 1e-4 * (i + 1)}) for i in range(n)]
 
 
-def test_sixteen_small_cells_stay_in_this_process(monkeypatch):
-    """16 cells of 0.1 s (issue 23's small sweep): the work left after each cell (≤ 15 × 0.1 s) saves half of it
-    on 2 workers, less than a cluster costs; every cell runs here and no cluster starts."""
-    import dask.distributed
+@pytest.mark.slow
+def test_sixteen_small_cells_start_the_cluster_and_share_the_cells(monkeypatch):
+    """16 cells of 0.1 s (issue 23's small sweep), dask.distributed imported: the 1.5 s of work left
+    after the first cell repays the cluster's start (its workers, forked between two cells, take
+    cells from the same queue); every cell runs once, in this process or the one worker."""
+    import dask.distributed  # noqa: F401 - imported, as in a process's second sweep
 
-    def no_cluster(*args, **kwargs):
-        raise AssertionError("a LocalCluster was started for 16 cells of 0.1 s")
-
-    monkeypatch.setattr(dask.distributed, "LocalCluster", no_cluster)
-    monkeypatch.setattr(sys.modules[__name__], "SLEEP_CELL", 0.1)
+    monkeypatch.setattr(sys.modules[__name__], "SLEEP_CELL", 0.1)  # set before the worker forks
     result = run_sweep(_sleep_cells(16), workers=2, progress=False, func=_sleeping_cell)
-    assert (result.ran, result.local, result.batches) == (16, 16, [])
-    assert {r["error"] for r in result.records} == {str(os.getpid())}
+    assert result.ran == 16 and result.failed == 0
+    pids = [int(r["error"]) for r in result.records]
+    assert pids[0] == os.getpid() and pids.count(os.getpid()) == result.local
+    assert result.batches and result.local + sum(result.batches) == 16  # the cluster started and took cells
+    assert len(set(pids) - {os.getpid()}) == 1
 
 
 @pytest.mark.slow

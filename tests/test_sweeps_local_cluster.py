@@ -87,6 +87,9 @@ def scripted(monkeypatch):
             _SCRIPT["clusters"].append(self)
             super().__init__(n_workers, then_taken, timeline, **options)
 
+        def wait_forked(self, timeout=None):
+            return False  # worker threads of this process: nothing forks (the script says when it is up)
+
     class FirstFill(runner._Dispatch):
         def fill(self):
             super().fill()
@@ -94,7 +97,7 @@ def scripted(monkeypatch):
 
     monkeypatch.setattr(runner, "BackgroundCluster", Recorded)
     monkeypatch.setattr(runner, "_Dispatch", FirstFill)
-    monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: local_cluster.ClusterCost(0.0, 0.0))
     monkeypatch.setattr(local_cluster, "start_local_cluster", _threads_in_process_cluster)
     _SCRIPT["go"].clear()
     _SCRIPT["taken"].clear()
@@ -198,7 +201,7 @@ def test_a_cluster_that_fails_to_start_is_one_error_and_the_cells_run_here_are_k
     def no_ports(n_workers):
         raise OSError("no free port on 127.0.0.1")
 
-    monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: local_cluster.ClusterCost(0.0, 0.0))
     monkeypatch.setattr(local_cluster, "start_local_cluster", no_ports)
     with pytest.raises(OSError, match="no free port"):
         run_sweep(_cells(200), workers=2, progress=False, func=_sleeping, store=tmp_path)
@@ -296,7 +299,7 @@ def test_the_own_cluster_gives_the_serial_records_and_leaves_nothing_on_success_
     """Real forked workers, the cluster worth starting after the first cell: the records equal the
     serial ones; after run_sweep returns — normally, with an error raised by the record callback
     (while the cluster starts, while it runs) or after Ctrl-C (idem) — no process or thread is left."""
-    monkeypatch.setattr(runner, "local_cluster_cost", lambda: 0.0)
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: local_cluster.ClusterCost(0.0, 0.0))
     before = ({p.pid for p in psutil.Process().children(recursive=True)}, set(threading.enumerate()))
     cells = _cells(12)
     serial = run_sweep(cells, workers=0, progress=False, func=_slow_cell).frame()
@@ -354,7 +357,46 @@ def test_start_local_cluster_refuses_a_worker_count_that_is_not_a_positive_integ
 def test_a_process_without_dask_counts_its_import_into_the_cluster_cost(monkeypatch):
     import dask.distributed  # noqa: F401 - imported: the cost is the start-up alone
 
-    assert local_cluster.local_cluster_cost() == local_cluster.LOCAL_START_SECONDS
+    start, cost, importing = (local_cluster.LOCAL_START_SECONDS, local_cluster.LOCAL_COST_SECONDS,
+                              local_cluster.DASK_IMPORT_SECONDS)
+    assert local_cluster.local_cluster_cost() == (start, cost)
     monkeypatch.delitem(sys.modules, "distributed")
-    assert local_cluster.local_cluster_cost() == local_cluster.LOCAL_START_SECONDS + local_cluster.DASK_IMPORT_SECONDS
+    assert local_cluster.local_cluster_cost() == (start + importing, cost + importing)
 
+
+
+#: When this process forked (time.perf_counter(), s), while :func:`_note_forks` is on.
+_FORKS = []
+
+
+def _note_forks():
+    """Record this process's forks in :data:`_FORKS` (an at-fork hook, registered once)."""
+    if not getattr(_note_forks, "on", False):
+        _note_forks.on = True
+        os.register_at_fork(after_in_parent=lambda: _FORKS.append(time.perf_counter()))
+
+
+def _timed(cell):
+    """:func:`_where` after 0.25 s, its start (time.perf_counter(), s) added to the error field."""
+    start = time.perf_counter()
+    time.sleep(0.25)
+    record = _where(cell)
+    record["error"] += f" {start}"
+    return record
+
+
+@pytest.mark.slow
+def test_the_workers_fork_before_the_next_cell_here_not_after_it(monkeypatch):
+    """Cells of 0.25 s, the cluster worth starting after the first: this process waits for its
+    worker to fork before its second cell (the fork does not wait in FORK_GATE for a whole cell),
+    and the sweep gives every cell once."""
+    _note_forks()
+    monkeypatch.setattr(runner, "local_cluster_cost", lambda: local_cluster.ClusterCost(0.0, 0.0))
+    monkeypatch.setattr(local_cluster, "FORK_LEAD_SECONDS", 120.0)  # a loaded machine's slow start waits too
+    _FORKS.clear()
+    result = run_sweep(_cells(8), workers=2, progress=False, func=_timed)
+    here = sorted(float(r["error"].split()[2]) for r in result.records if r["error"].split()[0] == str(os.getpid()))
+    assert result.ran == 8 and result.local + sum(result.batches) == 8 and result.batches
+    assert len(here) == result.local >= 2
+    assert _FORKS and min(_FORKS) < here[1]  # forked between the first and the second cell here
+    assert "forked" in result.timeline

@@ -33,20 +33,32 @@ import signal
 import sys
 import threading
 import time
+from typing import NamedTuple
 
 from ..errors import InvalidParameterError
 
 #: How a sweep's own local workers are started (multiprocessing): forked on Linux (the workers
 #: inherit this process's imports; on macOS fork is unsafe, on Windows absent), else spawned.
 START_METHOD = "fork" if sys.platform.startswith("linux") else "spawn"
-#: Cost of a sweep's own local cluster, s: its start-up and shutdown plus the workers' imports,
-#: with a margin for the last batches' imbalance. Measured on 2 cores at load average 6.5–7.6
-#: (two workers): forked 0.46–1.03 s start + 0.11–0.24 s close (0.04 CPU-s per worker); spawned
-#: 3.4–4.8 s start, 5–7.6 s of imports on the workers (1.7–2.2 CPU-s each) and 1.8–2.8 s close.
-#: A cluster is started only if the time its workers save repays it (:func:`cluster_pays`).
-LOCAL_START_SECONDS = 1.0 if START_METHOD == "fork" else 3.0
-#: Time to import ``dask.distributed`` in a process that has not yet, s (0.54–0.61 CPU-s measured,
-#: 2 cores): paid by the first sweep of a process that starts a cluster (:func:`local_cluster_cost`).
+#: Start of a sweep's own local cluster, s: from the decision to start it to its workers' first
+#: cell, while this process goes on running cells (so the workers take a share of the work left
+#: after it only). Measured forked on 2 cores, ``dask.distributed`` imported, this process running
+#: cells of 0.1 s meanwhile (``SweepResult.timeline``: "cluster start" to "first batches"): 0.19–0.32 s
+#: at idle, the fork waiting for the cell running (:data:`FORK_GATE`); 0.46–1.03 s at load average
+#: 6.5–7.6. Spawned: 3.4–4.8 s at that load, before the workers' imports.
+LOCAL_START_SECONDS = 0.5 if START_METHOD == "fork" else 3.0
+#: What a sweep's own local cluster costs beyond its start, s: time the streams lose on a machine
+#: with one core per stream — this process's cells slowed while the cluster's thread starts it
+#: (0.02–0.04 s), Dask's CPU in this process and the workers (scheduler, client, nanny,
+#: heartbeats: 0.02–0.2 CPU-s per sweep), the last batches' imbalance (0.04–0.11 s between this
+#: process's last cell and the cluster's) and the close (0.02 s); measured at idle on 2 cores,
+#: 16 cells of 0.1 s and 64 of 0.2 s (``benchmarks/bench_sweep.py``). Spawned workers import the
+#: package again (1.7–2.2 CPU-s each).
+LOCAL_COST_SECONDS = 0.25 if START_METHOD == "fork" else 3.0
+#: Time to import ``dask.distributed`` in a process that has not yet, s (0.26–0.3 CPU-s at idle,
+#: 0.54–0.61 at load, 2 cores): paid by the first sweep of a process that starts a cluster, in its
+#: start (the import comes first) and in its cost (the import holds the interpreter's lock the
+#: cells here need) (:func:`local_cluster_cost`).
 DASK_IMPORT_SECONDS = 0.6
 #: Dask settings of a sweep's own local cluster (:func:`start_local_cluster`): no statistical
 #: profiler sampling the running cell's stack every 10 ms (it feeds a dashboard nobody watches),
@@ -79,6 +91,8 @@ class ForkGate:
     def __init__(self):
         self._lock, self._turn, self._forks = threading.RLock(), threading.Condition(), 0
         self._held, self._installed = threading.local(), False
+        #: forks of this process since the gate was installed (:meth:`wait_forked`)
+        self.forked = 0
 
     def install(self) -> None:
         """Register the at-fork hooks (once per process; POSIX). The hooks registered last run
@@ -91,6 +105,11 @@ class ForkGate:
             self._installed = True
         os.register_at_fork(before=self._before_fork, after_in_parent=self._after_fork_in_parent,
                             after_in_child=self._after_fork_in_child)
+
+    def wait_forked(self, count: int, timeout: float) -> bool:
+        """Wait until :attr:`forked` ≥ ``count`` (at most ``timeout`` s); whether it is."""
+        with self._turn:
+            return self._turn.wait_for(lambda: self.forked >= count, timeout)
 
     def __enter__(self):
         with self._turn:
@@ -110,6 +129,7 @@ class ForkGate:
     def _after_fork_in_parent(self) -> None:
         with self._turn:
             self._forks -= 1
+            self.forked += 1
             self._turn.notify_all()
         if getattr(self._held, "value", False):
             self._lock.release()
@@ -125,20 +145,46 @@ class ForkGate:
 FORK_WAIT_SECONDS = 30.0
 #: The gate of this process (see :class:`ForkGate`), installed by the first :class:`BackgroundCluster`.
 FORK_GATE = ForkGate()
+#: Longest the thread running cells waits for its starting cluster's workers to be forked before
+#: its next cell, s (:meth:`BackgroundCluster.wait_forked`): at idle they fork 0.02–0.1 s after the
+#: start (``dask.distributed`` imported); a bound should the start stall.
+FORK_LEAD_SECONDS = 1.0
+#: How often :meth:`BackgroundCluster.wait_forked` checks that the start has not ended (failed), s.
+FORK_POLL_SECONDS = 0.01
 
 
-def cluster_pays(work_left: float, n_workers: int, cost: float | None = None) -> bool:
+class ClusterCost(NamedTuple):
+    """What a sweep's own local cluster costs (:func:`local_cluster_cost`, :func:`cluster_pays`).
+
+    Attributes:
+        start: s from the decision to start it to its workers' first cell (this process runs
+            cells meanwhile).
+        cost: s the streams lose to it beyond that (CPU of its start and of Dask, the last
+            batches' imbalance, its close).
+    """
+
+    start: float
+    cost: float
+
+
+def cluster_pays(work_left: float, n_workers: int, cost: ClusterCost | None = None) -> bool:
     """Whether running ``work_left`` seconds of serial work on ``n_workers`` (≥ 2) streams — this
-    process and a local cluster of ``n_workers`` − 1 workers started for it — saves time: the work
-    the cluster takes over, ``work_left · (1 − 1/n)``, must exceed the cluster's ``cost`` in s
-    (default :data:`LOCAL_START_SECONDS`)."""
-    return work_left * (1 - 1 / n_workers) > (LOCAL_START_SECONDS if cost is None else cost)
+    process and a local cluster of ``n_workers`` − 1 workers started for it — saves time.
+
+    This process runs cells while the cluster starts (``cost.start`` s); the work left after that
+    is shared by the ``n_workers`` streams, which saves ``(work_left − start) · (1 − 1/n)``: that
+    must exceed ``cost.cost``. Default cost: :data:`LOCAL_START_SECONDS`, :data:`LOCAL_COST_SECONDS`.
+    """
+    start, extra = (LOCAL_START_SECONDS, LOCAL_COST_SECONDS) if cost is None else cost
+    return (work_left - start) * (1 - 1 / n_workers) > extra
 
 
-def local_cluster_cost() -> float:
-    """What a sweep's own local cluster costs this process, s: :data:`LOCAL_START_SECONDS`, plus
-    :data:`DASK_IMPORT_SECONDS` while ``dask.distributed`` is not imported yet."""
-    return LOCAL_START_SECONDS + (0.0 if "distributed" in sys.modules else DASK_IMPORT_SECONDS)
+def local_cluster_cost() -> ClusterCost:
+    """What a sweep's own local cluster costs this process: :data:`LOCAL_START_SECONDS` and
+    :data:`LOCAL_COST_SECONDS`, each plus :data:`DASK_IMPORT_SECONDS` while ``dask.distributed``
+    is not imported yet."""
+    importing = 0.0 if "distributed" in sys.modules else DASK_IMPORT_SECONDS
+    return ClusterCost(LOCAL_START_SECONDS + importing, LOCAL_COST_SECONDS + importing)
 
 
 def start_local_cluster(n_workers: int):
@@ -179,7 +225,8 @@ class BackgroundCluster:
     Attributes:
         up: ``threading.Event`` set once ``on_up`` returned (or the start failed: :attr:`error`).
         value: what ``on_up`` returned. error: the exception the start or ``on_up`` raised, or None.
-        timeline: (event, ``time.perf_counter()`` s) pairs: ``"cluster start"``, ``"cluster up"``
+        timeline: (event, ``time.perf_counter()`` s) pairs: ``"cluster start"``, ``"forked"`` (the
+            workers, seen by :meth:`wait_forked`), ``"cluster up"``
             (workers running), ``"client up"``, ``"on_up done"``, ``"close begin"``, ``"closed"``.
     """
 
@@ -197,11 +244,33 @@ class BackgroundCluster:
         self.up, self.value, self.error = threading.Event(), None, None
         self.timeline = [] if timeline is None else timeline
         self._on_up, self._n_workers = on_up, n_workers
+        # the workers' forks: set once the thread's imports are done, with the gate's count to reach
+        self._importing, self._forking, self._forks_done = "distributed" not in sys.modules, threading.Event(), 0
         self._stop = threading.Event()
         if close_after_on_up:
             self._stop.set()
         self._thread = threading.Thread(target=self._run, name="sweep cluster", daemon=True)
         self._thread.start()
+
+    def wait_forked(self, timeout: float | None = None) -> bool:
+        """Wait until the cluster's workers are forked (at most ``timeout`` s; forked workers only):
+        called by the thread running cells right after the start, before its next cell, so that
+        the forks do not wait in :data:`FORK_GATE` for a whole cell (the workers start one cell
+        earlier, for the 0.02–0.1 s the start takes to its forks at idle). Returns at once while
+        ``dask.distributed`` is still being imported (the cells go on meanwhile; the forks then
+        wait in the gate). ``timeout`` (s): default :data:`FORK_LEAD_SECONDS`. Whether the workers
+        are forked; marks ``"forked"`` in the timeline."""
+        if START_METHOD != "fork" or (self._importing and not self._forking.is_set()):
+            return False
+        timeout = FORK_LEAD_SECONDS if timeout is None else timeout
+        deadline = time.perf_counter() + timeout
+        if not self._forking.wait(timeout):
+            return False
+        while not self.up.is_set() and (left := deadline - time.perf_counter()) > 0:
+            if FORK_GATE.wait_forked(self._forks_done, min(left, FORK_POLL_SECONDS)):
+                self._mark("forked")
+                return True
+        return False
 
     def stop(self) -> None:
         """Close the cluster in the background, once its start is over (returns at once)."""
@@ -235,6 +304,8 @@ class BackgroundCluster:
             from dask.distributed import Client
 
             FORK_GATE.install()
+            self._forks_done = FORK_GATE.forked + self._n_workers
+            self._forking.set()
             cluster = start_local_cluster(self._n_workers)
             self._mark("cluster up")
             client = Client(cluster)
@@ -244,6 +315,7 @@ class BackgroundCluster:
         except BaseException as exc:  # noqa: BLE001 - handed to the thread that waits for `up`
             self.error = exc
         finally:
+            self._forking.set()
             self.up.set()
             self._stop.wait()
             self._mark("close begin")

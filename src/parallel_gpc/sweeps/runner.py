@@ -15,20 +15,23 @@ Cells go to Dask in batches, one task per batch (:func:`run_cells`), sized as th
 a running cluster the first tasks are single cells; then a batch holds about
 :data:`BATCH_SECONDS` of work at the mean cell time measured so far, and never more than its
 share of the cells left (:data:`SHARES` per stream; :data:`IN_FLIGHT` batches queued per worker),
-so that the streams finish together. A cell of 0.1 s thus pays the scheduler's 5–25 ms per task
+so that the streams finish together; at the tail, when a share is one cell, one batch per worker
+is queued, not two (:func:`in_flight`). A cell of 0.1 s thus pays the scheduler's 5–25 ms per task
 once per ten cells, not once per cell. The records of a batch are journalled as it returns.
 
 A sweep on a local cluster of its own (:mod:`.local_cluster`) runs cells in this process from
 start to end, one at a time, and starts the cluster of n − 1 workers in the background once the
 work left (cells left × their mean time here) repays its cost
-(:func:`~.local_cluster.cluster_pays`, per the time the extra workers save). The moment it is up,
+(:func:`~.local_cluster.cluster_pays`: the work left once it is up, shared, saves more than it
+costs; 16 cells of 0.1 s do start it), and waits for its workers' forks before its next cell
+(they do not wait for a whole cell, :data:`~.local_cluster.FORK_GATE`). The moment it is up,
 its workers take batches from the same queue (a cell runs once, here or there), the first ones
 sized by the time per cell measured here (no single-cell tasks); this process journals their
 records between two of its cells. This process is one of the n streams because it is there
 anyway: a cluster of n workers would add a process, its fork, heartbeats and twice the Dask tasks
 (64 cells of 0.1 s on 2 cores: 0.41–0.58 CPU-s outside the cells instead of 0.24–0.37,
 ``benchmarks/bench_sweep.py --overhead``), CPU taken from the cells on a machine with one core per
-stream. A small sweep never starts the cluster: it is never slower than a serial one. The cluster
+stream. A sweep too small to repay it never starts the cluster: it runs as a serial one. The cluster
 is closed in the background as soon as its last batch returned (while this process may still run
 its last cell, and while the records and tables are assembled), and ``run_sweep`` returns once it
 is closed.
@@ -110,7 +113,8 @@ class SweepResult:
             cluster did not pay).
         batches: cells per Dask task, in the order submitted (empty: no cluster was used).
         timeline: when the phases of the run happened, s since ``run_sweep`` began, in order:
-            ``"cluster start"``, ``"cluster up"``, ``"client up"``, ``"first batches"``
+            ``"cluster start"``, ``"forked"`` (its workers, before this process's next cell),
+            ``"cluster up"``, ``"client up"``, ``"first batches"``
             (submitted), ``"local done"`` (this process ran its last cell), ``"on_up done"`` (the
             cluster's last batch returned), ``"last record"``, ``"close begin"``, ``"closed"``
             (a cluster of its own), ``"tables written"``, ``"done"``; the phases a run did not
@@ -272,9 +276,10 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
     :data:`~.local_cluster.FORK_GATE`); after each, if no cluster is starting and
     :func:`~.local_cluster.cluster_pays` says the work left (cells left × their mean time here)
     repays :func:`~.local_cluster.local_cluster_cost`, a :class:`~.local_cluster.BackgroundCluster`
-    of ``n_workers`` − 1 processes starts. The moment its client connects, its thread submits the
-    first batches from the same queue (under its lock: a cell runs once, here or there), sized by
-    the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
+    of ``n_workers`` − 1 processes starts, and this process waits for its workers' forks
+    (:meth:`~.local_cluster.BackgroundCluster.wait_forked`) before its next cell. The moment its
+    client connects, its thread submits the first batches from the same queue (under its lock: a
+    cell runs once, here or there), sized by the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
     the batches' records back as they return (``results``); this process keeps running cells,
     journals those records between two cells, and once the queue is empty waits for the batches
     still running. No cluster starts if the work never repays it (a small sweep runs all here, as
@@ -322,6 +327,7 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
                 # closed once its last batch returned: while this process may still run a cell
                 cluster = BackgroundCluster(n_workers - 1, on_up, timeline, close_after_on_up=True)
                 closing.callback(cluster.join)
+                cluster.wait_forked()  # the workers fork now, not once the next cell is over
         timeline.append(("local done", time.perf_counter()))
         if cluster is None or collector.result.interrupted:
             return
@@ -405,6 +411,24 @@ def batch_size(left: int, streams: int, per_cell: float | None) -> int:
     return max(1, min(share, int(BATCH_SECONDS / max(per_cell, 1e-6))))
 
 
+def in_flight(left: int, streams: int, n_workers: int) -> int:
+    """Batches a sweep keeps queued on a cluster (submitted, not returned).
+
+    Args:
+        left: cells not yet submitted. streams: as in :func:`batch_size`.
+        n_workers: the cluster's worker threads.
+
+    Returns:
+        :data:`IN_FLIGHT` per worker thread (one running, the next ready); one per worker thread
+        once the cells left are the last single-cell shares (``left`` ≤ :data:`SHARES` ·
+        ``streams``): a cell queued behind a running one would wait there while another stream
+        runs out of cells (64 cells of 0.2 s, this process and one worker: the worker's last
+        batch returned 0.25 s after this process's last cell, at idle), whereas the round trip of
+        a batch it waits for instead is 4–25 ms.
+    """
+    return (IN_FLIGHT if left > SHARES * streams else 1) * n_workers
+
+
 class _Dispatch:
     """Cells of a queue as Dask tasks of a few cells each (:func:`batch_size`), kept
     :data:`IN_FLIGHT` per worker thread, their records collected as they return."""
@@ -435,7 +459,7 @@ class _Dispatch:
 
     def fill(self) -> None:
         """Submit batches until :data:`IN_FLIGHT` per worker are queued or no cell is left."""
-        while not self.stopped and len(self.futures) < IN_FLIGHT * self.n_workers:
+        while not self.stopped and len(self.futures) < in_flight(len(self.queue), self.streams, self.n_workers):
             # the median over batches: a worker's first task (it may import the package) counts once
             per_cell = statistics.median(self.per_cell) if self.per_cell else None
             with self.lock:
