@@ -833,8 +833,8 @@ def test_a_reused_compiled_step_answers_as_a_fresh_one(form):
 def test_the_compiled_step_takes_the_steps_arrays_as_they_are(form):
     """What the controller hands the compiled step unchanged answers as the flattened arrays it was
     given before: one model per stage as (N, n, n) / (N, n, m) / (N, n) or as (N·n, n) / (N·n, m) /
-    (N·n,), another layout converted on the way in, c and u0 absent as zeros, the last set
-    shifted by the call (shift) as by shift_active_set, the plan, multipliers and set written into the
+    (N·n,), another layout converted on the way in, c and u0 absent as zeros, a kept set (keep)
+    shifted by a warm call as by shift_active_set, the plan, multipliers and set written into the
     caller's arrays: the same set, sweeps, plan, multipliers and J, bit for bit; the set's `active` and
     the bounds' `f_scale` as recomputed here. An array of another size is one clear error naming it
     and the shapes that are valid."""
@@ -865,13 +865,17 @@ def test_the_compiled_step_takes_the_steps_arrays_as_they_are(form):
                                                                                None, AS_MAX_ITER))
     X2 = X + np.concatenate([X[robot.n_y:] * TS, np.full(robot.n_y, 0.02)])
     warm = (A, B, c, X2, None, r)
-    same(step.solve(*warm, cold[3], AS_WARM_MAX_ITER, shift=True),
+    step.keep(cold[3], False)
+    same(step.solve(*warm, None, AS_WARM_MAX_ITER, warm=True),
          step.solve(*warm, shift_active_set(cold[3]), AS_WARM_MAX_ITER))
     for bad, name in [((A[:-1], B, c), "A"), ((A, B[..., :-1], c), "B"), ((A, B, c[:, :-1]), "c")]:
         with pytest.raises(ValueError, match=f"RiccatiActive.solve: {name} must be one model or one per stage.*got"):
             step.solve(*bad, X, None, r, None, AS_MAX_ITER)
-    with pytest.raises(ValueError, match="shift needs a start"):
-        step.solve(*warm, None, AS_WARM_MAX_ITER, shift=True)
+    with pytest.raises(ValueError, match="warm starts from the kept set"):
+        step.solve(*warm, cold[3], AS_WARM_MAX_ITER, warm=True)
+    step.keep(None, False)
+    with pytest.raises(ValueError, match="warm starts from the kept set"):
+        step.solve(*warm, None, AS_WARM_MAX_ITER, warm=True)
     outs = (np.full((H.Nu, m), np.nan), np.full(sw._template[0].f.shape, np.nan), np.full((H.Nu, m), -7, np.int64))
     got = step.solve(*flat, None, AS_MAX_ITER, None, False, *outs)  # written into the caller's arrays
     same(got, cold)

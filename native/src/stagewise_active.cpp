@@ -641,17 +641,62 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
 }
 
 
+// out ← a step's set (nd, m) shifted by one stage, the last stage repeated (shift_active_set without `before`)
+void shift_set(const Set &fixed, Set &out) {
+  const long nd = fixed.rows();
+  out.resize(nd, fixed.cols());
+  if (nd == 0) return;
+  out.topRows(nd - 1) = fixed.bottomRows(nd - 1);
+  out.row(nd - 1) = fixed.row(nd - 1);
+}
+
+// out (`fixed` shifted, shift_set) with every moved edge moved again: _extrapolate_edges of
+// solvers/stagewise_active.py, its twin (the reference; same runs, same order). was: the set of the step
+// before, shifted. A run: consecutive stages of one component where `fixed` differs from `was`, all one value r;
+// an edge when next on one side only to a stage holding r in both; moved again by the run's length in the same
+// direction over the stages (of the shifted frame) holding what lay beyond it.
+void extrapolate_edges(const Set &fixed, const Set &was, Set &out) {
+  const long nd = fixed.rows(), m = fixed.cols();
+  for (long j = 0; j < m; ++j)
+    for (long i = 0; i < nd;) {
+      if (fixed(i, j) == was(i, j)) {
+        ++i;
+        continue;
+      }
+      const long s = i;
+      const int64_t r = fixed(s, j);
+      long e = s;
+      while (e + 1 < nd && fixed(e + 1, j) != was(e + 1, j) && fixed(e + 1, j) == r) ++e;
+      i = e + 1;
+      const long length = e - s + 1;
+      const bool grew_later = s > 0 && fixed(s - 1, j) == r && was(s - 1, j) == r;
+      const bool grew_earlier = e + 1 < nd && fixed(e + 1, j) == r && was(e + 1, j) == r;
+      if (grew_later == grew_earlier) continue;  // no side or both: not an edge
+      if (grew_later) {  // the next stages after the run (at s − 1 … e − 1 once shifted)
+        if (e + 1 >= nd) continue;
+        const int64_t beyond = fixed(e + 1, j);
+        for (long t = e; t < std::min(e + length, nd) && out(t, j) == beyond; ++t) out(t, j) = r;
+      } else {
+        if (s == 0) continue;
+        const int64_t beyond = fixed(s - 1, j);
+        for (long t = s - 2; t > std::max(s - 2 - length, -1L) && out(t, j) == beyond; --t) out(t, j) = r;
+      }
+    }
+}
+
 // The controller's torque/Δu-limited problem of a form (0 absolute, 1 incremental, 2 delayed, 3 the
 // nonlinear form's deviation model) in one call per step: the stage models (stage_model.hpp) and the
 // criterion's linear terms built here from the step's (A_d, B_d, c_d, x0, u0, targets; form 3: A_i,
 // B_i along the pre-simulation, z0 = 0), the rows (Fz, comp, sign: the controller's StageQP template,
 // the same every step) kept from construction with their bounds f, which a step may replace (the
-// nonlinear form's move with the pre-simulated inputs), then solve_active_set and J.
+// nonlinear form's move with the pre-simulated inputs), then solve_active_set and J. It keeps the controller's
+// last set (keep) and starts a warm step from it (solve with warm): StagewiseSolver._next_start, _plain_after and
+// _keep_set of gpc/stagewise.py, compiled (the Python path's rule, its reference; moves_edges: EDGE_FORMS there).
 class RiccatiActive {
  public:
   RiccatiActive(const Mat &C, const Mat &Wy, const Mat &Wu, long N, long No, long Nu, int form, In3 Fz, In2 f,
-                InI comp, In2 sign)
-      : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form) {
+                InI comp, In2 sign, bool moves_edges)
+      : n(C.cols()), m(Wu.rows()), p(C.rows()), N(N), No(No), Nu(Nu), form(form), moves_edges_(moves_edges) {
     if (form < 0 || form > 3) throw std::invalid_argument("RiccatiActive: form must be 0..3");
     if (N < 1 || No < 0 || No >= N || Nu < 1 || Nu > N) throw std::invalid_argument("RiccatiActive: bad horizons");
     if (Wy.rows() != p || Wy.cols() != p || Wu.cols() != m) throw std::invalid_argument("RiccatiActive: weights");
@@ -713,11 +758,11 @@ class RiccatiActive {
   }
 
   // A (N·n or n, n), B (N·n or n, m), c (N·n or n entries), x0 (n), u0 (m) (forms 1, 2; none: zeros;
-  // form 3: neither read), r (N − No, p), start (Nu, m) or none (shift: the last step's set, shifted by
-  // one stage here: the last stage repeated), f (N, k) or none (the bounds kept) → the Outcome (v, z, λ,
-  // set; valid until the next solve) and J of the criterion (5)
+  // form 3: neither read), r (N − No, p), start (Nu, m) or none (warm: from the kept set, warm_start's; else
+  // cold), f (N, k) or none (the bounds kept) → the Outcome (v, z, λ, set; valid until the next solve) and J
+  // of the criterion (5)
   const Outcome &solve(const double *A, long nA, const double *B, long nB, const double *c, long nc,
-                       const double *x0, const double *u0, const double *r, const int64_t *start, bool shift,
+                       const double *x0, const double *u0, const double *r, const int64_t *start, bool warm,
                        int max_iter, const double *f, double &J) {
     if (f) set_bounds(f);
     if (nz == n) {  // Ā_i = A_i, B̄_i = B_i, c̄_i = c_i (absolute, Nu = N): read in place, no copy
@@ -741,20 +786,25 @@ class RiccatiActive {
     Eigen::Map<const RowMat> W(r, N - No, p);
     q_.bottomRows(N - No).noalias() = -W.lazyProduct(CQ2_.transpose());  // small: no blocked product
     Set &fixed = ws_.fixed;
-    if (start) {
-      const Eigen::Map<const Set> given(start, Nu, m);
-      if (shift) {  // v(i) starts on the rows of v(i + 1) (shift_active_set in solvers/stagewise_active.py)
-        fixed.resize(Nu, m);
-        fixed.topRows(Nu - 1) = given.bottomRows(Nu - 1);
-        fixed.row(Nu - 1) = given.row(Nu - 1);
-      } else {
-        fixed = given;
-      }
+    starts_ = 0;
+    const bool moved = warm && warm_start();  // the start is the moved edges' (else the plain shift)
+    if (warm) {
+      fixed = moved ? moved_ : plain_;
+      sanitize(qp_, fixed);
+    } else if (start) {
+      fixed = Eigen::Map<const Set>(start, Nu, m);
       sanitize(qp_, fixed);
     } else {
       fixed.setConstant(Nu, m, -1);
     }
-    const Outcome &out = solve_active_set(qp_, ws_, max_iter, start != nullptr);
+    const Outcome &out = solve_active_set(qp_, ws_, max_iter, start != nullptr || warm);
+    if (!out.ok && moved && moved_ != plain_) {  // _plain_after: a moved start that did not settle, the plain shift
+      const int swept = out.iterations;
+      fixed = plain_;
+      sanitize(qp_, fixed);
+      solve_active_set(qp_, ws_, max_iter, true);  // the same Outcome, written again
+      ws_.out.iterations += swept;
+    }
     active_ = out.fixed.size() > 0 && out.fixed.maxCoeff() >= 0;
     J = 0.0;
     for (long i = 0; i < Nu; ++i) {
@@ -769,6 +819,26 @@ class RiccatiActive {
     }
     return out;
   }
+
+  // keep `fixed` ((Nu, m) row-major, or none) as the next warm step's set, the last one as the set before (warm:
+  // a step after the last; else none), and whether the next warm step starts from the moved edges: when this
+  // step's set is at most half as far (components differing) from its moved start as from the plain shift
+  // (StagewiseSolver._keep_set, whose docstring says why)
+  void keep(const int64_t *fixed, bool warm) {
+    edges_ = false;
+    if (fixed && warm && starts_ == 2) {
+      const Eigen::Map<const Set> set(fixed, Nu, m);
+      const long off_moved = long((moved_.array() != set.array()).count());
+      const long off_plain = long((plain_.array() != set.array()).count());
+      edges_ = off_plain > 0 && 2 * off_moved <= off_plain;
+    }
+    has_before_ = warm && has_kept_;
+    if (has_before_) before_.swap(kept_);
+    has_kept_ = fixed != nullptr;
+    if (has_kept_) kept_ = Eigen::Map<const Set>(fixed, Nu, m);
+    starts_ = 0;
+  }
+  bool has_kept() const { return has_kept_; }
 
   long n, m, p, N, No, Nu, nz;
   int form;
@@ -804,6 +874,25 @@ class RiccatiActive {
   Workspace ws_;
   Vec wu_, y_, wy_;  // J's terms
   bool active_ = false;
+  // the warm start (keep, warm_start): the kept set and the one before, whether the next warm step starts from the
+  // moved edges, this step's starts (the plain shift, the moved edges', the set before shifted) and which were made
+  // (0 none, 1 the plain shift, 2 both)
+  bool moves_edges_, has_kept_ = false, has_before_ = false, edges_ = false;
+  Set kept_, before_, plain_, moved_, was_;
+  int starts_ = 0;
+
+  // this warm step's starts from the kept set (StagewiseSolver._next_start): the plain shift, and with moves_edges
+  // and a set before, the moved edges' (shift_active_set with `before`); true when the moved one starts
+  bool warm_start() {
+    shift_set(kept_, plain_);
+    starts_ = 1;
+    if (!moves_edges_ || !has_before_) return false;
+    shift_set(before_, was_);
+    moved_ = plain_;
+    extrapolate_edges(kept_, was_, moved_);
+    starts_ = 2;
+    return edges_;
+  }
 };
 
 // (v (nd, m), z (N + 1, nz), λ, set, iterations, ok, residual, message) of an Outcome, as numpy
@@ -843,15 +932,32 @@ void bind_stagewise_active(nb::module_ &m) {
       "(see that module); comp and sign: its InputRowMap; start (n_decide, m) int64 or None; max_iter: its "
       "AS_MAX_ITER (cold) or AS_WARM_MAX_ITER (from a start)");
 
+  m.def(
+      "shift_active_set",
+      [](InI fixed, std::optional<InI> before) {
+        const Eigen::Map<const Set> set(fixed.data(), long(fixed.shape(0)), long(fixed.shape(1)));
+        Set out;
+        shift_set(set, out);
+        if (before && long(before->shape(0)) == set.rows() && long(before->shape(1)) == set.cols() && set.rows()) {
+          Set was;
+          shift_set(Eigen::Map<const Set>(before->data(), set.rows(), set.cols()), was);
+          extrapolate_edges(set, was, out);
+        }
+        return out;
+      },
+      nb::arg("fixed"), nb::arg("before").none() = nb::none(),
+      "solvers.stagewise_active.shift_active_set compiled (the set the compiled limited step starts from, "
+      "RiccatiActive.solve with warm): fixed, before (n_decide, m) int64");
+
   nb::class_<RiccatiActive>(m, "RiccatiActive",
                             "the torque/Δu-limited problem of a linear form, one call per step (see gpc/stagewise.py)")
-      .def(nb::init<const Mat &, const Mat &, const Mat &, long, long, long, int, In3, In2, InI, In2>(), nb::arg("C"),
-           nb::arg("Wy"), nb::arg("Wu"), nb::arg("N"), nb::arg("No"), nb::arg("Nu"), nb::arg("form"), nb::arg("Fz"),
-           nb::arg("f"), nb::arg("comp"), nb::arg("sign"))
+      .def(nb::init<const Mat &, const Mat &, const Mat &, long, long, long, int, In3, In2, InI, In2, bool>(),
+           nb::arg("C"), nb::arg("Wy"), nb::arg("Wu"), nb::arg("N"), nb::arg("No"), nb::arg("Nu"), nb::arg("form"),
+           nb::arg("Fz"), nb::arg("f"), nb::arg("comp"), nb::arg("sign"), nb::arg("moves_edges") = false)
       .def(
           "solve",
           [](RiccatiActive &self, Floats A, Floats B, std::optional<Floats> c, In1 x0, std::optional<In1> u0, In2 r,
-             std::optional<InI> start, int max_iter, std::optional<In2> f, bool shift, std::optional<Out2> v_out,
+             std::optional<InI> start, int max_iter, std::optional<In2> f, bool warm, std::optional<Out2> v_out,
              std::optional<Out2> lam_out, std::optional<OutI> set_out) {
             // the step's arrays read in place (nanobind converts another dtype or layout on the way in)
             const long m = self.m;
@@ -864,7 +970,8 @@ void bind_stagewise_active(nb::module_ &m) {
                                           std::to_string(self.N - self.No) + ", " + std::to_string(self.p) + ")");
             if (start && (long(start->shape(0)) != self.Nu || long(start->shape(1)) != m))
               throw std::invalid_argument("RiccatiActive.solve: the start must be (Nu, m)");
-            if (shift && !start) throw std::invalid_argument("RiccatiActive.solve: shift needs a start (the last set)");
+            if (warm && (start || !self.has_kept()))
+              throw std::invalid_argument("RiccatiActive.solve: warm starts from the kept set (keep), without a start");
             if (max_iter < 1) throw std::invalid_argument("RiccatiActive.solve: max_iter must be ≥ 1");
             if (f && (long(f->shape(0)) != self.N || long(f->shape(1)) != self.k()))
               throw std::invalid_argument("RiccatiActive.solve: the bounds f must be (N, k) as at construction");
@@ -879,7 +986,7 @@ void bind_stagewise_active(nb::module_ &m) {
                                           std::to_string(self.k()) + ")");
             double J = 0.0;
             const Outcome &res = self.solve(A.data(), nA, B.data(), nB, nc ? c->data() : nullptr, nc, x0.data(),
-                                           u0 ? u0->data() : nullptr, r.data(), start ? start->data() : nullptr, shift,
+                                           u0 ? u0->data() : nullptr, r.data(), start ? start->data() : nullptr, warm,
                                            max_iter, f ? f->data() : nullptr, J);
             if (outs) {  // written into the caller's arrays, which are returned (no new array to hand over)
               Eigen::Map<RowMat> v(v_out->data(), self.Nu, m);
@@ -893,15 +1000,28 @@ void bind_stagewise_active(nb::module_ &m) {
             return nb::make_tuple(vout, J, res.lam, res.fixed, res.iterations, res.ok, res.residual, res.message);
           },
           nb::arg("A"), nb::arg("B"), nb::arg("c").none(), nb::arg("x0"), nb::arg("u0").none(), nb::arg("r"),
-          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(), nb::arg("shift") = false,
+          nb::arg("start") = nb::none(), nb::arg("max_iter") = 30, nb::arg("f") = nb::none(), nb::arg("warm") = false,
           nb::arg("v_out") = nb::none(), nb::arg("lam_out") = nb::none(), nb::arg("set_out") = nb::none(),
           "(v (Nu, m), J, λ (N, k), set (Nu, m), iterations, ok, residual, message): the active set of "
           "solvers/stagewise_active.py on the step's stage models; A, B, c: one model or one per stage, "
-          "(N, n, n) or (N·n, n) etc., read in place; start: the previous set shifted (shift: the previous set, "
-          "shifted here), or None; "
+          "(N, n, n) or (N·n, n) etc., read in place; start: a set to start from as it is, or None (warm: the kept "
+          "set's warm start, see keep; else cold); "
           "f: this step's bounds (N, k) of the rows (the used ones stay the construction's), or None: the last; "
           "v_out, lam_out, set_out (float64, float64, int64): arrays to write v, λ and the set into (returned; "
           "cheaper than new ones), or None")
+      .def(
+          "keep",
+          [](RiccatiActive &self, std::optional<InI> fixed, bool warm) {
+            if (fixed && (long(fixed->shape(0)) != self.Nu || long(fixed->shape(1)) != self.m))
+              throw std::invalid_argument("RiccatiActive.keep: the set must be (Nu, m)");
+            self.keep(fixed ? fixed->data() : nullptr, warm);
+          },
+          nb::arg("fixed").none(), nb::arg("warm"),
+          "keep a step's set (Nu, m) int64, or None, for the next warm solve (StagewiseSolver._keep_set): the last "
+          "kept one becomes the set before (warm: a step after it; else none), and the next warm solve starts from "
+          "the moved edges (moves_edges) when this step's set is at most half as far from them as from the plain "
+          "shift; warm=True solves start from the plain shift or the moved edges, then the plain shift when the "
+          "moved start does not settle (iterations added)")
       .def_prop_ro("active", &RiccatiActive::active, "a row of the last solve's set binds")
       .def_prop_ro("f_scale", &RiccatiActive::f_scale,
                    "the largest bound of the used rows (the last bounds given), at least 1e-12: the scale of the "

@@ -325,7 +325,8 @@ class StagewiseSolver:
 
     def _next_start(self) -> np.ndarray | None:
         """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, Nu ≥
-        :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again."""
+        :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again
+        (the Python path's; the compiled step's own start is this rule compiled, :meth:`_keep_set`)."""
         plain, moved = shift_active_set(self._fixed), None
         if self._moves_edges and self._before is not None:
             moved = shift_active_set(self._fixed, self._before)
@@ -348,7 +349,16 @@ class StagewiseSolver:
         moved edges: when this step's set is at most half as far (components differing) from its moved
         start as from the plain shift (an edge moving steadily; not one that turns back or moves every
         other step, nor sets changing all along the horizon: planar_4rrr, nonlinear, N = 160, moved
-        4 and 8 components off where the plain shift was 7, a moved start that then failed to settle)."""
+        4 and 8 components off where the plain shift was 7, a moved start that then failed to settle).
+
+        With the compiled step (``_native.RiccatiActive``) the compiled step keeps the set and decides
+        the next start (``keep``, this rule compiled: its warm solves start from there and fall back to
+        the plain shift, :meth:`_plain_after`'s; the ~20 µs of Python per step that these rules cost
+        here, half of the glue of a limited step: planar_4rrr, incremental, N = 80)."""
+        if self._step is not None:
+            self._step.keep(None if fixed is None else np.ascontiguousarray(fixed, np.int64), warm)
+            self._before, self._fixed, self._starts, self._edges = (self._fixed if warm else None), fixed, None, False
+            return
         plain, moved = self._starts if warm and self._starts is not None else (None, None)
         if fixed is not None and moved is not None:
             off_moved, off_plain = np.count_nonzero(moved != fixed), np.count_nonzero(plain != fixed)
@@ -440,29 +450,21 @@ class StagewiseSolver:
         interior point; the last solution, kept for its warm start, is left in place).
 
         The step's arrays go to the compiled call as they are (it reads any C-contiguous float64 array
-        of the right size in place; others are converted on the way in), a warm start's set is shifted
-        there, and it writes the plan, multipliers and set into arrays made here (cheaper than the ones
-        it would hand over): nothing else is built here but the result."""
+        of the right size in place; others are converted on the way in), a warm start is chosen there
+        from the set it keeps (:meth:`_next_start` and :meth:`_plain_after`, compiled), and it writes the
+        plan, multipliers and set into arrays made here (cheaper than the ones it would hand over):
+        nothing else is built here but the result."""
         A, B, c, x0, u0 = step
-        if start is not None:  # a set of this control step (its last Gauss–Newton step's), not shifted
-            shift, cap = False, AS_WARM_MAX_ITER
-        elif not warm or self._fixed is None:
-            start, shift, cap = None, False, AS_MAX_ITER
-        elif self._moves_edges:  # the start is chosen here (the moved edges or the plain shift)
-            start, shift, cap = self._next_start(), False, AS_WARM_MAX_ITER
-        else:
-            start, shift, cap = self._fixed, True, AS_WARM_MAX_ITER
+        # from a set of this control step (its last Gauss–Newton step's) as it is, cold, or warm: the compiled
+        # step's start from the set it keeps (:meth:`_keep_set`; :meth:`_next_start` and :meth:`_plain_after`)
+        from_kept = start is None and warm and self._fixed is not None
+        cap = AS_MAX_ITER if start is None and not from_kept else AS_WARM_MAX_ITER
         self.excess = np.inf
         (Nu, m), k = self._out_shape
         v, lam, fixed = np.empty((Nu, m)), np.empty((self.horizons.N, k)), np.empty((Nu, m), np.int64)
         try:
-            _, J, _, _, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f, shift, v,
-                                                                             lam, fixed)
-            plain = None if ok else self._plain_after(start)
-            if plain is not None:  # the moved edges' start did not settle: the plain shift's next
-                _, J, _, _, more, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, plain, cap, f, False, v,
-                                                                           lam, fixed)
-                iterations += more
+            _, J, _, _, iterations, ok, residual, message = self._step.solve(A, B, c, x0, u0, r, start, cap, f,
+                                                                             from_kept, v, lam, fixed)
         except RuntimeError as exc:
             self._last = None
             self._keep_set(None, False)
@@ -530,13 +532,12 @@ class StagewiseSolver:
                 if rows is not None and self._compiled_step is not None and self._compiled_active is not None:
                     self._step = self._compiled_step(
                         self.C, self.Wy, self.Wu, H.N, H.No, H.Nu, FORM_CODES[self.form], qp.Fz, qp.f,
-                        np.ascontiguousarray(rows.comp, np.int64), rows.sign)
+                        np.ascontiguousarray(rows.comp, np.int64), rows.sign, self._moves_edges)
                     self._out_shape = ((H.Nu, self.Wu.shape[0]), qp.f.shape[1])  # v and the set, λ's columns
                     result = self._solve_step(step, r, warm, t0, None if self.form != "nonlinear" else qp.f, start)
                     if result is not None:
                         return result, None
         rows = self._input_rows(qp)
-        fixed_start = start if start is not None else self._next_start() if warm and rows is not None else None
         last, self._last = self._last if warm else None, None
         kept = None  # the next step's set
         try:
@@ -545,6 +546,7 @@ class StagewiseSolver:
                 self.method, fell_back, self.iterations = "interior-point after active set", *self._unsettled
                 self._unsettled = None
             elif rows is not None:
+                fixed_start = start if start is not None else self._next_start() if warm else None
                 sol = self._active(qp, rows, fixed_start)
                 plain = None if sol.status == "optimal" else self._plain_after(fixed_start)
                 if plain is not None:  # the moved edges' start did not settle: the plain shift's next
