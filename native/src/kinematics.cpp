@@ -47,6 +47,7 @@ Eigen::Matrix3d hlog3(const Eigen::Matrix3d &R, const Eigen::Vector3d &w) {
 Kinematics::Kinematics(pinocchio::Model model_, const RobotConfig &cfg_)
     : model(std::move(model_)), data(model), data_u(model), cfg(cfg_) {
   flat = model.nq == model.nv;
+  mimic = model.nvExtended != model.nv;
   task = cfg.task_frame >= 0;
   task_rotation = false;
   for (long r : cfg.task_rows) task_rotation |= r >= 3;
@@ -93,6 +94,29 @@ void Kinematics::eval(const Vec &q) {
   eval_placed();
 }
 
+void Kinematics::closure_rows() {
+  // stage15 (issue 25): row r % 6 of frame a's LOCAL_WORLD_ALIGNED Jacobian minus frame b's, straight from
+  // the world joint Jacobian over each frame's supporting columns: getFrameJacobian's arithmetic
+  // (v − p × ω, ω) and the same difference (0 + a − b), without the two 6 × nv matrices per closure
+  jac_.topRows(n_c).setZero();
+  for (long i = 0; i < n_c; ++i) {
+    const long r = cfg.jac_rows[i], k = r / 6, comp = r % 6;
+    for (int side = 0; side < 2; ++side) {
+      const long f = cfg.closure_frames[k][side];
+      const Eigen::Vector3d p = data.oMf[f].translation();
+      const auto &joint = model.joints[model.frames[f].parentJoint];
+      for (Eigen::Index j = joint.idx_v() + joint.nv() - 1; j >= 0; j = data.parents_fromRow[j]) {
+        const auto col = data.J.col(j);
+        const double e = comp < 3 ? col[comp] - p.cross(Eigen::Vector3d(col.tail<3>()))[comp] : col[comp];
+        if (side == 0)
+          jac_(i, j) += e;
+        else
+          jac_(i, j) -= e;
+      }
+    }
+  }
+}
+
 void Kinematics::eval_placed() {
   place_frames();
   long row = 0;
@@ -106,14 +130,20 @@ void Kinematics::eval_placed() {
       res_.segment<3>(row) = (oMa.rotation() * pinocchio::log3(Rab)) * -1.0;
       row += 3;
     }
-    Ja_[k].setZero();
-    Jb_[k].setZero();
-    pinocchio::getFrameJacobian(model, data, cfg.closure_frames[k][0], LWA, Ja_[k]);
-    pinocchio::getFrameJacobian(model, data, cfg.closure_frames[k][1], LWA, Jb_[k]);
+    if (mimic) {
+      Ja_[k].setZero();
+      Jb_[k].setZero();
+      pinocchio::getFrameJacobian(model, data, cfg.closure_frames[k][0], LWA, Ja_[k]);
+      pinocchio::getFrameJacobian(model, data, cfg.closure_frames[k][1], LWA, Jb_[k]);
+    }
   }
-  for (long i = 0; i < n_c; ++i) {
-    const long r = cfg.jac_rows[i];
-    jac_.row(i) = Ja_[r / 6].row(r % 6) - Jb_[r / 6].row(r % 6);
+  if (mimic) {
+    for (long i = 0; i < n_c; ++i) {
+      const long r = cfg.jac_rows[i];
+      jac_.row(i) = Ja_[r / 6].row(r % 6) - Jb_[r / 6].row(r % 6);
+    }
+  } else {
+    closure_rows();
   }
   if (!task) return;
   const auto &oMf = data.oMf[cfg.task_frame];
