@@ -97,24 +97,33 @@ void Kinematics::eval(const Vec &q) {
 void Kinematics::closure_rows() {
   // stage15 (issue 25): row r % 6 of frame a's LOCAL_WORLD_ALIGNED Jacobian minus frame b's, straight from
   // the world joint Jacobian over each frame's supporting columns: getFrameJacobian's arithmetic
-  // (v − p × ω, ω) and the same difference (0 + a − b), without the two 6 × nv matrices per closure
+  // (v − p × ω, ω) and the same difference (0 + a − b), without the two 6 × nv matrices per closure; each
+  // translated column once for all the closure's rows (jac_rows lists a closure's rows together, in order)
   jac_.topRows(n_c).setZero();
-  for (long i = 0; i < n_c; ++i) {
-    const long r = cfg.jac_rows[i], k = r / 6, comp = r % 6;
+  long begin = 0;
+  for (size_t k = 0; k < cfg.closure_frames.size(); ++k) {
+    long end = begin;
+    while (end < n_c && cfg.jac_rows[end] / 6 == static_cast<long>(k)) ++end;
     for (int side = 0; side < 2; ++side) {
       const long f = cfg.closure_frames[k][side];
       const Eigen::Vector3d p = data.oMf[f].translation();
       const auto &joint = model.joints[model.frames[f].parentJoint];
       for (Eigen::Index j = joint.idx_v() + joint.nv() - 1; j >= 0; j = data.parents_fromRow[j]) {
         const auto col = data.J.col(j);
-        const double e = comp < 3 ? col[comp] - p.cross(Eigen::Vector3d(col.tail<3>()))[comp] : col[comp];
-        if (side == 0)
-          jac_(i, j) += e;
-        else
-          jac_(i, j) -= e;
+        Vec6 e;
+        e.tail<3>() = col.tail<3>();
+        e.head<3>() = col.head<3>() - p.cross(Eigen::Vector3d(e.tail<3>()));
+        for (long i = begin; i < end; ++i) {
+          if (side == 0)
+            jac_(i, j) += e[cfg.jac_rows[i] % 6];
+          else
+            jac_(i, j) -= e[cfg.jac_rows[i] % 6];
+        }
       }
     }
+    begin = end;
   }
+  if (begin != n_c) throw std::logic_error("Kinematics: the kept closure rows are not grouped by closure");
 }
 
 void Kinematics::eval_placed() {
