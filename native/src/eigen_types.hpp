@@ -14,6 +14,7 @@ using Index = Eigen::Index;
 using RowMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;  // a NumPy C-order matrix
 using Mat3x = Eigen::Matrix<double, 3, Eigen::Dynamic>;  // three rows of a frame Jacobian (linear or angular)
 using Mat6x = Eigen::Matrix<double, 6, Eigen::Dynamic>;  // a frame Jacobian, (6, nv)
+using Vec6 = Eigen::Matrix<double, 6, 1>;  // a spatial motion [linear; angular] (a frame Jacobian's column)
 
 // C-contiguous float64 NumPy arrays on the CPU: read-only inputs of D dimensions, writable outputs
 template <int D>

@@ -78,12 +78,14 @@ class Kinematics {
   pinocchio::Data data, data_u;
   const RobotConfig &cfg;
   bool flat, task, task_rotation;
+  bool mimic = false;  // stage15: a mimic joint (nvExtended > nv): the closure rows from getFrameJacobian
   long n_c = 0, rows = 0;  // closure rows, assembly rows (closures + task outputs)
   Vec res_;
   Mat jac_;
 
  private:
   void place_frames();  // data.oMf of the closure and output frames (from data.oMi)
+  void closure_rows();  // stage15: the closure rows of jac_ from data.J and data.oMf (no mimic joint)
   void frame_rate(long frame, const Vec &v, Eigen::Matrix<double, 6, Eigen::Dynamic> &dJ);
   std::vector<long> frames_;                 // closure frames, then the output frame
   std::vector<std::vector<long>> uni_cols_;  // per frame id: v columns of universal joints moving it
