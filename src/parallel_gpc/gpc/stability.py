@@ -17,8 +17,8 @@ controller's no-drive-fighting rule, without a Δu limit): the u block enters th
 P = I − NᵀN onto the complement of null(B_d) (N :func:`~parallel_gpc.gpc.redundancy.null_basis`),
 so inputs that move nothing give poles at 0, not 1.
 
-What it shows: with Qu = 0 (the paper's tracking setting) every form is the dead-beat law
-(DESIGN §4), which inverts the sampled plant. A robot's ZOH model at rest is a double integrator
+What it shows: with Qu = 0 (the paper's tracking setting) every form is the same dead-beat law
+(docs/controller.md), which inverts the sampled plant. A robot's ZOH model at rest is a double integrator
 per output, whose zero at z = −1 the dead-beat law cancels: a pole on the unit circle at −1, an
 undamped oscillation at the Nyquist frequency 1/(2 Ts) in the inputs and velocities that the
 sampled outputs do not show (measured on a prismatic two-drive robot: the delayed form's drive
