@@ -3,9 +3,12 @@
 
 ``python benchmarks/bench_rollout.py record OUT.pkl [--steps 12]``
     Runs bench_nmpc's planar case (planar_4rrr, S-curve, Ts = 2 ms, N = 20, converged GPC nonlinear) for
-    ``--steps`` closed-loop samples and records every ``ReducedModel.simulate_factorized`` call it makes
-    (X0, u (N, m), Ts, offset) in order: per control step the pre-simulation of the shifted plan, then
-    the line-search trials (rollouts of the plan moved by a Gauss–Newton step).
+    ``--steps`` closed-loop samples and records the rollouts the iterations make through the model
+    (X0, u (N, m), Ts, offset) in order: the line-search trials (rollouts of the plan moved by a
+    Gauss–Newton step), by ``ReducedModel.simulate_linearized`` (the rollout fused with its stage
+    Jacobians) or ``simulate_factorized`` (a trial rolled out alone). The paper step's pre-simulation of
+    the shifted plan is not among them: the Riccati path makes it inside one compiled call
+    (``_native.riccati_presimulated``), which the replay repeats only through its effect on the warm starts.
 
 ``python benchmarks/bench_rollout.py replay IN.pkl N``
     Replays the first N recorded calls on a fresh model: the same warm-start history as the closed
@@ -37,7 +40,7 @@ WARM_RADIUS = 1e-4  # ModelUpdate::simulate's (and the Python twin's) warm-start
 
 
 def record(out: str, steps: int) -> None:
-    """Record the simulate_factorized calls of ``steps`` samples of bench_nmpc's planar case."""
+    """Record the iterations' rollouts of ``steps`` samples of bench_nmpc's planar case."""
     sys.path.insert(0, str(HERE))
     import bench_nmpc as bench
     from parallel_gpc import ParallelRobot, ReducedModel
@@ -47,13 +50,15 @@ def record(out: str, steps: int) -> None:
     Ts, N, torque = 0.002, 20, 15.0  # bench_nmpc's planar case
     model = ReducedModel(robot)
     calls, marks = [], []
-    simulate = model.simulate_factorized
 
-    def recorded(X0, u_seq, Ts_, offset=None):
-        calls.append((np.array(X0), np.array(u_seq), Ts_, None if offset is None else np.array(offset)))
-        return simulate(X0, u_seq, Ts_, offset)
+    def recording(method):
+        def recorded(X0, u_seq, Ts_, offset=None, **kwargs):
+            calls.append((np.array(X0), np.array(u_seq), Ts_, None if offset is None else np.array(offset)))
+            return method(X0, u_seq, Ts_, offset, **kwargs)
+        return recorded
 
-    model.simulate_factorized = recorded
+    model.simulate_factorized = recording(model.simulate_factorized)
+    model.simulate_linearized = recording(model.simulate_linearized)
     step = bench.gpc_method(model, Ts, N, torque, 50)
 
     def marked(X, w):
@@ -61,6 +66,9 @@ def record(out: str, steps: int) -> None:
         return step(X, w)
 
     bench.closed_loop(robot, reference_for("s-curve", robot, 1.0), steps * Ts, Ts, N, torque, marked)
+    if not calls:
+        raise SystemExit(f"no rollout recorded in {steps} steps: the NMPC no longer calls simulate_factorized or "
+                         "simulate_linearized on the model")
     with open(out, "wb") as f:
         pickle.dump({"calls": calls, "step_starts": marks}, f)
     print(f"{len(calls)} rollouts in {steps} steps (first call of each step: {marks})")
@@ -93,8 +101,8 @@ def distances(path: str) -> None:
         if prev is not None:
             d = np.array([min(np.linalg.norm(Y[i] - prev[j]) for j in (i, i + 1) if j < len(prev))
                           for i in range(len(Y))])
-            kind = "pre-simulation" if k in starts else "trial"
-            print(f"call {k:3d} {kind:15s} within {WARM_RADIUS:g}: {int(np.sum(d < WARM_RADIUS)):2d}/{len(d)}  "
+            kind = "step's 1st trial" if k in starts else "later trial"  # its warm starts: the last step's / trial's
+            print(f"call {k:3d} {kind:16s} within {WARM_RADIUS:g}: {int(np.sum(d < WARM_RADIUS)):2d}/{len(d)}  "
                   f"|Δy| median {np.median(d):.2e} max {d.max():.2e}")
         prev = Y
 

@@ -9,8 +9,7 @@ can count them alone (``methodcaller_call`` has a symbol in libpython; the compi
         --toggle-collect=methodcaller_call python benchmarks/callgrind_rollout.py planar_4rrr
 
 "Collected" is the instructions of both calls (divide by 2 for one rollout, by 40 for one stage). Arguments: the
-robot (a bundled name, default planar_4rrr). ``bench_rollout.py record`` no longer sees the NMPC's rollouts
-(they go through ``simulate_linearized``, the rollout fused with the stage Jacobians).
+robot (a bundled name, default planar_4rrr). ``bench_rollout.py`` replays the NMPC's own recorded trials instead.
 """
 
 from __future__ import annotations
