@@ -130,3 +130,14 @@ def test_track_notes_the_undamped_pole_of_the_dead_beat_law(tmp_path, capsys, qu
         assert lines[0].startswith("note (absolute, incremental-delayed): ") and "z = -1.0000" in lines[0]
     pole = load_result(tmp_path / "track_incremental-delayed.npz").meta["closed_loop_pole"]
     assert (abs(complex(*pole) + 1.0) <= 1e-6) == noted and (abs(complex(*pole)) < 0.9) != noted
+
+
+def test_the_tracking_study_analyzes_the_poles_only_when_asked(robot4):
+    """Sweep cells and comparisons run the study without ``poles``: no analysis, no meta field."""
+    from parallel_gpc.studies import TrackingSettings, run_tracking
+
+    settings = TrackingSettings.from_flat(robot="planar_4rrr", reference="hold", duration=0.01, N=5, Qu=0.0)
+    plain = run_tracking(settings, ("incremental",), progress=False, robot=robot4)["incremental"]
+    asked = run_tracking(settings, ("incremental",), progress=False, robot=robot4, poles=True)["incremental"]
+    assert "closed_loop_pole" not in plain.meta
+    assert abs(complex(*asked.meta["closed_loop_pole"]) + 1.0) <= 1e-6  # Qu = 0: the dead-beat law's z = −1

@@ -105,7 +105,7 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     out = prepare_out_dir(out)
     check_view_outputs(args)
     robot = ParallelRobot.load(settings.robot)
-    results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot)
+    results = run_tracking(settings, forms, progress=not args.no_progress, robot=robot, poles=True)
     H, W = settings.horizons, settings.weights
     print(f"{title}: robot {robot.name}, Ts = {1e3 * settings.Ts:g} ms, N = {H.N}, No = {H.No}, "
           f"Nu = {H.Nu}, Qy = {W.Qy:g}, Qu = {W.Qu:g}, "

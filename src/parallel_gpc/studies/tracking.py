@@ -309,15 +309,16 @@ def run_limits(robot: ParallelRobot, source: str = "robot", base: Limits | None 
 
 
 def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), progress: bool = True,
-                 robot: ParallelRobot | None = None) -> dict[str, SimulationResult]:
+                 robot: ParallelRobot | None = None, poles: bool = False) -> dict[str, SimulationResult]:
     """Run each GPC form on the reference with the plant of ``settings``; returns results by form.
 
     A form whose closed loop diverges keeps its samples up to there (``result.diverged``) and the
     next form runs (each form is an independent run); Ctrl-C keeps the forms finished so far and
-    the samples of the current one, and stops. The linear forms' results carry
-    ``meta["closed_loop_pole"]``: [Re, Im] of the dominant pole of their unconstrained closed loop
-    on the controller's model at the start (:func:`~parallel_gpc.gpc.stability.closed_loop_poles`;
-    |z| ≥ 1: not asymptotically stable, e.g. the dead-beat law's z = −1 at Qu = 0).
+    the samples of the current one, and stops. With ``poles`` (the ``track`` command's note), the
+    linear forms' results carry ``meta["closed_loop_pole"]``: [Re, Im] of the dominant pole of their
+    unconstrained closed loop on the controller's model at the start
+    (:func:`~parallel_gpc.gpc.stability.closed_loop_poles`; |z| ≥ 1: not asymptotically stable, e.g.
+    the dead-beat law's z = −1 at Qu = 0; ≈ 1–1.5 ms per form, left out of sweep cells).
 
     Raises:
         InvalidParameterError: an unknown form, or settings a form refuses (a du limit with the
@@ -347,7 +348,7 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
     machine = settings.sensors != "full" or settings.plant != "own"
     sensors = check_machine(settings) if machine else None
     X_start = np.concatenate([start, np.zeros(robot.n_y)])
-    poles = {form: closed_loop_poles(controllers[form], X_start) for form in forms if form in LINEAR_FORMS}
+    at_start = {form: closed_loop_poles(controllers[form], X_start) for form in forms if poles and form in LINEAR_FORMS}
     for form in forms:
         try:
             if machine:
@@ -359,8 +360,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
                 raise
             break
         results[form] = res
-        if form in poles:  # the unconstrained loop's dominant pole at the start, for the report
-            pole = poles[form][np.argmax(np.abs(poles[form]))]
+        if form in at_start:  # the unconstrained loop's dominant pole at the start, for the report
+            pole = at_start[form][np.argmax(np.abs(at_start[form]))]
             res.meta["closed_loop_pole"] = [float(pole.real), float(pole.imag)]
         if res.interrupted:
             break
