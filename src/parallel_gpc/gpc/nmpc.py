@@ -392,7 +392,7 @@ class NMPCIterations:
             flat = decrease <= ROUNDING * merit and excess <= STATE_TOL
             alpha, accepted = 1.0, None
             for _ in range(BACKTRACKS + 1):
-                trial = v + delta if alpha == 1.0 else v + alpha * delta  # (1.0·δ is δ: one product less)
+                trial = v + alpha * delta
                 try:
                     # with its Jacobians unless it is the last allowed iteration's or flat (then mostly rejected)
                     traj, u_traj, y_rows, trial_cost, trial_JX = self._rollout(
