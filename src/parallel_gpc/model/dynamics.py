@@ -495,7 +495,7 @@ class ReducedModel:
         ny, nu, nx = self.n_y, self.n_u, self.n_x
         if self.native:
             Es, Xs = self._native.simulate(X0, u_seq, Ts, None if offset is None else np.asarray(offset, dtype=float))
-            return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs
+            return (*zoh_split(Es, nx, nu), Xs)
         n_aug = nx + nu + 1
         aug = np.zeros((K, n_aug, n_aug))
         aug[:, :ny, ny:nx] = np.eye(ny) * Ts
@@ -529,7 +529,7 @@ class ReducedModel:
             if d is not None:
                 Xs[i + 1] += d
         self._sim_warm = warms
-        return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs
+        return (*zoh_split(Es, nx, nu), Xs)
 
     # -------------------------------------------------------------- Jacobian linearization
     def simulate_linearized(self, X0: np.ndarray, u_seq: np.ndarray, Ts: float, offset=None,
@@ -566,7 +566,7 @@ class ReducedModel:
         Es, Xs, JX = compiled.simulate_linearized(self._native, np.asarray(X0, dtype=float), u_seq, Ts,
                                                   None if offset is None else np.asarray(offset, dtype=float),
                                                   step, start)
-        return Es[:, :, :nx], Es[:, :, nx:nx + nu], Es[:, :, -1], Xs, JX
+        return (*zoh_split(Es, nx, nu), Xs, JX)
 
     def linearize(self, X: np.ndarray, u: np.ndarray, eps: float = 1e-6):
         """Jacobian linearization about (X̄, ū): ``Ẋ ≈ A X + B u + c`` (central differences).
