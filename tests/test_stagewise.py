@@ -1030,7 +1030,6 @@ def test_incremental_warm_steps_move_the_edges_and_keep_the_plan(monkeypatch):
             sweeps += ctl._riccati.constrained.iterations[0] if k else 0
         return np.array(plans), sweeps
 
-    monkeypatch.setattr(stagewise_module, "EDGE_MIN_STAGES", N)  # the rule at N = 40 (a quick test)
     moved, moved_sweeps = run()
     monkeypatch.setattr(stagewise_module, "EDGE_FORMS", ())
     plain, plain_sweeps = run()

@@ -14,7 +14,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-import parallel_gpc.gpc.stagewise as stagewise_module
 from parallel_gpc import GPCController, Horizons, ParallelRobot, ReducedModel, Weights
 from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.gpc.riccati import RiccatiPath
@@ -79,13 +78,12 @@ def test_the_compiled_shift_moves_the_edges_as_its_python_twin():
 
 @pytest.mark.skipif(not HAS_STEP, reason="the compiled core has no RiccatiActive.keep")
 @pytest.mark.parametrize("form", ["incremental", "nonlinear"])
-def test_compiled_warm_steps_start_as_the_python_path(form, monkeypatch):
-    """planar_4rrr, N = 40 with the moved edges' rule on (EDGE_MIN_STAGES = 40), the torque limit at half
+def test_compiled_warm_steps_start_as_the_python_path(form):
+    """planar_4rrr, N = 40 (the moved edges' rule on), the torque limit at half
     the largest unconstrained |u| along the path, on the states of an unlimited closed loop: the compiled
     step, which chooses its warm start itself, and the Python path take the same method, sweeps and set on
     every step, their plans the same to 1e-8; the Python path starts from the moved edges on some steps
     (the rule is exercised)."""
-    monkeypatch.setattr(stagewise_module, "EDGE_MIN_STAGES", 40)
     robot = ParallelRobot.load("planar_4rrr")
     model = ReducedModel(robot)
     N, weights = 40, Weights(1.0, 1e-5)

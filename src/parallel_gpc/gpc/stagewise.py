@@ -69,11 +69,10 @@ STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 #: not settle is followed by the plain shift before the interior point (:meth:`StagewiseSolver._plain_after`).
 #: Not the absolute form: its limited inputs switch between the bounds, and a move repeated there costs
 #: more sweeps (N = 160: 3–7 → up to 12).
+#: At every horizon: the compiled step predicts and checks the move itself (``RiccatiActive.keep``, a few µs;
+#: planar_4rrr, incremental, N = 40, the sweeps of 28 warm steps 60 → 50 and limited/unconstrained 1.30–1.32 →
+#: 1.20–1.22; it was kept to N ≥ 80 while the rule cost ~30 µs of Python a step).
 EDGE_FORMS = ("incremental", "incremental-delayed", "nonlinear")
-#: the shortest control horizon Nu whose steps move the edges: the prediction and its check cost ~30 µs
-#: of Python a step, a sweep saved pays that from N ≈ 80 (planar_4rrr, incremental, limited/unconstrained:
-#: N = 160 1.55–1.94 → 1.10–1.26; N = 20 1.24–1.27 → 1.37–1.42 with it).
-EDGE_MIN_STAGES = 80
 
 
 def _pair(kind: str, Fz, Fv, const, lo, hi, soft: bool) -> tuple:
@@ -299,7 +298,7 @@ class StagewiseSolver:
         # edges start this step: they do while the last step's solution was nearer the moved start than the plain one
         self._starts: tuple | None = None
         self._edges = False
-        self._moves_edges = form in EDGE_FORMS and horizons.Nu >= EDGE_MIN_STAGES  # the edges' start is tried
+        self._moves_edges = form in EDGE_FORMS  # the edges' start is tried
         # the first step's problem when only its models, targets (and the nonlinear form's bounds) change from
         # step to step (input rows alone: Q, the rows and their bounds are the limits' and the weights'), its kinds
         self._template: tuple | None = None
@@ -324,8 +323,8 @@ class StagewiseSolver:
         return StageStart(v, shifted(last.lam), np.zeros_like(last.lam) if last.s is None else shifted(last.s))
 
     def _next_start(self) -> np.ndarray | None:
-        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, Nu ≥
-        :data:`EDGE_MIN_STAGES`, while that paid on the last step) with its moving edges moved again
+        """The active set's start from the last step's set: shifted, or (:data:`EDGE_FORMS`, while that
+        paid on the last step) with its moving edges moved again
         (the Python path's; the compiled step's own start is this rule compiled, :meth:`_keep_set`)."""
         plain, moved = shift_active_set(self._fixed), None
         if self._moves_edges and self._before is not None:
