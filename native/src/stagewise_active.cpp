@@ -160,6 +160,9 @@ struct Sweep {
   // held input of the incremental, delayed and nonlinear forms, stage_model::fill): the sweep's products
   // then skip the zero and identity blocks (the same sums; only their order differs)
   std::vector<char> held;
+  // held stages whose B̄_i is Ā_i's last m columns (W = Y: the incremental and nonlinear forms, not the delayed
+  // one): B̄ᵀPĀ, B̄ᵀPB̄ and B̄ᵀw are the last m rows (and columns) of ĀᵀPĀ and Āᵀw, which the sweep forms anyway
+  std::vector<char> tail;
   long sized[4] = {-1, -1, -1, -1};  // (N, nd, nz, m) the buffers are sized for
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
@@ -181,11 +184,14 @@ struct Sweep {
       sized[0] = qp.N, sized[1] = qp.nd, sized[2] = qp.nz, sized[3] = qp.m;
     }
     held.assign(size_t(qp.N), 0);
+    tail.assign(size_t(qp.N), 0);
     const long m = qp.m, nx = qp.nz - qp.m;
     if (nx > 0)
-      for (long i = 0; i < qp.N; ++i)
+      for (long i = 0; i < qp.N; ++i) {
         held[i] = qp.A[i].bottomLeftCorner(m, nx).isZero(0.0) &&
                   qp.A[i].bottomRightCorner(m, m).isIdentity(0.0) && qp.B[i].bottomRows(m).isIdentity(0.0);
+        tail[i] = held[i] && qp.B[i].topRows(nx) == qp.A[i].topRightCorner(nx, m);
+      }
   }
 
   // the sweep, with the stage sizes (nz, m) of the robots measured fixed at compile time (the same
@@ -241,14 +247,29 @@ struct Sweep {
       const AM A(qp.A[i].data(), nz, nz);
       w = p;
       w.noalias() += P.lazyProduct(ZV(qp.c[i].data(), nz));
-      Pz = AM(qp.Q[i].data(), nz, nz);
-      lin = ZV(qp.q[i].data(), nz);
       const bool blocks = Held<NZ, M>::on && held[i];
-      if (blocks) {
+      const bool from_tail = blocks && tail[i] && i < nd;  // B̄ᵀPĀ, B̄ᵀPB̄, B̄ᵀw: blocks of ĀᵀPĀ, Āᵀw
+      if (from_tail) {  // ĀᵀPĀ and Āᵀw alone first (Q's and q's last m rows are zero only for the forms' Q)
+        if constexpr (Held<NZ, M>::on) {
+          Held<NZ, M>::right_A(A, P, PA);
+          Pz.setZero();
+          Held<NZ, M>::add_At(A, PA, Pz);
+          Hvz = Pz.template bottomRows<M>();
+          Pz += AM(qp.Q[i].data(), nz, nz);
+          lin.setZero();
+          Held<NZ, M>::add_At(A, w, lin);
+          gv = lin.template bottomRows<M>();
+          lin += ZV(qp.q[i].data(), nz);
+        }
+      } else if (blocks) {
+        Pz = AM(qp.Q[i].data(), nz, nz);
+        lin = ZV(qp.q[i].data(), nz);
         Held<NZ, M>::right_A(A, P, PA);
         Held<NZ, M>::add_At(A, PA, Pz);
         Held<NZ, M>::add_At(A, w, lin);
       } else {
+        Pz = AM(qp.Q[i].data(), nz, nz);
+        lin = ZV(qp.q[i].data(), nz);
         PA.noalias() = P.lazyProduct(A);
         Pz.noalias() += A.transpose().lazyProduct(PA);
         lin.noalias() += A.transpose().lazyProduct(w);
@@ -256,7 +277,9 @@ struct Sweep {
       if (i < nd) {
         const BM B(qp.B[i].data(), nz, m);
         Hvv = qp.R;
-        if (blocks) {
+        if (from_tail) {
+          if constexpr (Held<NZ, M>::on) Hvv += Hvz.template rightCols<M>();
+        } else if (blocks) {
           Held<NZ, M>::right_B(B, P, PB);
           Held<NZ, M>::add_Bt(B, PB, Hvv);
           gv.setZero();
