@@ -70,8 +70,10 @@ STAGEWISE_KINDS = ("torque", "du", "output_box", "output_velocity")
 #: Not the absolute form: its limited inputs switch between the bounds, and a move repeated there costs
 #: more sweeps (N = 160: 3–7 → up to 12).
 #: At every horizon: the compiled step predicts and checks the move itself (``RiccatiActive.keep``, a few µs;
-#: planar_4rrr, incremental, N = 40, the sweeps of 28 warm steps 60 → 50 and limited/unconstrained 1.30–1.32 →
-#: 1.20–1.22; it was kept to N ≥ 80 while the rule cost ~30 µs of Python a step).
+#: it was kept to Nu ≥ 80 while the rule cost ~30 µs of Python a step). planar_4rrr, Qu = 1e-5, τ = half the
+#: free loop's largest |u|: on the replayed states of ``bench_riccati.py --limited`` (incremental, N = 40) the
+#: sweeps of 28 warm steps 60 → 50, limited/unconstrained 1.30–1.32 → 1.20–1.22; in each form's own closed loop
+#: (N = 10–40, 60 steps) neutral, 1.1–1.3 sweeps a warm step with the rule or without.
 EDGE_FORMS = ("incremental", "incremental-delayed", "nonlinear")
 
 
