@@ -249,7 +249,7 @@ struct Sweep {
       w.noalias() += P.lazyProduct(ZV(qp.c[i].data(), nz));
       const bool blocks = Held<NZ, M>::on && held[i];
       const bool from_tail = blocks && tail[i] && i < nd;  // B̄ᵀPĀ, B̄ᵀPB̄, B̄ᵀw: blocks of ĀᵀPĀ, Āᵀw
-      if (from_tail) {  // ĀᵀPĀ and Āᵀw alone first (Q's and q's last m rows are zero only for the forms' Q)
+      if (from_tail) {  // ĀᵀPĀ and Āᵀw alone first, their last m rows read, then Q and q added (whatever their rows)
         if constexpr (Held<NZ, M>::on) {
           Held<NZ, M>::right_A(A, P, PA);
           Pz.setZero();
