@@ -279,8 +279,9 @@ def _run_own_cluster(cells, func, collector: _Collector, n_workers: int, closing
     of ``n_workers`` − 1 processes starts, and this process waits for its workers' forks
     (:meth:`~.local_cluster.BackgroundCluster.wait_forked`) before its next cell. The moment its
     client connects, its thread submits the first batches from the same queue (under its lock: a
-    cell runs once, here or there), sized by the time per cell measured here and shared with this process (:class:`_Dispatch`), and hands
-    the batches' records back as they return (``results``); this process keeps running cells,
+    cell runs once, here or there), sized by the time per cell measured here and shared with this
+    process (:class:`_Dispatch`), and hands the batches' records back as they return
+    (``results``); this process keeps running cells,
     journals those records between two cells, and once the queue is empty waits for the batches
     still running. No cluster starts if the work never repays it (a small sweep runs all here, as
     ``workers=0``). ``n_workers`` = 1 (a cluster asked for as such: its process isolates a crash)
@@ -458,7 +459,8 @@ class _Dispatch:
         self.stopped = False
 
     def fill(self) -> None:
-        """Submit batches until :data:`IN_FLIGHT` per worker are queued or no cell is left."""
+        """Submit batches until :func:`in_flight` are queued (:data:`IN_FLIGHT` per worker, one at the
+        tail) or no cell is left."""
         while not self.stopped and len(self.futures) < in_flight(len(self.queue), self.streams, self.n_workers):
             # the median over batches: a worker's first task (it may import the package) counts once
             per_cell = statistics.median(self.per_cell) if self.per_cell else None
