@@ -571,13 +571,14 @@ def test_riccati_steps_with_short_control_and_insensitivity_horizons(robot4, com
     np.testing.assert_allclose(fast.result.v, condensed.result.v, rtol=0, atol=_between_converged(fast, condensed))
 
 
-def _limited_loop(steps, reuse=True, spy=None):
+def _limited_loop(steps, reuse=True, spy=None, replay=None):
     """Plans (steps, N, m) of the torque-limited planar controller of :func:`_limited_case` closing the loop
-    on its own model (one ZOH step of a separate model instance per sample), and the controller.
+    on its own model (one ZOH step of a separate model instance per sample), the controller and what each
+    step started from and gave, [(X, ControllerState, StepInfo)].
 
     reuse=False: every limited Gauss–Newton step solved as before the steps shared anything (cold
     active set, bounds recomputed): the reference. spy: called with (solver, keywords, sweeps, result) after
-    each limited step."""
+    each limited step. replay: another run's record: each step from its state and controller state instead."""
     model, X, plan, target, limits = _limited_case("torque")
     plant = ReducedModel(model.robot)
     N = 10
@@ -596,14 +597,19 @@ def _limited_loop(steps, reuse=True, spy=None):
         return out
 
     solver.solve = wrapped
-    plans = []
-    for _ in range(steps):
+    plans, record = [], []
+    for k in range(steps):
+        if replay is not None:
+            X = replay[k][0]
+            ctrl.restore(replay[k][1])
+        before = ctrl.state
         info = ctrl.step(X, np.tile(target, (N, 1)))
         assert info.result.solver == "riccati" and not info.fallback and info.residual <= 1e-6
         plans.append(ctrl.plan.copy())
+        record.append((X, before, info))
         Ad, Bd, cd = plant.discrete(X, TS)
         X = Ad @ X + Bd @ info.u + cd
-    return np.array(plans), ctrl
+    return np.array(plans), ctrl, record
 
 
 def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compiled_stagewise, monkeypatch):
@@ -611,7 +617,9 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     shifted) and the Gauss–Newton steps after it, which compute the input rows' bounds once (u_sim⁰ and u(k−1)
     do not change between them) and start each from the last solve's active set, not shifted (the first: the
     paper step's); the verifying step, whose set is the last one's, takes one Riccati sweep; cold starts (the
-    reference) take more, to the same plans."""
+    reference) take more, to the same plans (each control step from the same state: as close as two converged
+    plans are, :func:`_between_converged`; a rounding-limited stop ends a few 1e-7 from the optimum here, and the
+    plans of one closed loop would carry that on to the next steps' states)."""
     from parallel_gpc.gpc import nmpc as nmpc_module
     from parallel_gpc.gpc import stagewise as stagewise_module
 
@@ -631,7 +639,7 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
         calls.append((kw, sweeps, result.active_limits, solver.active_set))
 
     steps = 4
-    plans, ctrl = _limited_loop(steps, spy=spy)
+    plans, ctrl, record = _limited_loop(steps, spy=spy)
     assert ctrl._nmpc.stagewise is ctrl._riccati.constrained  # the paper step's solver
     firsts = [i for i, (kw, *_) in enumerate(calls) if kw.get("start") is None]  # the paper's steps
     assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 3 * steps  # ≥ 2 limited steps after each
@@ -646,9 +654,11 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     assert counted["nmpc"] == steps  # once per control step, handed to the paper step's solve and to the iterations
     assert counted["solver"] == 0  # the paper step's solver computes none of its own
     cold = []
-    reference, _ = _limited_loop(steps, reuse=False, spy=lambda s, kw, sweeps, r: cold.append(sweeps))
-    assert len(cold) == len(calls) and sum(cold) > sum(c[1] for c in calls)
-    np.testing.assert_allclose(plans, reference, rtol=0, atol=1e-10 * np.abs(reference).max())
+    reference, _, cold_record = _limited_loop(steps, reuse=False, replay=record,
+                                              spy=lambda s, kw, sweeps, r: cold.append(sweeps))
+    assert np.mean(cold) > 2.0 * np.mean([c[1] for c in calls])  # sweeps per limited step
+    for (_, _, warm), (_, _, cold_info) in zip(record, cold_record):
+        np.testing.assert_allclose(warm.result.v, cold_info.result.v, rtol=0, atol=_between_converged(warm, cold_info))
 
 
 def test_the_paper_step_solves_with_the_iterations_bounds(compiled_stagewise):
@@ -658,7 +668,7 @@ def test_the_paper_step_solves_with_the_iterations_bounds(compiled_stagewise):
     from parallel_gpc.gpc.stagewise import step_bounds
 
     calls = []
-    _, ctrl = _limited_loop(3, spy=lambda solver, kw, sweeps, result: calls.append(kw))
+    _, ctrl, _ = _limited_loop(3, spy=lambda solver, kw, sweeps, result: calls.append(kw))
     firsts = [i for i, kw in enumerate(calls) if kw.get("start") is None]  # the paper's steps (u_sim, u_prev given)
     assert len(firsts) == 3
     for first, end in zip(firsts, firsts[1:] + [len(calls)]):

@@ -154,3 +154,18 @@ def test_delayed_incremental_prediction_equals_simulation_with_the_increment_one
                                u_now + np.cumsum(dv, axis=0), atol=1e-12)
     if No == 0:  # ŷ(k+1) does not depend on v
         assert not np.any(pred.G[:2])
+
+
+@pytest.mark.parametrize("K, Nu, m", [(20, 20, 4), (160, 160, 4), (160, 60, 4), (120, 120, 3), (7, 3, 2)])
+def test_the_inputs_of_a_cumulative_map_are_its_product(K, Nu, m):
+    """Prediction.inputs: u_base + u_map v, by running sums of the increments for the forms' large
+    cumulative maps (held after Nu), by the product for the others; the same numbers to rounding."""
+    from parallel_gpc.gpc.prediction import Horizons, Prediction, cumulative_map
+
+    rng = np.random.default_rng(K + Nu + m)
+    u_map, u_base, v = cumulative_map(K, Nu, m), rng.standard_normal(K * m), rng.standard_normal(Nu * m)
+    pred = Prediction(np.zeros(0), np.zeros((0, Nu * m)), u_base, u_map, Horizons(K, 0, Nu), "simulative")
+    dense = u_base + u_map @ v
+    np.testing.assert_allclose(pred.inputs(v), dense, rtol=0, atol=1e-13 * np.abs(dense).max())
+    other = Prediction(np.zeros(0), np.zeros((0, Nu * m)), u_base, np.array(u_map), Horizons(K, 0, Nu), "simulative")
+    np.testing.assert_allclose(other.inputs(v), dense, rtol=0, atol=1e-13 * np.abs(dense).max())  # a copy: product

@@ -1,11 +1,14 @@
-"""The compiled active set's partial re-sweep against the Python reference's full sweeps.
+"""The compiled active set's partial re-sweep and both paths' Schur updates against full sweeps.
 
 After the first sweep of a solve, the compiled ``_native.stagewise_active`` factorizes again only the
 stages up to the last one whose set changed (the later stages' P, p and gains are those of the sweep
 before); the Python reference (:func:`~parallel_gpc.solvers.solve_active_set`) redoes every stage on
-every sweep. On the warm steps of a torque-limited closed loop at N = 80 — a set that moves by a stage
-or a few near the limited arcs' edges, 2–4 sweeps a step — both must take the same sets and sweeps to
-the same plan: a stage reused that the change invalidated (one stage too many) changes the plan.
+every full sweep. Both take a set that differs from the last full sweep's in at most ``SCHUR_MAX``
+components from that sweep's factorization instead (``_sweep_update``: one response per changed
+component and a small system). On the warm steps of a torque-limited closed loop at N = 80 — a set that
+moves by a stage or a few near the limited arcs' edges, 2–4 sweeps a step — every path must take the
+same sets and sweeps to the same plan as full sweeps alone: a stage reused that the change invalidated
+(one stage too many), or a wrong response, changes the plan.
 """
 
 from __future__ import annotations
@@ -69,11 +72,12 @@ def test_the_partial_resweep_gives_the_full_sweeps_plan_on_recorded_warm_steps(f
     sets = []
     sweep = active_module._sweep
 
-    def spy(qp, rows, fixed):
+    def spy(qp, rows, fixed, keep=None):
         sets.append(fixed.copy())
-        return sweep(qp, rows, fixed)
+        return sweep(qp, rows, fixed, keep)
 
     monkeypatch.setattr(active_module, "_sweep", spy)
+    monkeypatch.setattr(active_module, "SCHUR_MAX", 0)  # the reference: full sweeps alone
     c = np.ascontiguousarray
     reused = settled = 0
     for qp, rows, start in steps:
@@ -92,3 +96,85 @@ def test_the_partial_resweep_gives_the_full_sweeps_plan_on_recorded_warm_steps(f
             changed = np.flatnonzero((before != after).any(axis=1))
             reused += bool(changed.size) and changed.max() < qp.n_decide - 1
     assert settled >= 4 and reused >= 2, "the recorded steps did not exercise the partial re-sweep"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("form", ["incremental", "nonlinear"])
+def test_schur_updates_give_the_full_sweeps_sets_and_plans_on_recorded_warm_steps(form, monkeypatch):
+    """Every recorded warm step from its start, by the Python reference with its Schur updates and with full
+    sweeps alone (SCHUR_MAX = 0): the same sweeps to the same set and status, the plans ≤ 1e-7 relative (as the compiled path's); and the
+    steps exercise the updates (sweeps taken from a base set with a changed component of each kind)."""
+    steps = _recorded_warm_steps(form, 80, samples=8)
+    update = active_module._sweep_update
+    kinds = set()
+
+    def spy(qp, rows, base, fixed):
+        out = update(qp, rows, base, fixed)
+        if out is not None:
+            for i, j in np.argwhere(fixed != base[0]):
+                kinds.add(("fixed" if base[0][i, j] >= 0 else "free", "fixed" if fixed[i, j] >= 0 else "free"))
+        return out
+
+    monkeypatch.setattr(active_module, "_sweep_update", spy)
+    for qp, rows, start in steps:
+        monkeypatch.setattr(active_module, "SCHUR_MAX", 0)
+        full = active_module.solve_active_set(qp, rows, start)
+        monkeypatch.undo()
+        monkeypatch.setattr(active_module, "_sweep_update", spy)
+        updated = active_module.solve_active_set(qp, rows, start)
+        assert (updated.status, updated.iterations) == (full.status, full.iterations)
+        np.testing.assert_array_equal(updated.fixed, full.fixed)
+        if full.status == "optimal":
+            assert np.abs(updated.v - full.v).max() <= 1e-7 * np.abs(full.v).max()  # rounding: 5e-9 measured
+    assert {("fixed", "free"), ("free", "fixed")} <= kinds, f"the updates met only {kinds}"
+
+
+def _box_rows_qp(seed: int, state_rows: bool):
+    """A random StageQP of input rows (N = 12, nz = 5, m = 3): each component between two rows σ v_j + Fz z ≤ f
+    (σ = ±1; Fz random with ``state_rows``, zero otherwise: the box of the absolute form)."""
+    from parallel_gpc.solvers import StageQP
+
+    rng = np.random.default_rng(seed)
+    N, nz, m = 12, 5, 3
+    A = np.eye(nz) + 0.1 * rng.standard_normal((N, nz, nz))
+    B, c = rng.standard_normal((N, nz, m)), 0.1 * rng.standard_normal((N, nz))
+    Cm = rng.standard_normal((nz, nz))
+    Q, q = np.array([Cm.T @ Cm] * (N + 1)), rng.standard_normal((N + 1, nz))
+    Fz = 0.3 * rng.standard_normal((N, 2 * m, nz)) if state_rows else np.zeros((N, 2 * m, nz))
+    Fv = np.zeros((N, 2 * m, m))
+    for j in range(m):
+        Fv[:, j, j], Fv[:, m + j, j] = 1.0, -1.0
+    f = 0.3 + 0.2 * rng.random((N, 2 * m))
+    return StageQP(A, B, c, rng.standard_normal(nz), Q, q, 0.5 * np.eye(m), N, Fz, Fv, f,
+                   np.zeros((N, 2 * m), bool), 5.0, 0.1)
+
+
+@pytest.mark.parametrize("state_rows", [False, True])
+def test_a_schur_update_equals_the_full_sweep_of_the_new_set(state_rows):
+    """From a random base set, sets with 1 … SCHUR_MAX components changed — freed, fixed, or moved to the other
+    row — taken from the base's sweep (_sweep_update) give the full sweep's plan to 1e-10 relative; more changes
+    than SCHUR_MAX are left to a full sweep (None)."""
+    from parallel_gpc.solvers import input_rows_of
+
+    kinds = set()
+    for seed in range(12):
+        qp = _box_rows_qp(seed, state_rows)
+        rows = input_rows_of(qp)
+        rng = np.random.default_rng(seed + 100)
+        N, m = qp.f.shape[0], qp.R.shape[0]
+        base_set = np.where(rng.random((N, m)) < 0.5, rng.integers(0, 2, (N, m)) * m + np.arange(m), -1)
+        base = []
+        active_module._sweep(qp, rows, base_set, base)
+        for n_changes in range(1, active_module.SCHUR_MAX + 1):
+            new = base_set.copy()
+            for i, j in zip(rng.choice(N, n_changes, replace=False), rng.integers(0, m, n_changes)):
+                choices = [r for r in (-1, j, m + j) if r != base_set[i, j]]
+                new[i, j] = rng.choice(choices)
+                kinds.add((base_set[i, j] >= 0, new[i, j] >= 0))
+            z, v = active_module._sweep(qp, rows, new)
+            zu, vu = active_module._sweep_update(qp, rows, base, new)
+            assert np.abs(vu - v).max() <= 1e-10 * max(1.0, np.abs(v).max())
+            assert np.abs(zu - z).max() <= 1e-10 * max(1.0, np.abs(z).max())
+        many = np.where(base_set >= 0, -1, np.arange(m))  # every component changed
+        assert active_module._sweep_update(qp, rows, base, many) is None
+    assert kinds == {(True, True), (True, False), (False, True)}

@@ -1,7 +1,9 @@
 // The stage-wise primal-dual active set of solvers/stagewise_active.py (solve_active_set), compiled:
 // per iteration one Riccati sweep of the LQ problem with the active rows' components fixed
 // (v_j = σ (f − Fz z): affine in the state, substituted stage by stage; only the stages up to the
-// last one whose set changed are factorized again), one backward pass for the multipliers, the
+// last one whose set changed are factorized again; a set within SCHUR_MAX components of the last full
+// sweep's taken from that sweep's factorization by Sweep::update, the Schur complement of its responses),
+// one backward pass for the multipliers, the
 // Hintermüller–Ito–Kunisch update of the set (a box row's limited arc left only at its edges) or, once
 // that stops shrinking, the cautious one, stopped when the set repeats (KKT verified), cycles or
 // reaches the cap. The Python module is the
@@ -18,6 +20,7 @@
 #include <nanobind/stl/optional.h>
 #include <nanobind/stl/string.h>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <optional>
@@ -31,6 +34,7 @@
 #include "stage_arrays.hpp"
 #include "stage_model.hpp"
 #include "zoh.hpp"
+#include <Eigen/LU>
 
 namespace pgpc {
 namespace {
@@ -44,6 +48,7 @@ using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMaj
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-6;   // AS_ACCEPT
 constexpr long ARC_MIN = 10;      // ARC_MIN_STAGES
+constexpr long SCHUR_MAX = 6;     // SCHUR_MAX
 
 struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   long r, j;
@@ -163,6 +168,23 @@ struct Sweep {
   // held stages whose B̄_i is Ā_i's last m columns (W = Y: the incremental and nonlinear forms, not the delayed
   // one): B̄ᵀPĀ, B̄ᵀPB̄ and B̄ᵀw are the last m rows (and columns) of ĀᵀPĀ and Āᵀw, which the sweep forms anyway
   std::vector<char> tail;
+  // the base of the Schur updates (update): the plan of the last full sweep (its set: `last`) and the
+  // Cholesky factors of its free inputs' Hessians Hww (m × m per decision stage, column-major), and the
+  // responses of that plan computed against them so far in this solve (n_responses of `responses`)
+  std::vector<double> L, zb, vb;  // zb (N + 1) × nz and vb nd × m, row-major: the base plan
+  struct Response {
+    long i = 0, j = 0, r = 0;          // component j of v(i); r < 0 an offset, else a force on row r
+    std::vector<double> z, v, p;      // (N + 1) × nz, nd × m, (N + 1) × nz, row-major
+  };
+  std::vector<Response> responses;
+  size_t n_responses = 0;
+  // update's workspaces: the changed components (i, j), the parameters (i, j, r) and their responses' indices,
+  // the equations G θ = −c0, the base plan flattened
+  std::vector<std::array<long, 2>> changed;
+  std::vector<std::array<long, 3>> params;
+  std::vector<size_t> resp;
+  Mat G;
+  Vec c0, theta, nu;
   long sized[4] = {-1, -1, -1, -1};  // (N, nd, nz, m) the buffers are sized for
   Set last;             // the set of the last sweep
   bool valid = false;   // Ps, ps and last belong to this solve
@@ -172,6 +194,7 @@ struct Sweep {
   void prepare(const QP &qp) {
     qpp = &qp;
     valid = false;
+    n_responses = 0;
     if (sized[0] != qp.N || sized[1] != qp.nd || sized[2] != qp.nz || sized[3] != qp.m) {
       Ps.assign(size_t((qp.N + 1) * qp.nz * qp.nz), 0.0);
       ps.assign(size_t((qp.N + 1) * qp.nz), 0.0);
@@ -181,6 +204,7 @@ struct Sweep {
       e.assign(k.size(), 0.0);
       n_free.assign(size_t(qp.nd), 0);
       has_E.assign(size_t(qp.nd), 0);  // E_i is zero
+      L.assign(size_t(qp.nd * qp.m * qp.m), 0.0);
       sized[0] = qp.N, sized[1] = qp.nd, sized[2] = qp.nz, sized[3] = qp.m;
     }
     held.assign(size_t(qp.N), 0);
@@ -345,6 +369,7 @@ struct Sweep {
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
                                      std::to_string(i) +
                                      " is not positive definite (the input weight Qu must be nonsingular)");
+          std::copy(Hww.data(), Hww.data() + m * m, L.data() + i * m * m);
           GM Ki(K.data() + i * m * nz, m, nz);
           GV ki(k.data() + i * m, m);
           Ki = -Hwz;  // K = −Hww⁻¹ Hwz, k = −Hww⁻¹ gw
@@ -385,6 +410,172 @@ struct Sweep {
         z[i + 1].noalias() += BM(qp.B[i].data(), nz, m).lazyProduct(v[i]);
       }
     }
+    zb.resize(size_t((N + 1) * nz));
+    vb.resize(size_t(nd * m));
+    for (long i = 0; i <= N; ++i) Eigen::Map<Vec>(zb.data() + i * nz, nz) = z[i];
+    for (long i = 0; i < nd; ++i) Eigen::Map<Vec>(vb.data() + i * m, m) = v[i];
+    n_responses = 0;
+  }
+
+  // the response (R.z, R.v, R.p: the change of the base plan's z, v and p) per unit parameter at component j
+  // of v(i) (_response in the Python twin): r < 0 an offset, v_j(i) = E z + e + θ (j fixed in the base set);
+  // r ≥ 0 a force, θ (σ_r v_j(i) + Fz_r z_i) added to the cost. The base sweep's gains and factors, vectors only
+  template <int NZ, int M>
+  void response_sized(Response &R) {
+    using AM = Eigen::Map<const Eigen::Matrix<double, NZ, NZ, Eigen::RowMajor>>;
+    using BM = Eigen::Map<const Eigen::Matrix<double, NZ, M, Eigen::RowMajor>>;
+    using ZZ = Eigen::Map<const Eigen::Matrix<double, NZ, NZ>>;
+    using GM = Eigen::Map<const Eigen::Matrix<double, M, NZ>>;
+    using LM = Eigen::Map<const Eigen::Matrix<double, M, M>>;
+    using ZV = Eigen::Map<Eigen::Matrix<double, NZ, 1>>;
+    using MV = Eigen::Map<Eigen::Matrix<double, M, 1>>;
+    const QP &qp = *qpp;
+    const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m, i = R.i, j = R.j;
+    R.z.assign(size_t((N + 1) * nz), 0.0);
+    R.v.assign(size_t(nd * m), 0.0);
+    R.p.assign(size_t((N + 1) * nz), 0.0);
+    Eigen::Matrix<double, NZ, 1> w = Eigen::Matrix<double, NZ, 1>::Zero(nz), lin(nz), Pb(nz);
+    Eigen::Matrix<double, M, 1> gv(m), gw(m);
+    for (long s = i; s >= 0; --s) {
+      const AM A(qp.A[s].data(), nz, nz);
+      const BM B(qp.B[s].data(), nz, m);
+      lin.noalias() = A.transpose().lazyProduct(w);
+      gv.noalias() = B.transpose().lazyProduct(w);
+      if (s == i && R.r >= 0) {
+        for (const Row &row : qp.rows[i])
+          if (row.r == R.r) gv(j) += row.sign;
+        lin += qp.Fz[i].row(R.r).transpose();
+      } else if (s == i) {  // Hvv e_j and Hvzᵀ e_j of the base's stage: R e_j + BᵀP B e_j, AᵀP B e_j
+        Pb.noalias() = ZZ(Ps.data() + (s + 1) * nz * nz, nz, nz).lazyProduct(B.col(j));
+        gv += qp.R.col(j);
+        gv.noalias() += B.transpose().lazyProduct(Pb);
+        lin.noalias() += A.transpose().lazyProduct(Pb);
+      }
+      if (has_E[s]) lin.noalias() += GM(E.data() + s * m * nz, m, nz).transpose().lazyProduct(gv);
+      MV kd(R.v.data() + s * m, m);  // v(s) holds k's change until the forward pass
+      if (n_free[s]) {
+        gw = gv;
+        for (long c = 0; c < m; ++c)
+          if (last(s, c) >= 0) gw(c) = 0.0;
+        lin.noalias() += GM(K.data() + s * m * nz, m, nz).transpose().lazyProduct(gw);
+        const LM Ls(L.data() + s * m * m, m, m);
+        small_solve::llt_solve_in_place(Ls, gw);
+        kd = -gw;
+      }
+      ZV(R.p.data() + s * nz, nz) = lin;
+      w = lin;
+    }
+    Eigen::Matrix<double, M, 1> vs(m);
+    for (long s = 0; s < N; ++s) {
+      const ZV zs(R.z.data() + s * nz, nz);
+      ZV zn(R.z.data() + (s + 1) * nz, nz);
+      zn.noalias() = AM(qp.A[s].data(), nz, nz).lazyProduct(zs);
+      if (s < nd) {
+        MV v(R.v.data() + s * m, m);
+        vs = s <= i ? Eigen::Matrix<double, M, 1>(v) : Eigen::Matrix<double, M, 1>::Zero(m);
+        if (s == i && R.r < 0) vs(j) += 1.0;
+        if (has_E[s]) vs.noalias() += GM(E.data() + s * m * nz, m, nz).lazyProduct(zs);
+        if (n_free[s]) vs.noalias() += GM(K.data() + s * m * nz, m, nz).lazyProduct(zs);
+        v = vs;
+        zn.noalias() += BM(qp.B[s].data(), nz, m).lazyProduct(vs);
+      }
+    }
+  }
+
+  // the v-gradient of component j of v(i) on a plan (z, v) with p (N + 1 rows of nz): R_j v(i) + B_iᵀ(P_{i+1} z(i+1) +
+  // p(i+1)), ν(i+1) = P z + p of the base's stage i + 1
+  double stationarity(long i, long j, const double *z, const double *v, const double *p) {
+    const QP &qp = *qpp;
+    const long nz = qp.nz, m = qp.m;
+    const Eigen::Map<const Mat> P(Ps.data() + (i + 1) * nz * nz, nz, nz);
+    nu = Eigen::Map<const Vec>(p + (i + 1) * nz, nz);
+    nu.noalias() += P * Eigen::Map<const Vec>(z + (i + 1) * nz, nz);
+    return qp.R.row(j).dot(Eigen::Map<const Vec>(v + i * m, m)) + qp.B[i].col(j).dot(nu);
+  }
+
+  // σ_r v_j(i) + Fz_r z(i) on a plan (z, v)
+  double row_value(long i, long j, long r, const double *z, const double *v) const {
+    const QP &qp = *qpp;
+    double sign = 0.0;
+    for (const Row &row : qp.rows[i])
+      if (row.r == r) sign = row.sign;
+    return sign * v[i * qp.m + j] + qp.Fz[i].row(r).dot(Eigen::Map<const Vec>(z + i * qp.nz, qp.nz));
+  }
+
+  // the plan of the set `fixed` from the base (the last full sweep of this solve) when it differs from the base's
+  // set `last` in 1..SCHUR_MAX components (_sweep_update in the Python twin): one parameter per changed
+  // component fixed in the base (an offset) and one per changed component fixed by a row now (a force on it), the
+  // rows' equations and the freed components' stationarity solved for them; false: not applicable (a full sweep)
+  bool update(const Set &fixed, Traj &z, Traj &v) {
+    if (!valid || SCHUR_MAX <= 0) return false;
+    const QP &qp = *qpp;
+    const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
+    changed.clear();
+    for (long i = 0; i < nd; ++i)
+      for (long j = 0; j < m; ++j)
+        if (fixed(i, j) != last(i, j)) {
+          if (long(changed.size()) >= SCHUR_MAX) return false;
+          changed.push_back({i, j});
+        }
+    if (changed.empty()) return false;
+    params.clear();
+    for (const auto &c : changed)
+      if (last(c[0], c[1]) >= 0) params.push_back({c[0], c[1], -1});
+    for (const auto &c : changed)
+      if (fixed(c[0], c[1]) >= 0) params.push_back({c[0], c[1], long(fixed(c[0], c[1]))});
+    const long n = long(params.size());
+    resp.assign(size_t(n), 0);
+    for (long b = 0; b < n; ++b) {
+      size_t a = 0;
+      while (a < n_responses && (responses[a].i != params[b][0] || responses[a].j != params[b][1] ||
+                                 responses[a].r != params[b][2]))
+        ++a;
+      if (a == n_responses) {  // not computed against this base yet
+        if (n_responses == responses.size()) responses.emplace_back();
+        Response &R = responses[n_responses++];
+        R.i = params[b][0], R.j = params[b][1], R.r = params[b][2];
+        with_stage_sizes(nz, m, [&](auto nz_, auto m_) { response_sized<nz_(), m_()>(R); });
+      }
+      resp[b] = a;
+    }
+    G.setZero(n, n);
+    c0.setZero(n);
+    long eq = 0;
+    for (const auto &c : changed) {
+      const long i = c[0], j = c[1];
+      if (last(i, j) >= 0) {  // stationary in v_j(i), with the force on its new row
+        c0(eq) = stationarity(i, j, zb.data(), vb.data(), ps.data());
+        for (long b = 0; b < n; ++b) {
+          G(eq, b) = stationarity(i, j, responses[resp[b]].z.data(), responses[resp[b]].v.data(), responses[resp[b]].p.data());
+          if (params[b][0] == i && params[b][1] == j && params[b][2] >= 0)
+            for (const Row &row : qp.rows[i])
+              if (row.r == params[b][2]) G(eq, b) += row.sign;
+        }
+        ++eq;
+      }
+      if (fixed(i, j) >= 0) {
+        const long r = long(fixed(i, j));
+        double f = 0.0;
+        for (const Row &row : qp.rows[i])
+          if (row.r == r) f = row.f;
+        c0(eq) = row_value(i, j, r, zb.data(), vb.data()) - f;
+        for (long b = 0; b < n; ++b) G(eq, b) = row_value(i, j, r, responses[resp[b]].z.data(), responses[resp[b]].v.data());
+        ++eq;
+      }
+    }
+    theta = G.partialPivLu().solve(-c0);
+    if (!theta.allFinite()) return false;
+    z.resize(N + 1);
+    v.resize(nd);
+    for (long s = 0; s <= N; ++s) {
+      z[s] = Eigen::Map<const Vec>(zb.data() + s * nz, nz);
+      for (long b = 0; b < n; ++b) z[s] += theta(b) * Eigen::Map<const Vec>(responses[resp[b]].z.data() + s * nz, nz);
+    }
+    for (long s = 0; s < nd; ++s) {
+      v[s] = Eigen::Map<const Vec>(vb.data() + s * m, m);
+      for (long b = 0; b < n; ++b) v[s] += theta(b) * Eigen::Map<const Vec>(responses[resp[b]].v.data() + s * m, m);
+    }
+    return true;
   }
 };
 
@@ -566,7 +757,7 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
     return false;
   };
   for (int it = 1; it <= max_iter; ++it) {
-    sweep.run(fixed, out.z, out.v);
+    if (!sweep.update(fixed, out.z, out.v)) sweep.run(fixed, out.z, out.v);
     const double scale =
         std::max(multipliers(qp, sweep.held, fixed, out.z, out.v, out.lam, grad, ws.costates), 1e-300);
     const double tol_f = TOL * qp.f_scale, tol_l = TOL * scale;

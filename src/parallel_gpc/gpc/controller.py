@@ -406,7 +406,7 @@ class GPCController:
         elif pred.kind == "absolute":  # u = v (u_base = 0, u_map = I)
             u_seq = result.v.reshape(-1, self.n_u).copy()
         else:
-            u_seq = (pred.u_base + pred.u_map.dot(result.v)).reshape(-1, self.n_u)  # (the product of @)
+            u_seq = pred.inputs(result.v).reshape(-1, self.n_u)
         if u_now is not None:  # delayed: u(k) was decided at k−1; the plan starts at k+1
             u_seq = np.vstack([u_now, u_seq])[:self.horizons.N]
         if self.form in ("incremental", "nonlinear"):  # a null(B_d(X)) part of Δu(k) only serves

@@ -59,6 +59,11 @@ class Horizons:
         return self.N - self.No
 
 
+#: the size of an input map (rows × columns) from which :meth:`Prediction.inputs` sums a cumulative map's
+#: increments instead of taking the product (between 160² and 320², measured in its docstring)
+CUMSUM_SIZE = 200 * 200
+
+
 @dataclass
 class Prediction:
     """Affine output prediction over the horizon and the map from v to applied inputs.
@@ -82,6 +87,22 @@ class Prediction:
     def outputs(self, v: np.ndarray) -> np.ndarray:
         """(n_rows·p,) predicted outputs ŷ = f + G v."""
         return self.f + self.G @ v
+
+    def inputs(self, v: np.ndarray) -> np.ndarray:
+        """(len(u_base),) inputs u = u_base + u_map v (N·m and V): a large cumulative map of the forms
+        (:func:`cumulative_map`, the incremental and simulative predictions) as running sums of the
+        increments, held after Nu, in O(N·m) instead of the dense (N·m)² product. Measured (planar_4rrr,
+        m = 4, N = 20 / 40 / 80 / 160): the sums 4.3 / 5.0 / 5.1 / 6.5 µs, the product 1.5 / 3.5 / 14.6 /
+        108 µs (a fifth of an incremental Riccati step at N = 160): the sums from CUMSUM_SIZE entries on."""
+        rows, cols = self.u_map.shape
+        Nu = self.horizons.Nu
+        m = cols // Nu if Nu and cols % Nu == 0 else 0
+        if rows * cols >= CUMSUM_SIZE and m and rows % m == 0 and self.u_map is cumulative_map(rows // m, Nu, m):
+            sums = np.cumsum(np.reshape(v, (Nu, m)), axis=0)
+            if rows // m > Nu:
+                sums = np.vstack([sums, np.broadcast_to(sums[-1], (rows // m - Nu, m))])
+            return self.u_base + sums[:rows // m].reshape(-1)
+        return self.u_base + self.u_map.dot(v)  # (the product of @ without matmul's dispatch)
 
 
 def _per_step(name: str, value, N: int, shape: tuple[int, ...]) -> np.ndarray:

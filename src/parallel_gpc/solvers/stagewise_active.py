@@ -14,6 +14,19 @@ components, the free ones v_F = K_i z + k_i). The multipliers of the active rows
 the costates in one backward pass (:func:`~parallel_gpc.solvers.stagewise_ipm.costates` with the
 set): λ_r = −σ_r ∂L/∂v_j(i).
 
+A set that differs from the last full sweep's (the *base*) in at most :data:`SCHUR_MAX` components
+is not swept again (:func:`_sweep_update`): the plan of the new set is the base plan plus a
+combination of its *responses* (:func:`_response`, one per parameter: an offset θ of a component the
+base fixes, v_j(i) = E z + e + θ, and a force θ (σ_r v_j(i) + Fz_r z(i)) in the cost for a component
+the new set fixes by row r, each the base's Riccati recursion on vectors only: its gains and factors
+kept), the parameters solved from the new set's equations on the changed components (their rows hold,
+the freed ones are stationary: a Schur complement of SCHUR_MAX × 2 at most). Exact as the sweep (the
+new set's optimum lies on that affine family); a response costs the vector passes of one recursion,
+about a tenth of a sweep's matrix products, and is kept for the later sweeps of the solve against the
+same base (planar_4rrr, incremental, N = 160: the warm steps of 3 sweeps take one full sweep and 2
+updates; measured in ``benchmarks/README.md``, round 17). A singular system, or more changes, take a
+full sweep, which becomes the base.
+
 The active set is updated as a primal-dual active set (Hintermüller–Ito–Kunisch): a component
 stays fixed while its multiplier is ≥ 0 and no other row on it is broken; a free component whose
 rows are broken is fixed by its most broken row; a fixed one whose multiplier turned negative is
@@ -141,7 +154,7 @@ def input_rows_of(qp: StageQP) -> InputRowMap | None:
     return InputRowMap(comp, sgn)
 
 
-def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
+def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray, keep: list | None = None):
     """The plan (z (N + 1, nz), v (n_decide, m)) of the LQ problem with the components ``fixed``
     (n_decide, m: the row fixing each, −1 free) held on their rows: one Riccati sweep.
 
@@ -152,6 +165,8 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
     nz, m = qp.A.shape[1], qp.R.shape[0]
     gains = [None] * nd
     P, p = qp.Q[N], qp.q[N]
+    Ps, ps, facs = [None] * (N + 1), [None] * (N + 1), [None] * nd
+    Ps[N], ps[N] = P, p
     for i in range(N - 1, -1, -1):
         A, c = qp.A[i], qp.c[i]
         PA, w = P @ A, P @ c + p
@@ -183,8 +198,10 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
                 Hwz = Hz[free]
                 K, k = -sla.cho_solve(fac, Hwz, check_finite=False), -sla.cho_solve(fac, gv[free], check_finite=False)
                 Pz, lin = Pz + Hwz.T @ K, lin + Hwz.T @ k
+                facs[i] = fac
             gains[i] = (free, K, k, E, e)
         P, p = 0.5 * (Pz + Pz.T), lin
+        Ps[i], ps[i] = P, p
     z = np.empty((N + 1, nz))
     v = np.empty((nd, m))
     z[0] = qp.z0
@@ -195,6 +212,115 @@ def _sweep(qp: StageQP, rows: InputRowMap, fixed: np.ndarray):
             v[i] = E @ z[i] + e
             v[i, free] = K @ z[i] + k
             z[i + 1] += qp.B[i] @ v[i]
+    if keep is not None:
+        keep[:] = [fixed.copy(), gains, Ps, ps, facs, z, v, {}]
+    return z, v
+
+
+#: the most components a set may differ in from the last full sweep's to be taken from it by
+#: :func:`_sweep_update` (each a response of the vector passes of one recursion, ~15–20 µs compiled at
+#: N = 160 against ~130 µs for the sweep: 12 and 24 measured no better on the N = 160 closed loops, 24
+#: worse)
+SCHUR_MAX = 6
+
+
+def _response(qp: StageQP, rows: InputRowMap, base, i: int, j: int, r: int):
+    """The change of the base set's plan (z (N + 1, nz), v) and of its p (N + 1, nz) per unit parameter at
+    component j of v(i): r < 0 an offset, v_j(i) = E z + e + θ (j fixed in the base); r ≥ 0 a force on
+    row r, θ (σ_r v_j(i) + Fz_r z_i) added to the cost (the row's multiplier)."""
+    fixed, gains, Ps, ps, facs = base[:5]
+    N, nd = qp.A.shape[0], qp.n_decide
+    nz, m = qp.A.shape[1], qp.R.shape[0]
+    pd = np.zeros((N + 1, nz))
+    kd = {}
+    ed = np.zeros(m)
+    w = np.zeros(nz)
+    for s in range(i, -1, -1):
+        A, B = qp.A[s], qp.B[s]
+        free, K, k, E, e = gains[s]
+        lin, gv = A.T @ w, B.T @ w
+        if s == i and r >= 0:
+            gv[j] += rows.sign[i, r]
+            lin = lin + qp.Fz[i, r]
+        if s == i and r < 0:
+            ed[j] = 1.0
+            PB = Ps[s + 1] @ B
+            Hvv = qp.R + B.T @ PB
+            Hvz = PB.T @ A if qp.S is None else PB.T @ A + qp.S
+            gv = gv + Hvv @ ed
+            lin = lin + Hvz.T @ ed + E.T @ gv
+        elif (~free).any():
+            lin = lin + E.T @ gv
+        if free.any():
+            kd[s] = -sla.cho_solve(facs[s], gv[free], check_finite=False)
+            lin = lin + K.T @ gv[free]
+        pd[s] = lin
+        w = lin
+    z = np.zeros((N + 1, nz))
+    v = np.zeros((nd, m))
+    for s in range(N):
+        z[s + 1] = qp.A[s] @ z[s]
+        if s < nd:
+            free, K, k, E, e = gains[s]
+            v[s] = E @ z[s]
+            if s == i:
+                v[s] += ed
+            v[s, free] = K @ z[s] + kd.get(s, 0.0)
+            z[s + 1] += qp.B[s] @ v[s]
+    return z, v, pd
+
+
+def _sweep_update(qp: StageQP, rows: InputRowMap, base, fixed: np.ndarray):
+    """The plan of the set ``fixed`` from the base set's factorization (its last full sweep) and its
+    responses (:func:`_response`) to one parameter per changed component fixed in the base (an offset) and
+    one per changed component fixed by a row now (a force on that row): the equations those rows and the
+    freed components' stationarity impose, solved for the parameters (the Schur complement). None: too many
+    changes, or a singular system (then a full sweep)."""
+    bfixed, gains, Ps, ps, facs, z0, v0, cache = base
+    changed = [(int(i), int(j)) for i, j in np.argwhere(fixed != bfixed)]
+    if not changed or len(changed) > SCHUR_MAX:
+        return None
+    params = [(i, j, -1) for i, j in changed if bfixed[i, j] >= 0]
+    params += [(i, j, int(fixed[i, j])) for i, j in changed if fixed[i, j] >= 0]
+    resp = []
+    for key in params:
+        if key not in cache:
+            cache[key] = _response(qp, rows, base, *key)
+        resp.append(cache[key])
+    pb = np.asarray(ps)
+
+    def stationarity(i, j, z, v, p):  # the v-gradient of component j at stage i
+        g = qp.R[j] @ v[i] + qp.B[i][:, j] @ (Ps[i + 1] @ z[i + 1] + p[i + 1])
+        return g + qp.S[j] @ z[i] if qp.S is not None else g
+
+    def row(i, j, r, z, v):  # the value of row r
+        return rows.sign[i, r] * v[i, j] + qp.Fz[i, r] @ z[i]
+
+    n = len(params)
+    G, c0 = np.zeros((n, n)), np.zeros(n)
+    eq = 0
+    for i, j in changed:
+        if bfixed[i, j] >= 0:  # stationary in v_j(i) with the forces on its rows
+            c0[eq] = stationarity(i, j, z0, v0, pb)
+            for b, ((zd, vd, pd), (ib, jb, rb)) in enumerate(zip(resp, params)):
+                G[eq, b] = stationarity(i, j, zd, vd, pd) + (rows.sign[i, rb] if (ib, jb) == (i, j) and rb >= 0 else 0.0)
+            eq += 1
+        if fixed[i, j] >= 0:
+            r = int(fixed[i, j])
+            c0[eq] = row(i, j, r, z0, v0) - qp.f[i, r]
+            for b, (zd, vd, pd) in enumerate(resp):
+                G[eq, b] = row(i, j, r, zd, vd)
+            eq += 1
+    try:
+        theta = np.linalg.solve(G, -c0)
+    except np.linalg.LinAlgError:
+        return None
+    if not np.all(np.isfinite(theta)):
+        return None
+    z, v = z0.copy(), v0.copy()
+    for t, (zd, vd, pd) in zip(theta, resp):
+        z += t * zd
+        v += t * vd
     return z, v
 
 
@@ -374,8 +500,13 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     seen = set()
     box = np.all(qp.Fz == 0.0, axis=2)  # (N, k): the rows of v alone
     fewest, frees, freed = nd * m + 1, None, False  # frees: None while the full update runs
+    base = []
     for it in range(1, max_iter + 1):
-        z, v = _sweep(qp, rows, fixed)
+        upd = _sweep_update(qp, rows, base, fixed) if base and SCHUR_MAX else None
+        if upd is None:
+            z, v = _sweep(qp, rows, fixed, base)
+        else:
+            z, v = upd
         lam = np.zeros(qp.f.shape)
         nu, grad = costates(qp, z, v, lam, active=(rows.comp, rows.sign, fixed))
         # the gradient's scale: the largest entry of R v and Bᵀ ν(i+1) (they cancel at the optimum)
