@@ -150,10 +150,10 @@ def _box_rows_qp(seed: int, state_rows: bool):
 
 
 @pytest.mark.parametrize("state_rows", [False, True])
-def test_a_schur_update_equals_the_full_sweep_of_the_new_set(state_rows):
+def test_a_schur_update_equals_the_full_sweep_of_the_new_set(state_rows, monkeypatch):
     """From a random base set, sets with 1 … SCHUR_MAX components changed — freed, fixed, or moved to the other
     row — taken from the base's sweep (_sweep_update) give the full sweep's plan to 1e-10 relative; more changes
-    than SCHUR_MAX are left to a full sweep (None)."""
+    than SCHUR_MAX, or more than 2·SCHUR_MAX responses against one base, are left to a full sweep (None)."""
     from parallel_gpc.solvers import input_rows_of
 
     kinds = set()
@@ -172,9 +172,19 @@ def test_a_schur_update_equals_the_full_sweep_of_the_new_set(state_rows):
                 new[i, j] = rng.choice(choices)
                 kinds.add((base_set[i, j] >= 0, new[i, j] >= 0))
             z, v = active_module._sweep(qp, rows, new)
+            base[-1].clear()  # the responses computed against the base (at most 2·SCHUR_MAX)
             zu, vu = active_module._sweep_update(qp, rows, base, new)
             assert np.abs(vu - v).max() <= 1e-10 * max(1.0, np.abs(v).max())
             assert np.abs(zu - z).max() <= 1e-10 * max(1.0, np.abs(z).max())
         many = np.where(base_set >= 0, -1, np.arange(m))  # every component changed
         assert active_module._sweep_update(qp, rows, base, many) is None
+        base[-1].clear()
+        taken = 0  # one component freed or fixed at a time, each a new response: 2·SCHUR_MAX of them (6 < N)
+        with monkeypatch.context() as patch:
+            patch.setattr(active_module, "SCHUR_MAX", 3)
+            for i in range(N):
+                one = base_set.copy()
+                one[i, 0] = -1 if base_set[i, 0] >= 0 else 0
+                taken += active_module._sweep_update(qp, rows, base, one) is not None
+        assert taken == 6
     assert kinds == {(True, True), (True, False), (False, True)}

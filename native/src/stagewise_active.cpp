@@ -505,7 +505,8 @@ struct Sweep {
   // the plan of the set `fixed` from the base (the last full sweep of this solve) when it differs from the base's
   // set `last` in 1..SCHUR_MAX components (_sweep_update in the Python twin): one parameter per changed
   // component fixed in the base (an offset) and one per changed component fixed by a row now (a force on it), the
-  // rows' equations and the freed components' stationarity solved for them; false: not applicable (a full sweep)
+  // rows' equations and the freed components' stationarity solved for them; false: not applicable (a full sweep:
+  // more changes, more than 2·SCHUR_MAX responses against this base, or a singular system)
   bool update(const Set &fixed, Traj &z, Traj &v) {
     if (!valid || SCHUR_MAX <= 0) return false;
     const QP &qp = *qpp;
@@ -524,6 +525,13 @@ struct Sweep {
     for (const auto &c : changed)
       if (fixed(c[0], c[1]) >= 0) params.push_back({c[0], c[1], long(fixed(c[0], c[1]))});
     const long n = long(params.size());
+    size_t fresh = 0;  // responses not computed against this base yet
+    for (const auto &q : params) {
+      size_t a = 0;
+      while (a < n_responses && (responses[a].i != q[0] || responses[a].j != q[1] || responses[a].r != q[2])) ++a;
+      fresh += a == n_responses;
+    }
+    if (n_responses + fresh > size_t(2 * SCHUR_MAX)) return false;  // about one sweep's cost: a full sweep
     resp.assign(size_t(n), 0);
     for (long b = 0; b < n; ++b) {
       size_t a = 0;

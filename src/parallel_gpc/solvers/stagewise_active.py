@@ -275,13 +275,15 @@ def _sweep_update(qp: StageQP, rows: InputRowMap, base, fixed: np.ndarray):
     responses (:func:`_response`) to one parameter per changed component fixed in the base (an offset) and
     one per changed component fixed by a row now (a force on that row): the equations those rows and the
     freed components' stationarity impose, solved for the parameters (the Schur complement). None: too many
-    changes, or a singular system (then a full sweep)."""
+    changes, more than 2·SCHUR_MAX responses against this base, or a singular system (then a full sweep)."""
     bfixed, gains, Ps, ps, facs, z0, v0, cache = base
     changed = [(int(i), int(j)) for i, j in np.argwhere(fixed != bfixed)]
     if not changed or len(changed) > SCHUR_MAX:
         return None
     params = [(i, j, -1) for i, j in changed if bfixed[i, j] >= 0]
     params += [(i, j, int(fixed[i, j])) for i, j in changed if fixed[i, j] >= 0]
+    if len(cache) + sum(key not in cache for key in params) > 2 * SCHUR_MAX:
+        return None  # as many responses as about one sweep costs: a full sweep, a new base
     resp = []
     for key in params:
         if key not in cache:
