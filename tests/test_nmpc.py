@@ -639,7 +639,7 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
         calls.append((kw, sweeps, result.active_limits, solver.active_set))
 
     steps = 4
-    plans, ctrl, record = _limited_loop(steps, spy=spy)
+    _, ctrl, record = _limited_loop(steps, spy=spy)
     assert ctrl._nmpc.stagewise is ctrl._riccati.constrained  # the paper step's solver
     firsts = [i for i, (kw, *_) in enumerate(calls) if kw.get("start") is None]  # the paper's steps
     assert len(firsts) == steps and firsts[0] == 0 and len(calls) >= 3 * steps  # ≥ 2 limited steps after each
@@ -654,8 +654,8 @@ def test_limited_iterations_reuse_the_step_bounds_and_the_last_active_set(compil
     assert counted["nmpc"] == steps  # once per control step, handed to the paper step's solve and to the iterations
     assert counted["solver"] == 0  # the paper step's solver computes none of its own
     cold = []
-    reference, _, cold_record = _limited_loop(steps, reuse=False, replay=record,
-                                              spy=lambda s, kw, sweeps, r: cold.append(sweeps))
+    _, _, cold_record = _limited_loop(steps, reuse=False, replay=record,
+                                      spy=lambda s, kw, sweeps, r: cold.append(sweeps))
     assert np.mean(cold) > 2.0 * np.mean([c[1] for c in calls])  # sweeps per limited step
     for (_, _, warm), (_, _, cold_info) in zip(record, cold_record):
         np.testing.assert_allclose(warm.result.v, cold_info.result.v, rtol=0, atol=_between_converged(warm, cold_info))
