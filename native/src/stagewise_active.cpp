@@ -54,6 +54,10 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
   long r, j;
   double sign, f;
   bool fz;  // Fz_r ≠ 0
+  // Fz_r = coef·e_qᵀ, one nonzero entry (the incremental and nonlinear forms' torque rows: a selector of the
+  // held input), q = −1 otherwise: the sweep's products with E take its rows as such (Sweep::sweep)
+  long q = -1;
+  double coef = 0.0;
 };
 
 using VMap = Eigen::Map<const Vec>;
@@ -322,7 +326,7 @@ struct Sweep {
         if (has_E[i]) Ei.setZero();
         ei.setZero();
         has_E[i] = 0;
-        bool any_fixed = false;
+        bool any_fixed = false, selectors = true;  // selectors: every row of E_i one entry (Row::q)
         for (const Row &row : qp.rows[i]) {
           if (fixed(i, row.j) != row.r) continue;
           any_fixed = true;
@@ -330,13 +334,24 @@ struct Sweep {
           if (row.fz) {
             Ei.row(row.j) = -row.sign * qp.Fz[i].row(row.r);
             has_E[i] = 1;
+            selectors = selectors && row.q >= 0;
           }
         }
         Hz = Hvz;
         if (any_fixed) {
           lin.noalias() += Hvz.transpose().lazyProduct(ei);
           gv.noalias() += Hvv.lazyProduct(ei);
-          if (has_E[i]) {
+          if (has_E[i] && selectors) {  // E_i's row j = c_j e_qᵀ: Hvv E_i, E_iᵀ Hvz, Hzᵀ E_i and E_iᵀ gv a column or row each
+            for (const Row &row : qp.rows[i])
+              if (fixed(i, row.j) == row.r && row.fz) Hz.col(row.q) -= (row.sign * row.coef) * Hvv.col(row.j);
+            for (const Row &row : qp.rows[i])
+              if (fixed(i, row.j) == row.r && row.fz) {
+                const double c = -row.sign * row.coef;
+                Pz.row(row.q) += c * Hvz.row(row.j);
+                Pz.col(row.q) += c * Hz.row(row.j).transpose();
+                lin(row.q) += c * gv(row.j);
+              }
+          } else if (has_E[i]) {
             Hz.noalias() += Hvv.lazyProduct(Ei);
             Pz.noalias() += Ei.transpose().lazyProduct(Hvz);
             Pz.noalias() += Hz.transpose().lazyProduct(Ei);
@@ -709,6 +724,15 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
         throw std::invalid_argument(std::string(who) + ": a row on a stage without decision or a component ≥ m");
       const double fr = f.data()[i * qp.k + r];
       qp.rows[i].push_back({r, j, sign.data()[i * qp.k + r], fr, !qp.Fz[i].row(r).isZero(0.0)});
+      Row &row = qp.rows[i].back();
+      for (long c = 0; c < qp.nz; ++c)
+        if (qp.Fz[i](r, c) != 0.0) {
+          if (row.q >= 0) {  // a second nonzero: not a selector
+            row.q = -1;
+            break;
+          }
+          row.q = c, row.coef = qp.Fz[i](r, c);
+        }
       qp.row_comp[i * qp.k + r] = j;
       qp.row_box[i * qp.k + r] = !qp.rows[i].back().fz;
       qp.f_scale = std::max(qp.f_scale, std::abs(fr));
