@@ -47,6 +47,7 @@ using Set = Eigen::Matrix<int64_t, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMaj
 
 constexpr double TOL = 1e-10;     // AS_TOL
 constexpr double ACCEPT = 1e-6;   // AS_ACCEPT
+constexpr double ROUNDING = 1e-12;  // AS_ROUNDING
 constexpr long ARC_MIN = 10;      // ARC_MIN_STAGES
 constexpr long SCHUR_MAX = 6;     // SCHUR_MAX
 
@@ -699,6 +700,24 @@ struct Workspace {
   std::vector<long> inner_kept;  // i·m + j of the components with λ < 0 the full update kept inside a box arc
 };
 
+// the largest term the v-gradient R v(i) + Bᵢᵀ ν(i+1) sums, in absolute values (_terms_scale in the Python twin): |R||v|
+// and |Bᵢ|ᵀ ν̄(i+1), ν̄ the costates' recursion on absolute values; only when a settled set's KKT residual is above ACCEPT
+double terms_scale(const QP &qp, const Traj &z, const Traj &v, const RowMat &lam) {
+  const long N = qp.N, nd = qp.nd;
+  Vec nb = qp.Q[N].cwiseAbs() * z[N].cwiseAbs() + qp.q[N].cwiseAbs();
+  double scale = 0.0;
+  const Mat Rabs = qp.R.cwiseAbs();
+  for (long i = 0; i < nd; ++i) scale = std::max(scale, (Rabs * v[i].cwiseAbs()).maxCoeff());
+  for (long i = N - 1; i >= 0; --i) {
+    if (i < nd) scale = std::max(scale, (qp.B[i].cwiseAbs().transpose() * nb).maxCoeff());
+    Vec next = qp.Q[i].cwiseAbs() * z[i].cwiseAbs() + qp.q[i].cwiseAbs();
+    next.noalias() += qp.A[i].cwiseAbs().transpose() * nb;
+    next.noalias() += qp.Fz[i].cwiseAbs().transpose() * lam.row(i).cwiseAbs().transpose();
+    nb.swap(next);
+  }
+  return scale;
+}
+
 // a start's entries that name no used row on their component: free (as in the Python twin)
 void sanitize(const QP &qp, Set &fixed) {
   for (long i = 0; i < qp.nd; ++i)
@@ -832,6 +851,11 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
     out.iterations = it;
     if (next == fixed) {
       out.fixed = fixed;
+      if (out.residual > ACCEPT) {  // or rounding: the gradient's scale at least ROUNDING / ACCEPT of its terms'
+        const double terms = std::max(scale, ROUNDING / ACCEPT * terms_scale(qp, out.z, out.v, out.lam));
+        out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / terms,
+                                 grad.size() ? grad.cwiseAbs().maxCoeff() / terms : 0.0});
+      }
       out.ok = out.residual <= ACCEPT;
       if (!out.ok) {
         std::snprintf(buf, sizeof buf, "stage-wise active set: the set settled with a KKT residual %.3g above %g",
