@@ -15,6 +15,7 @@
 // `RiccatiActive` (a form's limited step in one call: its stage models and criterion built here,
 // gpc/stagewise.py; its own workspace).
 #include <Eigen/Core>
+#include <Eigen/LU>
 #include <nanobind/eigen/dense.h>
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/optional.h>
@@ -34,7 +35,6 @@
 #include "stage_arrays.hpp"
 #include "stage_model.hpp"
 #include "zoh.hpp"
-#include <Eigen/LU>
 
 namespace pgpc {
 namespace {
@@ -184,7 +184,7 @@ struct Sweep {
   std::vector<Response> responses;
   size_t n_responses = 0;
   // update's workspaces: the changed components (i, j), the parameters (i, j, r) and their responses' indices,
-  // the equations G θ = −c0, the base plan flattened
+  // the equations G θ = −c0 and their solution, a costate (stationarity)
   std::vector<std::array<long, 2>> changed;
   std::vector<std::array<long, 3>> params;
   std::vector<size_t> resp;
