@@ -63,6 +63,11 @@ struct Row {  // a used row of a stage: σ v_j + Fz_r z ≤ f_r
 
 using VMap = Eigen::Map<const Vec>;
 
+// the used row r of a stage's rows (a row it names: the caller's set or parameter)
+const Row &row_of(const std::vector<Row> &rows, long r) {
+  return *std::find_if(rows.begin(), rows.end(), [r](const Row &row) { return row.r == r; });
+}
+
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
   std::vector<CMap> A, B, Q, Fz;
@@ -458,8 +463,7 @@ struct Sweep {
       lin.noalias() = A.transpose().lazyProduct(w);
       gv.noalias() = B.transpose().lazyProduct(w);
       if (s == i && R.r >= 0) {
-        for (const Row &row : qp.rows[i])
-          if (row.r == R.r) gv(j) += row.sign;
+        gv(j) += row_of(qp.rows[i], R.r).sign;
         lin += qp.Fz[i].row(R.r).transpose();
       } else if (s == i) {  // Hvv e_j and Hvzᵀ e_j of the base's stage: R e_j + BᵀP B e_j, AᵀP B e_j
         Pb.noalias() = ZZ(Ps.data() + (s + 1) * nz * nz, nz, nz).lazyProduct(B.col(j));
@@ -512,10 +516,7 @@ struct Sweep {
   // σ_r v_j(i) + Fz_r z(i) on a plan (z, v)
   double row_value(long i, long j, long r, const double *z, const double *v) const {
     const QP &qp = *qpp;
-    double sign = 0.0;
-    for (const Row &row : qp.rows[i])
-      if (row.r == r) sign = row.sign;
-    return sign * v[i * qp.m + j] + qp.Fz[i].row(r).dot(Eigen::Map<const Vec>(z + i * qp.nz, qp.nz));
+    return row_of(qp.rows[i], r).sign * v[i * qp.m + j] + qp.Fz[i].row(r).dot(Eigen::Map<const Vec>(z + i * qp.nz, qp.nz));
   }
 
   // the plan of the set `fixed` from the base (the last full sweep of this solve) when it differs from the base's
@@ -524,7 +525,7 @@ struct Sweep {
   // rows' equations and the freed components' stationarity solved for them; false: not applicable (a full sweep:
   // more changes, more than 2·SCHUR_MAX responses against this base, or a singular system)
   bool update(const Set &fixed, Traj &z, Traj &v) {
-    if (!valid || SCHUR_MAX <= 0) return false;
+    if (!valid) return false;
     const QP &qp = *qpp;
     const long N = qp.N, nd = qp.nd, nz = qp.nz, m = qp.m;
     changed.clear();
@@ -541,19 +542,18 @@ struct Sweep {
     for (const auto &c : changed)
       if (fixed(c[0], c[1]) >= 0) params.push_back({c[0], c[1], long(fixed(c[0], c[1]))});
     const long n = long(params.size());
-    size_t fresh = 0;  // responses not computed against this base yet
-    for (const auto &q : params) {
+    // the index of a parameter's response against this base, n_responses when it has none yet
+    const auto response_of = [this](const std::array<long, 3> &q) {
       size_t a = 0;
       while (a < n_responses && (responses[a].i != q[0] || responses[a].j != q[1] || responses[a].r != q[2])) ++a;
-      fresh += a == n_responses;
-    }
+      return a;
+    };
+    size_t fresh = 0;
+    for (const auto &q : params) fresh += response_of(q) == n_responses;
     if (n_responses + fresh > size_t(2 * SCHUR_MAX)) return false;  // about one sweep's cost: a full sweep
     resp.assign(size_t(n), 0);
     for (long b = 0; b < n; ++b) {
-      size_t a = 0;
-      while (a < n_responses && (responses[a].i != params[b][0] || responses[a].j != params[b][1] ||
-                                 responses[a].r != params[b][2]))
-        ++a;
+      const size_t a = response_of(params[b]);
       if (a == n_responses) {  // not computed against this base yet
         if (n_responses == responses.size()) responses.emplace_back();
         Response &R = responses[n_responses++];
@@ -571,18 +571,13 @@ struct Sweep {
         c0(eq) = stationarity(i, j, zb.data(), vb.data(), ps.data());
         for (long b = 0; b < n; ++b) {
           G(eq, b) = stationarity(i, j, responses[resp[b]].z.data(), responses[resp[b]].v.data(), responses[resp[b]].p.data());
-          if (params[b][0] == i && params[b][1] == j && params[b][2] >= 0)
-            for (const Row &row : qp.rows[i])
-              if (row.r == params[b][2]) G(eq, b) += row.sign;
+          if (params[b][0] == i && params[b][1] == j && params[b][2] >= 0) G(eq, b) += row_of(qp.rows[i], params[b][2]).sign;
         }
         ++eq;
       }
       if (fixed(i, j) >= 0) {
         const long r = long(fixed(i, j));
-        double f = 0.0;
-        for (const Row &row : qp.rows[i])
-          if (row.r == r) f = row.f;
-        c0(eq) = row_value(i, j, r, zb.data(), vb.data()) - f;
+        c0(eq) = row_value(i, j, r, zb.data(), vb.data()) - row_of(qp.rows[i], r).f;
         for (long b = 0; b < n; ++b) G(eq, b) = row_value(i, j, r, responses[resp[b]].z.data(), responses[resp[b]].v.data());
         ++eq;
       }
@@ -753,7 +748,7 @@ void read_rows(QP &qp, const InI &comp, const In2 &sign, const In2 &f, const cha
           row.q = c, row.coef = qp.Fz[i](r, c);
         }
       qp.row_comp[i * qp.k + r] = j;
-      qp.row_box[i * qp.k + r] = !qp.rows[i].back().fz;
+      qp.row_box[i * qp.k + r] = !row.fz;
       qp.f_scale = std::max(qp.f_scale, std::abs(fr));
     }
 }
@@ -846,16 +841,17 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
     // _next_set: the rule would keep the set (the arcs' edges hold, their inside does not): freed as without it
     if (!ws.inner_kept.empty() && next == fixed)
       for (long c : ws.inner_kept) next(c / m, c % m) = -1;
-    out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / scale,
-                             grad.size() ? grad.cwiseAbs().maxCoeff() / scale : 0.0});
+    // the rows' excess, λ's negative part and the free gradient, the last two over a gradient scale
+    const auto kkt_residual = [&](double gradient_scale) {
+      return std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / gradient_scale,
+                       grad.size() ? grad.cwiseAbs().maxCoeff() / gradient_scale : 0.0});
+    };
+    out.residual = kkt_residual(scale);
     out.iterations = it;
     if (next == fixed) {
       out.fixed = fixed;
-      if (out.residual > ACCEPT) {  // or rounding: the gradient's scale at least ROUNDING / ACCEPT of its terms'
-        const double terms = std::max(scale, ROUNDING / ACCEPT * terms_scale(qp, out.z, out.v, out.lam));
-        out.residual = std::max({broken / qp.f_scale, std::max(-out.lam.minCoeff(), 0.0) / terms,
-                                 grad.size() ? grad.cwiseAbs().maxCoeff() / terms : 0.0});
-      }
+      if (out.residual > ACCEPT)  // or rounding: the gradient's scale at least ROUNDING / ACCEPT of its terms'
+        out.residual = kkt_residual(std::max(scale, ROUNDING / ACCEPT * terms_scale(qp, out.z, out.v, out.lam)));
       out.ok = out.residual <= ACCEPT;
       if (!out.ok) {
         std::snprintf(buf, sizeof buf, "stage-wise active set: the set settled with a KKT residual %.3g above %g",

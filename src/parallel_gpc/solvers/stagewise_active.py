@@ -510,7 +510,7 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
     fewest, frees, freed = nd * m + 1, None, False  # frees: None while the full update runs
     base = []
     for it in range(1, max_iter + 1):
-        upd = _sweep_update(qp, rows, base, fixed) if base and SCHUR_MAX else None
+        upd = _sweep_update(qp, rows, base, fixed) if base else None
         if upd is None:
             z, v = _sweep(qp, rows, fixed, base)
         else:
@@ -525,13 +525,14 @@ def solve_active_set(qp: StageQP, rows: InputRowMap, start: np.ndarray | None = 
         gap = np.where(used, Fx - f, -np.inf)
         inner = _inside_box_arcs(fixed, box)
         new = _next_set(rows, fixed, lam, gap[:nd] - tol * f_scale, tol * scale, None, inner)
-        residual = max(float(np.max(gap, initial=0.0)) / f_scale, float(np.max(-lam, initial=0.0)) / scale,
-                       float(np.max(np.abs(grad), initial=0.0)) / scale)
+        def kkt_residual(gradient_scale: float) -> float:  # the rows' excess, λ's negative part, the free gradient
+            return max(float(np.max(gap, initial=0.0)) / f_scale, float(np.max(-lam, initial=0.0)) / gradient_scale,
+                       float(np.max(np.abs(grad), initial=0.0)) / gradient_scale)
+
+        residual = kkt_residual(scale)
         if np.array_equal(new, fixed):
             if residual > AS_ACCEPT:  # or rounding: the gradient's scale at least AS_ROUNDING / AS_ACCEPT of its terms'
-                terms = max(scale, AS_ROUNDING / AS_ACCEPT * _terms_scale(qp, z, v, lam))
-                residual = max(float(np.max(gap, initial=0.0)) / f_scale, float(np.max(-lam, initial=0.0)) / terms,
-                               float(np.max(np.abs(grad), initial=0.0)) / terms)
+                residual = kkt_residual(max(scale, AS_ROUNDING / AS_ACCEPT * _terms_scale(qp, z, v, lam)))
             status = "optimal" if residual <= AS_ACCEPT else "unconverged"
             message = "" if status == "optimal" else (
                 f"stage-wise active set: the set settled with a KKT residual {residual:.3g} above {AS_ACCEPT:g}")
