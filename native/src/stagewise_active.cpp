@@ -68,6 +68,22 @@ const Row &row_of(const std::vector<Row> &rows, long r) {
   return *std::find_if(rows.begin(), rows.end(), [r](const Row &row) { return row.r == r; });
 }
 
+// Fz_r z of a used row of stage i (Fz: the stage's rows) on its state z: a selector's one entry (its row of Fz
+// not read: the passes over the rows touch the rows' few numbers, not Fz's N·k·nz)
+template <class Z>
+double row_times(const CMap &Fz, const Row &row, const Z &z) {
+  return row.q >= 0 ? row.coef * z(row.q) : row.fz ? Fz.row(row.r).dot(z) : 0.0;
+}
+
+// out += l · Fz_rᵀ for a used row (as row_times)
+template <class Out>
+void add_row(const CMap &Fz, const Row &row, double l, Out &out) {
+  if (row.q >= 0)
+    out(row.q) += l * row.coef;
+  else if (row.fz)
+    out.noalias() += l * Fz.row(row.r).transpose();
+}
+
 struct QP {  // views of the caller's arrays (no copy)
   long N, nz, m, nd, k;
   std::vector<CMap> A, B, Q, Fz;
@@ -337,7 +353,10 @@ struct Sweep {
           if (fixed(i, row.j) != row.r) continue;
           any_fixed = true;
           ei(row.j) = row.sign * row.f;
-          if (row.fz) {
+          if (row.q >= 0) {  // Ei zero here: its row j one entry
+            Ei(row.j, row.q) = -row.sign * row.coef;
+            has_E[i] = 1;
+          } else if (row.fz) {
             Ei.row(row.j) = -row.sign * qp.Fz[i].row(row.r);
             has_E[i] = 1;
             selectors = selectors && row.q >= 0;
@@ -464,7 +483,7 @@ struct Sweep {
       gv.noalias() = B.transpose().lazyProduct(w);
       if (s == i && R.r >= 0) {
         gv(j) += row_of(qp.rows[i], R.r).sign;
-        lin += qp.Fz[i].row(R.r).transpose();
+        add_row(qp.Fz[i], row_of(qp.rows[i], R.r), 1.0, lin);
       } else if (s == i) {  // Hvv e_j and Hvzᵀ e_j of the base's stage: R e_j + BᵀP B e_j, AᵀP B e_j
         Pb.noalias() = ZZ(Ps.data() + (s + 1) * nz * nz, nz, nz).lazyProduct(B.col(j));
         gv += qp.R.col(j);
@@ -516,7 +535,8 @@ struct Sweep {
   // σ_r v_j(i) + Fz_r z(i) on a plan (z, v)
   double row_value(long i, long j, long r, const double *z, const double *v) const {
     const QP &qp = *qpp;
-    return row_of(qp.rows[i], r).sign * v[i * qp.m + j] + qp.Fz[i].row(r).dot(Eigen::Map<const Vec>(z + i * qp.nz, qp.nz));
+    const Row &row = row_of(qp.rows[i], r);
+    return row.sign * v[i * qp.m + j] + row_times(qp.Fz[i], row, Eigen::Map<const Vec>(z + i * qp.nz, qp.nz));
   }
 
   // the plan of the set `fixed` from the base (the last full sweep of this solve) when it differs from the base's
@@ -644,7 +664,7 @@ double multipliers_sized(const QP &qp, const std::vector<char> &held, const Set 
         if (fixed(i, row.j) != row.r) continue;
         const double l = -row.sign * g(row.j);
         lam(i, row.r) = l;
-        if (row.fz) nxt.noalias() += l * qp.Fz[i].row(row.r).transpose();
+        add_row(qp.Fz[i], row, l, nxt);
       }
     }
     if (i > 0) {
@@ -815,8 +835,7 @@ const Outcome &solve_active_set(const QP &qp, Workspace &ws, int max_iter, bool 
       std::fill(worst.begin(), worst.end(), 0.0);
       for (long j = 0; j < m; ++j) brk(i, j) = -1;
       for (const Row &row : qp.rows[i]) {
-        double Fx = row.sign * out.v[i](row.j);
-        if (row.fz) Fx += qp.Fz[i].row(row.r).dot(out.z[i]);
+        const double Fx = row.sign * out.v[i](row.j) + row_times(qp.Fz[i], row, out.z[i]);
         const double gap = Fx - row.f;
         broken = std::max(broken, gap);
         if (gap - tol_f > worst[row.j]) {
@@ -1037,10 +1056,19 @@ class RiccatiActive {
         new (&qp_.B[i]) CMap(B + (nB == 1 ? 0 : i) * n * m, n, m);
         new (&qp_.c[i]) VMap(c ? c + (nc == 1 ? 0 : i) * n : cb_.data() + i * nz, n);  // cb_: zeros
       }
+    } else if (nA == 1 && nB == 1 && nc <= 1) {
+      // one model for every stage (the absolute and incremental forms' step at X): the stages of the two kinds
+      // (deciding, i < Nu; after Nu) filled once and every stage's view seated on its kind's, so that the sweeps
+      // read one block (cached) instead of N copies of it (planar_4rrr, incremental, N = 160: 180 kB a call)
+      stage_model::fill(form, n, m, Nu, 0, A, B, c, Ab_[0], Bb_[0], cb_.row(0));
+      if (Nu < N) stage_model::fill(form, n, m, Nu, Nu, A, B, c, Ab_[Nu], Bb_[Nu], cb_.row(Nu));
+      for (long i = 0; i < N; ++i) seat(i, i < Nu ? 0 : Nu);
     } else {
-      for (long i = 0; i < N; ++i)
+      for (long i = 0; i < N; ++i) {
         stage_model::fill(form, n, m, Nu, i, A + (nA == 1 ? 0 : i) * n * n, B + (nB == 1 ? 0 : i) * n * m,
                           c ? c + (nc == 1 ? 0 : i) * n : nullptr, Ab_[i], Bb_[i], cb_.row(i));
+        seat(i, i);
+      }
     }
     if (form != 3) qp_.z0.head(n) = VMap(x0, n);  // the deviation model starts at 0
     if (form == 1 || form == 2) {
@@ -1133,6 +1161,14 @@ class RiccatiActive {
 
 
  private:
+  // stage i's views of the stage models on those of stage s (Ab_, Bb_, cb_; the views of a step's own arrays when
+  // nz == n are seated in solve)
+  void seat(long i, long s) {
+    new (&qp_.A[i]) CMap(Ab_[s].data(), nz, nz);
+    new (&qp_.B[i]) CMap(Bb_[s].data(), nz, m);
+    new (&qp_.c[i]) VMap(cb_.data() + s * nz, nz);
+  }
+
   QP qp_;
   Mat C_, Wy_, Wu_, CQ2_;
   RowMat Q2_, zero_, cb_, q_, Fz_;
