@@ -244,6 +244,48 @@ struct Sweep {
       }
   }
 
+  [[noreturn]] static void not_definite(long i) {
+    throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " + std::to_string(i) +
+                             " is not positive definite (the input weight Qu must be nonsingular)");
+  }
+
+  // the gains of a stage with nf < m free inputs from their own nf × nf block (the fixed ones' rows and columns of
+  // Hww, Hwz and gw are the identity's and zero, so the bordered system's factor and solutions are the free block's
+  // with zero rows; the same numbers at a fraction of the work: planar_4rrr, incremental, N = 160, 1 or 2 free
+  // inputs of 4 on every stage): K, k written whole (zero rows on the fixed), Pz += Hwzᵀ K and lin += Hwzᵀ k,
+  // and Hww ← its bordered Cholesky factor (the free block's factor at the free entries, L of the updates)
+  template <int NZ, int M>
+  void gains_of_free(long i, long nf, const Set &fixed, Eigen::Matrix<double, M, M> &Hww,
+                     const Eigen::Matrix<double, M, NZ> &Hwz, const Eigen::Matrix<double, M, 1> &gw,
+                     Eigen::Matrix<double, NZ, NZ> &Pz, Eigen::Matrix<double, NZ, 1> &lin,
+                     Eigen::Map<Eigen::Matrix<double, M, NZ>> &Ki, Eigen::Map<Eigen::Matrix<double, M, 1>> &ki) {
+    const long nz = Hwz.cols();
+    long fr[M];
+    for (long j = 0, a = 0; j < M; ++j)
+      if (fixed(i, j) < 0) fr[a++] = j;
+    Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, M, M> Hf(nf, nf);
+    Eigen::Matrix<double, Eigen::Dynamic, NZ, 0, M, NZ> Hfz(nf, nz), Kf(nf, nz);
+    Eigen::Matrix<double, Eigen::Dynamic, 1, 0, M, 1> kf(nf);
+    for (long a = 0; a < nf; ++a) {
+      for (long b = 0; b < nf; ++b) Hf(a, b) = Hww(fr[a], fr[b]);
+      Hfz.row(a) = Hwz.row(fr[a]);
+      kf(a) = -gw(fr[a]);
+    }
+    if (!small_solve::cholesky_in_place(Hf)) not_definite(i);
+    Kf = -Hfz;
+    small_solve::llt_solve_in_place(Hf, Kf);
+    small_solve::llt_solve_in_place(Hf, kf);
+    Pz.noalias() += Hfz.transpose().lazyProduct(Kf);
+    lin.noalias() += Hfz.transpose().lazyProduct(kf);
+    Ki.setZero();
+    ki.setZero();
+    for (long a = 0; a < nf; ++a) {
+      Ki.row(fr[a]) = Kf.row(a);
+      ki(fr[a]) = kf(a);
+      for (long b = 0; b <= a; ++b) Hww(fr[a], fr[b]) = Hf(a, b);
+    }
+  }
+
   // the sweep, with the stage sizes (nz, m) of the robots measured fixed at compile time (the same
   // operations as the dynamic sweep; the sums of a product may round in another order)
   void run(const Set &fixed, Traj &z, Traj &v) {
@@ -405,19 +447,22 @@ struct Sweep {
           if (!Hww.allFinite())
             throw std::runtime_error("stage-wise active set: the free inputs' Hessian at stage " + std::to_string(i) +
                                      " has non-finite entries (NaN or inf in the model, the weights or the limits)");
-          if (!small_solve::cholesky_in_place(Hww))
-            throw std::runtime_error("stage-wise active set: the free inputs' Hessian R + BᵀPB at stage " +
-                                     std::to_string(i) +
-                                     " is not positive definite (the input weight Qu must be nonsingular)");
-          std::copy(Hww.data(), Hww.data() + m * m, L.data() + i * m * m);
           GM Ki(K.data() + i * m * nz, m, nz);
           GV ki(k.data() + i * m, m);
-          Ki = -Hwz;  // K = −Hww⁻¹ Hwz, k = −Hww⁻¹ gw
-          small_solve::llt_solve_in_place(Hww, Ki);
-          ki = -gw;
-          small_solve::llt_solve_in_place(Hww, ki);
-          Pz.noalias() += Hwz.transpose().lazyProduct(Ki);
-          lin.noalias() += Hwz.transpose().lazyProduct(ki);
+          bool compact = false;
+          if constexpr (M != Eigen::Dynamic) compact = nf < m;
+          if (compact) {
+            if constexpr (M != Eigen::Dynamic) gains_of_free<NZ, M>(i, nf, fixed, Hww, Hwz, gw, Pz, lin, Ki, ki);
+          } else {
+            if (!small_solve::cholesky_in_place(Hww)) not_definite(i);
+            Ki = -Hwz;  // K = −Hww⁻¹ Hwz, k = −Hww⁻¹ gw
+            small_solve::llt_solve_in_place(Hww, Ki);
+            ki = -gw;
+            small_solve::llt_solve_in_place(Hww, ki);
+            Pz.noalias() += Hwz.transpose().lazyProduct(Ki);
+            lin.noalias() += Hwz.transpose().lazyProduct(ki);
+          }
+          std::copy(Hww.data(), Hww.data() + m * m, L.data() + i * m * m);
         }
       }
       for (long a = 0; a < nz; ++a)  // P = (Pz + Pzᵀ) / 2, each pair once
