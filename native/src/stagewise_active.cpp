@@ -68,7 +68,7 @@ const Row &row_of(const std::vector<Row> &rows, long r) {
   return *std::find_if(rows.begin(), rows.end(), [r](const Row &row) { return row.r == r; });
 }
 
-// Fz_r z of a used row of stage i (Fz: the stage's rows) on its state z: a selector's one entry (its row of Fz
+// Fz_r z of a used row of a stage (Fz: that stage's rows) on its state z: a selector's one entry (its row of Fz
 // not read: the passes over the rows touch the rows' few numbers, not Fz's N·k·nz)
 template <class Z>
 double row_times(const CMap &Fz, const Row &row, const Z &z) {
