@@ -45,7 +45,7 @@ from parallel_gpc.model.dynamics import ReducedModel
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.model.robot import ParallelRobot
 
-from closed_loop import closed_loop_steps
+from closed_loop import closed_loop_steps, interleaved_loops
 
 TS = 0.002
 WEIGHTS = Weights(1.0, 1e-5)
@@ -109,6 +109,9 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
     of the same form; per N, then the fitted exponent of the step time in N. Also the active
     set's sweeps per step (the first step of a pass cold, the others warm) and how many steps
     went to the interior point. ``clock``: what times a step (s; the wall clock, or ``time.process_time``).
+    The limited and unconstrained stage-wise steps take turns, one state (one sample) at a time, each with its own
+    history: a burst of machine noise falls on both, not on one configuration's whole pass (round 18; before, one
+    pass per configuration: a burst of a few tens of ms could double one median of their ratio).
     ``closed_loop``: every configuration in its own closed loop on the plant (τ from the unconstrained
     one's), not on the recorded states. The printed max|Δu|/τ compares the applied inputs of the limited stage-wise
     and condensed runs, each with its own history (u(k−1), warm starts; in closed loop its own states): the
@@ -141,22 +144,30 @@ def run_limited(name: str, horizons: list[int], reps: int, samples: int, forms: 
                 sweeps["warm" if k else "cold"].append(stagewise.iterations[0])
                 ipm += stagewise.method != "active-set"
 
+            # the two stage-wise configurations interleaved step by step (their ratio is the target), the condensed
+            # one on its own (its N = 160 steps of ~0.1 s would leave both of theirs to a cold cache)
+            groups = [{key: configs[key] for key in ("limited riccati", "unconstrained riccati")},
+                      {"limited condensed": configs["limited condensed"]}]
             for _ in range(reps):
-                for key, ctl in configs.items():
-                    on_step = count if key == "limited riccati" else None
+                for group in groups:
                     if closed_loop:
-                        t, us[key] = closed_loop_steps(robot, ref, ctl, N, samples, clock, TS, on_step)
-                        times[key] += t
+                        runs = interleaved_loops(robot, ref, group, N, samples, clock, TS,
+                                                 lambda key, k, ctl: count(k, ctl) if key == "limited riccati" else None)
+                        for key, (t, u) in runs.items():
+                            times[key] += t
+                            us[key] = u
                         continue
-                    ctl.reset()
-                    us[key] = []
+                    for key, ctl in group.items():
+                        ctl.reset()
+                        us[key] = []
                     for k, (X, w) in enumerate(zip(Xs, ws)):
-                        t0 = clock()
-                        info = ctl.step(X, w)
-                        times[key].append(clock() - t0)
-                        us[key].append(info.u)
-                        if on_step is not None:
-                            on_step(k, ctl)
+                        for key, ctl in group.items():
+                            t0 = clock()
+                            info = ctl.step(X, w)
+                            times[key].append(clock() - t0)
+                            us[key].append(info.u)
+                            if key == "limited riccati":
+                                count(k, ctl)
             med = {key: 1e6 * float(np.median(t)) for key, t in times.items()}
             lim, dflt = np.array(us["limited riccati"]), np.array(us["limited condensed"])
             rows[(form, N)] = med
