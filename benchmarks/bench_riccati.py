@@ -3,7 +3,7 @@
 
 ``python benchmarks/bench_riccati.py [--reps 7] [--samples 60] [--cases planar_4rrr:10,planar_4rrr:20,...]``
 ``python benchmarks/bench_riccati.py --limited [--horizons 20,40,80,160] [--robot planar_4rrr] [--forms absolute,nonlinear] [--cpu] [--closed-loop]``
-``python benchmarks/bench_riccati.py --trace incremental:160 [--samples 12] [--robot planar_4rrr]``
+``python benchmarks/bench_riccati.py --trace incremental:160 [--samples 12] [--reps 1] [--closed-loop] [--robot planar_4rrr]``
 ``valgrind --tool=callgrind python benchmarks/bench_riccati.py --count incremental:80 --steps K [--samples 12] [--free]``
 
 For every case (robot, N) the states of a 0.5 s closed loop along the robot's default path (qr,
@@ -201,28 +201,53 @@ def _limited_pair(name: str, form: str, N: int, samples: int):
     return Xs, ws, free, limited, tau
 
 
-def run_trace(name: str, form: str, N: int, samples: int) -> None:
-    """``--trace form:N``: the limited step of :func:`run_limited` step by step (one pass after a
-    warm-up pass, the unconstrained step timed on the same state right after): µs of each, what
-    solved it (active set, or the interior point after it), the active set's sweeps and the
-    interior point's iterations, how many components the solution's set holds on a limit."""
+def run_trace(name: str, form: str, N: int, samples: int, reps: int = 1, closed_loop: bool = False) -> None:
+    """``--trace form:N``: the limited step of :func:`run_limited` step by step (a warm-up pass, then
+    ``reps`` passes; the unconstrained step timed on the same state right after, or with ``closed_loop`` in
+    its own loop, the two loops interleaved): the last pass's µs of each, what solved it (active set, or the
+    interior point after it), the active set's sweeps and the interior point's iterations, how many
+    components the solution's set holds on a limit; then, over the ``reps`` passes, the median µs of the
+    limited steps by their number of sweeps against the unconstrained steps of the same samples."""
+    robot = ParallelRobot.load(name)
     Xs, ws, free, limited, tau = _limited_pair(name, form, N, samples)
-    print(f"{name} {form} N = {N}, τ = {tau:.3g} N·m: step, limited µs, unconstrained µs, method, "
-          "(sweeps, interior-point iterations), components on a limit")
-    for rep in range(2):
-        limited.reset()
-        free.reset()
-        for k, (X, w) in enumerate(zip(Xs, ws)):
-            t0 = time.perf_counter()
-            limited.step(X, w)
-            t1 = time.perf_counter()
-            free.step(X, w)
-            t2 = time.perf_counter()
-            stagewise = limited._riccati.constrained
+    ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
+    print(f"{name} {form} N = {N}, τ = {tau:.3g} N·m{' (closed loop)' if closed_loop else ''}: step, limited µs, "
+          "unconstrained µs, method, (sweeps, interior-point iterations), components on a limit")
+    stagewise = limited._riccati.constrained
+    rows = []  # (pass, sample, limited s, unconstrained s, sweeps)
+    for rep in range(reps + 1):
+        passed = []
+
+        def note(k):
             held = "–" if stagewise._fixed is None else f"{int((stagewise._fixed >= 0).sum())}/{stagewise._fixed.size}"
-            if rep:
-                print(f"  {k:3d} {1e6 * (t1 - t0):9.1f} {1e6 * (t2 - t1):8.1f}  {stagewise.method:32s} "
-                      f"{stagewise.iterations}  {held}")
+            passed.append((stagewise.method, stagewise.iterations, held))
+
+        if closed_loop:
+            runs = interleaved_loops(robot, ref, {"limited": limited, "free": free}, N, samples, time.perf_counter, TS,
+                                     lambda key, k, ctl: note(k) if key == "limited" else None)
+            t_lim, t_free = runs["limited"][0], runs["free"][0]
+        else:
+            limited.reset()
+            free.reset()
+            t_lim, t_free = [], []
+            for X, w in zip(Xs, ws):
+                t0 = time.perf_counter()
+                limited.step(X, w)
+                t1 = time.perf_counter()
+                free.step(X, w)
+                t_lim.append(t1 - t0)
+                t_free.append(time.perf_counter() - t1)
+                note(len(t_lim) - 1)
+        if rep:
+            rows += [(rep, k, a, b, it[0]) for k, (a, b, (_, it, _)) in enumerate(zip(t_lim, t_free, passed))]
+        if rep == reps:
+            for k, (a, b, (method, it, held)) in enumerate(zip(t_lim, t_free, passed)):
+                print(f"  {k:3d} {1e6 * a:9.1f} {1e6 * b:8.1f}  {method:32s} {it}  {held}")
+    print("by sweeps (median µs over the passes): sweeps, steps, limited, unconstrained on the same samples")
+    for n in sorted({r[4] for r in rows}):
+        sel = [r for r in rows if r[4] == n]
+        print(f"  {n:3d} {len(sel):5d} {1e6 * np.median([r[2] for r in sel]):9.1f} "
+              f"{1e6 * np.median([r[3] for r in sel]):9.1f}")
 
 
 def run_count(name: str, form: str, N: int, samples: int, steps: int, free_only: bool) -> None:
@@ -262,7 +287,7 @@ def main() -> None:
         return
     if args.trace:
         form, N = args.trace.split(":")
-        run_trace(args.robot, form, int(N), args.samples)
+        run_trace(args.robot, form, int(N), args.samples, args.reps if args.reps != 7 else 1, args.closed_loop)
         return
     if args.limited:
         run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples,
