@@ -22,7 +22,7 @@ from parallel_gpc.gpc.references import SCurve, path_for
 from parallel_gpc.limits import Limits
 from parallel_gpc.model.plant import ConstrainedPlant
 from parallel_gpc.solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, CROSSOVER, QRSolver, StageQP, StageStart, active_set_of, input_rows_of,
-                                   shift_active_set, solve_active_set, solve_stage_qp)
+                                   shift_active_set, solve_active_set, solve_stage_qp, stopped_short)
 from parallel_gpc.solvers.stagewise_ipm import costates
 from closed_loop_states import closed_loop_states
 from condensed_oracle import condensed, condensed_of_state, kkt_residual, objective
@@ -308,6 +308,32 @@ def test_infeasible_hard_limits_are_reported():
     path = ctl._riccati
     result = path.solve(*path.stages(ctl, X, w))
     assert result.status == "infeasible" and "infeasible" in result.message
+
+
+def test_iterations_stopped_short_say_whether_a_hard_row_is_broken():
+    """The interior point stopped by its cap on a feasible problem: every hard row holds at its plan, so the
+    status is unconverged and the message says the limits are not shown infeasible (it said infeasible
+    with a largest violation of 0); a plan that breaks a hard row: infeasible, naming the row; the same
+    rule on the compiled iterations' plan (stopped_short)."""
+    qp = _random_stage_qp(0)
+    optimum = solve_stage_qp(qp)
+    assert optimum.status == "optimal"
+    short = solve_stage_qp(qp, max_iter=5)  # stopped short (KKT residual ~9) at an iterate inside every hard row
+    assert short.status == "unconverged" and short.residual > 1e-6 and "not shown infeasible" in short.message
+    used = np.isfinite(qp.f) & ~qp.soft
+    F = np.einsum("ikn,in->ik", qp.Fz, short.z[:-1])
+    F[:qp.n_decide] += np.einsum("ikm,im->ik", qp.Fv[:qp.n_decide], short.v)
+    broken = float(np.max(np.where(used, F - np.where(used, qp.f, 0.0), -np.inf)))
+    assert (short.status == "infeasible") == (broken > 1e-6 * np.abs(qp.f[np.isfinite(qp.f)]).max())
+    status, message = stopped_short(qp, optimum.z, optimum.v, 7, 1e-3)
+    assert status == "unconverged" and "every hard row within its bound" in message and "not shown infeasible" in message
+    i, j = np.argwhere(used)[0]
+    F = np.einsum("ikn,in->ik", qp.Fz, optimum.z[:-1])
+    F[:qp.n_decide] += np.einsum("ikm,im->ik", qp.Fv[:qp.n_decide], optimum.v)
+    f = qp.f.copy()
+    f[i, j] = F[i, j] - 0.1  # the optimum's row i, j now 0.1 beyond its bound
+    status, message = stopped_short(replace(qp, f=f), optimum.z, optimum.v, 7, 1e-3)
+    assert status == "infeasible" and f"at stage {i}, row {j}" in message and "cannot all hold" in message
 
 
 def test_drive_limits_with_riccati_are_a_clear_error():

@@ -51,7 +51,7 @@ from ..limits import OUTPUT_KINDS, SOFT_QUADRATIC, Limits
 from ..model import compiled_part
 from ..solvers import (AS_MAX_ITER, AS_WARM_MAX_ITER, CROSSOVER, ActiveSetSolution, InputRowMap, SolveResult, StageQP,
                        StageQPSolution, StageStart, active_set_of, input_rows_of, shift_active_set, solve_active_set,
-                       solve_stage_qp)
+                       solve_stage_qp, stopped_short)
 from .constraints import ACTIVE_TOL, STATE_TOL, ConstraintReport, output_rows
 from .criterion import input_rows
 from .prediction import Horizons
@@ -407,9 +407,8 @@ class StagewiseSolver:
                 crossover)
         except RuntimeError as exc:
             raise SolverError(str(exc)) from None
-        status = "crossover" if merit <= crossover else "optimal" if ok else "infeasible"
-        message = "" if ok else (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}): "
-                                 "the hard limits cannot all hold (infeasible)")
+        status, message = ("crossover", "") if merit <= crossover else ("optimal", "") if ok else \
+            stopped_short(qp, z, v, iterations, merit)
         return StageQPSolution(v, z, s, lam, None, iterations, status, merit, message)
 
     def _interior(self, qp: StageQP, rows: InputRowMap | None, last: StageQPSolution | None):
@@ -589,7 +588,8 @@ class StagewiseSolver:
                      for kd in OUTPUT_KINDS if (state & (kinds == kd) & qp.soft).any()}
             binding = np.broadcast_to(kinds, used.shape)[active & state]
             report = ConstraintReport(tuple(sorted({str(kd) for kd in binding})), slack)
-        status, message = ("optimal", "") if sol.status == "optimal" else ("infeasible", sol.message)
+        status = {"optimal": "optimal", "unconverged": "failed"}.get(sol.status, "infeasible")
+        message = "" if status == "optimal" else sol.message
         if self.method == "interior-point after active set":
             message = f"{fell_back}: solved by the interior point" + (f"; {message}" if message else "")
         hard_excess = float(np.max(np.where(used & ~qp.soft, F_x - f, 0.0), initial=0.0))

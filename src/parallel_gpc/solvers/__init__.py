@@ -45,7 +45,7 @@ from .problem import (
     with_inequalities,
 )
 from .riccati import lq_tracking
-from .stagewise_ipm import CROSSOVER, StageQP, StageQPSolution, StageStart, solve_stage_qp
+from .stagewise_ipm import CROSSOVER, StageQP, StageQPSolution, StageStart, solve_stage_qp, stopped_short
 from .stagewise_active import (AS_MAX_ITER, AS_WARM_MAX_ITER, ActiveSetSolution, InputRowMap, active_set_of, input_rows_of, shift_active_set,
                                solve_active_set)
 from .kkt import KKT_TOL, KKTResiduals, KKTTolerance, kkt_residuals, verified
@@ -56,7 +56,7 @@ from .qr_first import QRFirst
 
 __all__ = [
     "from_cumulative", "with_inequalities", "with_equalities", "lq_tracking", "StageQP", "StageQPSolution", "StageStart",
-    "solve_stage_qp", "CROSSOVER", "ActiveSetSolution", "InputRowMap", "input_rows_of", "shift_active_set", "active_set_of",
+    "solve_stage_qp", "stopped_short", "CROSSOVER", "ActiveSetSolution", "InputRowMap", "input_rows_of", "shift_active_set", "active_set_of",
     "solve_active_set", "AS_MAX_ITER", "AS_WARM_MAX_ITER",
     "LeastSquaresProblem", "MinNormOf", "SolveResult", "QP_REGULARIZATION", "LIMIT_TOL", "RANK_RTOL",
     "FAST_QR_RCOND", "BVLSSolver", "NormalEquationsSolver", "QRSolver", "qr_least_squares", "QRFirst", "DIRECT_BACKENDS", "KNOWN_DIRECT_BACKENDS",

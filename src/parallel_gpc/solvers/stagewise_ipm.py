@@ -40,7 +40,8 @@ import scipy.linalg as sla
 
 from ..errors import SolverError
 
-__all__ = ["StageQP", "StageStart", "StageQPSolution", "solve_stage_qp", "IPM_TOL", "IPM_MAX_ITER", "CROSSOVER"]
+__all__ = ["StageQP", "StageStart", "StageQPSolution", "solve_stage_qp", "stopped_short", "IPM_TOL", "IPM_MAX_ITER",
+           "CROSSOVER"]
 
 #: stopping tolerance, relative to the problem's scale (largest gradient/penalty entry, ≥ 1).
 IPM_TOL = 1e-13
@@ -62,7 +63,7 @@ _REFINE = 2
 #: iterate's merit (relative to the scale; at least 1e-15): far from the solution no pass is needed.
 _REFINE_FORCING = 1e-3
 #: a best iterate whose relative KKT residual is at most this is accepted (the rounding floor of
-#: a badly scaled problem sits above IPM_TOL); above it the problem is reported infeasible.
+#: a badly scaled problem sits above IPM_TOL); above it the iterations stopped short (:func:`stopped_short`).
 _ACCEPT = 1e-6
 #: the iterations stop after this many without a markedly better iterate (the rounding floor reached).
 _STALL = 3
@@ -141,9 +142,10 @@ class StageQPSolution:
         v: (n_decide, m); z: (N + 1, nz); s: (N, k) slacks (0 on hard and unused rows);
         lam: (N, k) row multipliers; nu: (N + 1, nz) costates (nu[0] unused: z0 is given);
         iterations: IPM iterations; status: ``"optimal"``, ``"infeasible"`` (not converged:
-        hard rows that cannot all hold) — the message says which — or ``"crossover"`` (stopped at the
-        caller's ``crossover`` merit, see :func:`solve_stage_qp`); residual: the largest KKT
-        residual, relative to the scale.
+        hard rows that cannot all hold) — the message says which —, ``"unconverged"`` (stopped short with
+        every hard row holding, :func:`stopped_short`) or ``"crossover"`` (stopped at the caller's
+        ``crossover`` merit, see :func:`solve_stage_qp`); residual: the largest KKT residual, relative
+        to the scale.
     """
 
     v: np.ndarray
@@ -334,8 +336,9 @@ def solve_stage_qp(qp: StageQP, tol: float = IPM_TOL, max_iter: int = IPM_MAX_IT
             (:data:`CROSSOVER`; gpc/stagewise.py hands it to the active set).
 
     Returns:
-        The solution (status ``"infeasible"`` when the iterations stop short: its message names the
-        largest remaining violation of a hard row; ``"crossover"``: see ``crossover``).
+        The solution (status ``"infeasible"`` or ``"unconverged"`` when the iterations stop short,
+        :func:`stopped_short`: the message names the largest remaining violation of a hard row, or says
+        that every hard row holds; ``"crossover"``: see ``crossover``).
 
     Raises:
         SolverError: a Newton system that is not positive definite (R not ≻ 0, non-finite data).
@@ -570,11 +573,26 @@ def _solve_scaled(qp: StageQP, z, v, tol: float, max_iter: int, start=None, cros
     z, v, t, lam, s, _ = point
     if merit <= _ACCEPT:
         return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, nu, iterations, "optimal", merit)
-    Fx = _rows_times(qp, z, v)
-    hard = used & ~soft
-    excess = np.where(hard, Fx - f, -np.inf)
+    status, message = stopped_short(qp, z, v, iterations, merit)
+    return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, nu, iterations, status, merit, message)
+
+
+def stopped_short(qp: StageQP, z: np.ndarray, v: np.ndarray, iterations: int, merit: float) -> tuple[str, str]:
+    """(status, message) of interior-point iterations that stopped short of the tolerance at the plan
+    (z (N + 1, nz), v (n_decide, m)) with relative KKT residual ``merit`` (the Python iterations' and the
+    compiled ``_native.stagewise_ipm``'s): ``"infeasible"`` when a hard row is exceeded by more than
+    1e-6 of the largest bound (at least 1e-6 in the rows' units; the message names the row: typically
+    limits that cannot all hold, though a cap reached early stops at such an iterate too), else
+    ``"unconverged"``: every hard row holds, the iterations stalled above the tolerance (a badly scaled or
+    degenerate problem), and nothing shows the limits infeasible."""
+    used = np.isfinite(qp.f)
+    f = np.where(used, qp.f, 0.0)
+    excess = np.where(used & ~qp.soft, _rows_times(qp, z, v) - f, -np.inf)
     i, j = np.unravel_index(int(np.argmax(excess)), excess.shape)
-    message = (f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g}); the largest "
-               f"hard-row violation is {max(float(excess[i, j]), 0.0):.3g} at stage {i}, row {j}: the hard limits "
-               "cannot all hold (infeasible)")
-    return StageQPSolution(v, z, np.where(soft, s, 0.0), lam, nu, iterations, "infeasible", merit, message)
+    worst = max(float(excess[i, j]), 0.0)
+    head = f"stage-wise IPM stopped after {iterations} iterations (KKT residual {merit:.3g})"
+    if worst > _ACCEPT * max(1.0, float(np.max(np.abs(f), initial=0.0))):
+        return "infeasible", (f"{head}; the largest hard-row violation is {worst:.3g} at stage {i}, row {j}: "
+                              "the hard limits cannot all hold (infeasible), or not within the iterations")
+    return "unconverged", (f"{head} with every hard row within its bound (largest excess {worst:.3g}): "
+                           "not converged, and not shown infeasible")
