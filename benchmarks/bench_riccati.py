@@ -207,7 +207,8 @@ def run_trace(name: str, form: str, N: int, samples: int, reps: int = 1, closed_
     its own loop, the two loops interleaved): the last pass's µs of each, what solved it (active set, or the
     interior point after it), the active set's sweeps and the interior point's iterations, how many
     components the solution's set holds on a limit; then, over the ``reps`` passes, the median µs of the
-    limited steps by their number of sweeps against the unconstrained steps of the same samples."""
+    limited steps by their number of sweeps against the unconstrained steps of the same samples. τ: that of
+    the recorded states (:func:`_limited_pair`), in closed loop too."""
     robot = ParallelRobot.load(name)
     Xs, ws, free, limited, tau = _limited_pair(name, form, N, samples)
     ref = path_for("auto", robot.home_pose, robot.output_angular, SCurve().duration)
@@ -266,7 +267,7 @@ def run_count(name: str, form: str, N: int, samples: int, steps: int, free_only:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--reps", type=int, default=7)
+    parser.add_argument("--reps", type=int, default=None, help="repetitions (default 7; --trace: 1 pass after the warm-up)")
     parser.add_argument("--samples", type=int, default=60)
     parser.add_argument("--cases", default="planar_4rrr:10,planar_4rrr:20,planar_4rrr:40,hexapod_8ups:20")
     parser.add_argument("--limited", action="store_true", help="the torque-limited step (stage-wise active set)")
@@ -281,21 +282,22 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=12, help="--count: the steps on the first recorded states")
     parser.add_argument("--free", action="store_true", help="--count: the unconstrained step instead")
     args = parser.parse_args()
+    reps = 7 if args.reps is None else args.reps
     if args.count:
         form, N = args.count.split(":")
         run_count(args.robot, form, int(N), args.samples, args.steps, args.free)
         return
     if args.trace:
         form, N = args.trace.split(":")
-        run_trace(args.robot, form, int(N), args.samples, args.reps if args.reps != 7 else 1, args.closed_loop)
+        run_trace(args.robot, form, int(N), args.samples, 1 if args.reps is None else args.reps, args.closed_loop)
         return
     if args.limited:
-        run_limited(args.robot, [int(n) for n in args.horizons.split(",")], args.reps, args.samples,
+        run_limited(args.robot, [int(n) for n in args.horizons.split(",")], reps, args.samples,
                     args.forms.split(","), time.process_time if args.cpu else time.perf_counter, args.closed_loop)
         return
     for case in args.cases.split(","):
         name, N = case.split(":")
-        run_case(name, int(N), args.reps, args.samples)
+        run_case(name, int(N), reps, args.samples)
 
 
 if __name__ == "__main__":
