@@ -398,10 +398,10 @@ struct Sweep {
           if (row.q >= 0) {  // Ei zero here: its row j one entry
             Ei(row.j, row.q) = -row.sign * row.coef;
             has_E[i] = 1;
-          } else if (row.fz) {
+          } else if (row.fz) {  // a row of several entries: E_i taken whole below
             Ei.row(row.j) = -row.sign * qp.Fz[i].row(row.r);
             has_E[i] = 1;
-            selectors = selectors && row.q >= 0;
+            selectors = false;
           }
         }
         Hz = Hvz;
