@@ -39,6 +39,7 @@ from parallel_gpc.gpc.controller import LIMIT_MARGIN  # noqa: E402
 from parallel_gpc.gpc.references import SampledTrajectory, quintic_array  # noqa: E402
 from parallel_gpc.gpc.robot_references import ray_reach, reference_for  # noqa: E402
 from parallel_gpc.limits import Limits  # noqa: E402
+from parallel_gpc.model import native_update  # noqa: E402
 
 QY, QU = 1.0, 1e-3
 HERE = Path(__file__).resolve().parent
@@ -51,6 +52,50 @@ def delta_move(robot, move: float, hold: float = 0.04):
     t = np.linspace(0.0, move + hold, 400)
     s = quintic_array(np.clip(t / move, 0.0, 1.0))
     return SampledTrajectory(t, robot.home_pose + np.outer(s, 0.85 * reach * direction)), reach
+
+
+def model_with(robot, threads: int, Ts: float = 0.002) -> ReducedModel:
+    """A model whose compiled update runs its stage loop on `threads` threads (built now, at one ZOH of Ts s; the
+    process's setting, ``PARALLEL_GPC_THREADS`` or its default, is back in force for the next models)."""
+    before = os.environ.get(native_update.THREADS_ENV)
+    os.environ[native_update.THREADS_ENV] = str(threads)
+    native_update.compiled_threads.cache_clear()
+    try:
+        model = ReducedModel(robot)
+        model.discrete(np.r_[robot.home_pose, np.zeros(robot.n_y)], Ts)
+    finally:
+        if before is None:
+            del os.environ[native_update.THREADS_ENV]
+        else:
+            os.environ[native_update.THREADS_ENV] = before
+        native_update.compiled_threads.cache_clear()
+    return model
+
+
+def arithmetic_floor(robot, Ts, N, solves: float, reps: int = 15) -> dict:
+    """The least wall time a converged step can take on this machine: the rollouts and stage Jacobians it
+    cannot do without, at their one-thread CPU time, shared perfectly by the cores the compiled stage loop may
+    use (``PARALLEL_GPC_THREADS``' default, min(2, cores)); the solves, the Python around them and every
+    thread's overhead not counted. A step of ``solves`` solves (the paper's, then exact Gauss–Newton steps; the
+    last verifies) rolls out ``solves`` plans (the pre-simulation and each accepted trial, N stages) and
+    linearizes ``solves`` − 1 of them (N − 1 stages). Rollout and Jacobians timed on a one-thread model,
+    medians of ``reps`` interleaved calls (process CPU, s), two plans 0.1 % apart in turn (the same plan again
+    would reuse the rollout's factorizations). Returns the times in ms and the floor."""
+    model = model_with(robot, 1, Ts)
+    threads = native_update.compiled_threads()  # what the converged runs used
+    X = np.r_[robot.home_pose, np.zeros(robot.n_y)]
+    plans = [np.full((N, model.n_u), 0.1), np.full((N, model.n_u), 0.1001)]
+    roll, jac = [], []
+    for k in range(reps):
+        t = time.process_time()
+        Xs = model.simulate_factorized(X, plans[k % 2], Ts)[3]
+        roll.append(time.process_time() - t)
+        t = time.process_time()
+        model.stage_jacobians(Xs, plans[k % 2], Ts, start=1)
+        jac.append(time.process_time() - t)
+    r, j = 1e3 * float(np.median(roll)), 1e3 * float(np.median(jac))
+    return {"rollout_ms": r, "jacobians_ms": j, "solves": solves, "cores": threads,
+            "floor_ms": (solves * r + (solves - 1.0) * j) / threads}
 
 
 def gpc_method(model, Ts, N, torque, iterations, tolerance=1e-8):
@@ -164,6 +209,16 @@ def main(argv=None) -> int:
             line += (f"; {conv['ipopt_ratio']:.0f}× IPOPT (≥ {TARGET_RATIO:g}×: "
                      f"{'met' if conv['ipopt_ratio'] >= TARGET_RATIO else 'missed'})")
         print(line, flush=True)
+        if "mean_iterations" in conv and ReducedModel(robot).native:  # the compiled core's arithmetic
+            floor = conv["floor"] = arithmetic_floor(robot, Ts, N, conv["mean_iterations"])
+            text = (f"arithmetic floor of the converged step: {floor['solves']:.2f} rollouts of {N} stages "
+                    f"({floor['rollout_ms']:.3f} ms each) and {floor['solves'] - 1:.2f} sets of {N - 1} stage "
+                    f"Jacobians ({floor['jacobians_ms']:.3f} ms each), one-thread CPU, over {floor['cores']} "
+                    f"core{'s' if floor['cores'] > 1 else ''}: {floor['floor_ms']:.3f} ms")
+            if "mean_step_ms" in rows.get(IPOPT, {}):
+                floor["ipopt_ratio"] = rows[IPOPT]["mean_step_ms"] / floor["floor_ms"]
+                text += f", i.e. at most {floor['ipopt_ratio']:.0f}× IPOPT"
+            print(text + " (the solves and the Python around them not counted)", flush=True)
         out_json["planar"] = {"meta": {"robot": "planar_4rrr", "reference": "s-curve", "Ts": Ts, "N": N, "steps": steps,
                                        "torque_limit_Nm": torque, "Qy": QY, "Qu": QU}, "rows": rows, "target": line}
     if args.case in ("delta", "both"):

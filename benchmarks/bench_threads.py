@@ -23,23 +23,14 @@ import time  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from bench_nmpc import gpc_method  # noqa: E402
-from parallel_gpc import ConstrainedPlant, ParallelRobot, ReducedModel  # noqa: E402
+from bench_nmpc import gpc_method, model_with  # noqa: E402
+from parallel_gpc import ConstrainedPlant, ParallelRobot  # noqa: E402
 from parallel_gpc.gpc.robot_references import reference_for  # noqa: E402
 from parallel_gpc.limits import Limits  # noqa: E402
 from parallel_gpc.model import native_update  # noqa: E402
 from parallel_gpc.model.native import native_module  # noqa: E402
 
 TS, N, TORQUE = 0.002, 20, 15.0
-
-
-def model_with(robot, threads: int) -> ReducedModel:
-    """A model whose compiled update runs its stage loop on `threads` threads (built now)."""
-    os.environ[native_update.THREADS_ENV] = str(threads)
-    native_update.compiled_threads.cache_clear()
-    model = ReducedModel(robot)
-    model.discrete(np.r_[robot.home_pose, np.zeros(robot.n_y)], TS)
-    return model
 
 
 def timed(f) -> tuple[float, float]:

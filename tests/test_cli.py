@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 import parallel_gpc
-from parallel_gpc import DEFAULT_ROBOT, FORMS, TrackingSettings, embedded_robots, load_description
+from parallel_gpc import (DEFAULT_ROBOT, FORMS, GPCSettings, Horizons, TrackingSettings, embedded_robots,
+                          load_description)
 from parallel_gpc.cli import REGISTRARS, build_parser, main
 from parallel_gpc.cli import defaults, vocabulary
 from parallel_gpc.errors import InvalidParameterError
@@ -66,6 +67,7 @@ def test_help_defaults_are_the_library_defaults():
     assert defaults.DEFAULT_ROBOT == DEFAULT_ROBOT and defaults.FORMS == tuple(FORMS)
     library = TrackingSettings().flat()
     assert defaults.TRACKING == {k: library[k] for k in defaults.TRACKING}
+    assert defaults.TOLERANCE == GPCSettings(0.002, Horizons(5)).tolerance
     from parallel_gpc.gpc.robot_references import REFERENCE_KINDS
 
     assert defaults.REFERENCES == REFERENCE_KINDS

@@ -7,7 +7,9 @@ DEFAULT_ROBOT = "planar_4rrr"
 FORMS = ("absolute", "incremental", "incremental-delayed", "nonlinear")
 #: = the fields of ``parallel_gpc.TrackingSettings()`` that ``track`` and ``demo`` expose.
 TRACKING = {"Ts": 0.002, "N": 20, "No": 0, "Qy": 1.0, "Qu": 0.0, "disturbance_gain": None, "mass_scale": 1.0,
-            "platform_force": (0.0, 0.0, 0.0), "duration": None}
+            "platform_force": (0.0, 0.0, 0.0), "duration": None, "iterations": 1}
+#: = the default of ``parallel_gpc.GPCSettings.tolerance``: the nonlinear form's iterations' relative step tolerance.
+TOLERANCE = 1e-8
 #: = the same fields of ``parallel_gpc.studies.DEMO_SETTINGS`` (the ``demo`` command).
 DEMO = {**TRACKING, "Ts": 0.01, "N": 30, "Qu": 1e-3, "mass_scale": 1.2, "platform_force": (5.0, -5.0, 0.5),
         "duration": 3.0, "disturbance_gain": 0.5}

@@ -15,7 +15,7 @@ import math
 import sys
 from pathlib import Path
 
-from .defaults import EXIT_DIVERGED, EXIT_INTERRUPTED, TRACKING
+from .defaults import EXIT_DIVERGED, EXIT_INTERRUPTED, TOLERANCE, TRACKING
 from .outputs import check_view_outputs, prepare_out_dir
 from .view import add_view_arguments
 from .vocabulary import (ROBOT, add_forms_argument, add_limit_arguments, add_reference_argument, limits_line,
@@ -46,6 +46,15 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
                    "limits, or torque/du limits at N ≥ 10 —, otherwise qr (Qu = 0: "
                    "minimum-norm), with limits qr-first:bvls for the absolute form, qr-first:daqp-direct for the "
                    "incremental forms; the table prints the one used)")
+    p.add_argument("--iterations", type=int, default=d["iterations"], metavar="K",
+                   help="Gauss–Newton iterations per step of the nonlinear form: 1 = the paper's single step, "
+                        "more = iterated toward the nonlinear MPC optimum, stopping at --tolerance (the other forms take "
+                        f"their single step; the solvers line reports the iterations used) (default {d['iterations']})")
+    p.add_argument("--tolerance", type=float, default=None,
+                   help=f"the iterations stop when the Gauss–Newton step ‖Δv‖∞ ≤ tolerance·(1 + ‖v‖∞) (default {TOLERANCE:g})")
+    p.add_argument("--time-budget", type=float, default=None, metavar="SECONDS",
+                   help="real-time mode: no Gauss–Newton iteration that would end past this many s of the control "
+                        "step (the solvers line counts the steps it stopped) (default none)")
     p.add_argument("--torque-limit", type=float, default=None,
                    help="drive limit in N·m (N for prismatic drives); default: the robot file's (--limits none: none)")
     p.add_argument("--du-limit", type=float, default=None,
@@ -87,6 +96,7 @@ def settings_from_args(args):
         disturbance_gain=args.disturbance_gain,
         mass_scale=args.mass_scale, noise_std=args.noise, platform_force=tuple(args.force),
         reference=args.reference, duration=args.duration, sensors=args.sensors, plant=args.plant,
+        iterations=args.iterations, tolerance=args.tolerance, time_budget=args.time_budget,
     )
     velocity = None if args.velocity_limit is None else (
         args.velocity_limit[0] if len(args.velocity_limit) == 1 else args.velocity_limit)

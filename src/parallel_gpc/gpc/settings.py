@@ -152,7 +152,7 @@ class GPCSettings:
             raise InvalidParameterError(
                 f"form 'incremental-delayed' needs N ≥ 2 (its increment acts from k+2 on); got N = {self.horizons.N}")
         check_form_limits(self.form, self.limits)
-        check_iterations(self)
+        put("iterations", check_iterations(self.iterations, self.form))
         check_terminal(self)
         put("solver_is_default", self.solver is None)
         put("solver", default_solver(self) if self.solver is None else resolve_solver(
@@ -181,14 +181,16 @@ def iterations_by_riccati(settings: "GPCSettings") -> bool:
             and stagewise_exact(replace(settings, iterations=1)) and stagewise_compiled(False))
 
 
-def check_iterations(settings: "GPCSettings") -> None:
-    """Refuse iterations that are not an integer ≥ 1, or > 1 outside the nonlinear form."""
-    n = settings.iterations
+def check_iterations(n, form: str = "nonlinear") -> int:
+    """The Gauss–Newton iterations ``n`` of ``form``; refused unless an integer ≥ 1, and > 1 outside the
+    nonlinear form (:class:`GPCSettings`; :class:`~parallel_gpc.studies.TrackingSettings` for its nonlinear runs)."""
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise InvalidParameterError(f"iterations = {n!r} must be an integer ≥ 1 (1: the paper's single step)")
-    if n > 1 and settings.form != "nonlinear":
+    if n > 1 and form != "nonlinear":
         raise InvalidParameterError(f"iterations = {n} iterates the nonlinear form's prediction; form is "
-                                    f"{settings.form!r} (use form='nonlinear' or iterations=1)")
+                                    f"{form!r} (use form='nonlinear' or iterations=1)")
+    return int(n)
+
 
 
 def check_terminal(settings: "GPCSettings") -> None:

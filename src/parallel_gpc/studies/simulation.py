@@ -74,6 +74,11 @@ class SimulationResult:
             solved the step (:attr:`~parallel_gpc.gpc.StepInfo.replaced`), or None.
         message: (K,) the solver's message on replaced and fallback steps (why), "" on the
             others, or None.
+        nmpc_iterations: (K,) Gauss–Newton iterations of each step (1: the paper's single step;
+            the nonlinear form's with ``iterations`` > 1, :attr:`~parallel_gpc.gpc.StepInfo.iterations`),
+            or None. nmpc_residual: (K,) the last Gauss–Newton step's relative size
+            (:attr:`~parallel_gpc.gpc.StepInfo.residual`; NaN after a single step), or None.
+            budget_hit: (K,) bool, True where the time budget stopped the iterations, or None.
     """
 
     t: np.ndarray
@@ -98,6 +103,9 @@ class SimulationResult:
     solver: np.ndarray | None = None
     replaced: np.ndarray | None = None
     message: np.ndarray | None = None
+    nmpc_iterations: np.ndarray | None = None
+    nmpc_residual: np.ndarray | None = None
+    budget_hit: np.ndarray | None = None
 
     @property
     def angular(self) -> np.ndarray | None:
@@ -178,7 +186,25 @@ class SimulationResult:
         if first.size and self.message is not None:
             k = int(first[0])
             parts.append(f"first at t = {self.t[k]:.3f} s: {self.message[k]}")
-        return "; ".join(parts)
+        nmpc = self.iterations_summary()
+        return "; ".join(parts + ([nmpc] if nmpc else []))
+
+    def iterations_summary(self) -> str:
+        """One phrase on the nonlinear form's Gauss–Newton iterations when the run iterated (a step
+        of more than one, or a time budget hit), else "": mean and largest count, the largest last
+        relative step (:attr:`nmpc_residual`) and the steps the time budget stopped, e.g.
+        ``"Gauss–Newton iterations 3.28 a step (max 5), last step ≤ 3.1e-09 relative, 0 stopped by the time
+        budget"``."""
+        if self.nmpc_iterations is None or not len(self.nmpc_iterations):
+            return ""
+        its = np.asarray(self.nmpc_iterations)
+        hits = 0 if self.budget_hit is None else int(np.sum(self.budget_hit))
+        if its.max() <= 1 and not hits:
+            return ""
+        res = np.asarray(self.nmpc_residual, dtype=float) if self.nmpc_residual is not None else np.full(len(its), np.nan)
+        last = f"last step ≤ {np.nanmax(res):.2g} relative" if np.isfinite(res).any() else "no second linearization"
+        return (f"Gauss–Newton iterations {its.mean():.2f} a step (max {int(its.max())}), {last}, "
+                f"{hits} stopped by the time budget")
 
     def save(self, path) -> Path:
         """Save to ``.npz`` (a result file of :mod:`parallel_gpc.results`: everything, viewable with
@@ -201,7 +227,8 @@ class SimulationResult:
             return path
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
                                                "solve_time", "iterations", "status", "fallback", "solver",
-                                               "replaced", "message") if getattr(self, k) is not None}
+                                               "replaced", "message", "nmpc_iterations", "nmpc_residual",
+                                               "budget_hit") if getattr(self, k) is not None}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
         extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted),
                      diverged=np.array(self.diverged))
@@ -212,17 +239,20 @@ class SimulationResult:
 
 
 #: What a closed loop records of each controller step (:func:`step_record`).
-STEP_RECORD = ("solve_time", "iterations", "status", "fallback", "solver", "replaced", "message")
+STEP_RECORD = ("solve_time", "iterations", "status", "fallback", "solver", "replaced", "message", "nmpc_iterations",
+               "nmpc_residual", "budget_hit")
 
 
 def step_record(info) -> dict:
-    """The :data:`STEP_RECORD` of one :class:`~parallel_gpc.gpc.StepInfo`: solve time (s),
-    iterations (−1 if not reported), status, fallback, the back end that solved the step, whether
-    it replaced a failed stage-wise solve, and the solver's message on such and fallback steps."""
+    """The :data:`STEP_RECORD` of one :class:`~parallel_gpc.gpc.StepInfo`: solve time (s), the back
+    end's iterations (−1 if not reported), status, fallback, the back end that solved the step, whether
+    it replaced a failed stage-wise solve, the solver's message on such and fallback steps, and the
+    nonlinear form's Gauss–Newton iterations, last relative step and whether the time budget stopped them."""
     result = info.result
     return {"solve_time": info.solve_time, "iterations": -1 if result.iterations is None else result.iterations,
             "status": result.status, "fallback": info.fallback, "solver": result.solver, "replaced": info.replaced,
-            "message": result.message if info.replaced or info.fallback else ""}
+            "message": result.message if info.replaced or info.fallback else "", "nmpc_iterations": info.iterations,
+            "nmpc_residual": info.residual, "budget_hit": info.budget_hit}
 
 
 def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
@@ -279,11 +309,14 @@ def divergence_message(exc: Exception, t: float, rec: dict, K: int, angular) -> 
 
 
 def run_meta(controller: GPCController, robot) -> dict:
-    """The settings a closed-loop result records: robot, form, solver, horizons, weights, Ts, limits."""
-    H, W = controller.horizons, controller.weights
+    """The settings a closed-loop result records: robot, form, solver, horizons, weights, Ts, limits, and
+    an iterated nonlinear form's iterations, tolerance and time budget (s, or None)."""
+    H, W, s = controller.horizons, controller.weights, controller.settings
+    iterated = {} if s.iterations == 1 else {"iterations": s.iterations, "tolerance": s.tolerance,
+                                             "time_budget": s.time_budget}
     return {"robot": robot.name, "robot_file": robot_reference(robot), "form": controller.form,
             "solver": controller.solver, "N": H.N, "No": H.No, "Nu": H.Nu, "Qy": W.Qy, "Qu": W.Qu,
-            "Ts": controller.Ts, "limits": controller.limits.to_dict()}
+            "Ts": controller.Ts, "limits": controller.limits.to_dict(), **iterated}
 
 
 def simulate(controller: GPCController, plant, reference: Reference, duration: float,

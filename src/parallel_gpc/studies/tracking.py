@@ -33,6 +33,7 @@ from ..limits import STATE_KINDS, Limits, as_limits, symmetric_limit
 from ..model import ReducedModel, ConstrainedPlant, DEFAULT_ROBOT, ParallelRobot
 from ..validation import finite_vector, positive
 from ..estimation import StateEstimator, SensedPlant, Sensors
+from ..gpc.settings import check_iterations
 from ..gpc.stability import LINEAR_FORMS, closed_loop_poles
 from .loop import run_loop
 from .simulation import SimulationResult, simulate
@@ -105,6 +106,11 @@ class TrackingSettings:
             :mod:`parallel_gpc.estimation`; the controller then runs without its own
             disturbance estimate).
         plant: ``"own"`` (our constrained plant) or ``"mujoco"`` (the robot exported to MuJoCo).
+        iterations: Gauss–Newton iterations per step of the nonlinear form (1: the paper's single
+            step; > 1: iterated to the nonlinear MPC optimum, :mod:`parallel_gpc.gpc.nmpc`); the other
+            forms take their single step. tolerance: the iterations' relative step tolerance, or
+            None: the controller's default (1e-8). time_budget: s per control step for the
+            iterations (real-time mode), or None (:class:`~parallel_gpc.gpc.GPCSettings`).
 
     Raises:
         InvalidParameterError: a field out of range or of the wrong type (the message names it);
@@ -131,6 +137,9 @@ class TrackingSettings:
     plant_torque_limit: str | Limits | None = "controller"
     sensors: str = "full"
     plant: str = "own"
+    iterations: int = 1
+    tolerance: float | None = None
+    time_budget: float | None = None
     extra: dict = field(default_factory=dict)
 
     def __post_init__(self):
@@ -183,6 +192,11 @@ class TrackingSettings:
         if self.plant not in PLANTS:
             raise InvalidParameterError(f"plant {self.plant!r} is not one of {list(PLANTS)}")
         Sensors.parse(self.sensors)  # refuses an unknown sensor spec here, once
+        put("iterations", check_iterations(self.iterations))
+        if self.tolerance is not None:
+            put("tolerance", positive("tolerance", self.tolerance))
+        if self.time_budget is not None:
+            put("time_budget", positive("time_budget", self.time_budget, " s"))
 
     @classmethod
     def from_flat(cls, *, N: int | None = None, No: int | None = None, Nu: int | None = None, Qy=None, Qu=None,
@@ -239,9 +253,15 @@ class TrackingSettings:
         return self.plant_torque_limit
 
     def controller_settings(self, form: str) -> GPCSettings:
-        """The validated :class:`~parallel_gpc.gpc.GPCSettings` of ``form`` in this run."""
+        """The validated :class:`~parallel_gpc.gpc.GPCSettings` of ``form`` in this run (the
+        iterations and their stop: the nonlinear form's only)."""
+        nmpc = {}
+        if form == "nonlinear":
+            nmpc = {"iterations": self.iterations, "time_budget": self.time_budget}
+            if self.tolerance is not None:
+                nmpc["tolerance"] = self.tolerance
         return GPCSettings(self.Ts, self.horizons, self.weights, form, self.solver, self.limits,
-                           self.disturbance_gain, terminal=self.terminal)
+                           self.disturbance_gain, terminal=self.terminal, **nmpc)
 
     @property
     def run_duration(self) -> float:
@@ -322,7 +342,8 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
 
     Raises:
         InvalidParameterError: an unknown form, or settings a form refuses (a du limit with the
-            absolute form, a solver that cannot enforce the limits), before any run.
+            absolute form, iterations > 1 without the nonlinear form, a solver that cannot enforce the
+            limits), before any run.
     """
     for form in forms:
         if form not in FORMS:
@@ -331,6 +352,10 @@ def run_tracking(settings: TrackingSettings, forms=("absolute", "nonlinear"), pr
         raise InvalidParameterError(
             f"du_limit = {settings.limits.to_dict()['du']!r} N·m per sample applies to the incremental forms only; "
             f"the absolute form has no increments (forms asked: {list(forms)}; use 'incremental' and/or 'nonlinear')")
+    if settings.iterations > 1 and "nonlinear" not in forms:
+        raise InvalidParameterError(
+            f"iterations = {settings.iterations} iterates the nonlinear form; the forms asked are {list(forms)} "
+            "(add 'nonlinear', or use iterations = 1)")
     per_form = {form: settings.controller_settings(form) for form in forms}  # every form checked first
     robot = robot or ParallelRobot.load(settings.robot)
     plant_robot = robot if settings.mass_scale == 1.0 else robot.with_mass_scale(settings.mass_scale)
