@@ -50,8 +50,9 @@ def test_iterations_reach_the_nonlinear_form_only_and_its_record_is_the_controll
         plant.step(info.u)
     assert its == nonlinear.nmpc_iterations.tolist()
     assert np.allclose(resid, nonlinear.nmpc_residual, rtol=0, atol=1e-9, equal_nan=True)  # ≤ 1e-8: converged
+    assert nonlinear.nmpc_stop.tolist() == ["converged"] * len(its) and set(absolute.nmpc_stop) == {"iterations"}
     summary = nonlinear.solver_summary()
-    assert f"max {max(its)}" in summary and "0 stopped by the time budget" in summary
+    assert f"max {max(its)}" in summary and f"stopped: converged {len(its)}" in summary
 
 
 def test_the_tolerance_and_the_time_budget_reach_the_iterations():
@@ -60,7 +61,7 @@ def test_the_tolerance_and_the_time_budget_reach_the_iterations():
     assert loose.meta["tolerance"] == 1e-2
     rushed = _run(iterations=20, time_budget=1e-9)["nonlinear"]  # no second iteration fits: the paper's step, applied
     assert rushed.budget_hit.all() and np.all(rushed.nmpc_iterations == 1) and not rushed.fallback.any()
-    assert f"{len(rushed.t)} stopped by the time budget" in rushed.solver_summary()
+    assert f"stopped: time budget {len(rushed.t)}" in rushed.solver_summary()
 
 
 def test_the_result_file_keeps_every_steps_iterations(tmp_path):
@@ -68,6 +69,7 @@ def test_the_result_file_keeps_every_steps_iterations(tmp_path):
     back = load_result(res.save(tmp_path / "run.npz"))
     assert np.array_equal(back.arrays["nmpc_iterations"], res.nmpc_iterations)
     assert np.array_equal(back.arrays["budget_hit"], res.budget_hit)
+    assert np.array_equal(back.arrays["nmpc_stop"], res.nmpc_stop)
     assert back.meta["iterations"] == 20
 
 
@@ -104,5 +106,5 @@ def test_the_command_line_iterates_and_refuses_iterations_without_the_nonlinear_
                           capture_output=True, text=True, env=env, timeout=120)
     assert done.returncode == 0, done.stderr
     line = next(x for x in done.stdout.splitlines() if x.startswith("solvers, nonlinear"))
-    assert "Gauss–Newton iterations" in line and "stopped by the time budget" in line
+    assert "Gauss–Newton iterations" in line and "stopped: converged" in line
     assert load_result(tmp_path / "track_nonlinear.npz").meta["tolerance"] == 1e-9

@@ -71,6 +71,9 @@ class StepInfo:
         replaced: True when the stage-wise solve failed (or planned beyond a limit) and the
             condensed default of the same settings solved the step instead (``result.solver``
             names it, ``result.message`` says why).
+        stop: why the nonlinear form's iterations ended (:attr:`~parallel_gpc.gpc.nmpc.IterationReport.stop`:
+            ``"converged"``, ``"iterations"`` — also the paper's single step —, ``"time budget"``,
+            ``"line search"``, ``"solve failed"``, ``"jacobian failed"``).
     """
 
     u: np.ndarray
@@ -84,6 +87,7 @@ class StepInfo:
     budget_hit: bool = False
     constraints: ConstraintReport | None = None
     replaced: bool = False
+    stop: str = "iterations"
 
     @property
     def step_time(self) -> float:
@@ -423,7 +427,8 @@ class GPCController:
         Ad, Bd, cd = self._one_step[:3]
         self._x_next = Ad @ X + Bd @ u + cd
         return StepInfo(u, result, t1 - t0, t2 - t1, t3 - t2, fallback, iterations.iterations, iterations.residual,
-                        iterations.budget_hit, constraint_report, replaced=stages is not None and not staged)
+                        iterations.budget_hit, constraint_report, replaced=stages is not None and not staged,
+                        stop=iterations.stop)
 
     def _within_limits(self, pred: Prediction, result: SolveResult) -> SolveResult:
         """``result``, or marked ``limits violated`` (not ok) when it is "optimal" but its first move

@@ -79,6 +79,7 @@ class SimulationResult:
             or None. nmpc_residual: (K,) the last Gauss–Newton step's relative size
             (:attr:`~parallel_gpc.gpc.StepInfo.residual`; NaN after a single step), or None.
             budget_hit: (K,) bool, True where the time budget stopped the iterations, or None.
+            nmpc_stop: (K,) why each step's iterations ended (:attr:`~parallel_gpc.gpc.StepInfo.stop`), or None.
     """
 
     t: np.ndarray
@@ -106,6 +107,7 @@ class SimulationResult:
     nmpc_iterations: np.ndarray | None = None
     nmpc_residual: np.ndarray | None = None
     budget_hit: np.ndarray | None = None
+    nmpc_stop: np.ndarray | None = None
 
     @property
     def angular(self) -> np.ndarray | None:
@@ -191,20 +193,22 @@ class SimulationResult:
 
     def iterations_summary(self) -> str:
         """One phrase on the nonlinear form's Gauss–Newton iterations when the run iterated (a step
-        of more than one, or a time budget hit), else "": mean and largest count, the largest last
-        relative step (:attr:`nmpc_residual`) and the steps the time budget stopped, e.g.
-        ``"Gauss–Newton iterations 3.28 a step (max 5), last step ≤ 3.1e-09 relative, 0 stopped by the time
-        budget"``."""
+        of more than one, or a time budget hit), else "": mean and largest count, the steps by why their
+        iterations ended (:attr:`nmpc_stop`) and the largest last relative step (:attr:`nmpc_residual`), e.g.
+        ``"Gauss–Newton iterations 3.28 a step (max 5), stopped: converged 300; last step ≤ 3.1e-09 relative"``."""
         if self.nmpc_iterations is None or not len(self.nmpc_iterations):
             return ""
         its = np.asarray(self.nmpc_iterations)
         hits = 0 if self.budget_hit is None else int(np.sum(self.budget_hit))
         if its.max() <= 1 and not hits:
             return ""
+        stops = ""
+        if self.nmpc_stop is not None:
+            names, counts = np.unique(np.asarray(self.nmpc_stop, dtype=str), return_counts=True)
+            stops = ", stopped: " + ", ".join(f"{names[i]} {counts[i]}" for i in np.lexsort((names, -counts)))
         res = np.asarray(self.nmpc_residual, dtype=float) if self.nmpc_residual is not None else np.full(len(its), np.nan)
         last = f"last step ≤ {np.nanmax(res):.2g} relative" if np.isfinite(res).any() else "no second linearization"
-        return (f"Gauss–Newton iterations {its.mean():.2f} a step (max {int(its.max())}), {last}, "
-                f"{hits} stopped by the time budget")
+        return f"Gauss–Newton iterations {its.mean():.2f} a step (max {int(its.max())}){stops}; {last}"
 
     def save(self, path) -> Path:
         """Save to ``.npz`` (a result file of :mod:`parallel_gpc.results`: everything, viewable with
@@ -228,7 +232,7 @@ class SimulationResult:
         extra = {k: getattr(self, k) for k in ("pose", "velocity", "u", "internal_force", "step_time",
                                                "solve_time", "iterations", "status", "fallback", "solver",
                                                "replaced", "message", "nmpc_iterations", "nmpc_residual",
-                                               "budget_hit") if getattr(self, k) is not None}
+                                               "budget_hit", "nmpc_stop") if getattr(self, k) is not None}
         # (K,) plant clipping flags; "saturated" in a result file means (K, n_u) drive flags
         extra.update(plant_saturated=self.saturated, interrupted=np.array(self.interrupted),
                      diverged=np.array(self.diverged))
@@ -240,19 +244,20 @@ class SimulationResult:
 
 #: What a closed loop records of each controller step (:func:`step_record`).
 STEP_RECORD = ("solve_time", "iterations", "status", "fallback", "solver", "replaced", "message", "nmpc_iterations",
-               "nmpc_residual", "budget_hit")
+               "nmpc_residual", "budget_hit", "nmpc_stop")
 
 
 def step_record(info) -> dict:
     """The :data:`STEP_RECORD` of one :class:`~parallel_gpc.gpc.StepInfo`: solve time (s), the back
     end's iterations (−1 if not reported), status, fallback, the back end that solved the step, whether
     it replaced a failed stage-wise solve, the solver's message on such and fallback steps, and the
-    nonlinear form's Gauss–Newton iterations, last relative step and whether the time budget stopped them."""
+    nonlinear form's Gauss–Newton iterations, last relative step, whether the time budget stopped them and why
+    they ended."""
     result = info.result
     return {"solve_time": info.solve_time, "iterations": -1 if result.iterations is None else result.iterations,
             "status": result.status, "fallback": info.fallback, "solver": result.solver, "replaced": info.replaced,
             "message": result.message if info.replaced or info.fallback else "", "nmpc_iterations": info.iterations,
-            "nmpc_residual": info.residual, "budget_hit": info.budget_hit}
+            "nmpc_residual": info.residual, "budget_hit": info.budget_hit, "nmpc_stop": info.stop}
 
 
 def null_space_component(B_r: np.ndarray, u: np.ndarray) -> float:
