@@ -108,3 +108,22 @@ def test_the_command_line_iterates_and_refuses_iterations_without_the_nonlinear_
     line = next(x for x in done.stdout.splitlines() if x.startswith("solvers, nonlinear"))
     assert "Gauss–Newton iterations" in line and "stopped: converged" in line
     assert load_result(tmp_path / "track_nonlinear.npz").meta["tolerance"] == 1e-9
+
+
+def test_an_encoder_run_chooses_the_default_solver_as_the_full_state_run():
+    # the machine path turns the controller's own disturbance estimate off (a changed copy of its settings):
+    # the default back end is chosen again for the copy, not kept as if given (the iterations' Riccati steps)
+    enc = _run(iterations=20, sensors="encoders")["nonlinear"]
+    full = _run(iterations=20)["nonlinear"]
+    assert set(enc.solver) == set(full.solver) == {"riccati"}
+    assert enc.meta["disturbance_gain"] == 0.0
+
+
+def test_a_changed_copy_chooses_a_default_solver_again_and_keeps_a_given_one():
+    s = GPCSettings(0.002, Horizons(10), Weights(1.0, 1e-3), "nonlinear", iterations=5)
+    assert s.solver_is_default and s.step_solver == "riccati"
+    c = s.changed(disturbance_gain=0.0)
+    assert c.solver_is_default and c.step_solver == "riccati" and c.disturbance_gain == 0.0
+    given = GPCSettings(0.002, Horizons(10), Weights(1.0, 1e-3), "nonlinear", solver="qr", iterations=5)
+    assert given.changed(disturbance_gain=0.0).solver == "qr" and not given.changed(disturbance_gain=0.0).solver_is_default
+    assert s.changed(solver="qr").solver == "qr"

@@ -195,8 +195,7 @@ class GPCController:
 
     @limits.setter
     def limits(self, value: Limits) -> None:
-        again = {"solver": None} if self._settings.solver_is_default else {}
-        self._apply(replace(self._settings, limits=value, **again))
+        self._apply(self._settings.changed(limits=value))
 
     # ------------------------------------------------------------------ state
     def reset(self, u_prev=None) -> None:

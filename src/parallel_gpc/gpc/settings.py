@@ -108,8 +108,7 @@ class GPCSettings:
             the last predicted sample is zero: stop at the target; needs N − No ≥ 2); None
             (default): none. The terminal weight is the weights' ``Qf``.
         solver_is_default: True when ``solver`` was left unset and :func:`default_solver` chose
-            it (not a constructor argument; a changed copy, ``dataclasses.replace(settings,
-            limits=...)`` with ``solver=None``, chooses again).
+            it (not a constructor argument; a changed copy, :meth:`changed`, chooses again).
         step_solver: what solves the control steps (not a constructor argument): ``"riccati"``
             when the nonlinear form's Gauss–Newton iterations take the Riccati recursion
             (:func:`iterations_by_riccati`; ``solver`` then names the condensed back end a step
@@ -165,6 +164,13 @@ class GPCSettings:
         if self.time_budget is not None:
             put("time_budget", positive("time_budget", self.time_budget, " s"))
         put("step_solver", "riccati" if iterations_by_riccati(self) else self.solver)
+
+    def changed(self, **changes) -> "GPCSettings":
+        """A validated copy with ``changes`` (fields by name); a solver that was chosen by default
+        (:attr:`solver_is_default`) is chosen again for the new settings unless ``changes`` names one,
+        an explicit one is kept (``dataclasses.replace`` alone would keep the chosen name as if given)."""
+        again = {"solver": None} if self.solver_is_default and "solver" not in changes else {}
+        return replace(self, **changes, **again)
 
 
 def iterations_by_riccati(settings: "GPCSettings") -> bool:

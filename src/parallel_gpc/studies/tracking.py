@@ -423,7 +423,7 @@ def _run_machine(settings: TrackingSettings, sensors: Sensors, ctrl_settings: GP
     Ts, encoders = settings.Ts, sensors.kind == "encoders"
     X0 = np.concatenate([start, np.zeros(robot.n_y)])
     if encoders:  # the Kalman filter estimates the disturbance: the controller's own estimate is off
-        ctrl_settings = replace(ctrl_settings, disturbance_gain=0.0)
+        ctrl_settings = ctrl_settings.changed(disturbance_gain=0.0)
     ctrl = GPCController(ReducedModel(robot), ctrl_settings)
     if settings.plant == "mujoco":
         from ..estimation import MujocoPlant
