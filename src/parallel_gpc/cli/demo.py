@@ -61,6 +61,7 @@ def cmd_demo(args) -> int:
     print("   steady = mean position error over the last 0.3 s (S-curve ends at 2 s); int. f = largest "
           "drive-torque component in null(B_r) (drive fighting)"
           + ("; with an active torque limit it may be used to respect the limit" if settings.limits.torque is not None else ""))
+    _iterations_lines({f"{form}, est. α {gain:g}": res for (form, gain), res in runs.items()})
     for (form, gain), res in runs.items():
         res.save(out / f"demo_{form}_a{gain:g}.npz")
     on = {form: res for (form, gain), res in runs.items() if gain == settings.disturbance_gain}
@@ -75,6 +76,7 @@ def cmd_demo(args) -> int:
         print(sensors_table(on, encoders, settings.Ts))
         print(f"   step = estimation + control time per sample, > Ts = steps longer than Ts = {1e3 * settings.Ts:g} ms "
               f"(forward kinematics: {forward_status()})")
+        _iterations_lines({f"{form}, encoders": res for form, res in encoders.items()})
         for form, res in encoders.items():
             res.save(out / f"demo_{form}_encoders.npz")
     title = f"Qu = {settings.weights.Qu:g}, mass × {settings.mass_scale:g}, load {list(settings.platform_force)}"
@@ -85,6 +87,14 @@ def cmd_demo(args) -> int:
     print("wrote " + ", ".join(str(p) for p in written) + " and demo_<form>_a<α>.npz"
           + (" and demo_<form>_encoders.npz" if encoders else "") + f" in {out}")
     return outcome_code([*runs.values(), *encoders.values()])
+
+
+def _iterations_lines(results: dict) -> None:
+    """One line per labelled result whose nonlinear form iterated (``--iterations``): its Gauss–Newton summary."""
+    for label, res in results.items():
+        summary = res.iterations_summary()
+        if summary:
+            print(f"   {label}: {summary}")
 
 
 def _animations(args, robot, results, settings, out: Path) -> None:
