@@ -99,9 +99,10 @@ def test_the_command_line_iterates_and_refuses_iterations_without_the_nonlinear_
     env = dict(os.environ, PYTHONPATH=str(ROOT / "src"), MPLBACKEND="Agg")
     cmd = [sys.executable, "-m", "parallel_gpc", "track", "--N", "10", "--Qu", "1e-3", "--duration", "0.02",
            "--reference", "line", "--no-progress", "--out", str(tmp_path)]
-    bad = subprocess.run([*cmd, "--forms", "absolute", "--iterations", "3"], capture_output=True, text=True, env=env,
-                         timeout=120)
-    assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and "nonlinear" in bad.stderr
+    for args, word in ((["--forms", "absolute", "--iterations", "3"], "nonlinear"),
+                       (["--forms", "nonlinear", "--time-budget", "0.001"], "--iterations K > 1")):
+        bad = subprocess.run([*cmd, *args], capture_output=True, text=True, env=env, timeout=120)
+        assert bad.returncode == 2 and len(bad.stderr.strip().splitlines()) == 1 and word in bad.stderr
     done = subprocess.run([*cmd, "--forms", "nonlinear", "--iterations", "20", "--tolerance", "1e-9"],
                           capture_output=True, text=True, env=env, timeout=120)
     assert done.returncode == 0, done.stderr

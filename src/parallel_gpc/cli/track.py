@@ -87,9 +87,14 @@ def add_tracking_arguments(p, d: dict | None = None, html: bool = True) -> None:
 def settings_from_args(args):
     """The :class:`~parallel_gpc.TrackingSettings` of the parsed arguments, with the state limits
     of ``--limits`` and the explicit ones."""
+    from ..errors import InvalidParameterError
     from ..model import ParallelRobot
     from ..studies import TrackingSettings
 
+    if args.iterations == 1 and (args.tolerance is not None or args.time_budget is not None):
+        given = "--tolerance" if args.tolerance is not None else "--time-budget"
+        raise InvalidParameterError(f"{given} stops the nonlinear form's Gauss–Newton iterations; with --iterations 1 "
+                                    "(the default: the paper's single step) there are none: give --iterations K > 1")
     settings = TrackingSettings.from_flat(
         robot=args.robot, Ts=args.Ts, N=args.N, No=args.No, Nu=args.Nu, Qy=args.Qy, Qu=args.Qu, Qf=args.Qf,
         terminal=args.terminal, solver=args.solver, torque_limit=args.torque_limit, du_limit=args.du_limit,

@@ -198,7 +198,6 @@ def check_iterations(n, form: str = "nonlinear") -> int:
     return int(n)
 
 
-
 def check_terminal(settings: "GPCSettings") -> None:
     """Refuse a terminal equality that is not one of :data:`TERMINALS`, a ``"stop"`` with fewer than
     two predicted rows, or one with the iterated nonlinear form."""
