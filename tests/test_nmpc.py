@@ -178,6 +178,25 @@ def test_stage_jacobians_equal_central_differences_of_the_stage_map(name, native
     mech.assert_stage_jacobians_match_differences(ReducedModel(model.robot, native=native), traj, u, TS, 5)
 
 
+@pytest.mark.parametrize("native", [None, False])
+def test_stage_jacobians_of_a_light_robot_through_the_squarings(native):
+    """planar_4rrr with its masses scaled by 1e-4 (light links: ‖Ts·[A B c]‖ ≈ 43, seven squarings of the ZOH
+    exponential, so the Fréchet derivative goes through the squarings, discretization.frechet_by_squaring; along
+    the vector it took 2^7 − 1 derivative actions a stage) against central differences of the stage map."""
+    from parallel_gpc.model.discretization import frechet_by_squaring
+
+    robot = ParallelRobot.load("planar_4rrr").with_mass_scale(1e-4)
+    model = ReducedModel(robot, native=native)
+    X = np.array([0.5, 0.4, 0.1, 0.08, -0.05, 0.1])
+    u = 1e-4 * np.tile([1.0, -1.0, 0.5, 0.2], (5, 1))
+    traj = model.simulate_factorized(X, u, TS)[3]
+    A, B, c = model.factorize(traj[2])
+    M_top = TS * np.hstack([A, B, c[:, None]])  # the top rows of the ZOH matrix
+    s = int(np.ceil(np.log2(np.linalg.norm(M_top) / 0.5)))
+    assert s >= 4 and frechet_by_squaring(s, 11)
+    mech.assert_stage_jacobians_match_differences(model, traj, u, TS, 5)
+
+
 @pytest.mark.parametrize("name", ["planar_4rrr", "delta_3rus", "hexapod_6ups"])
 def test_compiled_stage_jacobians_equal_the_python_reference(name):
     """The compiled Jacobian (one native call) against the Python loop of

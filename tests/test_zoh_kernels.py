@@ -18,8 +18,10 @@ from parallel_gpc.model.native import native_module
 RTOL = 1e-12
 #: (m top rows, n columns): the compiled row counts 4, 6, 12 and the run-time fallback 5, 3
 SHAPES = [(4, 7), (6, 11), (6, 10), (12, 19), (5, 9), (3, 3)]
-#: Frobenius norms of M_top: a 2 ms ZOH matrix (no squaring), θ = 0.5 exactly, then s = 2 and s = 6
-NORMS = [0.006, 0.5, 1.7, 25.0]
+#: Frobenius norms of M_top: a 2 ms ZOH matrix (no squaring), θ = 0.5 exactly, then s = 2, s = 6 and s = 10 (a robot
+#: with light links at 2 ms); at s = 6 and 10 the derivative goes through the squarings (2^s − 1 > n:
+#: discretization.frechet_by_squaring), below along the vector
+NORMS = [0.006, 0.5, 1.7, 25.0, 418.0]
 
 
 def _case(m, n, norm, robot, seed):

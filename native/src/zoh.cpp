@@ -228,18 +228,47 @@ bool TopRowsExpmDerivative::run(const Mat &M_top, const Mat &G, Index row0, Inde
   dispatch_rows(m, [&](auto rows) {
     constexpr int ROWS = decltype(rows)::value;
     taylor_top<ROWS>(A_, K_, inv_fact_, F_, P_, Pn_);
-    u_ = xi;
-    action<ROWS>(u_, dE);
-    for (long r = 1; r < (1L << s); ++r) {  // d(F^p ξ) = Σ_r F^(p−1−r) dF F^r ξ, Horner over r
-      Fu_.noalias() = F_.lazyProduct(u_);
-      u_.head(m) = Fu_;
-      action<ROWS>(u_, acc_);
-      acc_.noalias() += F_.leftCols(m).lazyProduct(dE);
-      dE.swap(acc_);
+    if (!frechet_by_squaring(s, n)) {
+      u_ = xi;
+      action<ROWS>(u_, dE);
+      for (long r = 1; r < (1L << s); ++r) {  // d(F^p ξ) = Σ_r F^(p−1−r) dF F^r ξ, Horner over r
+        Fu_.noalias() = F_.lazyProduct(u_);
+        u_.head(m) = Fu_;
+        action<ROWS>(u_, acc_);
+        acc_.noalias() += F_.leftCols(m).lazyProduct(dE);
+        dE.swap(acc_);
+      }
+      dE *= scale;
+      E = F_;
+      square_top<ROWS>(E, s, E2_);
+      return;
     }
-    dE *= scale;
+    // L_k = dF[D_k] on every column (n actions, scaled once), then at each squaring of E = [[E₁, E₂], [0, I]]:
+    // [[L₁, L₂], [0, 0]] → [[L₁ E₁ + E₁ L₁, L₁ E₂ + E₁ L₂ + L₂], [0, 0]]; dE[:, k] = L_k ξ
+    const Index n_dir = G.rows() / nr;
+    L_.resize(n_dir);
+    Ln_.resize(n_dir);
+    for (Index d = 0; d < n_dir; ++d) L_[d].resize(m, n);
+    u_.setZero(n);
+    for (Index j = 0; j < n; ++j) {
+      u_[j] = 1.0;
+      action<ROWS>(u_, col_);
+      u_[j] = 0.0;
+      for (Index d = 0; d < n_dir; ++d) L_[d].col(j) = col_.col(d) * scale;
+    }
     E = F_;
-    square_top<ROWS>(E, s, E2_);
+    for (int i = 0; i < s; ++i) {
+      for (Index d = 0; d < n_dir; ++d) {
+        Ln_[d].noalias() = E.leftCols(m) * L_[d];
+        Ln_[d].leftCols(m).noalias() += L_[d].leftCols(m) * E.leftCols(m);
+        Ln_[d].rightCols(n - m).noalias() += L_[d].leftCols(m) * E.rightCols(n - m);
+        Ln_[d].rightCols(n - m) += L_[d].rightCols(n - m);
+        L_[d].swap(Ln_[d]);
+      }
+      square_top<ROWS>(E, 1, E2_);
+    }
+    dE.resize(m, n_dir);
+    for (Index d = 0; d < n_dir; ++d) dE.col(d).noalias() = L_[d] * xi;
   });
   G_ = nullptr;
   return true;

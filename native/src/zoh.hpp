@@ -27,7 +27,9 @@ class TopRowsExpm {
 // The derivatives of e^M ξ along directions D_k, M and each D_k with only their top m rows nonzero, each D_k
 // only on the rows row0..row0+nr (discretization.expm_derivative_action, the reference): the Fréchet derivative
 // of the exponential applied to one vector, by Horner on the Taylor polynomial of the block matrix
-// [[M/2^s, D_k], [0, M/2^s]] applied to [0; ξ] and on the squarings of e^(M/2^s).
+// [[M/2^s, D_k], [0, M/2^s]] applied to [0; ξ] and on the squarings of e^(M/2^s) — or, where 2^s − 1 > n
+// (frechet_by_squaring: a stiff ZOH matrix), that polynomial's derivative on all n columns and the product
+// rule at each squaring (O(s) products instead of 2^s − 1 actions).
 class TopRowsExpmDerivative {
  public:
   void set_table(std::vector<double> degree_norms);
@@ -47,5 +49,12 @@ class TopRowsExpmDerivative {
   Mat A_, P_, Pn_, F_, E2_, S_, acc_;
   Vec u_, w_, wn_, g_, ab_, gb_, Fu_;
   Index K_ = 0;
+  // the derivative through the squarings (frechet_by_squaring): L_k (m, n) per direction, the next ones, a column
+  std::vector<Mat> L_, Ln_;
+  Mat col_;
 };
+
+// discretization.frechet_by_squaring: the derivative through the squarings (n actions, then O(s) matrix products)
+// rather than along the vector (2^s − 1 more actions) — when 2^s − 1 > n
+inline bool frechet_by_squaring(int s, Index n) { return s >= 62 || (1L << s) - 1 > n; }
 }  // namespace pgpc
