@@ -97,9 +97,11 @@ def wait_forever(_server) -> None:
 
 
 def wait_until_interrupt(server, message: str, out, wait=wait_forever) -> None:
-    """Print ``message`` (the URL) to ``out``, then block in ``wait(server)`` until Ctrl-C."""
-    print(f"{message}  (Ctrl-C to stop)", file=out, flush=True)
+    """Print ``message`` (the URL) to ``out``, then block in ``wait(server)`` until Ctrl-C. The print is inside
+    the guarded block: a Ctrl-C sent as soon as the URL is read may land before ``print`` has returned (seen once
+    under load: the gallery then exited 130 through the command line's interrupt path instead of stopping)."""
     try:
+        print(f"{message}  (Ctrl-C to stop)", file=out, flush=True)
         wait(server)
     except KeyboardInterrupt:
         pass
