@@ -169,7 +169,8 @@ def expm_derivative_action(M_top: np.ndarray, D_top: np.ndarray, xi: np.ndarray)
             Y = S.T + A_top @ Y
         return Y
 
-    if not frechet_by_squaring(s, n):
+    squaring = frechet_by_squaring(s, n)
+    if not squaring:
         u = np.array(xi, dtype=float)
         dE = action(u)
         for _ in range(2 ** s - 1):
@@ -181,13 +182,13 @@ def expm_derivative_action(M_top: np.ndarray, D_top: np.ndarray, xi: np.ndarray)
     for _ in range(s):  # [[E₁, E₂], [0, I]]² = [[E₁ E₁, E₁ E₂ + E₂], [0, I]]
         E2 = E[:, :m] @ E
         E2[:, m:] += E[:, m:]
-        if frechet_by_squaring(s, n):  # its derivative: [[L₁, L₂], [0, 0]] → [[L₁ E₁ + E₁ L₁, L₁ E₂ + E₁ L₂ + L₂]]
+        if squaring:  # its derivative: [[L₁, L₂], [0, 0]] → [[L₁ E₁ + E₁ L₁, L₁ E₂ + E₁ L₂ + L₂]]
             L2 = E[:, :m] @ L
             L2[:, :, :m] += L[:, :, :m] @ E[:, :m]
             L2[:, :, m:] += L[:, :, :m] @ E[:, m:] + L[:, :, m:]
             L = L2
         E = E2
-    if frechet_by_squaring(s, n):
+    if squaring:
         dE = (L @ xi).T
     return E, dE
 
