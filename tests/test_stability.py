@@ -141,3 +141,16 @@ def test_the_tracking_study_analyzes_the_poles_only_when_asked(robot4):
     asked = run_tracking(settings, ("incremental",), progress=False, robot=robot4, poles=True)["incremental"]
     assert "closed_loop_pole" not in plain.meta
     assert abs(complex(*asked.meta["closed_loop_pole"]) + 1.0) <= 1e-6  # Qu = 0: the dead-beat law's z = −1
+
+
+def test_the_note_reads_a_slow_unstable_pole_as_the_horizons_not_as_qu_zero():
+    """A pole outside the circle on the positive real side (a short horizon for a heavy robot: the Gepetto 5-bar's
+    +1.0057 ± 0.0746j at N = 20, Qu = 1e-3) is not the dead-beat law's z = −1: the note says so and does not
+    advise a larger Qu; the z = −1 pole keeps its reading."""
+    from parallel_gpc.cli.track import undamped_note
+
+    slow = undamped_note({"incremental": [1.00568, 0.07459]}, 0.002, 20)
+    assert "horizon N·Ts = 40 ms" in slow and "a small Qu > 0 damps it" not in slow and "5.891 Hz" in slow
+    deadbeat = undamped_note({"absolute": [-1.0000001, 0.0]}, 0.002, 20)
+    assert "a small Qu > 0 damps it" in deadbeat and "horizon" not in deadbeat
+    assert undamped_note({"absolute": [0.5, 0.1], "nonlinear": None}, 0.002, 20) == ""

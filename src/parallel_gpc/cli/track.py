@@ -132,7 +132,8 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     for form, res in results.items():
         print(f"solvers, {form}: {res.solver_summary()}")
         res.save(out / f"track_{form}.npz")
-    note = undamped_note({form: res.meta.get("closed_loop_pole") for form, res in results.items()}, settings.Ts)
+    note = undamped_note({form: res.meta.get("closed_loop_pole") for form, res in results.items()}, settings.Ts,
+                         settings.horizons.N)
     if note:
         print(note)
     paths = [save_figure(plot_paths(results, f"{title}: path"), out / "track_path.png"),
@@ -145,9 +146,12 @@ def run_and_report(settings, forms, out: Path, args, title: str) -> int:
     return outcome_code(results.values())
 
 
-def undamped_note(poles: dict, Ts: float) -> str:
+def undamped_note(poles: dict, Ts: float, N: int) -> str:
     """One line naming the forms whose unconstrained loop's dominant pole ([Re, Im], or None) is not
-    inside the unit circle (:mod:`~parallel_gpc.gpc.stability`), else ""."""
+    inside the unit circle (:mod:`~parallel_gpc.gpc.stability`), else "". Its reading follows the largest
+    pole: on the negative real side, the dead-beat law's z = −1 (Qu = 0), which a small Qu > 0 damps; else
+    a slow mode the horizon N·Ts does not stabilize (a larger Qu does not help there: the Gepetto 5-bar, joint
+    outputs, N = 20 at 2 ms, |z| = 1.008 at Qu = 1e-3, 1.012 at 1e-2, inside at N = 40)."""
     from ..gpc.stability import STABLE_MARGIN
 
     flagged = {form: complex(*pole) for form, pole in poles.items()
@@ -157,10 +161,15 @@ def undamped_note(poles: dict, Ts: float) -> str:
     z = max(flagged.values(), key=abs)
     where = f"{z.real:+.5f}" if abs(z.imag) <= 1e-9 * abs(z) else f"{z.real:+.5f} {'+-'[z.imag < 0]} {abs(z.imag):.5f}j"
     hz = abs(cmath.phase(z)) / (2.0 * math.pi * Ts)
-    return (f"note ({', '.join(flagged)}): the unconstrained loop at the start has a pole at z = {where} "
-            f"(|z| = {abs(z):.6f}): an undamped {hz:.4g} Hz oscillation of inputs and velocities that the sampled "
-            f"error hides (at Qu = 0 the dead-beat law cancels the sampled plant's zero at z = −1); a small Qu > 0 "
-            f"damps it (docs/controller.md, 'Qu = 0 and the zero at z = −1')")
+    head = f"note ({', '.join(flagged)}): the unconstrained loop at the start has a pole at z = {where} (|z| = {abs(z):.6f}): "
+    if z.real < 0.0:
+        return (head + f"an undamped {hz:.4g} Hz oscillation of inputs and velocities that the sampled "
+                f"error hides (at Qu = 0 the dead-beat law cancels the sampled plant's zero at z = −1); a small Qu > 0 "
+                f"damps it (docs/controller.md, 'Qu = 0 and the zero at z = −1')")
+    return (head + f"a growing {hz:.4g} Hz mode that the prediction horizon N·Ts = {1e3 * N * Ts:g} ms does not "
+            f"stabilize here (not the dead-beat law's z = −1, which a small Qu > 0 damps); a longer N may "
+            f"(closed_loop_poles in parallel_gpc.gpc.stability tells before a run; docs/controller.md, "
+            f"'Qu = 0 and the zero at z = −1')")
 
 
 def outcome_code(results) -> int:
