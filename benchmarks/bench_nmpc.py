@@ -209,7 +209,7 @@ def main(argv=None) -> int:
             line += (f"; {conv['ipopt_ratio']:.0f}× IPOPT (≥ {TARGET_RATIO:g}×: "
                      f"{'met' if conv['ipopt_ratio'] >= TARGET_RATIO else 'missed'})")
         print(line, flush=True)
-        if "mean_iterations" in conv and ReducedModel(robot).native:  # the compiled core's arithmetic
+        if "mean_iterations" in conv and native_update.use_native():  # the compiled core's arithmetic
             floor = conv["floor"] = arithmetic_floor(robot, Ts, N, conv["mean_iterations"])
             text = (f"arithmetic floor of the converged step: {floor['solves']:.2f} rollouts of {N} stages "
                     f"({floor['rollout_ms']:.3f} ms each) and {floor['solves'] - 1:.2f} sets of {N - 1} stage "
